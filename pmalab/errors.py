@@ -1,0 +1,38 @@
+"""User-facing errors.
+
+Anything a user can cause (a bad file, a bad option, a tripped limit) raises a subclass of
+:class:`PmalabError`.  The CLI prints ``str(error)`` as one line on stderr and exits with
+``error.exit_code``; no traceback.  Programming errors are not caught and do show one.
+"""
+
+from __future__ import annotations
+
+
+class PmalabError(Exception):
+    """An error the user can fix; its message is one line naming the file/run/channel/field."""
+
+    exit_code = 2
+
+
+class RunFileError(PmalabError):
+    """A run file (HDF5 or CSV import) is malformed."""
+
+
+class ConfigError(PmalabError):
+    """A TOML file (rig, protocol, truth) has a mistake."""
+
+
+class RigError(PmalabError):
+    """A device is unreachable, misconfigured or faulted."""
+
+    exit_code = 3
+
+
+class SafetyAbort(PmalabError):
+    """A run was aborted by a limit trip, Ctrl-C or a device fault (the regulator was vented)."""
+
+    exit_code = 4
+
+
+class OutputExistsError(PmalabError):
+    """An output exists and ``--force`` was not given."""

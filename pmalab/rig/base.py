@@ -1,0 +1,222 @@
+"""The rig interface: what a test protocol needs from a rig, and no more.
+
+Units and signs (DESIGN.md): time s, position mm (contraction, positive = shorter than the
+nominal length), force N (tension), pressures MPa gauge.
+
+A rig is four things:
+
+* a :class:`Clock` — real time, or virtual time that jumps to any deadline at once so a
+  simulated run goes as fast as the physics allows;
+* a :class:`Sampler` delivering timestamped :class:`Block` s of the five channels.  A
+  hardware-timed DAQ returns buffered blocks at its own pace (``hardware_timed = True``);
+  a software-polled backend returns a block of one sample per call, and the runner decides
+  when to call it (absolute deadlines on the rig's clock);
+* a :class:`PressureRegulator` for the cylinder's proportional regulator (setpoint MPa);
+* a :class:`MusclePressureSupply` — a second regulator (``automatic``) or a manual one
+  that the operator turns when prompted.
+
+Implementations: :mod:`pmalab.rig.sim` (simulated physics), :mod:`pmalab.rig.drivers`
+(Modbus / serial devices).  The runner in :mod:`pmalab.acquisition` only sees this module.
+"""
+
+from __future__ import annotations
+
+import time as _time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+#: the five channels a sampler delivers, in this order, with their units
+CHANNELS: tuple[str, ...] = (
+    "time",
+    "position",
+    "force",
+    "muscle_pressure",
+    "cylinder_pressure",
+)
+CHANNEL_UNITS: dict[str, str] = {
+    "time": "s",
+    "position": "mm",
+    "force": "N",
+    "muscle_pressure": "MPa",
+    "cylinder_pressure": "MPa",
+    "cylinder_pressure_command": "MPa",
+}
+
+
+# --------------------------------------------------------------------------- clocks
+class Clock(ABC):
+    """Monotonic time in seconds since the clock was created."""
+
+    virtual: bool = False
+
+    @abstractmethod
+    def now(self) -> float: ...
+
+    @abstractmethod
+    def sleep_until(self, t: float) -> None:
+        """Return at (or just after) time ``t``; return at once if ``t`` has passed."""
+
+
+class RealClock(Clock):
+    """Wall-clock time from ``time.perf_counter``.
+
+    ``sleep_until`` sleeps until ``spin_s`` before the deadline and then spins, which keeps
+    the lateness of a 500 Hz loop well under a millisecond on an idle Linux machine.
+    """
+
+    virtual = False
+
+    def __init__(self, spin_s: float = 0.0015) -> None:
+        self._t0 = _time.perf_counter()
+        self.spin_s = spin_s
+
+    def now(self) -> float:
+        return _time.perf_counter() - self._t0
+
+    def sleep_until(self, t: float) -> None:
+        remaining = t - self.now()
+        if remaining > self.spin_s:
+            _time.sleep(remaining - self.spin_s)
+        while self.now() < t:
+            pass
+
+
+class VirtualClock(Clock):
+    """Simulated time: ``sleep_until`` jumps straight to the deadline."""
+
+    virtual = True
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._t = float(start)
+
+    def now(self) -> float:
+        return self._t
+
+    def sleep_until(self, t: float) -> None:
+        if t > self._t:
+            self._t = float(t)
+
+    def advance(self, dt: float) -> None:
+        self._t += float(dt)
+
+
+# --------------------------------------------------------------------------- data
+@dataclass
+class Block:
+    """Consecutive samples of the five channels (1-D arrays of equal length).
+
+    ``time`` is each sample's actual timestamp on the rig's clock, in s.
+    """
+
+    time: np.ndarray
+    position: np.ndarray
+    force: np.ndarray
+    muscle_pressure: np.ndarray
+    cylinder_pressure: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+    @classmethod
+    def single(
+        cls, t: float, position: float, force: float, muscle_pressure: float, cylinder_pressure: float
+    ) -> Block:
+        a = np.array
+        return cls(a([t]), a([position]), a([force]), a([muscle_pressure]), a([cylinder_pressure]))
+
+
+@dataclass
+class Limits:
+    """Safety limits enforced by the runner on every sample (from the rig file)."""
+
+    max_muscle_pressure_MPa: float = 0.6
+    max_cylinder_pressure_MPa: float = 0.9
+    max_force_N: float = 2000.0
+    min_position_mm: float = -5.0
+    max_position_mm: float = 35.0
+
+
+# --------------------------------------------------------------------------- devices
+class Sampler(ABC):
+    """Delivers timestamped blocks of the five channels."""
+
+    #: True for a DAQ that samples on its own hardware clock and buffers
+    hardware_timed: bool = False
+    #: the rate the sampler was configured for (Hz)
+    sample_rate_Hz: float = 500.0
+
+    def start(self) -> None:  # noqa: B027 - optional hook
+        """Begin acquisition (hardware-timed samplers start their clock here)."""
+
+    def stop(self) -> None:  # noqa: B027 - optional hook
+        """End acquisition."""
+
+    @abstractmethod
+    def read_block(self) -> Block:
+        """Return the next samples (at least one).
+
+        Software-polled samplers take one sample now and return a block of one;
+        hardware-timed samplers wait for and return what the device has buffered.
+        Raise :class:`pmalab.errors.RigError` on a device fault that retries did not fix.
+        """
+
+
+class PressureRegulator(ABC):
+    """A proportional pressure regulator (e.g. SMC ITV1050: 0–0.9 MPa)."""
+
+    max_pressure_MPa: float = 0.9
+
+    @abstractmethod
+    def set_pressure(self, mpa: float) -> None:
+        """Command a gauge pressure in MPa (0 ≤ mpa ≤ ``max_pressure_MPa``)."""
+
+    @abstractmethod
+    def vent(self) -> None:
+        """Command zero pressure.  Must never raise: it is called on every exit path."""
+
+
+class MusclePressureSupply(ABC):
+    """How the muscle's (nominally constant) pressure is set."""
+
+    #: True when software sets the pressure (second regulator); False for a manual
+    #: regulator, where the runner prompts the operator and waits for the reading.
+    automatic: bool = False
+
+    @abstractmethod
+    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
+        """Ask for ``mpa`` MPa: set it (automatic) or prompt the operator (manual)."""
+
+    def vent(self) -> None:  # noqa: B027 - optional hook
+        """Vent the muscle (automatic supplies only; a manual regulator is left alone)."""
+
+
+@dataclass
+class Rig:
+    """A complete rig: clock, sampler, cylinder regulator, muscle pressure supply, limits."""
+
+    clock: Clock
+    sampler: Sampler
+    cylinder_regulator: PressureRegulator
+    muscle_supply: MusclePressureSupply
+    limits: Limits = field(default_factory=Limits)
+    #: provenance recorded with every run: rig file text, calibration, device ids, ...
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def close(self) -> None:
+        """Vent everything and release devices.  Safe to call more than once."""
+        self.cylinder_regulator.vent()
+        self.muscle_supply.vent()
+        self.sampler.stop()
+        closer = getattr(self.sampler, "close", None)
+        if callable(closer):
+            closer()
+
+    def __enter__(self) -> Rig:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,276 @@
+"""The HDF5 run-file format (``format = "pmalab.run"``, ``format_version = 1``).
+
+This module is the one contract between acquisition and identification (DESIGN.md):
+
+* root attrs ``format``, ``format_version``;
+* one group per run, ``/runs/<name>``, attrs ``muscle_pressure_MPa`` (nominal),
+  ``waveform``, ``frequency_Hz``, ``sample_rate_Hz``, ``protocol`` (JSON text), more welcome;
+* 1-D datasets of equal length with a ``units`` attr: ``time``, ``position``, ``force``,
+  ``muscle_pressure`` (required) and ``cylinder_pressure``, ``cylinder_pressure_command``
+  (recorded runs; imported data may lack them).
+
+:func:`read_runs` converts every channel to the canonical units (s, mm, N, MPa) and turns
+every malformed input into one :class:`~pmalab.errors.RunFileError` line naming the file,
+run and channel.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmalab.errors import RunFileError
+
+FORMAT = "pmalab.run"
+FORMAT_VERSION = 1
+
+REQUIRED_CHANNELS = ("time", "position", "force", "muscle_pressure")
+OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command")
+CANONICAL_UNITS = {
+    "time": "s",
+    "position": "mm",
+    "force": "N",
+    "muscle_pressure": "MPa",
+    "cylinder_pressure": "MPa",
+    "cylinder_pressure_command": "MPa",
+}
+
+#: factor that converts a value in the given unit to the canonical unit of its quantity
+_TIME = {"s": 1.0, "ms": 1e-3}
+_LENGTH = {"mm": 1.0, "m": 1e3, "um": 1e-3, "µm": 1e-3}
+_FORCE = {"N": 1.0, "kN": 1e3}
+_PRESSURE = {"MPa": 1.0, "kPa": 1e-3, "bar": 0.1, "Pa": 1e-6}
+UNIT_FACTORS: dict[str, dict[str, float]] = {
+    "time": _TIME,
+    "position": _LENGTH,
+    "force": _FORCE,
+    "muscle_pressure": _PRESSURE,
+    "cylinder_pressure": _PRESSURE,
+    "cylinder_pressure_command": _PRESSURE,
+}
+
+
+@dataclass
+class Run:
+    """One run, in canonical units: time s, position mm (contraction), force N, pressure MPa."""
+
+    name: str
+    time: np.ndarray
+    position: np.ndarray
+    force: np.ndarray
+    muscle_pressure: np.ndarray
+    cylinder_pressure: np.ndarray | None = None
+    cylinder_pressure_command: np.ndarray | None = None
+    attrs: dict[str, Any] = field(default_factory=dict)
+    #: the file the run was read from ("" for in-memory runs)
+    file: str = ""
+
+    # convenience accessors for the attrs every run carries
+    @property
+    def nominal_pressure(self) -> float:
+        """Nominal muscle pressure (MPa); falls back to the mean measured pressure."""
+        v = self.attrs.get("muscle_pressure_MPa")
+        return float(v) if v is not None else float(np.mean(self.muscle_pressure))
+
+    @property
+    def frequency(self) -> float | None:
+        v = self.attrs.get("frequency_Hz")
+        return None if v is None else float(v)
+
+    @property
+    def label(self) -> str:
+        """``file:run`` (or just the run name for in-memory runs)."""
+        return f"{Path(self.file).name}:{self.name}" if self.file else self.name
+
+    def channels(self) -> dict[str, np.ndarray]:
+        out = {c: getattr(self, c) for c in REQUIRED_CHANNELS}
+        for c in OPTIONAL_CHANNELS:
+            if getattr(self, c) is not None:
+                out[c] = getattr(self, c)
+        return out
+
+    def to_dataframe(self):  # -> pandas.DataFrame (pandas imported lazily)
+        """A tidy DataFrame: one row per sample, one column per channel (canonical units)."""
+        import pandas as pd
+
+        df = pd.DataFrame(self.channels())
+        df.attrs.update(self.attrs)
+        df.attrs["run"] = self.name
+        df.attrs["file"] = self.file
+        return df
+
+    def __len__(self) -> int:
+        return int(self.time.shape[0])
+
+
+# --------------------------------------------------------------------------- reading
+def _fail(path: Path | str, run: str | None, channel: str | None, msg: str) -> RunFileError:
+    where = str(path)
+    if run is not None:
+        where += f": run '{run}'"
+    if channel is not None:
+        where += f": channel '{channel}'"
+    return RunFileError(f"{where}: {msg}")
+
+
+def _decode(v: Any) -> Any:
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
+
+
+def validate_channels(
+    path: Path | str, run: str, raw: dict[str, tuple[np.ndarray, str | None]]
+) -> dict[str, np.ndarray]:
+    """Check and convert raw channels ``{name: (values, units)}`` to canonical units."""
+    out: dict[str, np.ndarray] = {}
+    for ch in REQUIRED_CHANNELS:
+        if ch not in raw:
+            raise _fail(path, run, ch, "missing channel")
+    n = None
+    for ch, (values, units) in raw.items():
+        if ch not in UNIT_FACTORS:
+            continue
+        arr = np.asarray(values)
+        if arr.ndim != 1:
+            raise _fail(path, run, ch, f"expected a 1-D dataset, got shape {arr.shape}")
+        if not np.issubdtype(arr.dtype, np.number):
+            raise _fail(path, run, ch, f"not numeric (dtype {arr.dtype})")
+        if units is None:
+            raise _fail(path, run, ch, "missing 'units' attribute")
+        factors = UNIT_FACTORS[ch]
+        if units not in factors:
+            raise _fail(
+                path, run, ch, f"unknown unit '{units}' (expected one of {', '.join(factors)})"
+            )
+        arr = arr.astype(np.float64) * factors[units]
+        if not np.all(np.isfinite(arr)):
+            bad = int(np.flatnonzero(~np.isfinite(arr))[0])
+            raise _fail(path, run, ch, f"NaN or infinite value at sample {bad}")
+        if n is None:
+            n = arr.shape[0]
+        out[ch] = arr
+    lengths = {ch: a.shape[0] for ch, a in out.items()}
+    if len(set(lengths.values())) > 1:
+        desc = ", ".join(f"{c}={m}" for c, m in lengths.items())
+        odd = min(lengths, key=lambda c: (list(lengths.values()).count(lengths[c]), c))
+        raise _fail(path, run, odd, f"channels have unequal lengths ({desc})")
+    t = out["time"]
+    if t.shape[0] < 2:
+        raise _fail(path, run, "time", f"too few samples ({t.shape[0]})")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        bad = int(np.flatnonzero(dt <= 0)[0]) + 1
+        raise _fail(path, run, "time", f"time not strictly increasing at sample {bad}")
+    return out
+
+
+def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
+    """Read every run (or the named ``runs``) of a contract file, in canonical units.
+
+    Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
+    """
+    import h5py
+
+    path = Path(path)
+    if not path.exists():
+        raise _fail(path, None, None, "no such file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise _fail(path, None, None, f"not a readable HDF5 file ({_short(exc)})") from None
+    try:
+        fmt = _decode(f.attrs.get("format"))
+        if fmt != FORMAT:
+            raise _fail(path, None, None, f"not a pmalab run file (format attr is {fmt!r})")
+        ver = _decode(f.attrs.get("format_version"))
+        if ver != FORMAT_VERSION:
+            raise _fail(path, None, None, f"unsupported format_version {ver!r}")
+        if "runs" not in f:
+            raise _fail(path, None, None, "no '/runs' group")
+        names = list(f["runs"].keys())
+        if runs is not None:
+            wanted = list(runs)
+            for r in wanted:
+                if r not in names:
+                    raise _fail(path, r, None, f"no such run (file has: {', '.join(names)})")
+            names = wanted
+        if not names:
+            raise _fail(path, None, None, "file holds no runs")
+        out = []
+        for name in names:
+            g = f["runs"][name]
+            raw = {}
+            for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
+                if ch in g:
+                    ds = g[ch]
+                    try:
+                        values = ds[()]
+                    except OSError as exc:
+                        raise _fail(path, name, ch, f"unreadable ({_short(exc)})") from None
+                    raw[ch] = (values, _decode(ds.attrs.get("units")))
+            chans = validate_channels(path, name, raw)
+            attrs = {k: _decode(v) for k, v in g.attrs.items()}
+            if isinstance(attrs.get("protocol"), str):
+                try:
+                    attrs["protocol"] = json.loads(attrs["protocol"])
+                except json.JSONDecodeError:
+                    pass
+            out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
+        return out
+    except (OSError, KeyError) as exc:
+        raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
+    finally:
+        f.close()
+
+
+def read_many(paths: Sequence[str | Path]) -> list[Run]:
+    """All runs of all files, in order."""
+    runs: list[Run] = []
+    for p in paths:
+        runs.extend(read_runs(p))
+    return runs
+
+
+def _short(exc: BaseException) -> str:
+    return str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
+
+
+# --------------------------------------------------------------------------- writing
+def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Path:
+    """Write complete in-memory runs to a new contract file (canonical units).
+
+    Recording on a rig uses the incremental, crash-proof writer in
+    :mod:`pmalab.acquisition`; this is for imports, tests and derived data.
+    """
+    import h5py
+
+    from pmalab.paths import check_output
+
+    path = check_output(path, force)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["format_version"] = FORMAT_VERSION
+        grp = f.create_group("runs")
+        for run in runs:
+            g = grp.create_group(run.name)
+            for k, v in run.attrs.items():
+                if isinstance(v, dict | list):
+                    v = json.dumps(v)
+                if v is None:
+                    continue
+                g.attrs[k] = v
+            for ch, values in run.channels().items():
+                ds = g.create_dataset(ch, data=np.asarray(values, dtype=np.float64))
+                ds.attrs["units"] = CANONICAL_UNITS[ch]
+    return path
