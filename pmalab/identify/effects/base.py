@@ -1,0 +1,62 @@
+"""The effect base class: one small class per physical effect the base model lacks.
+
+In the spirit of PySINDy's feature library: adding an effect is writing one small class.
+An effect can do any of three things to the base law F = k·x + c0 + h:
+
+* ``transform`` the signals before the law sees them (e.g. a sensor delay shifts the
+  position channel in time);
+* supply ``law_extras`` that change the hysteresis law itself (e.g. asymmetric Bouc-Wen
+  coefficients; see :mod:`pmalab.identify.hysteresis` for the extras each law accepts);
+* add a ``force`` term in N (e.g. viscous friction −c·ẋ, inertia, drift).
+
+Each effect states its physics (``explanation``) and the residual pattern that points to it
+(``signature``), which diagnosis shows to the user next to the ranking.
+
+User effects: put subclasses in a Python file and pass ``--effects my_effects.py``; every
+``Effect`` subclass with an ``id`` found there is registered.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from pmalab.identify.params import Param
+from pmalab.identify.signals import Signals
+
+
+class Effect:
+    """A pluggable physical effect (subclass and set the class attributes)."""
+
+    #: the id users type (``--add viscous-friction``); DESIGN.md lists the built-in ids
+    id: ClassVar[str] = ""
+    #: one-line title
+    title: ClassVar[str] = ""
+    #: the physics in two or three sentences
+    explanation: ClassVar[str] = ""
+    #: the residual signature that points to this effect
+    signature: ClassVar[str] = ""
+
+    def params(self, sig: Signals, force_scale: float) -> list[Param]:
+        """Parameters with start values and bounds sized from the data.
+
+        ``force_scale`` is the standard deviation of the measured force (N), useful to size
+        bounds.  Names must be unique across effects: prefix them (``visc_c``...).
+        """
+        return []
+
+    def transform(self, sig: Signals, theta: dict[str, float]) -> Signals:
+        """Signals the hysteresis law and the force terms see (default: unchanged)."""
+        return sig
+
+    def law_extras(self, law_name: str, sig: Signals, theta: dict[str, float]) -> dict[str, float]:
+        """Extra inputs for the hysteresis law (default: none)."""
+        return {}
+
+    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
+        """Additive force term in N (default: 0)."""
+        return 0.0
+
+    def __repr__(self) -> str:
+        return f"<effect {self.id}>"

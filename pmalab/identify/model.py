@@ -1,0 +1,77 @@
+"""Force laws of the state: F = k·x + c0 + h(x; law) + Σ effect terms.
+
+A :class:`ForceModel` composes a hysteresis law (Bouc-Wen or Duhem) with any number of
+:class:`~pmalab.identify.effects.base.Effect` s.  It is written as a law of the state (x, ẋ,
+ẍ, p, internal h) evaluated along a trajectory, not as a fitting script, so the same object
+predicts force from a measured position (identification, validation) and can be inverted
+for controllers later.
+
+Units: x contraction in mm, F tension in N, k in N/mm (negative: tension falls as
+contraction grows), c0 in N (tension at x = 0 without hysteresis).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from pmalab.identify.effects.base import Effect
+from pmalab.identify.hysteresis import HysteresisLaw, get_law
+from pmalab.identify.params import Param, Params
+from pmalab.identify.signals import Signals
+
+
+class ForceModel:
+    """The base law plus effects; ``predict(sig, theta)`` gives the force in N."""
+
+    def __init__(self, law: HysteresisLaw | str, effects: Sequence[Effect] = ()) -> None:
+        self.law = get_law(law) if isinstance(law, str) else law
+        self.effects = list(effects)
+        ids = [e.id for e in self.effects]
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"effect added twice: {ids}")
+
+    @property
+    def name(self) -> str:
+        return "+".join([self.law.name, *[e.id for e in self.effects]])
+
+    def params(self, sig: Signals, force: np.ndarray | None = None) -> Params:
+        """Parameters with data-sized start values (refined by the fitter's initial guess)."""
+        scale = float(np.std(force)) if force is not None else 100.0
+        ps = Params(
+            [
+                Param("k", -30.0, -1e4, 1e4, "N/mm", doc="linear stiffness (tension per mm of contraction)"),
+                Param("c0", float(np.mean(force)) if force is not None else 0.0, -1e5, 1e5, "N",
+                      doc="tension offset at zero contraction"),
+            ]
+        )
+        for lp in self.law.params:
+            ps.add(Param(lp.name, lp.init, lp.lo, lp.hi, lp.unit, doc=lp.doc))
+        for e in self.effects:
+            for p in e.params(sig, scale):
+                ps.add(p)
+        return ps
+
+    def components(self, sig: Signals, theta: dict[str, float]) -> dict[str, np.ndarray]:
+        """Each additive part of the force (N): ``linear``, ``hysteresis``, one per effect."""
+        s = sig
+        for e in self.effects:
+            s = e.transform(s, theta)
+        extras: dict[str, float] = {}
+        for e in self.effects:
+            extras.update(e.law_extras(self.law.name, s, theta))
+        h = self.law.h(s.x, theta, extras)
+        out = {"linear": theta["k"] * s.x + theta["c0"], "hysteresis": h}
+        for e in self.effects:
+            term = e.force(s, h, theta)
+            if np.ndim(term) or term != 0.0:
+                out[e.id] = np.broadcast_to(np.asarray(term, dtype=np.float64), s.t.shape)
+        return out
+
+    def predict(self, sig: Signals, theta: dict[str, float]) -> np.ndarray:
+        """Free-run force prediction (N) along the run."""
+        return np.sum(list(self.components(sig, theta).values()), axis=0)
+
+    def __repr__(self) -> str:
+        return f"ForceModel({self.name})"

@@ -1,0 +1,89 @@
+"""The signals a force law is driven by, prepared once per run.
+
+Rate-independent hysteresis laws integrate |dx|.  Driven by raw 500 Hz position, sensor
+noise dominates the per-sample increments (at 0.15 Hz the true increment is a few µm), so
+the accumulated |dx| is mostly noise and h is biased toward zero.  We therefore drive every
+law with a zero-phase (forward-backward Butterworth) filtered position whose cut-off sits
+well above the excitation frequency: the filter removes the noise without shifting the loop
+in time (no phase lag, so no fake loop width).
+
+Velocity and acceleration are derivatives of the filtered position against the *measured*
+time stamps (never the nominal rate).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.signal import butter, sosfiltfilt
+
+from pmalab.runfile import Run
+
+
+def default_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
+    """Cut-off of the zero-phase position filter: 15× the excitation (≥ 5 Hz, ≤ fs/5)."""
+    f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else 0.5
+    return float(min(max(15.0 * f, 5.0), sample_rate_Hz / 5.0))
+
+
+def zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_Hz: float) -> np.ndarray:
+    """4th-order Butterworth, applied forward and backward (zero phase)."""
+    fs = 1.0 / float(np.median(np.diff(t)))
+    if cutoff_Hz >= 0.45 * fs or y.shape[0] < 30:
+        return y.astype(np.float64, copy=True)
+    sos = butter(2, cutoff_Hz / (0.5 * fs), output="sos")  # 2nd order, twice = 4th order
+    return sosfiltfilt(sos, y, padtype="odd", padlen=min(3 * 50, y.shape[0] - 1))
+
+
+@dataclass(frozen=True)
+class Signals:
+    """Inputs of a force law for one run.  Units: s, mm, mm/s, mm/s², MPa.
+
+    ``x`` is the filtered contraction that drives the model; ``x_raw`` the measurement.
+    ``p`` is the filtered measured muscle pressure, ``p_nom`` the run's nominal pressure.
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    v: np.ndarray
+    a: np.ndarray
+    p: np.ndarray
+    p_nom: float
+    x_raw: np.ndarray
+    frequency_Hz: float | None = None
+    cutoff_Hz: float = 10.0
+
+    @classmethod
+    def from_arrays(
+        cls,
+        t: np.ndarray,
+        x: np.ndarray,
+        p: np.ndarray | float,
+        p_nom: float | None = None,
+        frequency_Hz: float | None = None,
+        cutoff_Hz: float | None = None,
+    ) -> Signals:
+        t = np.asarray(t, dtype=np.float64)
+        x_raw = np.asarray(x, dtype=np.float64)
+        p_arr = np.broadcast_to(np.asarray(p, dtype=np.float64), t.shape).copy()
+        fs = 1.0 / float(np.median(np.diff(t)))
+        fc = cutoff_Hz if cutoff_Hz is not None else default_cutoff_Hz(fs, frequency_Hz)
+        xf = zero_phase_lowpass(t, x_raw, fc)
+        pf = zero_phase_lowpass(t, p_arr, fc)
+        v = np.gradient(xf, t)
+        a = np.gradient(v, t)
+        pn = float(np.mean(p_arr)) if p_nom is None else float(p_nom)
+        return cls(t=t, x=xf, v=v, a=a, p=pf, p_nom=pn, x_raw=x_raw,
+                   frequency_Hz=frequency_Hz, cutoff_Hz=fc)
+
+    @classmethod
+    def from_run(cls, run: Run, cutoff_Hz: float | None = None) -> Signals:
+        return cls.from_arrays(run.time, run.position, run.muscle_pressure,
+                               p_nom=run.nominal_pressure, frequency_Hz=run.frequency,
+                               cutoff_Hz=cutoff_Hz)
+
+    def with_position(self, x: np.ndarray) -> Signals:
+        """A copy driven by another (already filtered) position, derivatives recomputed."""
+        v = np.gradient(x, self.t)
+        return replace(self, x=x, v=v, a=np.gradient(v, self.t))
