@@ -58,5 +58,9 @@ class Effect:
         """Additive force term in N (default: 0)."""
         return 0.0
 
+    def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
+        """Names of this effect's parameters the given law does not use (held fixed)."""
+        return ()
+
     def __repr__(self) -> str:
         return f"<effect {self.id}>"

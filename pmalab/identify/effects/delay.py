@@ -1,0 +1,50 @@
+"""Sensor delay: a time skew between the position and force channels.
+
+Different sensor paths (an analogue filter in one amplifier, a buffered serial sensor, a
+DAQ that samples channels in sequence) make the recorded position lag or lead the force by
+τ seconds.  The model is then driven by the position τ later than recorded:
+x_model(t) = x_rec(t + τ) (τ > 0: the position channel lags the force).  The derivatives
+are recomputed from the shifted position.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmalab.identify.effects.base import Effect
+from pmalab.identify.params import Param
+from pmalab.identify.signals import Signals
+
+
+def shift_in_time(t: np.ndarray, y: np.ndarray, tau: float) -> np.ndarray:
+    """y evaluated at t + tau by linear interpolation (ends held)."""
+    if tau == 0.0:
+        return y
+    return np.interp(t + tau, t, y)
+
+
+class SensorDelay(Effect):
+    id = "sensor-delay"
+    title = "Time skew between the position and force channels"
+    explanation = (
+        "If the position channel lags (or leads) the force channel by a few milliseconds, "
+        "every measured loop is sheared along the time axis: the force seems to anticipate "
+        "the motion and the loop looks wider or narrower than the muscle's. Modelled by "
+        "driving the law with the position shifted by τ (s)."
+    )
+    signature = (
+        "Residual proportional to the loop slope times velocity (like viscous friction, but "
+        "largest where the loop is steep, just after reversals); the residual's "
+        "cross-correlation with the input peaks at a non-zero lag; phase error grows with "
+        "frequency."
+    )
+
+    def params(self, sig: Signals, force_scale: float) -> list[Param]:
+        return [Param("delay_tau", 0.0, -0.1, 0.1, "s",
+                      doc="position channel lag behind the force channel (s)")]
+
+    def transform(self, sig: Signals, theta: dict[str, float]) -> Signals:
+        tau = float(theta["delay_tau"])
+        if tau == 0.0:
+            return sig
+        return sig.with_position(shift_in_time(sig.t, sig.x, tau))

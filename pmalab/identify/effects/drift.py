@@ -1,0 +1,38 @@
+"""Sensor drift: a slow change of a sensor's zero during the run.
+
+Strain-gauge load cells drift with temperature (the muscle and the air warm up while it
+cycles), position sensors creep.  Over a run the force reading gains d·(t − t̄), with d in
+N/s and t̄ the run's mid time (centred so d does not trade with c0).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmalab.identify.effects.base import Effect
+from pmalab.identify.params import Param
+from pmalab.identify.signals import Signals
+
+
+class SensorDrift(Effect):
+    id = "sensor-drift"
+    title = "Slow drift of the force sensor's zero"
+    explanation = (
+        "Load-cell zeros drift as the cell warms (and position sensors creep), so a "
+        "constant offset is not constant over a run. Modelled as a force d·(t − t̄) growing "
+        "linearly with time."
+    )
+    signature = (
+        "Residual against time is a ramp: early cycles have the opposite error to late "
+        "ones, whatever the branch or position; the autocorrelation stays high at long lags."
+    )
+
+    def params(self, sig: Signals, force_scale: float) -> list[Param]:
+        dur = max(float(sig.t[-1] - sig.t[0]), 1e-3)
+        lim = 5.0 * force_scale / dur
+        return [Param("drift_d", 0.0, -lim, lim, "N/s", doc="force zero drift rate")]
+
+    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+        # centred on the middle of the run's time span (not the sample mean, so the term is
+        # the same function of absolute time whatever part of the run a fit sees)
+        return theta["drift_d"] * (sig.t - 0.5 * (sig.t[0] + sig.t[-1]))

@@ -1,0 +1,49 @@
+"""Pressure variation: the muscle pressure is not constant during an "isobaric" run.
+
+The muscle's volume changes with contraction and a slow manual regulator cannot hold the
+pressure, so the *measured* muscle pressure p(t) wanders around the nominal p₀ (rising as
+the muscle is stretched and its volume shrinks, recovering with the regulator's time
+constant).  Tension is nearly proportional to pressure (F ≈ p·S(x)), so the force gains
+(g₀ + g₁·ξ)·(p − p₀), ξ = x − x̄: the sensitivity ∂F/∂p (N/MPa) and its change along the
+stroke.  Uses the measured pressure channel, never the nominal value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pmalab.identify.effects.base import Effect
+from pmalab.identify.params import Param
+from pmalab.identify.signals import Signals
+
+
+class PressureVariation(Effect):
+    id = "pressure-variation"
+    title = "Muscle pressure varying during the run (measured, not nominal)"
+    explanation = (
+        "An 'isobaric' test is held by a slow manual regulator while the muscle's volume "
+        "changes with contraction, so the muscle pressure rises and falls during each cycle. "
+        "Tension is nearly proportional to pressure; the base model, fitted at the nominal "
+        "pressure, misses the part of the force that follows the measured pressure."
+    )
+    signature = (
+        "Residual proportional to the measured pressure's deviation from nominal (binned "
+        "residual against pressure deviation is a line), in phase with the pressure ripple "
+        "rather than with position or velocity."
+    )
+
+    def params(self, sig: Signals, force_scale: float) -> list[Param]:
+        # dF/dp of a DMSP-20 is of the order of F/p ≈ 2500 N/MPa; allow a wide margin
+        lim = max(10.0 * force_scale / max(sig.p_nom, 0.05), 1e4)
+        half = max(0.5 * float(np.ptp(sig.x)), 1e-3)
+        return [
+            Param("pv_g0", 0.0, -lim, lim, "N/MPa",
+                  doc="tension change per MPa of pressure deviation at mid-stroke"),
+            Param("pv_g1", 0.0, -lim / half, lim / half, "N/(MPa·mm)",
+                  doc="change of that sensitivity per mm of contraction"),
+        ]
+
+    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+        dp = sig.p - sig.p_nom
+        xi = sig.x - float(np.mean(sig.x))
+        return (theta["pv_g0"] + theta["pv_g1"] * xi) * dp
