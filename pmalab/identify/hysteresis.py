@@ -9,7 +9,16 @@ Bouc-Wen (DESIGN.md form, with Song & Der Kiureghian's asymmetric extension)::
 
     dh/dx = A − |h|^n · (β·sgn(dx·h) + γ + ψ_v·sgn(dx) + ψ_h·sgn(h) + ψ_x·sgn(x − x_c))
 
-For ψ = 0 this is ḣ = A·ẋ − β·|ẋ|·|h|^(n−1)·h − γ·ẋ·|h|^n.  Discretisation: classical RK4
+For ψ = 0 this is ḣ = A·ẋ − β·|ẋ|·|h|^(n−1)·h − γ·ẋ·|h|^n.
+
+n = 1 (the default; fits fix n = 1): along a segment of constant direction σ and with s = |dx|,
+``dh/ds = σ·A − λ·h`` with λ = β + sgn(h)·(γ·σ + ψ_v + ψ_x·sgn(x − x_c)·σ) + ψ_h·σ, which is
+*linear* in h while sgn(h) is constant.  It is integrated exactly:
+h(s) = h∞ + (h₀ − h∞)·e^(−λs), h∞ = σA/λ, and where h crosses zero inside the segment the
+crossing point s* is solved in closed form and the rest of the segment continues with the
+new λ.  One exp per sample and no pow: exact for piecewise-linear x (``bouc_wen_h1``).
+
+General n: classical RK4
 on each segment with ``m`` sub-steps, m = 1 + ⌈4·|dx|·L⌉ (capped at 64), where
 L = n·(|β|+|γ|+|ψ|)·|h|^(n−1) bounds ∂(dh/dx)/∂h — so each sub-step moves h by a small
 fraction of its own relaxation length and the scheme stays accurate and stable for large
@@ -81,6 +90,58 @@ def bouc_wen_h(x, A, beta, gamma, n, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.
 
 
 @njit(cache=True, fastmath=False)
+def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0):
+    """h[k] for Bouc-Wen with n = 1, integrated exactly on each linear segment of ``x``."""
+    N = x.shape[0]
+    h = np.empty(N)
+    h[0] = h0
+    hk = h0
+    for k in range(N - 1):
+        dx = x[k + 1] - x[k]
+        if dx == 0.0:
+            h[k + 1] = hk
+            continue
+        sigma = 1.0 if dx > 0.0 else -1.0
+        s = abs(dx)
+        xs = 1.0 if x[k] + 0.5 * dx > x_c else -1.0
+        drive = sigma * A  # dh/ds at h = 0
+        # at most two pieces: before and after a zero crossing of h
+        for _piece in range(2):
+            if hk > 0.0:
+                sh = 1.0
+            elif hk < 0.0:
+                sh = -1.0
+            else:
+                sh = 1.0 if drive > 0.0 else (-1.0 if drive < 0.0 else 0.0)
+                if sh == 0.0:
+                    break
+            lam = beta + sh * (gamma * sigma + psi_v + psi_x * xs * sigma) + psi_h * sigma
+            if abs(lam) * s < 1e-12:
+                hn = hk + drive * s
+                if hn * sh < 0.0 and hk * sh > 0.0:  # crosses zero (linear)
+                    sz = -hk / drive
+                    hk = 0.0
+                    s = s - sz
+                    continue
+                hk = hn
+                break
+            hinf = drive / lam
+            hn = hinf + (hk - hinf) * math.exp(-lam * s)
+            if hk * sh > 0.0 and hn * sh < 0.0:
+                # exact crossing: e^(−λ s*) = h∞ / (h∞ − h₀)
+                sz = -math.log(hinf / (hinf - hk)) / lam
+                hk = 0.0
+                s = s - sz
+                if s <= 0.0:
+                    break
+                continue
+            hk = hn
+            break
+        h[k + 1] = hk
+    return h
+
+
+@njit(cache=True, fastmath=False)
 def duhem_h(x, alpha, a, b, h0, psi_alpha=0.0, psi_b=0.0):
     """h[k] for the Coleman–Hodgdon Duhem law driven by ``x`` (mm); exact per segment."""
     N = x.shape[0]
@@ -143,6 +204,13 @@ class BoucWen(HysteresisLaw):
 
     def h(self, x, theta, extras):
         e = extras
+        if float(theta["n"]) == 1.0:
+            return bouc_wen_h1(
+                np.ascontiguousarray(x, dtype=np.float64), float(theta["A"]),
+                float(theta["beta"]), float(theta["gamma"]), float(theta["h0"]),
+                float(e.get("psi_v", 0.0)), float(e.get("psi_h", 0.0)),
+                float(e.get("psi_x", 0.0)), float(e.get("x_c", 0.0)),
+            )
         return bouc_wen_h(
             np.ascontiguousarray(x, dtype=np.float64), float(theta["A"]), float(theta["beta"]),
             float(theta["gamma"]), float(theta["n"]), float(theta["h0"]),
