@@ -178,16 +178,14 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
     Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
+    Runs recorded by :mod:`pmalab.acquisition` also carry ``attrs["status"]``
+    ("completed", "aborted: <reason>", or "running" for a file whose writer was killed)
+    and ``attrs["timing"]`` (lateness statistics); runs never started are skipped.
     """
-    import h5py
-
     path = Path(path)
     if not path.exists():
         raise _fail(path, None, None, "no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as exc:
-        raise _fail(path, None, None, f"not a readable HDF5 file ({_short(exc)})") from None
+    f = _open_h5(path)
     try:
         fmt = _decode(f.attrs.get("format"))
         if fmt != FORMAT:
@@ -218,19 +216,66 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
                     except OSError as exc:
                         raise _fail(path, name, ch, f"unreadable ({_short(exc)})") from None
                     raw[ch] = (values, _decode(ds.attrs.get("units")))
+            extra = _recording_state(g)
+            if extra:
+                # written by the acquisition recorder: a run never started (or aborted
+                # before its first samples) holds nothing to read; a run cut by a crash
+                # is truncated to the samples every channel has
+                n = min((len(v) for v, _ in raw.values()), default=0)
+                if n < 2 and runs is None:
+                    continue
+                if extra.get("status") == "running":
+                    raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
             chans = validate_channels(path, name, raw)
             attrs = {k: _decode(v) for k, v in g.attrs.items()}
+            attrs.update(extra)
             if isinstance(attrs.get("protocol"), str):
                 try:
                     attrs["protocol"] = json.loads(attrs["protocol"])
                 except json.JSONDecodeError:
                     pass
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
+        if not out:
+            raise _fail(path, None, None, "no run holds recorded samples (statuses: "
+                        + ", ".join(f"{n}={_recording_state(f['runs'][n]).get('status')}"
+                                    for n in names) + ")")
         return out
     except (OSError, KeyError) as exc:
         raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
     finally:
         f.close()
+
+
+def _open_h5(path: Path):
+    """Open read-only; a file whose SWMR writer died (``kill -9``) still carries the
+    "open for write" flag, which HDF5 accepts only in SWMR-read mode, so retry that way."""
+    import h5py
+
+    try:
+        return h5py.File(path, "r")
+    except OSError as exc:
+        first = exc
+    if "already open for write" in str(first) or "consistency flags" in str(first):
+        try:
+            return h5py.File(path, "r", swmr=True)
+        except OSError:
+            pass
+    raise _fail(path, None, None, f"not a readable HDF5 file ({_short(first)})") from None
+
+
+def _recording_state(g: Any) -> dict[str, Any]:
+    """``status`` and ``timing`` of a run made by the acquisition recorder (else {})."""
+    out: dict[str, Any] = {}
+    if "status" in g:
+        out["status"] = _decode(g["status"][()]).rstrip("\x00 ")
+    if "timing" in g:
+        try:
+            fields = json.loads(_decode(g["timing"].attrs.get("fields", "[]")))
+            vals = [float(v) for v in g["timing"][()]]
+            out["timing"] = {k: v for k, v in zip(fields, vals) if v == v}
+        except (ValueError, TypeError):
+            pass
+    return out
 
 
 def read_many(paths: Sequence[str | Path]) -> list[Run]:

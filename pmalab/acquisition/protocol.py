@@ -1,0 +1,367 @@
+"""Protocol files (TOML): isobaric runs and campaigns, validated field by field.
+
+An *isobaric run* holds the muscle at a constant gauge pressure (``muscle_pressure_MPa``)
+while the cylinder's proportional regulator is driven with a periodic command of cylinder
+pressure (MPa):
+
+    command(t) = envelope(t) · (offset + amplitude · w(2π·f·t))
+
+with ``w`` the unit waveform (sine | triangle | square) phased to start at its minimum
+(−1), so a run with ``offset == amplitude`` starts and ends at zero cylinder pressure.
+More cylinder pressure stretches the muscle: the contraction x falls and the tension rises.
+``envelope`` is a raised-cosine ramp in (0→1 over ``ramp_s``) and out (1→0); the steady
+part holds ``cycles`` full periods.  Each run is preceded by ``settle_s`` seconds at zero
+command with the muscle already at its pressure (recorded).
+
+``magnitude_MPa = M`` is the seeds' shorthand for a command from 0 to M
+(``offset = amplitude = M/2``).
+
+File layout::
+
+    [protocol]                 # optional: name, description
+    name = "seed-bouc-wen"
+    [defaults]                 # optional: any run field, applied to every run/campaign
+    cycles = 3
+    [[run]]                    # one isobaric run
+    name = "ident"
+    role = "identification"    # identification | validation (free tag used downstream)
+    muscle_pressure_MPa = 0.4762
+    waveform = "sine"
+    frequency_Hz = 0.15
+    magnitude_MPa = 0.35
+    [[campaign]]               # lists expand to their cartesian product
+    name = "pressure"
+    muscle_pressure_MPa = [0.1, 0.2, 0.3]
+    waveform = ["sine", "triangle"]
+
+Every mistake raises :class:`~pmalab.errors.ConfigError` with one line naming the file
+and the field (``file: run[2] 'ident': field 'frequency_Hz': must be > 0``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pmalab.errors import ConfigError
+from pmalab.paths import PROTOCOLS_DIR
+
+WAVEFORMS = ("sine", "triangle", "square")
+ROLES = ("identification", "validation", "other")
+SAMPLE_RATE_HZ = 500.0
+
+#: fields a run (or campaign, or [defaults]) may set, with their type and default
+_FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
+    "role": (str, "identification"),
+    "muscle_pressure_MPa": ((int, float), None),
+    "waveform": (str, "sine"),
+    "frequency_Hz": ((int, float), None),
+    "amplitude_MPa": ((int, float), None),
+    "offset_MPa": ((int, float), None),
+    "magnitude_MPa": ((int, float), None),
+    "cycles": ((int, float), 3),
+    "ramp_s": ((int, float), 2.0),
+    "settle_s": ((int, float), 1.0),
+    "square_edge": ((int, float), 0.05),
+    "pressure_tolerance_MPa": ((int, float), 0.01),
+    "pressure_stable_s": ((int, float), 0.5),
+    "pressure_timeout_s": ((int, float), 120.0),
+    "description": (str, ""),
+}
+#: campaign fields that may be lists (expanded as a cartesian product)
+_LISTABLE = ("muscle_pressure_MPa", "waveform", "frequency_Hz", "amplitude_MPa", "offset_MPa",
+             "magnitude_MPa")
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One isobaric run.  Pressures MPa gauge, times s, frequency Hz."""
+
+    name: str
+    muscle_pressure_MPa: float
+    waveform: str
+    frequency_Hz: float
+    amplitude_MPa: float
+    offset_MPa: float
+    cycles: float = 3.0
+    ramp_s: float = 2.0
+    settle_s: float = 1.0
+    role: str = "identification"
+    #: square waves: fraction of the period spent on each (raised-cosine) edge
+    square_edge: float = 0.05
+    pressure_tolerance_MPa: float = 0.01
+    pressure_stable_s: float = 0.5
+    pressure_timeout_s: float = 120.0
+    description: str = ""
+    #: where it came from: "run[0]" or "campaign[1] 'pressure'"
+    origin: str = ""
+
+    @property
+    def steady_start_s(self) -> float:
+        """Start of the full-amplitude cycles, s after the run's time zero."""
+        return self.settle_s + self.ramp_s
+
+    @property
+    def steady_end_s(self) -> float:
+        return self.steady_start_s + self.cycles / self.frequency_Hz
+
+    @property
+    def duration_s(self) -> float:
+        """Recorded length: settle + ramp in + cycles + ramp out."""
+        return self.steady_end_s + self.ramp_s
+
+    @property
+    def max_command_MPa(self) -> float:
+        return self.offset_MPa + self.amplitude_MPa
+
+    @property
+    def min_command_MPa(self) -> float:
+        return self.offset_MPa - self.amplitude_MPa
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+
+@dataclass
+class Protocol:
+    """A validated protocol: its runs in order (campaigns already expanded)."""
+
+    name: str
+    runs: list[RunSpec]
+    path: str = ""
+    description: str = ""
+    sample_rate_Hz: float = SAMPLE_RATE_HZ
+    #: the TOML text as read (provenance)
+    text: str = ""
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def duration_s(self) -> float:
+        return sum(r.duration_s for r in self.runs)
+
+    def select(self, roles: list[str] | None = None, names: list[str] | None = None) -> Protocol:
+        """A copy holding only the runs with one of ``roles`` / ``names`` (None: all)."""
+        runs = [
+            r
+            for r in self.runs
+            if (roles is None or r.role in roles) and (names is None or r.name in names)
+        ]
+        if not runs:
+            want = ", ".join((roles or []) + (names or []))
+            raise ConfigError(f"{self.path or self.name}: no run matches {want!r}")
+        return Protocol(self.name, runs, self.path, self.description, self.sample_rate_Hz,
+                        self.text, dict(self.extra))
+
+
+# --------------------------------------------------------------------------- loading
+def resolve_protocol_path(spec: str | Path) -> Path:
+    """A path, or the bare name of a shipped protocol (``seed-bouc-wen``)."""
+    p = Path(spec)
+    if p.exists():
+        return p
+    for cand in (PROTOCOLS_DIR / p, PROTOCOLS_DIR / f"{p}.toml"):
+        if cand.exists():
+            return cand
+    raise ConfigError(f"{spec}: no such protocol file")
+
+
+def load_protocol(path: str | Path) -> Protocol:
+    """Read and validate a protocol TOML file (a path or a shipped protocol's name)."""
+    p = resolve_protocol_path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{p}: cannot read ({exc})") from None
+    return parse_protocol(text, str(p))
+
+
+def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
+    """Validate protocol TOML text; ``where`` names the file in error messages."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where}: invalid TOML ({exc})") from None
+    known = {"protocol", "defaults", "run", "campaign"}
+    for k in doc:
+        if k not in known:
+            raise ConfigError(f"{where}: unknown section '{k}' (expected one of: "
+                              f"{', '.join(sorted(known))})")
+    head = doc.get("protocol", {})
+    if not isinstance(head, dict):
+        raise ConfigError(f"{where}: [protocol] must be a table")
+    for k in head:
+        if k not in ("name", "description", "sample_rate_Hz"):
+            raise ConfigError(f"{where}: [protocol]: unknown field '{k}'")
+    name = head.get("name", Path(where).stem)
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{where}: [protocol]: field 'name' must be a non-empty string")
+    rate = head.get("sample_rate_Hz", SAMPLE_RATE_HZ)
+    if not isinstance(rate, int | float) or isinstance(rate, bool) or rate <= 0:
+        raise ConfigError(f"{where}: [protocol]: field 'sample_rate_Hz' must be a number > 0")
+    defaults = doc.get("defaults", {})
+    if not isinstance(defaults, dict):
+        raise ConfigError(f"{where}: [defaults] must be a table")
+    _check_fields(defaults, f"{where}: [defaults]", allow_lists=False, allow_name=False)
+
+    runs: list[RunSpec] = []
+    run_tables = doc.get("run", [])
+    camp_tables = doc.get("campaign", [])
+    for sec, tables in (("run", run_tables), ("campaign", camp_tables)):
+        if not isinstance(tables, list):
+            raise ConfigError(f"{where}: '{sec}' must be an array of tables ([[{sec}]])")
+    for i, t in enumerate(run_tables):
+        ctx = f"{where}: run[{i}]"
+        if not isinstance(t, dict):
+            raise ConfigError(f"{ctx}: must be a table")
+        if isinstance(t.get("name"), str):
+            ctx += f" '{t['name']}'"
+        _check_fields(t, ctx, allow_lists=False, allow_name=True)
+        runs.append(_make_run({**defaults, **t}, ctx, f"run[{i}]", float(rate)))
+    for i, t in enumerate(camp_tables):
+        ctx = f"{where}: campaign[{i}]"
+        if not isinstance(t, dict):
+            raise ConfigError(f"{ctx}: must be a table")
+        if isinstance(t.get("name"), str):
+            ctx += f" '{t['name']}'"
+        _check_fields(t, ctx, allow_lists=True, allow_name=True)
+        runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate)))
+    if not runs:
+        raise ConfigError(f"{where}: no [[run]] or [[campaign]] defined")
+    seen: dict[str, str] = {}
+    for r in runs:
+        if r.name in seen:
+            raise ConfigError(f"{where}: {r.origin}: run name '{r.name}' already used by "
+                              f"{seen[r.name]}")
+        seen[r.name] = r.origin
+    return Protocol(name=name, runs=runs, path=where, description=str(head.get("description", "")),
+                    sample_rate_Hz=float(rate), text=text)
+
+
+def _check_fields(t: dict[str, Any], ctx: str, *, allow_lists: bool, allow_name: bool) -> None:
+    for k, v in t.items():
+        if k == "name" and allow_name:
+            if not isinstance(v, str) or not v or "/" in v or v.strip() != v:
+                raise ConfigError(f"{ctx}: field 'name' must be a non-empty string without '/'")
+            continue
+        if k not in _FIELDS:
+            raise ConfigError(f"{ctx}: unknown field '{k}' (known: name, "
+                              f"{', '.join(_FIELDS)})")
+        typ = _FIELDS[k][0]
+        vals = v if (allow_lists and k in _LISTABLE and isinstance(v, list)) else [v]
+        if isinstance(v, list) and not (allow_lists and k in _LISTABLE):
+            raise ConfigError(f"{ctx}: field '{k}' must be a single value, not a list")
+        if not vals:
+            raise ConfigError(f"{ctx}: field '{k}' is an empty list")
+        for x in vals:
+            if isinstance(x, bool) or not isinstance(x, typ):
+                want = "a string" if typ is str else "a number"
+                raise ConfigError(f"{ctx}: field '{k}' must be {want}, got {x!r}")
+
+
+def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
+    """Build and validate one run from merged defaults + table (scalars only)."""
+    name = t.get("name")
+    if not name:
+        raise ConfigError(f"{ctx}: missing field 'name'")
+    get = {k: t.get(k, d) for k, (_, d) in _FIELDS.items()}
+    for req in ("muscle_pressure_MPa", "frequency_Hz"):
+        if get[req] is None:
+            raise ConfigError(f"{ctx}: missing field '{req}'")
+    if get["magnitude_MPa"] is not None:
+        for k in ("amplitude_MPa", "offset_MPa"):
+            if k in t and t.get(k) is not None:
+                raise ConfigError(f"{ctx}: field '{k}' conflicts with 'magnitude_MPa' "
+                                  "(magnitude M means offset = amplitude = M/2)")
+        m = float(get["magnitude_MPa"])
+        if m <= 0:
+            raise ConfigError(f"{ctx}: field 'magnitude_MPa' must be > 0, got {m}")
+        amp = off = m / 2
+    else:
+        if get["amplitude_MPa"] is None:
+            raise ConfigError(f"{ctx}: missing field 'amplitude_MPa' (or 'magnitude_MPa')")
+        amp = float(get["amplitude_MPa"])
+        off = float(get["offset_MPa"]) if get["offset_MPa"] is not None else amp
+    wf = get["waveform"]
+    if wf not in WAVEFORMS:
+        raise ConfigError(f"{ctx}: field 'waveform' must be one of {', '.join(WAVEFORMS)}, "
+                          f"got {wf!r}")
+    if get["role"] not in ROLES:
+        raise ConfigError(f"{ctx}: field 'role' must be one of {', '.join(ROLES)}, "
+                          f"got {get['role']!r}")
+    f = float(get["frequency_Hz"])
+    checks = [
+        ("muscle_pressure_MPa", float(get["muscle_pressure_MPa"]) > 0, "must be > 0"),
+        ("frequency_Hz", f > 0, "must be > 0"),
+        ("frequency_Hz", f <= rate / 20, f"must be ≤ {rate / 20:g} Hz (20 samples per period "
+                                         f"at {rate:g} Hz)"),
+        ("amplitude_MPa", amp > 0, "must be > 0"),
+        ("offset_MPa", off - amp >= -1e-12, "must be ≥ amplitude_MPa (a regulator cannot "
+                                            "command negative pressure)"),
+        ("cycles", float(get["cycles"]) > 0, "must be > 0"),
+        ("ramp_s", float(get["ramp_s"]) >= 0, "must be ≥ 0"),
+        ("settle_s", float(get["settle_s"]) >= 0, "must be ≥ 0"),
+        ("square_edge", 0 <= float(get["square_edge"]) <= 0.25, "must be within [0, 0.25]"),
+        ("pressure_tolerance_MPa", float(get["pressure_tolerance_MPa"]) > 0, "must be > 0"),
+        ("pressure_stable_s", float(get["pressure_stable_s"]) > 0, "must be > 0"),
+        ("pressure_timeout_s", float(get["pressure_timeout_s"]) > 0, "must be > 0"),
+    ]
+    for fld, ok, msg in checks:
+        if not ok:
+            val = {"amplitude_MPa": amp, "offset_MPa": off}.get(fld, get.get(fld))
+            raise ConfigError(f"{ctx}: field '{fld}' {msg}, got {val}")
+    return RunSpec(
+        name=str(name),
+        muscle_pressure_MPa=float(get["muscle_pressure_MPa"]),
+        waveform=wf,
+        frequency_Hz=f,
+        amplitude_MPa=amp,
+        offset_MPa=off,
+        cycles=float(get["cycles"]),
+        ramp_s=float(get["ramp_s"]),
+        settle_s=float(get["settle_s"]),
+        role=str(get["role"]),
+        square_edge=float(get["square_edge"]),
+        pressure_tolerance_MPa=float(get["pressure_tolerance_MPa"]),
+        pressure_stable_s=float(get["pressure_stable_s"]),
+        pressure_timeout_s=float(get["pressure_timeout_s"]),
+        description=str(get["description"]),
+        origin=origin,
+    )
+
+
+def _fmt_val(k: str, v: Any) -> str:
+    if k == "muscle_pressure_MPa":
+        return f"{round(float(v) * 1000):d}kPa"
+    if k == "frequency_Hz":
+        return f"{float(v):g}Hz"
+    if k.endswith("_MPa"):
+        return f"{k.split('_')[0][:3]}{round(float(v) * 1000):d}kPa"
+    return str(v)
+
+
+def _expand_campaign(t: dict[str, Any], ctx: str, origin: str, rate: float) -> list[RunSpec]:
+    """Cartesian product over the listed fields; run names say what varies."""
+    base = t.get("name")
+    if not base:
+        raise ConfigError(f"{ctx}: missing field 'name'")
+    varying = [k for k in _LISTABLE if isinstance(t.get(k), list)]
+    lists = [t[k] for k in varying]
+    n = math.prod(len(v) for v in lists) if lists else 1
+    if n > 500:
+        raise ConfigError(f"{ctx}: expands to {n} runs (more than 500)")
+    out = []
+    for combo in itertools.product(*lists) if lists else [()]:
+        merged = dict(t)
+        merged.update(zip(varying, combo))
+        suffix = "-".join(_fmt_val(k, v) for k, v in zip(varying, combo))
+        merged["name"] = f"{base}-{suffix}" if suffix else base
+        out.append(_make_run(merged, f"{ctx} run '{merged['name']}'", origin, rate))
+    return out

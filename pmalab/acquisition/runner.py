@@ -1,0 +1,369 @@
+"""The 500 Hz runner: protocol → rig → crash-proof HDF5, with safety on every sample.
+
+Timing.  A software-polled sampler is read at absolute deadlines ``t0 + k/rate`` on the
+rig's clock (``RealClock.sleep_until`` sleeps, then spins; a ``VirtualClock`` jumps, so a
+simulated run goes as fast as the physics allows).  Each sample keeps its actual
+timestamp; its lateness (actual − deadline) is stored, samples later than
+``late_threshold_s`` are counted as *late*, and deadlines that passed entirely (more than
+one period overdue) are counted as *missed* and skipped — never dropped silently: the
+counts go into the run's ``timing`` dataset and the CLI summary.  A hardware-timed
+sampler paces itself; gaps in its timestamps count as missed samples.
+
+Safety.  :func:`pmalab.acquisition.safety.preflight` refuses a protocol before the file
+is created or any device is commanded.  Every sample is checked against the rig's limits;
+on a trip, Ctrl-C (``KeyboardInterrupt``), any exception or a device fault
+(``RigError``), the cylinder regulator is vented at once (same sample period, before the
+next deadline), the muscle supply is vented where it is automatic, the run is closed as
+``aborted: <reason>`` with its samples, and :class:`~pmalab.errors.SafetyAbort` is raised.
+Every exit path — completed or not — ends with the regulator vented.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from pmalab import __version__
+from pmalab.acquisition.protocol import Protocol, RunSpec
+from pmalab.acquisition.recorder import Recorder, RunWriter
+from pmalab.acquisition.safety import SafetyMonitor, effective_limits, preflight
+from pmalab.acquisition.waveforms import command
+from pmalab.errors import RigError, SafetyAbort
+from pmalab.paths import check_output
+from pmalab.rig.base import Rig
+
+
+class _Trip(Exception):
+    """Internal: a limit tripped (reason in args[0])."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread by the CLI's signal handler."""
+
+
+@dataclass
+class RunResult:
+    """What one run recorded (force N, durations s, lateness s)."""
+
+    name: str
+    status: str
+    n_samples: int
+    duration_s: float
+    force_min: float
+    force_max: float
+    timing: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> str:
+        t = self.timing
+        frange = (f"force {self.force_min:.0f}…{self.force_max:.0f} N" if self.n_samples
+                  else "no samples")
+        return (f"{self.name}: {self.status}, {self.n_samples} samples, "
+                f"{self.duration_s:.1f} s, {frange}, late {int(t.get('late', 0))}, "
+                f"missed {int(t.get('missed', 0))}")
+
+
+@dataclass
+class RunnerOptions:
+    """Tunables of the runner (defaults are the production values)."""
+
+    #: a sample later than this after its deadline counts as late (s)
+    late_threshold_s: float = 0.5e-3
+    #: longest wall time between two flushes of the file (s): bounds the loss on kill -9
+    flush_interval_s: float = 0.25
+    #: show a tqdm progress bar on stderr (off anyway when stderr is not a TTY)
+    progress: bool = True
+    #: operator prompt for a manual muscle regulator (default: a line on stderr)
+    prompt: Callable[[str], None] | None = None
+    #: extra root attrs (e.g. command line, seed)
+    extra_attrs: dict[str, Any] = field(default_factory=dict)
+
+
+def _vent(rig: Rig) -> None:
+    """Vent the cylinder regulator first (it moves the load), then the muscle supply."""
+    try:
+        rig.cylinder_regulator.vent()
+    except Exception as exc:  # vent() must not raise; if it does, still try the muscle
+        print(f"pmalab: warning: venting the cylinder regulator failed: {exc}", file=sys.stderr)
+    try:
+        rig.muscle_supply.vent()
+    except Exception as exc:
+        print(f"pmalab: warning: venting the muscle supply failed: {exc}", file=sys.stderr)
+
+
+def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig) -> dict[str, Any]:
+    """The per-run attrs (contract fields first, then provenance)."""
+    return {
+        "muscle_pressure_MPa": spec.muscle_pressure_MPa,
+        "waveform": spec.waveform,
+        "frequency_Hz": spec.frequency_Hz,
+        "sample_rate_Hz": protocol.sample_rate_Hz,
+        "protocol": spec.to_json(),
+        "role": spec.role,
+        "amplitude_MPa": spec.amplitude_MPa,
+        "offset_MPa": spec.offset_MPa,
+        "cycles": spec.cycles,
+        "settle_s": spec.settle_s,
+        "ramp_s": spec.ramp_s,
+        "steady_start_s": spec.steady_start_s,
+        "steady_end_s": spec.steady_end_s,
+        "description": spec.description,
+        "protocol_name": protocol.name,
+        "protocol_file": protocol.path,
+        "software_version": __version__,
+        "rig": json.dumps(rig.info, sort_keys=True, default=str),
+        "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
+        "clock": "virtual" if rig.clock.virtual else "real",
+    }
+
+
+def run_protocol(
+    rig: Rig,
+    protocol: Protocol,
+    out: str | Path,
+    *,
+    force: bool = False,
+    options: RunnerOptions | None = None,
+) -> list[RunResult]:
+    """Run every run of ``protocol`` on ``rig`` and record them into ``out``.
+
+    Refuses unsafe protocols (``ProtocolRefused``) and existing outputs without ``force``
+    before anything moves.  Raises :class:`SafetyAbort` (after venting and closing the file
+    with the aborted run's samples) on a trip, Ctrl-C, exception or device fault.
+    """
+    opts = options or RunnerOptions()
+    preflight(protocol, rig)
+    out = check_output(out, force)
+    limits = effective_limits(rig)
+    monitor = SafetyMonitor(limits)
+    root = {
+        "software": "pmalab",
+        "software_version": __version__,
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
+        "protocol_name": protocol.name,
+        "protocol_file": protocol.path,
+        "protocol_text": protocol.text,
+        "rig": json.dumps(rig.info, sort_keys=True, default=str),
+        "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
+        "limits": json.dumps(limits.__dict__, sort_keys=True),
+        "clock": "virtual" if rig.clock.virtual else "real",
+        "sample_rate_Hz": protocol.sample_rate_Hz,
+        **opts.extra_attrs,
+    }
+    results: list[RunResult] = []
+    pbar = _progress(protocol, opts.progress)
+    try:
+        rec = Recorder(out, [(r.name, run_attrs(r, protocol, rig)) for r in protocol.runs],
+                       root, flush_interval_s=opts.flush_interval_s)
+        try:
+            rig.cylinder_regulator.set_pressure(0.0)
+            rig.sampler.start()
+            for i, spec in enumerate(protocol.runs):
+                w = rec.writer(spec.name)
+                w.late_threshold_s = opts.late_threshold_s
+                try:
+                    _wait_for_muscle_pressure(rig, spec, protocol.sample_rate_Hz, monitor, opts,
+                                              pbar)
+                    _record(rig, spec, protocol.sample_rate_Hz, monitor, w, rec, opts, pbar)
+                except BaseException as exc:
+                    # vent FIRST — before any file work — then close the run as aborted
+                    _vent(rig)
+                    reason = _reason(exc)
+                    try:
+                        w.finish(f"aborted: {reason}")
+                        for later in protocol.runs[i + 1:]:
+                            rec.writer(later.name).set_status("not run: campaign aborted")
+                        rec.close()
+                    except Exception as wexc:  # the samples already flushed stay readable
+                        print(f"pmalab: warning: closing {out} failed: {wexc}", file=sys.stderr)
+                    raise SafetyAbort(
+                        f"{out}: run '{spec.name}' aborted: {reason}; "
+                        f"cylinder regulator vented; {w.n} samples kept (status 'aborted')"
+                    ) from (exc if isinstance(exc, Exception) else None)
+                # end of a run: command zero before the next pressure level
+                rig.cylinder_regulator.set_pressure(0.0)
+                timing = w.finish("completed")
+                results.append(_result(spec.name, "completed", w, timing))
+        finally:
+            rec.close()
+    finally:
+        _vent(rig)
+        try:
+            rig.sampler.stop()
+        except Exception:
+            pass
+        if pbar is not None:
+            pbar.close()
+    return results
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, _Trip):
+        return str(exc.args[0])
+    if isinstance(exc, Terminated):
+        return "terminated (SIGTERM)"
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted (Ctrl-C)"
+    if isinstance(exc, RigError):
+        return f"device fault: {exc}"
+    msg = str(exc).splitlines()[0] if str(exc) else ""
+    return f"exception: {type(exc).__name__}" + (f": {msg}" if msg else "")
+
+
+def _result(name: str, status: str, w: RunWriter, timing: dict[str, float]) -> RunResult:
+    fmin, fmax = w.force_range
+    return RunResult(name, status, w.n, float(timing.get("duration_s", 0.0)), fmin, fmax, timing)
+
+
+def _progress(protocol: Protocol, enabled: bool):
+    if not enabled or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=round(protocol.duration_s, 1), unit="s", file=sys.stderr,
+                desc=protocol.name, bar_format="{desc}: {percentage:3.0f}%|{bar}| "
+                "{n:.0f}/{total:.0f} s [{elapsed}<{remaining}] {postfix}")
+
+
+def _default_prompt(msg: str) -> None:
+    print(f"pmalab: {msg}", file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------- muscle pressure
+def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor,
+                              opts: RunnerOptions, pbar) -> None:
+    """Request the muscle pressure; sample (with safety checks) until it is within
+    tolerance and stable for ``pressure_stable_s``.
+
+    Stable: over the last ``pressure_stable_s`` of samples, |mean − target| ≤ tolerance and
+    the standard deviation ≤ tolerance/2 (sensor noise of a PSE510-class gauge is a few
+    kPa; a manual regulator still being turned moves far more than that).
+    """
+    target = spec.muscle_pressure_MPa
+    tol = spec.pressure_tolerance_MPa
+    supply = rig.muscle_supply
+    prompt = opts.prompt or _default_prompt
+    if supply.automatic:
+        supply.request(target)
+    else:
+        supply.request(target, prompt)
+        prompt(f"run '{spec.name}': set the muscle pressure to {target:.4g} MPa "
+               f"(±{tol:g}); the run starts when the reading is stable")
+    if pbar is not None:
+        pbar.set_postfix_str(f"{spec.name}: waiting for {target:.3g} MPa")
+    clock, sampler = rig.clock, rig.sampler
+    need = max(2, int(round(spec.pressure_stable_s * rate)))
+    window: deque[float] = deque(maxlen=need)
+    dt = 1.0 / rate
+    t_start = clock.now()
+    k = 0
+    last_note = t_start
+    while True:
+        if not sampler.hardware_timed:
+            clock.sleep_until(t_start + k * dt)
+            k += 1
+        blk = sampler.read_block()
+        for j in range(len(blk)):
+            x, f = float(blk.position[j]), float(blk.force[j])
+            pm, pc = float(blk.muscle_pressure[j]), float(blk.cylinder_pressure[j])
+            reason = monitor.check(x, f, pm, pc)
+            if reason:
+                _vent(rig)
+                raise _Trip(reason + " (while waiting for the muscle pressure)")
+            window.append(pm)
+        now = clock.now()
+        if len(window) == need:
+            mean = math.fsum(window) / need
+            if abs(mean - target) <= tol:
+                var = math.fsum((v - mean) ** 2 for v in window) / need
+                if math.sqrt(var) <= tol / 2:
+                    return
+        if now - t_start > spec.pressure_timeout_s:
+            mean = math.fsum(window) / max(1, len(window))
+            raise RigError(f"muscle pressure did not settle at {target:.4g} MPa within "
+                           f"{spec.pressure_timeout_s:g} s (reading {mean:.4g} MPa)")
+        if not supply.automatic and now - last_note >= 5.0 and not clock.virtual:
+            last_note = now
+            prompt(f"muscle pressure reads {window[-1]:.4g} MPa (target {target:.4g})")
+
+
+# --------------------------------------------------------------------------- recording
+def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: RunWriter,
+            rec: Recorder, opts: RunnerOptions, pbar) -> None:
+    """Record one run: command the waveform, check, store, flush — until its end."""
+    clock, sampler, reg = rig.clock, rig.sampler, rig.cylinder_regulator
+    dt = 1.0 / rate
+    n_total = int(math.floor(spec.duration_s * rate + 1e-9)) + 1
+    late_thr = opts.late_threshold_s
+    check = monitor.check
+    add = w.add
+    flush_due = rec.flush_due
+    w.start_unix = time.time()
+    w.set_status("running")
+    if pbar is not None:
+        pbar.set_postfix_str(spec.name)
+    progress_step = max(1, int(rate // 2))
+    hw = sampler.hardware_timed
+    t0 = clock.now()
+    k = 0  # deadline index (software-polled) / sample index on the nominal grid (hw)
+    since_update = 0  # samples since the progress bar moved
+    last_t = None
+    cmd = 0.0
+    while k < n_total:
+        if not hw:
+            deadline = t0 + k * dt
+            clock.sleep_until(deadline)
+        blk = sampler.read_block()
+        nb = len(blk)
+        for j in range(nb):
+            t = float(blk.time[j])
+            x, f = float(blk.position[j]), float(blk.force[j])
+            pm, pc = float(blk.muscle_pressure[j]), float(blk.cylinder_pressure[j])
+            if hw:
+                if last_t is None:
+                    t0 = t
+                elif t - last_t > 1.5 * dt:  # gap in a hardware-timed stream
+                    gap = int(round((t - last_t) * rate)) - 1
+                    w.n_missed += gap
+                    k += gap
+                last_t = t
+                deadline = t0 + k * dt
+            lateness = t - deadline
+            reason = check(x, f, pm, pc)
+            if reason is not None:
+                # trip: vent in this sample period, keep the sample, then abort
+                _vent(rig)
+                add(t - t0, x, f, pm, pc, 0.0, lateness)
+                raise _Trip(f"{reason} at t={t - t0:.3f} s")
+            # the waveform's value at this sample's nominal time; sent right after the
+            # sample and held by the regulator until the next one
+            cmd = command(spec, deadline - t0)
+            if lateness > late_thr:
+                w.n_late += 1
+            add(t - t0, x, f, pm, pc, cmd, lateness)
+            k += 1
+            since_update += 1
+            if k >= n_total:
+                break
+        # command for the next sample period (the regulator holds it until the next one)
+        reg.set_pressure(cmd)
+        if flush_due():
+            w.commit()
+        if pbar is not None and since_update >= progress_step:
+            pbar.update(since_update * dt)
+            since_update = 0
+        if not hw:
+            # deadlines that passed entirely while we were busy are missed, not faked
+            lag = clock.now() - (t0 + k * dt)
+            if lag > dt:
+                skip = int(lag / dt)
+                w.n_missed += skip
+                k += skip
+    reg.set_pressure(0.0)

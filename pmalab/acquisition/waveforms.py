@@ -1,0 +1,84 @@
+"""Cylinder-pressure commands of a run (MPa), as functions of time since the run's zero.
+
+Timeline of a run (``RunSpec``): ``settle_s`` at zero command (muscle already at its
+pressure), ``ramp_s`` raised-cosine ramp in, ``cycles`` full periods, ``ramp_s`` ramp out,
+ending at zero command.  The unit waveform is phased to start at −1 so the command starts
+at ``offset − amplitude`` (0 for the seeds' ``magnitude`` runs) when the steady cycles
+begin — a stretched muscle is a high cylinder pressure, so each cycle begins with the
+muscle at its shortest.
+
+Scalar functions of Python floats: the runner calls one per sample (500 Hz), which is
+cheaper than numpy for a single value; :func:`command_array` vectorises for tests/plots.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pmalab.acquisition.protocol import RunSpec
+
+TWO_PI = 2.0 * math.pi
+
+
+def unit_wave(waveform: str, phase: float, square_edge: float = 0.05) -> float:
+    """The unit waveform in [−1, 1] at ``phase`` (in cycles; 0 → −1, 0.5 → +1).
+
+    * sine: −cos(2π·phase) (smooth, zero slope at the extremes);
+    * triangle: linear from −1 to +1 over the first half period and back;
+    * square: −1 for the first half, +1 for the second, each edge a raised-cosine
+      transition lasting ``square_edge`` of a period (so the command never steps).
+    """
+    ph = phase - math.floor(phase)
+    if waveform == "sine":
+        return -math.cos(TWO_PI * ph)
+    if waveform == "triangle":
+        return 4.0 * ph - 1.0 if ph < 0.5 else 3.0 - 4.0 * ph
+    if waveform == "square":
+        e = square_edge
+        if e <= 0:
+            return -1.0 if ph < 0.5 else 1.0
+        # edges centred on phase 0.25 (rising) and 0.75 (falling)
+        for centre, sign in ((0.25, 1.0), (0.75, -1.0)):
+            if abs(ph - centre) < e / 2:
+                u = (ph - centre) / e + 0.5  # 0..1 across the edge
+                return sign * -math.cos(math.pi * u)
+        return 1.0 if 0.25 <= ph < 0.75 else -1.0
+    raise ValueError(f"unknown waveform {waveform!r}")
+
+
+def envelope(spec: RunSpec, t: float) -> float:
+    """Raised-cosine envelope 0→1 over the ramp in, 1 while steady, 1→0 over the ramp out."""
+    t0 = spec.settle_s
+    if t < t0:
+        return 0.0
+    r = spec.ramp_s
+    if r > 0 and t < t0 + r:
+        return 0.5 - 0.5 * math.cos(math.pi * (t - t0) / r)
+    if t <= spec.steady_end_s:
+        return 1.0
+    if r > 0 and t < spec.steady_end_s + r:
+        return 0.5 + 0.5 * math.cos(math.pi * (t - spec.steady_end_s) / r)
+    return 0.0
+
+
+def command(spec: RunSpec, t: float) -> float:
+    """Cylinder-pressure command (MPa) at ``t`` s after the run's zero; never negative.
+
+    The waveform's phase counts from the start of the steady window, so the full-amplitude
+    cycles begin (and, for whole ``cycles``, end) at the waveform's minimum.
+    """
+    env = envelope(spec, t)
+    if env == 0.0:
+        return 0.0
+    phase = (t - spec.steady_start_s) * spec.frequency_Hz
+    # full-amplitude part is periodic in the steady window; in the ramps the envelope
+    # scales offset and amplitude together, so the command stays within [0, max]
+    val = spec.offset_MPa + spec.amplitude_MPa * unit_wave(spec.waveform, phase, spec.square_edge)
+    return max(0.0, env * val)
+
+
+def command_array(spec: RunSpec, t: np.ndarray) -> np.ndarray:
+    """:func:`command` over an array of times (s)."""
+    return np.array([command(spec, float(x)) for x in np.asarray(t, dtype=float)])
