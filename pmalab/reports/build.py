@@ -1,0 +1,282 @@
+"""Assembling the multi-page PDF report from a result directory.
+
+:func:`plan_pages` decides which pages exist (pages of absent parts are skipped, never
+left blank); :func:`build_report` renders them one at a time into a PDF (and optionally
+PNG/SVG files), writing to a temporary file that replaces ``out`` only when complete.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import matplotlib as mpl
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+
+from pmalab import __version__
+from pmalab.paths import check_output
+from pmalab.reports import style
+from pmalab.reports.data import ReportData, Trace, load_report_dir
+from pmalab.reports.errors import ReportError
+from pmalab.reports.figures_diagnosis import effects_figure, residual_diagnostics_figure
+from pmalab.reports.figures_parameters import (
+    correlation_figure,
+    metrics_table_figure,
+    parameter_table_figure,
+    parameters_vs_pressure_figure,
+)
+from pmalab.reports.figures_signals import loops_figure, time_history_figure, validation_figure
+from pmalab.reports.figures_text import provenance_figure, timing_stats, title_page_figure
+
+TIME_PER_PAGE = 2
+LOOPS_PER_PAGE = 4
+VALIDATION_PER_PAGE = 2
+PARAMS_PER_PAGE = 9
+TABLE_RUNS_PER_PAGE = 5
+CORR_PER_PAGE = 4
+
+
+@dataclass
+class Page:
+    """One report page: a title (for the contents and progress lines), a file-name slug
+    (for PNG/SVG export) and a function that draws it."""
+
+    title: str
+    slug: str
+    make: Callable[[], Figure]
+
+
+def _chunks(seq: Sequence[Any], n: int) -> list[Sequence[Any]]:
+    return [seq[i:i + n] for i in range(0, len(seq), n)]
+
+
+def _part(i: int, n: int) -> str:
+    return f" ({i + 1}/{n})" if n > 1 else ""
+
+
+def _key(file: str, run: str) -> tuple[str, str]:
+    return (Path(file).name, run)
+
+
+def _ordered(traces: list[Trace], rows: Sequence[dict]) -> tuple[list[Trace], list[float | None]]:
+    """Traces in the order of the JSON rows (then any others by pressure), with the JSON's
+    fit % for each (None where the trace has no JSON row)."""
+    by_key = {_key(t.file, t.run): t for t in traces}
+    out, fits, used = [], [], set()
+    for r in rows:
+        t = by_key.get(_key(r["file"], r["run"]))
+        if t is not None and id(t) not in used:
+            out.append(t)
+            fits.append(r.get("fit_percent"))
+            used.add(id(t))
+    rest = sorted((t for t in traces if id(t) not in used), key=lambda t: t.muscle_pressure_MPa)
+    return out + rest, fits + [None] * len(rest)
+
+
+def _units(doc: dict) -> dict[str, str]:
+    u = doc.get("parameter_units")
+    return {str(k): str(v) for k, v in u.items()} if isinstance(u, dict) else {}
+
+
+def plan_pages(data: ReportData) -> list[Page]:
+    """The report's pages, in order, for what the directory holds."""
+    ident, diag = data.identification, data.diagnosis
+    pages: list[Page] = []
+    id_rows: list[dict] = list(ident["runs"]) if ident else []
+    val_rows: list[dict] = list(ident.get("validation") or []) if ident else []
+
+    # datasets/provenance
+    inputs = list(ident.get("inputs") or []) if ident else []
+    if any(inp.get("provenance") for inp in inputs):
+        pages.append(Page("Datasets and provenance", "provenance",
+                          lambda: provenance_figure(inputs)))
+
+    # fit metrics
+    if id_rows or val_rows:
+        rows = [{**r, "role": "identification"} for r in id_rows] + [
+            {**r, "role": "validation"} for r in val_rows]
+        for i, chunk in enumerate(_chunks(rows, 18)):
+            pages.append(Page("Fit quality table" + _part(i, math.ceil(len(rows) / 18)),
+                              f"metrics-{i + 1}",
+                              lambda c=chunk: metrics_table_figure(c)))
+
+    # time histories and loops: identification runs, else the diagnosis base model's runs
+    id_traces, id_fits = _ordered(data.traces_with_role("identification"), id_rows)
+    what = "identification"
+    if not id_traces:
+        id_traces, id_fits = _ordered(data.traces_with_role("diagnosis"), [])
+        what = "base model (diagnosis)"
+    th = _chunks(id_traces, TIME_PER_PAGE)
+    for i, chunk in enumerate(th):
+        title = f"Time histories — {what}" + _part(i, len(th))
+        pages.append(Page(title, f"time-{i + 1}",
+                          lambda c=chunk, t=title: time_history_figure(c, title=t)))
+    lp = list(zip(_chunks(id_traces, LOOPS_PER_PAGE), _chunks(id_fits, LOOPS_PER_PAGE)))
+    for i, (chunk, fits) in enumerate(lp):
+        title = f"Measured vs model loops per pressure level — {what}" + _part(i, len(lp))
+        pages.append(Page(title, f"loops-{i + 1}",
+                          lambda c=chunk, f=fits, t=title: loops_figure(c, title=t,
+                                                                         fit_percent=f)))
+
+    # parameters
+    if ident and id_rows and ident["parameter_names"]:
+        names = list(ident["parameter_names"])
+        units = _units(ident)
+        pressures = [float(r["muscle_pressure_MPa"]) for r in id_rows]
+        nan = float("nan")
+        values = {n: [r["parameters"].get(n, nan) for r in id_rows] for n in names}
+        stderr = {n: [(r.get("stderr") or {}).get(n) for r in id_rows] for n in names}
+        fits = ident.get("pressure_fits") or {}
+        stats = ident.get("pressure_fit_stats") or {}
+        r2 = {n: (stats.get(n) or {}).get("r2") for n in names}
+        vps = [float(v["muscle_pressure_MPa"]) for v in val_rows]
+        pc = _chunks(names, PARAMS_PER_PAGE)
+        for i, chunk in enumerate(pc):
+            title = ("Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²"
+                     + _part(i, len(pc)))
+            pages.append(Page(title, f"parameters-{i + 1}", lambda c=chunk, t=title:
+                              parameters_vs_pressure_figure(
+                                  c, pressures, values, stderr, fits, r2, units=units,
+                                  validation_pressures=vps, title=t)))
+        warnings = list(ident.get("warnings") or [])
+        for r in id_rows:
+            warnings += [f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): {w}"
+                         for w in r.get("warnings") or []]
+        tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
+        for i, chunk in enumerate(tc):
+            title = "Identified parameters (value ± standard error) and identifiability" + _part(
+                i, len(tc))
+            pages.append(Page(title, f"parameter-table-{i + 1}", lambda c=chunk, t=title:
+                              parameter_table_figure(names, c, fits, r2, units=units,
+                                                     warnings=warnings, title=t)))
+        corr = [{"title": f"{r['run']}  (p = {r['muscle_pressure_MPa']:.3f} MPa)",
+                 "names": r["correlation"]["names"], "matrix": r["correlation"]["matrix"]}
+                for r in id_rows if r.get("correlation") and r["correlation"]["names"]]
+        cc = _chunks(corr, CORR_PER_PAGE)
+        for i, chunk in enumerate(cc):
+            title = "Parameter correlation (identifiability); |ρ| > 0.95 outlined" + _part(
+                i, len(cc))
+            pages.append(Page(title, f"correlation-{i + 1}",
+                              lambda c=chunk, t=title: correlation_figure(c, title=t)))
+
+    # validation overlays
+    val_traces, val_fits = _ordered(data.traces_with_role("validation"), val_rows)
+    vc = list(zip(_chunks(val_traces, VALIDATION_PER_PAGE),
+                  _chunks(val_fits, VALIDATION_PER_PAGE)))
+    for i, (chunk, fits_) in enumerate(vc):
+        title = "Validation: pressure-quadratic model, free-run prediction" + _part(i, len(vc))
+        pages.append(Page(title, f"validation-{i + 1}", lambda c=chunk, f=fits_, t=title:
+                          validation_figure(c, fit_percent=f, title=t)))
+
+    # diagnosis
+    if diag:
+        for i, (label, d) in enumerate((diag.get("diagnostics") or {}).items()):
+            if not (d.get("binned") or d.get("acf") or d.get("ccf_input")):
+                continue
+            pages.append(Page(f"Residual diagnostics — {label}", f"residuals-{i + 1}",
+                              lambda lb=label, dd=d: residual_diagnostics_figure(lb, dd)))
+        if diag["ranking"] or diag.get("ladder"):
+            pages.append(Page("Effect ranking and ladder", "effects", lambda: effects_figure(
+                diag["ranking"], diag.get("ladder") or [], ambiguous=diag.get("ambiguous") or [],
+                suggested_experiment=diag.get("suggested_experiment"),
+                summary=diag.get("summary"), model=diag["model"])))
+
+    contents = [p.title for p in pages]
+    pages.insert(0, Page("Title page", "title", lambda: _title_page(data, contents)))
+    return pages
+
+
+def _title_page(data: ReportData, contents: list[str]) -> Figure:
+    doc = data.identification or data.diagnosis or {}
+    datasets = []
+    for t in sorted(data.traces, key=lambda t: (("identification", "diagnosis", "validation")
+                                                .index(t.role), t.muscle_pressure_MPa)):
+        datasets.append({"role": t.role, "label": t.label, "p": t.muscle_pressure_MPa,
+                         "f": t.frequency_Hz, "waveform": t.waveform, **timing_stats(t.time)})
+    effects = list(doc.get("effects") or [])
+    summary = (data.diagnosis or {}).get("summary")
+    inputs = list((data.identification or {}).get("inputs") or [])
+    if not inputs:
+        seen: dict[str, list[str]] = {}
+        for t in data.traces:
+            seen.setdefault(Path(t.file).name or "?", []).append(t.run)
+        inputs = [{"file": f, "runs": r} for f, r in seen.items()]
+    return title_page_figure(
+        model=data.model, effects=effects, directory=str(data.directory),
+        created=str(doc.get("created", "")), version=str(doc.get("pmalab_version", "")),
+        inputs=inputs, datasets=datasets, summary=summary, contents=contents)
+
+
+def _slug(s: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "-", s.lower()).strip("-")
+
+
+def _footer(fig: Figure, data: ReportData, i: int, n: int) -> None:
+    with mpl.rc_context(style.RC):
+        fig.text(0.99, 0.005, f"pmalab report · {data.model} · {data.directory.name} · "
+                 f"page {i}/{n}", ha="right", va="bottom", fontsize=8, color="0.4")
+
+
+def build_report(
+    directory: str | Path,
+    out: str | Path,
+    force: bool = False,
+    *,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Path:
+    """Render the report of a result directory into the PDF ``out`` and return its path.
+
+    ``png_dir``/``svg_dir`` also export every page as ``NN-<slug>.png``/``.svg``.
+    ``progress`` receives one line per page written (the CLI passes ``print``).
+    Raises :class:`ReportError` (bad directory/contents) or
+    :class:`~pmalab.errors.OutputExistsError` (``out`` exists and not ``force``).
+    """
+    out = Path(out)
+    if out.suffix.lower() != ".pdf":
+        raise ReportError(f"{out}: the report must be a .pdf file")
+    check_output(out, force)
+    data = load_report_dir(directory)
+    pages = plan_pages(data)
+    exports: list[tuple[Path, str]] = []
+    for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
+        if d is None:
+            continue
+        d = Path(d)
+        if d.exists() and not d.is_dir():
+            raise ReportError(f"{d}: not a directory")
+        for i, p in enumerate(pages, 1):
+            check_output(d / f"{i:02d}-{_slug(p.slug)}.{ext}", force)
+        exports.append((d, ext))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.part")
+    n = len(pages)
+    try:
+        meta = {"Title": f"pmalab report: {data.model} ({data.directory.name})",
+                "Creator": f"pmalab {__version__}", "Subject": "pneumatic muscle identification",
+                "CreationDate": datetime.now(UTC)}
+        with PdfPages(tmp, metadata=meta) as pdf:
+            for i, page in enumerate(pages, 1):
+                fig = page.make()
+                _footer(fig, data, i, n)
+                with mpl.rc_context(style.RC):
+                    pdf.savefig(fig)
+                for d, ext in exports:
+                    style.save_figure(fig, d / f"{i:02d}-{_slug(page.slug)}.{ext}", force=True,
+                                      dpi=150)
+                if progress is not None:
+                    progress(f"page {i}/{n}: {page.title}")
+                del fig
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return out

@@ -1,0 +1,56 @@
+"""Every report figure, each usable alone: functions take plain data (lists, dicts, numpy
+arrays, :class:`~pmalab.reports.data.Trace`) and return a matplotlib Figure; export one
+with :func:`save_figure` (PNG/SVG/PDF by suffix).
+
+Units throughout: time s, contraction x mm (positive = shorter), tension F N, pressure
+MPa; errors are F_model − F in N.
+"""
+
+from pmalab.reports.figures_diagnosis import (
+    effects_figure,
+    ladder_figure,
+    plot_binned,
+    plot_correlation,
+    plot_ladder,
+    plot_ranking,
+    ranking_figure,
+    residual_diagnostics_figure,
+)
+from pmalab.reports.figures_parameters import (
+    correlation_figure,
+    metrics_table_figure,
+    parameter_table_figure,
+    parameters_vs_pressure_figure,
+    plot_parameter_vs_pressure,
+)
+from pmalab.reports.figures_signals import (
+    error_loop,
+    loops_figure,
+    time_history_figure,
+    validation_figure,
+)
+from pmalab.reports.figures_text import provenance_figure, title_page_figure
+from pmalab.reports.style import save_figure
+
+__all__ = [
+    "correlation_figure",
+    "effects_figure",
+    "error_loop",
+    "ladder_figure",
+    "loops_figure",
+    "metrics_table_figure",
+    "parameter_table_figure",
+    "parameters_vs_pressure_figure",
+    "plot_binned",
+    "plot_correlation",
+    "plot_ladder",
+    "plot_parameter_vs_pressure",
+    "plot_ranking",
+    "provenance_figure",
+    "ranking_figure",
+    "residual_diagnostics_figure",
+    "save_figure",
+    "time_history_figure",
+    "title_page_figure",
+    "validation_figure",
+]

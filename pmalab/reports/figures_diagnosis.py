@@ -1,0 +1,241 @@
+"""Figures of the model diagnosis: binned residuals, residual auto-/cross-correlation,
+the effect ranking and the ladder (nrmse as effects are added one at a time).
+
+Residuals are ``F_model − F`` in N; NRMSE = RMS error / std of the measured tension.
+Inputs are the plain dicts of ``diagnosis.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.container import BarContainer
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from pmalab.reports import style
+
+#: binned-residual variables in display order, with their axis names
+BINNED_VARIABLES = {
+    "position": "Contraction x",
+    "velocity": "Velocity ẋ",
+    "velocity_sign": "Direction sign(ẋ)",
+    "acceleration": "Acceleration ẍ",
+    "pressure_deviation": "Pressure deviation p − p_nom",
+    "time": "Time t",
+    "branch": "Branch",
+}
+BRANCH_TICKS = {-1.0: "stretch\n(ẋ<0)", 0.0: "stretch\n(ẋ<0)", 1.0: "release\n(ẋ>0)"}
+SIGN_TICKS = {-1.0: "ẋ < 0\n(stretch)", 1.0: "ẋ > 0\n(release)", 0.0: "ẋ = 0"}
+
+
+def _ci(ci: Sequence[Any] | None, n: int) -> np.ndarray | None:
+    """ci95 as a (2, n) yerr array: half-widths, or [lo, hi] offsets if given as pairs."""
+    if ci is None:
+        return None
+    if n and isinstance(ci[0], list | tuple):
+        arr = np.array([[np.nan if v is None else float(v) for v in pair] for pair in ci])
+        return np.abs(arr.T)
+    arr = np.array([np.nan if v is None else float(v) for v in ci])
+    return np.vstack([arr, arr])
+
+
+def plot_binned(ax: Axes, variable: str, binned: Mapping[str, Any]) -> None:
+    """Mean residual (N) ± 95 % CI per bin of one variable; zero line for reference."""
+    centers = list(binned["centers"])
+    mean = np.array([np.nan if v is None else float(v) for v in binned["mean"]])
+    yerr = _ci(binned.get("ci95"), len(centers))
+    unit = str(binned.get("unit") or "")
+    categorical = any(isinstance(c, str) for c in centers) or variable in ("velocity_sign",
+                                                                          "branch")
+    if categorical:
+        ticks = BRANCH_TICKS if variable == "branch" else SIGN_TICKS
+        xs = np.arange(len(centers), dtype=float)
+        labels = [c if isinstance(c, str) else ticks.get(float(c), f"{c:g}") for c in centers]
+        ax.bar(xs, mean, yerr=yerr, color=style.MODEL, alpha=0.7, capsize=4, width=0.5)
+        ax.set_xticks(xs, labels)
+        ax.set_xlim(-0.7, len(centers) - 0.3)
+        ax.set_xlabel(BINNED_VARIABLES.get(variable, variable))
+    else:
+        x = np.array([float(c) for c in centers])
+        ax.errorbar(x, mean, yerr=yerr, fmt="o-", color=style.MODEL, ms=3.5, capsize=2.5,
+                    lw=0.9)
+        name = BINNED_VARIABLES.get(variable, variable)
+        ax.set_xlabel(f"{name} ({unit})" if unit else name)
+    ax.axhline(0.0, color="0.3", lw=0.7)
+    ax.set_ylabel("mean residual (N)")
+    ax.set_title(f"Residual vs {BINNED_VARIABLES.get(variable, variable).split(' ')[0].lower()}")
+
+
+def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
+    """Correlation values against lag (s) as stems, with the ±95 % white-noise bound."""
+    lags = np.asarray(corr["lags_s"], dtype=float)
+    vals = np.array([np.nan if v is None else float(v) for v in corr["values"]])
+    ax.vlines(lags, 0.0, vals, color=style.MODEL, lw=1.0)
+    ax.plot(lags, vals, "o", color=style.MODEL, ms=2.5)
+    b = corr.get("bound95")
+    if b is not None:
+        ax.axhspan(-b, b, color="0.85", alpha=0.7, zorder=0, label=f"95 % bound ±{b:.3g}")
+        ax.legend(loc="upper right")
+        outside = int(np.sum(np.abs(vals[lags != 0]) > b))
+        title += f"  ({outside} of {int(np.sum(lags != 0))} lags outside)"
+    ax.axhline(0.0, color="0.3", lw=0.7)
+    ax.set_xlabel("Lag (s)")
+    ax.set_ylabel("correlation")
+    ax.set_title(title)
+
+
+@style.styled
+def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
+    """All residual diagnostics of one run on one page (3 × 3): binned residuals against
+    each variable, the residual autocorrelation and its cross-correlation with the input."""
+    title = f"Residual diagnostics — {label}"
+    fig = style.new_figure(title)
+    panels: list[tuple[str, Any]] = []
+    binned = diag.get("binned") or {}
+    order = [v for v in BINNED_VARIABLES if v in binned] + [v for v in binned
+                                                            if v not in BINNED_VARIABLES]
+    panels += [("binned", v) for v in order]
+    if diag.get("acf"):
+        panels.append(("acf", None))
+    if diag.get("ccf_input"):
+        panels.append(("ccf", None))
+    n = len(panels)
+    ncols = 3 if n > 4 else max(1, min(n, 2))
+    nrows = max(1, math.ceil(n / ncols))
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for i, ax in enumerate(axes):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        kind, var = panels[i]
+        if kind == "binned":
+            plot_binned(ax, var, binned[var])
+        elif kind == "acf":
+            plot_correlation(ax, diag["acf"], title="Residual autocorrelation")
+        else:
+            plot_correlation(ax, diag["ccf_input"], title="Residual × input cross-corr.")
+    worst = diag.get("worst_region")
+    if worst:
+        fig.suptitle(f"{title}\nworst region: {worst}", fontweight="bold")
+    return fig
+
+
+def plot_ranking(ax: Axes, ranking: Sequence[Mapping[str, Any]],
+                 ambiguous: Sequence[str] = ()) -> tuple[BarContainer, BarContainer]:
+    """Horizontal bars, best effect on top: NRMSE before (grey outline) and after adding
+    each effect (green if significant, grey otherwise). Returns (before, after) bars."""
+    n = len(ranking)
+    y = np.arange(n)[::-1].astype(float)
+    before = [float(r["nrmse_before"]) for r in ranking]
+    after = [float(r["nrmse_after"]) for r in ranking]
+    colours = [style.SIGNIFICANT if r["significant"] else style.NOT_SIGNIFICANT for r in ranking]
+    h = 0.38
+    b0 = ax.barh(y + h / 2, before, height=h, color="white", edgecolor="0.3", label="before")
+    b1 = ax.barh(y - h / 2, after, height=h, color=colours, label="after adding the effect")
+    labels = []
+    for r in ranking:
+        s = str(r["effect"])
+        if r["effect"] in ambiguous:
+            s += " (ambiguous)"
+        labels.append(s)
+    ax.set_yticks(y, labels)
+    xmax = max([*before, *after, 1e-9])
+    for yi, r in zip(y, ranking):
+        txt = "significant" if r["significant"] else "not significant"
+        if r.get("delta_aic") is not None:
+            txt += f", ΔAIC {float(r['delta_aic']):.3g}"
+        if r.get("n_params") is not None:
+            txt += f", +{int(r['n_params'])} par."
+        ax.text(float(r["nrmse_after"]) + 0.01 * xmax, yi - h / 2, txt, va="center",
+                fontsize=8, fontweight="bold" if r["significant"] else "normal")
+    ax.set_xlim(0, xmax * 1.55)
+    ax.set_xlabel("validation NRMSE")
+    ax.set_title("Effect ranking (best first)")
+    ax.legend(handles=[b0, Line2D([], [], color=style.SIGNIFICANT, lw=6, label="after: significant"),
+                       Line2D([], [], color=style.NOT_SIGNIFICANT, lw=6,
+                              label="after: not significant")], loc="lower right")
+    ax.grid(axis="y", visible=False)
+    return b0, b1
+
+
+def plot_ladder(ax: Axes, ladder: Sequence[Mapping[str, Any]]) -> Line2D:
+    """NRMSE after each step of adding effects (step 0 = base model); the fit % is written
+    at each point. Returns the NRMSE line (its y data are the ladder's nrmse values)."""
+    steps = [int(s["step"]) for s in ladder]
+    nr = [float(s["nrmse"]) for s in ladder]
+    (line,) = ax.plot(steps, nr, "o-", color=style.MODEL, lw=1.8, ms=6)
+    labels = []
+    for s in ladder:
+        added = s.get("added")
+        labels.append("base model" if not added else f"+ {added}")
+    ax.set_xticks(steps, labels, rotation=20, ha="right")
+    for st, v, s in zip(steps, nr, ladder):
+        fp = s.get("fit_percent")
+        txt = f"{v:.3f}" + (f"\n({float(fp):.1f} %)" if fp is not None else "")
+        ax.annotate(txt, (st, v), textcoords="offset points", xytext=(6, 6), fontsize=8)
+    ax.set_ylim(0, max([*nr, 1e-9]) * 1.25)
+    ax.set_xlim(min(steps) - 0.3, max(steps) + 0.6)
+    ax.set_ylabel("validation NRMSE")
+    ax.set_title("Ladder: NRMSE as effects are added")
+    return line
+
+
+@style.styled
+def ranking_figure(ranking: Sequence[Mapping[str, Any]], ambiguous: Sequence[str] = ()) -> Figure:
+    """The effect ranking alone (for export)."""
+    fig = style.new_figure("Effect ranking", figsize=(8.0, 4.5))
+    plot_ranking(fig.subplots(), ranking, ambiguous)
+    return fig
+
+
+@style.styled
+def ladder_figure(ladder: Sequence[Mapping[str, Any]]) -> Figure:
+    """The ladder plot alone (for export)."""
+    fig = style.new_figure("Effect ladder", figsize=(7.0, 4.5))
+    plot_ladder(fig.subplots(), ladder)
+    return fig
+
+
+@style.styled
+def effects_figure(
+    ranking: Sequence[Mapping[str, Any]],
+    ladder: Sequence[Mapping[str, Any]] = (),
+    *,
+    ambiguous: Sequence[str] = (),
+    suggested_experiment: str | None = None,
+    summary: str | None = None,
+    model: str = "",
+) -> Figure:
+    """The diagnosis page: ranking and ladder side by side, then the summary, ambiguity
+    and the explanation of each effect."""
+    fig = style.new_figure(f"Which effect is missing? — base model {model}".rstrip())
+    gs = fig.add_gridspec(2, 2 if ladder else 1, height_ratios=[3.0, 1.6])
+    if ranking:
+        plot_ranking(fig.add_subplot(gs[0, 0]), ranking, ambiguous)
+    if ladder:
+        plot_ladder(fig.add_subplot(gs[0, 1] if ranking else gs[0, :]), ladder)
+    tx = fig.add_subplot(gs[1, :])
+    tx.axis("off")
+    lines: list[str] = []
+    if summary:
+        lines += textwrap.wrap("Summary: " + summary, 160)
+    if ambiguous:
+        lines += textwrap.wrap("Ambiguous (explain the residual about equally well): "
+                               + ", ".join(ambiguous), 160)
+        if suggested_experiment:
+            lines += textwrap.wrap("Suggested experiment: " + suggested_experiment, 160)
+    for r in ranking[:5]:
+        if r.get("explanation"):
+            lines += textwrap.wrap(f"{r['effect']}: {r['explanation']}", 160,
+                                   subsequent_indent="    ")
+    if len(lines) > 10:
+        lines = [*lines[:9], f"… ({len(lines) - 9} more lines in diagnosis.json)"]
+    tx.text(0.0, 1.0, "\n".join(lines), va="top", transform=tx.transAxes, fontsize=9,
+            linespacing=1.4)
+    return fig

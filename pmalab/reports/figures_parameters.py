@@ -1,0 +1,320 @@
+"""Figures of identified parameters: values against muscle pressure with their quadratic
+fits θ(p) = q0 + q1·p + q2·p², parameter and metric tables, correlation heatmaps.
+
+Inputs are plain data (lists, dicts) as found in ``identification.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import textwrap
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from pmalab.reports import style
+
+#: units of the parameters of the base models (h in N, x in mm, ẋ in mm/s); a document's
+#: own ``parameter_units`` mapping takes precedence.
+KNOWN_UNITS = {
+    "k": "N/mm",
+    "c0": "N",
+    "A": "N/mm",
+    "alpha": "1/mm",
+    "a": "N/mm",
+    "b": "N/mm",
+    "n": "–",
+    "c_v": "N·s/mm",
+    "c": "N·s/mm",
+    "delay": "s",
+    "tau": "s",
+    "m": "kg",
+    "drift": "N/s",
+}
+
+CORR_WARN = 0.95  # |ρ| above which a pair is flagged as poorly identifiable
+
+
+def unit_of(name: str, units: Mapping[str, str] | None = None) -> str:
+    """The unit of a parameter ('' when unknown)."""
+    if units and name in units:
+        return units[name]
+    return KNOWN_UNITS.get(name, "")
+
+
+def _fmt(v: float | None, digits: int = 4) -> str:
+    if v is None or not math.isfinite(v):
+        return "—"
+    return f"{v:.{digits}g}"
+
+
+def quadratic(q: Sequence[float], p: np.ndarray) -> np.ndarray:
+    """θ(p) = q0 + q1·p + q2·p² (p in MPa)."""
+    q0, q1, q2 = (list(q) + [0.0, 0.0, 0.0])[:3]
+    return q0 + q1 * p + q2 * p * p
+
+
+def plot_parameter_vs_pressure(
+    ax: Axes,
+    name: str,
+    pressures: Sequence[float],
+    values: Sequence[float],
+    stderr: Sequence[float | None] | None = None,
+    fit: Sequence[float] | None = None,
+    *,
+    r2: float | None = None,
+    unit: str = "",
+    validation_pressures: Sequence[float] = (),
+) -> None:
+    """One parameter: points ± stderr at the identification pressures and its quadratic."""
+    p = np.asarray(pressures, dtype=float)
+    v = np.asarray(values, dtype=float)
+    se = None
+    if stderr is not None:
+        se = np.array([np.nan if s is None else float(s) for s in stderr])
+        se = np.where(np.isfinite(se), se, 0.0)
+    ax.errorbar(p, v, yerr=se, fmt="o", color=style.MEASURED, ms=4, capsize=3,
+                label="identified ± s.e.", zorder=3)
+    allp = np.concatenate([p, np.asarray(validation_pressures, dtype=float)])
+    if fit is not None and allp.size:
+        lo, hi = float(np.min(allp)), float(np.max(allp))
+        pad = 0.05 * max(hi - lo, 0.05)
+        pp = np.linspace(lo - pad, hi + pad, 100)
+        ax.plot(pp, quadratic(fit, pp), color=style.MODEL, label="quadratic fit", zorder=2)
+    for i, vp in enumerate(validation_pressures):
+        ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
+                   label="validation p" if i == 0 else None)
+    title = f"{name} ({unit})" if unit and unit != "–" else name
+    if r2 is not None and math.isfinite(r2):
+        title += f"   R² = {r2:.3f}"
+    ax.set_title(title)
+    ax.set_xlabel(style.PRESSURE)
+    ax.set_ylabel(f"{name} ({unit})" if unit and unit != "–" else name)
+
+
+@style.styled
+def parameters_vs_pressure_figure(
+    parameter_names: Sequence[str],
+    pressures: Sequence[float],
+    values: Mapping[str, Sequence[float]],
+    stderr: Mapping[str, Sequence[float | None]] | None = None,
+    pressure_fits: Mapping[str, Sequence[float]] | None = None,
+    r2: Mapping[str, float | None] | None = None,
+    *,
+    units: Mapping[str, str] | None = None,
+    validation_pressures: Sequence[float] = (),
+    title: str = "Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²",
+) -> Figure:
+    """Up to nine parameters (3 × 3 grid), one panel each."""
+    fig = style.new_figure(title)
+    n = len(parameter_names)
+    ncols = min(3, max(n, 1))
+    nrows = max(1, math.ceil(n / ncols))
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    for i, ax in enumerate(axes):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        name = parameter_names[i]
+        plot_parameter_vs_pressure(
+            ax, name, pressures, values[name],
+            None if stderr is None else stderr.get(name),
+            None if pressure_fits is None else pressure_fits.get(name),
+            r2=None if r2 is None else r2.get(name), unit=unit_of(name, units),
+            validation_pressures=validation_pressures,
+        )
+        if i == 0:
+            ax.legend(loc="best")
+    return fig
+
+
+def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
+           col_widths: Sequence[float] | None = None, highlight: set[tuple[int, int]] = frozenset(),
+           fontsize: float = 8.5, row_height: float = 1.35):
+    ax.axis("off")
+    tab = ax.table(cellText=cells, colLabels=col_labels, loc="upper center", cellLoc="center",
+                   colWidths=col_widths)
+    tab.auto_set_font_size(False)
+    tab.set_fontsize(fontsize)
+    tab.scale(1.0, row_height)
+    for (r, c), cell in tab.get_celld().items():
+        cell.set_linewidth(0.4)
+        if r == 0:
+            cell.set_facecolor("#e8eef6")
+            cell.set_text_props(fontweight="bold")
+        elif (r - 1, c) in highlight:
+            cell.set_facecolor("#fde0dc")
+    return tab
+
+
+def _text_block(ax: Axes, heading: str, lines: Sequence[str], *, width: int = 150,
+                max_lines: int = 14) -> None:
+    ax.axis("off")
+    wrapped: list[str] = []
+    for ln in lines:
+        wrapped.extend(textwrap.wrap(ln, width, initial_indent="• ", subsequent_indent="  "))
+    if len(wrapped) > max_lines:
+        extra = len(wrapped) - max_lines + 1
+        wrapped = [*wrapped[: max_lines - 1], f"  … ({extra} more lines)"]
+    ax.text(0.0, 1.0, heading, fontweight="bold", va="top", transform=ax.transAxes)
+    ax.text(0.0, 0.86, "\n".join(wrapped) if wrapped else "none", va="top",
+            transform=ax.transAxes, fontsize=8.5, linespacing=1.35)
+
+
+@style.styled
+def parameter_table_figure(
+    parameter_names: Sequence[str],
+    runs: Sequence[Mapping[str, Any]],
+    pressure_fits: Mapping[str, Sequence[float]] | None = None,
+    r2: Mapping[str, float | None] | None = None,
+    *,
+    units: Mapping[str, str] | None = None,
+    warnings: Sequence[str] = (),
+    title: str = "Identified parameters (value ± standard error) and identifiability",
+) -> Figure:
+    """Table of parameter values ± standard errors per run (≤ 5 runs per page), the
+    quadratic coefficients with R², and the identifiability warnings.
+
+    ``runs``: dicts with ``muscle_pressure_MPa``, ``parameters``, optional ``stderr``,
+    ``fixed`` and ``run``.  Cells whose relative standard error exceeds 50 % are shaded.
+    """
+    fig = style.new_figure(title)
+    has_fits = bool(pressure_fits)
+    ratios = [max(len(parameter_names), 1) + 1.5, (len(parameter_names) + 1.5) if has_fits else 0.01,
+              7.0]
+    axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": ratios})
+    head = ["parameter", "unit"] + [f"p = {r['muscle_pressure_MPa']:.3f} MPa\n{r.get('run', '')}"
+                                    for r in runs]
+    cells, hi = [], set()
+    for i, name in enumerate(parameter_names):
+        row = [name, unit_of(name, units)]
+        for j, r in enumerate(runs):
+            v = (r.get("parameters") or {}).get(name)
+            se = (r.get("stderr") or {}).get(name)
+            fixed = name in (r.get("fixed") or [])
+            txt = _fmt(v)
+            if fixed:
+                txt += " (fixed)"
+            elif se is not None and math.isfinite(se):
+                txt += f" ± {_fmt(se, 2)}"
+                if v not in (None, 0) and abs(se / v) > 0.5:
+                    hi.add((i, j + 2))
+            row.append(txt)
+        cells.append(row)
+    n = len(runs)
+    widths = [0.1, 0.08] + [min(0.82 / max(n, 1), 0.2)] * n
+    _table(axes[0], cells, head, col_widths=widths, highlight=hi)
+    if has_fits:
+        head2 = ["parameter", "unit", "q0", "q1 (per MPa)", "q2 (per MPa²)", "R²"]
+        cells2 = []
+        for name in parameter_names:
+            q = list((pressure_fits or {}).get(name) or [])
+            q = (q + [None, None, None])[:3]
+            cells2.append([name, unit_of(name, units), *(_fmt(x) for x in q),
+                           _fmt(None if r2 is None else r2.get(name), 4)])
+        _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.16, 0.16, 0.16, 0.1])
+    else:
+        axes[1].axis("off")
+    _text_block(axes[2], "Identifiability and fit warnings", list(warnings))
+    return fig
+
+
+@style.styled
+def correlation_figure(
+    entries: Sequence[Mapping[str, Any]],
+    *,
+    title: str = "Parameter correlation (identifiability); |ρ| > 0.95 is outlined",
+) -> Figure:
+    """Up to four correlation heatmaps (2 × 2). ``entries``: dicts with ``title``,
+    ``names`` and ``matrix`` (ρ in [−1, 1])."""
+    fig = style.new_figure(title)
+    n = len(entries)
+    ncols = 1 if n == 1 else 2
+    nrows = 1 if n <= 2 else 2
+    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    im = None
+    for i, ax in enumerate(axes):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        e = entries[i]
+        names = list(e["names"])
+        m = np.array([[np.nan if v is None else float(v) for v in row] for row in e["matrix"]])
+        im = ax.imshow(m, vmin=-1.0, vmax=1.0, cmap="RdBu_r")
+        ax.grid(False)
+        ax.set_xticks(range(len(names)), names, rotation=45, ha="right")
+        ax.set_yticks(range(len(names)), names)
+        ax.set_title(str(e.get("title", "")))
+        fs = 8.5 if len(names) <= 8 else 8.0
+        if len(names) <= 12:
+            for r in range(len(names)):
+                for c in range(len(names)):
+                    v = m[r, c]
+                    if not np.isfinite(v):
+                        continue
+                    strong = abs(v) > CORR_WARN and r != c
+                    ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=fs,
+                            color="white" if abs(v) > 0.6 else "black",
+                            fontweight="bold" if strong else "normal")
+                    if strong:
+                        ax.add_patch(_outline(c, r))
+    if im is not None:
+        fig.colorbar(im, ax=list(axes[:n]), label="correlation ρ", shrink=0.8)
+    return fig
+
+
+def _outline(c: int, r: int):
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, ec="black", lw=1.5)
+
+
+METRIC_COLUMNS = [
+    ("rmse", "RMSE (N)", 3),
+    ("nrmse", "NRMSE", 3),
+    ("fit_percent", "fit (%)", 3),
+    ("max_error", "max |err| (N)", 3),
+    ("energy_error_percent", "loop energy err (%)", 2),
+]
+
+
+@style.styled
+def metrics_table_figure(
+    rows: Sequence[Mapping[str, Any]],
+    *,
+    title: str = "Fit quality: identification runs and validation (free-run prediction)",
+    notes: Sequence[str] = (),
+) -> Figure:
+    """One table row per run: role, run, p, f, waveform, RMSE, NRMSE, fit %, max error,
+    loop energy error, RMSE on the stretch/release branches.  ``rows`` are the run dicts
+    of ``identification.json`` with a ``role`` key."""
+    fig = style.new_figure(title)
+    nrow = len(rows)
+    axes = fig.subplots(2, 1, gridspec_kw={"height_ratios": [nrow + 2.0, 4.0]})
+    head = ["role", "run", "p (MPa)", "f (Hz)", "waveform"] + [h for _, h, _ in METRIC_COLUMNS] + [
+        "RMSE stretch (N)", "RMSE release (N)"]
+    cells, hi = [], set()
+    for i, r in enumerate(rows):
+        f = r.get("frequency_Hz")
+        row = [str(r.get("role", "")), f"{r.get('file', '')}:{r.get('run', '')}",
+               f"{r['muscle_pressure_MPa']:.4g}", _fmt(f, 3), str(r.get("waveform") or "—")]
+        for k, _, d in METRIC_COLUMNS:
+            row.append(_fmt(r.get(k), d))
+        br = r.get("branch_rmse") or {}
+        row += [_fmt(br.get("stretch"), 3), _fmt(br.get("release"), 3)]
+        cells.append(row)
+        if r.get("role") == "validation":
+            hi.add((i, 0))
+    widths = [0.09, 0.15, 0.06, 0.05, 0.07] + [0.075] * len(METRIC_COLUMNS) + [0.085, 0.085]
+    _table(axes[0], cells, head, col_widths=widths, highlight=hi, row_height=1.6)
+    _text_block(axes[1], "Notes", [
+        "NRMSE = RMS error / standard deviation of the measured tension; fit % = 100·(1 − NRMSE).",
+        "Validation rows: the pressure-quadratic model's free-run prediction of runs not used "
+        "for identification (shaded).",
+        "Stretch branch: x decreasing (muscle lengthening, higher tension); release: x increasing.",
+        *notes,
+    ])
+    return fig

@@ -1,0 +1,175 @@
+"""Figures of measured vs modelled signals: time histories, error-coloured loops and
+validation overlays.
+
+Sign convention (DESIGN.md): x is the contraction in mm (positive = shorter), F the
+tension in N; in an F–x loop the tension is higher while the muscle is being stretched
+(x decreasing) than while it contracts.  Errors are ``F_model − F`` in N.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.collections import LineCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+
+from pmalab.reports import style
+from pmalab.reports.data import Trace
+
+LOOP_MAX_POINTS = 2000
+TIME_MAX_POINTS = 3000
+
+
+def error_loop(
+    ax: Axes,
+    position: np.ndarray,
+    force: np.ndarray,
+    force_model: np.ndarray,
+    *,
+    norm: Normalize | None = None,
+    max_points: int = LOOP_MAX_POINTS,
+    measured_label: str = "measured",
+) -> LineCollection:
+    """Draw a measured F–x loop (thin black) and the model loop as segments coloured by the
+    absolute error |F_model − F| (N) at each segment (mean of its two end samples).
+
+    At most ``max_points`` samples are drawn (uniform stride), so a loop of n ≤ max_points
+    samples has exactly n − 1 coloured segments.  Returns the LineCollection (its array
+    holds the per-segment |error| in N).
+    """
+    x = np.asarray(position, dtype=float)
+    f = np.asarray(force, dtype=float)
+    fm = np.asarray(force_model, dtype=float)
+    s = style.decimate(x.shape[0], max_points)
+    x, f, fm = x[s], f[s], fm[s]
+    err = np.abs(fm - f)
+    pts = np.column_stack([x, fm])
+    segs = np.stack([pts[:-1], pts[1:]], axis=1)
+    seg_err = 0.5 * (err[:-1] + err[1:])
+    if norm is None:
+        norm = Normalize(vmin=0.0, vmax=max(float(seg_err.max(initial=0.0)), 1e-12))
+    ax.plot(x, f, color=style.MEASURED, lw=0.7, alpha=0.8, label=measured_label, zorder=1)
+    lc = LineCollection(segs, cmap=style.ERROR_CMAP, norm=norm, linewidths=1.6, zorder=2)
+    lc.set_array(seg_err)
+    ax.add_collection(lc)
+    ax.autoscale_view()
+    # legend proxy: a LineCollection's own handle would show its unused default colour
+    ax.add_line(Line2D([], [], color=style.ERROR_CMAP(0.55), lw=1.6,
+                       label="model (colour = |error|)"))
+    ax.set_xlabel(style.POSITION)
+    ax.set_ylabel(style.FORCE)
+    return lc
+
+
+def _fit_text(t: Trace, fit_percent: float | None) -> str:
+    fp = t.fit_percent if fit_percent is None else fit_percent
+    return f"fit {fp:.1f} %"
+
+
+def _page_norm(traces: Sequence[Trace]) -> Normalize:
+    vmax = max((float(np.max(np.abs(t.error))) for t in traces), default=1.0)
+    return Normalize(vmin=0.0, vmax=max(vmax, 1e-12))
+
+
+@style.styled
+def loops_figure(
+    traces: Sequence[Trace],
+    *,
+    title: str = "Measured vs model loops",
+    fit_percent: Sequence[float | None] | None = None,
+) -> Figure:
+    """Up to four F–x loops (2 × 2 grid), one per run/pressure level, on one |error| scale.
+
+    ``fit_percent`` (same order as ``traces``) overrides the fit % computed from the trace.
+    """
+    fig = style.new_figure(title)
+    n = len(traces)
+    ncols = 1 if n == 1 else 2
+    nrows = 1 if n <= 2 else 2
+    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False).ravel())
+    norm = _page_norm(traces)
+    lc = None
+    for i, ax in enumerate(axes):
+        if i >= n:
+            ax.set_visible(False)
+            continue
+        t = traces[i]
+        lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
+        fp = None if fit_percent is None else fit_percent[i]
+        ax.set_title(f"{t.describe()} — {_fit_text(t, fp)}\n{t.label}")
+        ax.legend(loc="best")
+    if lc is not None:
+        fig.colorbar(lc, ax=list(axes[:n]), label=style.ABS_ERROR, shrink=0.8)
+    return fig
+
+
+@style.styled
+def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories") -> Figure:
+    """For each of up to three runs (columns): contraction, tension (measured vs model),
+    error, and muscle pressure against time."""
+    fig = style.new_figure(title)
+    n = len(traces)
+    axes = fig.subplots(4, n, squeeze=False, sharex="col",
+                        gridspec_kw={"height_ratios": [1, 1.6, 0.9, 0.9]})
+    for j, t in enumerate(traces):
+        s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
+        tt = t.time[s]
+        a0, a1, a2, a3 = axes[:, j]
+        a0.plot(tt, t.position[s], color=style.MEASURED)
+        a0.set_ylabel(style.POSITION)
+        a0.set_title(f"{t.label}\n{t.describe()} — model {t.model or '?'} ({t.role})")
+        a1.plot(tt, t.force[s], color=style.MEASURED, label="measured")
+        a1.plot(tt, t.force_model[s], color=style.MODEL, lw=1.0, alpha=0.9, label="model")
+        a1.set_ylabel(style.FORCE)
+        a1.legend(loc="upper right", ncols=2)
+        a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.7)
+        a2.axhline(0.0, color="0.4", lw=0.6)
+        a2.set_ylabel("Error (N)")
+        rms = float(np.sqrt(np.mean(t.error**2)))
+        a2.text(0.01, 0.95, f"RMSE {rms:.2f} N, fit {t.fit_percent:.1f} %",
+                transform=a2.transAxes, va="top", fontsize=8,
+                bbox={"fc": "white", "ec": "none", "alpha": 0.7})
+        a3.plot(tt, t.muscle_pressure[s], color="#8c564b", lw=0.8)
+        a3.set_ylabel("p (MPa)")
+        a3.set_xlabel(style.TIME)
+    return fig
+
+
+@style.styled
+def validation_figure(
+    traces: Sequence[Trace],
+    *,
+    fit_percent: Sequence[float | None] | None = None,
+    title: str = "Validation: pressure-quadratic model, free-run prediction",
+) -> Figure:
+    """For each of up to two validation runs (columns): the error-coloured F–x loop, the
+    tension against time (measured vs predicted) and the error; fit % in the titles."""
+    fig = style.new_figure(title)
+    n = len(traces)
+    axes = fig.subplots(3, n, squeeze=False, gridspec_kw={"height_ratios": [2.2, 1.1, 0.8]})
+    norm = _page_norm(traces)
+    lc = None
+    for j, t in enumerate(traces):
+        fp = None if fit_percent is None else fit_percent[j]
+        a0, a1, a2 = axes[:, j]
+        lc = error_loop(a0, t.position, t.force, t.force_model, norm=norm)
+        a0.set_title(f"{t.label}\n{t.describe()} — {_fit_text(t, fp)}")
+        a0.legend(loc="best")
+        s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
+        a1.plot(t.time[s], t.force[s], color=style.MEASURED, label="measured")
+        a1.plot(t.time[s], t.force_model[s], color=style.VALIDATION, alpha=0.9,
+                label="predicted")
+        a1.set_ylabel(style.FORCE)
+        a1.legend(loc="upper right", ncols=2)
+        a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.7)
+        a2.axhline(0.0, color="0.4", lw=0.6)
+        a2.set_ylabel("Error (N)")
+        a2.set_xlabel(style.TIME)
+        a1.sharex(a2)
+    if lc is not None:
+        fig.colorbar(lc, ax=list(axes[0, :]), label=style.ABS_ERROR, shrink=0.8)
+    return fig

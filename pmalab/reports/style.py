@@ -1,0 +1,103 @@
+"""Page geometry, fonts, colours, labels and figure export shared by every report figure.
+
+Pages are A4 landscape (297 × 210 mm) with fonts of at least 8 pt, so a page printed at
+100 % is readable.  Figures are built with :class:`matplotlib.figure.Figure` directly (no
+pyplot state), under :data:`RC` applied by the :func:`styled` decorator.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import ParamSpec, TypeVar
+
+import matplotlib as mpl
+import numpy as np
+from matplotlib.colors import LinearSegmentedColormap
+from matplotlib.figure import Figure
+
+from pmalab.paths import check_output
+from pmalab.reports.errors import ReportError
+
+A4_LANDSCAPE = (11.69, 8.27)  # inches
+MIN_FONT_PT = 8.0
+
+RC = {
+    "font.size": 9.0,
+    "axes.titlesize": 10.0,
+    "axes.labelsize": 9.0,
+    "xtick.labelsize": 8.0,
+    "ytick.labelsize": 8.0,
+    "legend.fontsize": 8.0,
+    "figure.titlesize": 13.0,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.5,
+    "lines.linewidth": 1.0,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "svg.fonttype": "none",
+    "pdf.fonttype": 42,
+}
+
+# Colours: measured data is black, the model blue, errors on a dark-to-orange scale that
+# stays visible on white at both ends.
+MEASURED = "0.15"
+MODEL = "#1f77b4"
+VALIDATION = "#d62728"
+SIGNIFICANT = "#2ca02c"
+NOT_SIGNIFICANT = "#9e9e9e"
+ERROR_CMAP = LinearSegmentedColormap.from_list(
+    "pmalab_error", mpl.colormaps["plasma"](np.linspace(0.0, 0.85, 256))
+)
+
+# Axis labels, units in parentheses (DESIGN.md sign convention).
+TIME = "Time t (s)"
+POSITION = "Contraction x (mm)"
+FORCE = "Tension F (N)"
+PRESSURE = "Muscle pressure p (MPa)"
+ERROR = "Error F_model − F (N)"
+ABS_ERROR = "|F_model − F| (N)"
+
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def styled(fn: Callable[P, R]) -> Callable[P, R]:
+    """Run a figure function under the report's rcParams."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: P.args, **kwargs: P.kwargs) -> R:
+        with mpl.rc_context(RC):
+            return fn(*args, **kwargs)
+
+    return wrapper
+
+
+def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDSCAPE) -> Figure:
+    """An empty page-sized figure with an optional page title (call under :data:`RC`)."""
+    fig = Figure(figsize=figsize, layout="constrained")
+    fig.get_layout_engine().set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05)
+    if title:
+        fig.suptitle(title, fontweight="bold")
+    return fig
+
+
+def decimate(n: int, max_points: int) -> slice:
+    """A stride that keeps at most ``max_points`` of ``n`` samples (for vector output)."""
+    step = max(1, int(np.ceil(n / max_points))) if max_points > 0 else 1
+    return slice(None, None, step)
+
+
+def save_figure(fig: Figure, path: str | Path, *, force: bool = False, dpi: int = 200) -> Path:
+    """Export one figure as PNG, SVG or PDF (by suffix); refuse to overwrite unless ``force``."""
+    p = Path(path)
+    fmt = p.suffix.lower().lstrip(".")
+    if fmt not in ("png", "svg", "pdf"):
+        raise ReportError(f"{p}: unsupported figure format '{p.suffix}' (use .png, .svg or .pdf)")
+    check_output(p, force)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with mpl.rc_context(RC):
+        fig.savefig(p, format=fmt, dpi=dpi)
+    return p
