@@ -1,0 +1,136 @@
+"""``load_rig(spec)``: a rig from ``"sim"`` or from a rig TOML file.
+
+A rig file::
+
+    [rig]
+    kind = "sim"                 # a key of RIG_KINDS
+    truth = "../truth/x.toml"    # sim only: truth file, relative to this rig file
+    seed = 0                     # sim only: sensor-noise seed
+    manual_muscle_regulator = false
+
+    [limits]                     # optional: overrides pmalab.rig.base.Limits fields
+    max_force_N = 1800
+
+Each kind is a factory in :data:`RIG_KINDS`, ``factory(section, rig_file, *, seed, clock)
+-> Rig`` where ``section`` is the ``[rig]`` table (minus ``kind``) and ``rig_file`` the
+file's path (``None`` for the bare ``"sim"`` spec); the device-driver module registers its
+kinds ("modbus-tcp", ...) with one line: ``RIG_KINDS["modbus-tcp"] = make_modbus_rig``.
+Factories report mistakes as one-line :class:`~pmalab.errors.ConfigError` naming the file
+and field.  :func:`load_rig` then applies ``[limits]`` and records the file's text in
+``rig.info["rig_file_text"]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from pmalab.errors import ConfigError
+from pmalab.rig.base import Clock, Limits, Rig
+
+RigFactory = Callable[..., Rig]
+
+
+def _make_sim(
+    section: dict[str, Any], rig_file: Path | None, *, seed: int = 0, clock: Clock | None = None
+) -> Rig:
+    from pmalab.rig.sim import make_sim_rig
+
+    where = str(rig_file) if rig_file is not None else "sim"
+    allowed = {"truth", "seed", "manual_muscle_regulator"}
+    for key in section:
+        if key not in allowed:
+            raise ConfigError(
+                f"{where}: rig.{key}: unknown key for kind 'sim' (known: kind, {', '.join(sorted(allowed))})"
+            )
+    truth = section.get("truth")
+    truth_path: Path | None = None
+    if truth is not None:
+        if not isinstance(truth, str) or not truth:
+            raise ConfigError(f"{where}: rig.truth: must be a path (text)")
+        truth_path = Path(truth)
+        if not truth_path.is_absolute() and rig_file is not None:
+            truth_path = rig_file.parent / truth_path
+        if not truth_path.exists():
+            raise ConfigError(f"{where}: rig.truth: file not found: {truth_path}")
+    if "seed" in section:
+        s = section["seed"]
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
+        seed = s
+    manual = section.get("manual_muscle_regulator", False)
+    if not isinstance(manual, bool):
+        raise ConfigError(f"{where}: rig.manual_muscle_regulator: must be true or false")
+    return make_sim_rig(truth_path, seed=seed, clock=clock, manual_muscle_regulator=manual)
+
+
+#: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
+RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
+
+
+def _apply_limits(rig: Rig, table: Any, where: str) -> None:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where}: limits: must be a table")
+    names = {f.name for f in dataclasses.fields(Limits)}
+    values = dataclasses.asdict(rig.limits)
+    for key, v in table.items():
+        if key not in names:
+            raise ConfigError(
+                f"{where}: limits.{key}: unknown limit (known: {', '.join(sorted(names))})"
+            )
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise ConfigError(f"{where}: limits.{key}: must be a number")
+        values[key] = float(v)
+    if values["min_position_mm"] >= values["max_position_mm"]:
+        raise ConfigError(f"{where}: limits.min_position_mm: must be < limits.max_position_mm")
+    for key in ("max_muscle_pressure_MPa", "max_cylinder_pressure_MPa", "max_force_N"):
+        if values[key] <= 0:
+            raise ConfigError(f"{where}: limits.{key}: must be > 0")
+    rig.limits = Limits(**values)
+
+
+def load_rig(spec: str | Path, *, seed: int = 0, clock: Clock | None = None) -> Rig:
+    """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
+
+    Unknown kinds and bad fields raise a one-line :class:`ConfigError` naming file and field.
+    """
+    if str(spec) == "sim":
+        rig = RIG_KINDS["sim"]({}, None, seed=seed, clock=clock)
+        rig.info.setdefault("rig_file", "sim")
+        return rig
+    path = Path(spec)
+    where = str(spec)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{where}: rig file not found (use 'sim' or a rig TOML file)") from None
+    except OSError as exc:
+        raise ConfigError(f"{where}: cannot read rig file ({exc.strerror})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{where}: not valid TOML ({exc})") from None
+    for key in doc:
+        if key not in ("rig", "limits"):
+            raise ConfigError(f"{where}: {key}: unknown section (known: rig, limits)")
+    section = doc.get("rig")
+    if not isinstance(section, dict):
+        raise ConfigError(f"{where}: rig: missing [rig] table with kind = ...")
+    section = dict(section)
+    kind = section.pop("kind", None)
+    if kind is None:
+        raise ConfigError(f"{where}: rig.kind: missing (known: {', '.join(sorted(RIG_KINDS))})")
+    if kind not in RIG_KINDS:
+        raise ConfigError(
+            f"{where}: rig.kind: unknown kind {kind!r} (known: {', '.join(sorted(RIG_KINDS))})"
+        )
+    rig = RIG_KINDS[kind](section, path, seed=seed, clock=clock)
+    if "limits" in doc:
+        _apply_limits(rig, doc["limits"], where)
+    rig.info["rig_file"] = str(path)
+    rig.info["rig_file_text"] = text
+    return rig
