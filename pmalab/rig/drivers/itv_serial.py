@@ -1,0 +1,209 @@
+"""SMC ITV electro-pneumatic regulator with the RS-232C option (9600 baud, 8N1, ASCII).
+
+Protocol (one command per line, CR LF terminated, one reply line each):
+
+* ``SET n``  — set the pressure to n/1023 of the range (n = 0…1023) → ``OK``
+* ``MON``    — read the output pressure back → ``MON n`` (n = 0…1023 of the range)
+* anything else → ``UNKNOWN COMMAND``; n outside 0…1023 → ``OUT OF RANGE``
+
+A 0.9 MPa ITV1050 therefore has a resolution of 0.9/1023 ≈ 0.88 kPa.  A reply other than the
+expected one is counted and the command retried (bounded, re-opening the port after a
+timeout); past the bound a :class:`RigError` names the port and the last reply.
+
+At 9600 baud ``SET 1023`` plus its ``OK`` take about 15 ms on the wire, so a 500 Hz runner
+cannot wait for each one.  :meth:`ItvSerialRegulator.set_pressure` therefore hands the
+newest setpoint to a writer thread that sends only changed counts (the 1023-step
+quantization makes most 2 ms updates no-ops) and returns at once; a failure in that thread
+is raised by the next ``set_pressure``.  ``vent`` is synchronous.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from pmalab.errors import RigError
+from pmalab.rig.base import PressureRegulator
+from pmalab.rig.drivers.adapters import (
+    Adapter,
+    DeviceExceptionReply,
+    FrameError,
+    TransportClosed,
+    TransportError,
+    TransportTimeout,
+)
+from pmalab.rig.drivers.modbus_link import LinkStats, _reason
+
+FULL_SCALE = 1023
+ERROR_REPLIES = ("UNKNOWN COMMAND", "OUT OF RANGE", "ERROR")
+
+
+class ItvSerialRegulator(PressureRegulator):
+    """ITV regulator on a serial adapter; setpoints in MPa gauge."""
+
+    def __init__(
+        self,
+        adapter: Adapter,
+        max_pressure_MPa: float = 0.9,
+        timeout: float = 0.2,
+        retries: int = 2,
+        name: str = "ITV regulator",
+    ) -> None:
+        self.adapter = adapter
+        self.max_pressure_MPa = float(max_pressure_MPa)
+        self.timeout = float(timeout)
+        self.retries = int(retries)
+        self.name = name
+        self.stats = LinkStats()
+        self.last_command_MPa = 0.0
+        self.vent_error: str | None = None
+        self._io = threading.Lock()  # one command on the wire at a time
+        self._cv = threading.Condition()
+        self._pending: int | None = None
+        self._sent: int | None = None
+        self._error: RigError | None = None
+        self._worker: threading.Thread | None = None
+        self._stop = False
+
+    # ----------------------------------------------------------------- protocol
+    def counts_for(self, mpa: float) -> int:
+        """Setpoint counts 0…1023 for ``mpa`` MPa (rounded to the nearest step)."""
+        return min(max(round(mpa / self.max_pressure_MPa * FULL_SCALE), 0), FULL_SCALE)
+
+    def _command(self, text: str) -> str:
+        """Send one command line, return its reply line (retried on faults)."""
+        with self._io:
+            return self._command_locked(text)
+
+    def _command_locked(self, text: str) -> str:
+        self.stats.requests += 1
+        last: TransportError | None = None
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.stats.retries += 1
+            try:
+                if not self.adapter.is_open:
+                    self.adapter.open()
+                    self.stats.reconnects += 1
+                self.adapter.write(text.encode("ascii") + b"\r\n")
+                raw = self.adapter.read_until(b"\r\n", self.timeout)
+                try:
+                    reply = raw.decode("ascii").strip()
+                except UnicodeDecodeError as exc:
+                    raise FrameError(f"{self.adapter.name}: garbled reply {raw!r}") from exc
+                if reply in ERROR_REPLIES:
+                    raise DeviceExceptionReply(f"{self.adapter.name}: {text!r} → {reply}")
+                return reply
+            except OSError as exc:
+                last = TransportClosed(f"{self.adapter.name}: {_reason(exc)}")
+                self.stats.disconnects += 1
+                self.adapter.close()
+            except TransportError as exc:
+                last = exc
+                self.stats.count(exc)
+                if isinstance(exc, TransportClosed):
+                    self.adapter.close()
+                else:
+                    time.sleep(0.005)  # let a late reply land, then drop it
+                    self.adapter.discard_input()
+        self.stats.failures += 1
+        raise RigError(f"{self.name} {self.adapter.name}: {text!r} failed after {self.retries + 1} attempts (last: {_reason(last)})")
+
+    def set_counts(self, n: int) -> None:
+        """Send ``SET n`` and wait for ``OK`` (synchronous)."""
+        reply = self._command(f"SET {int(n)}")
+        if reply != "OK":
+            self.stats.bad_frames += 1
+            raise RigError(f"{self.name} {self.adapter.name}: SET {n} answered {reply!r}, expected 'OK'")
+        self._sent = int(n)
+
+    def _run_writer(self) -> None:
+        while True:
+            with self._cv:
+                while not self._stop and (self._pending is None or self._pending == self._sent):
+                    self._cv.wait()
+                if self._stop:
+                    return
+                n = self._pending
+            try:
+                self.set_counts(n)
+            except RigError as exc:
+                with self._cv:
+                    self._error = exc
+                    self._stop = True
+                return
+
+    def monitor_counts(self) -> int:
+        reply = self._command("MON")
+        parts = reply.split()
+        if len(parts) != 2 or parts[0] != "MON" or not parts[1].isdigit():
+            self.stats.bad_frames += 1
+            raise RigError(f"{self.name} {self.adapter.name}: MON answered {reply!r}, expected 'MON n'")
+        return int(parts[1])
+
+    # ----------------------------------------------------------------- regulator API
+    def connect(self) -> None:
+        """Open the port and check that an ITV answers (one clear line if not)."""
+        try:
+            self.adapter.open()
+        except (OSError, TransportError) as exc:
+            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({_reason(exc)})") from exc
+        self.monitor_pressure()
+
+    def set_pressure(self, mpa: float) -> None:
+        """Queue ``mpa`` MPa for the writer thread; raise a fault the thread met earlier."""
+        if not -1e-9 <= mpa <= self.max_pressure_MPa + 1e-9:
+            raise RigError(f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa")
+        with self._cv:
+            if self._error is not None:
+                raise self._error
+            if self._worker is None:
+                self._stop = False
+                self._worker = threading.Thread(target=self._run_writer, name="itv-writer", daemon=True)
+                self._worker.start()
+            self._pending = self.counts_for(mpa)
+            self._cv.notify()
+        self.last_command_MPa = float(mpa)
+
+    def flush(self, timeout: float = 1.0) -> None:
+        """Wait until the newest setpoint is on the device (tests, start of a run)."""
+        deadline = time.perf_counter() + timeout
+        while time.perf_counter() < deadline:
+            with self._cv:
+                if self._error is not None:
+                    raise self._error
+                if self._pending is None or self._pending == self._sent:
+                    return
+            time.sleep(0.001)
+        raise RigError(f"{self.name} {self.adapter.name}: setpoint not acknowledged within {timeout} s")
+
+    def _stop_writer(self) -> None:
+        with self._cv:
+            self._stop = True
+            self._cv.notify()
+            worker, self._worker = self._worker, None
+        if worker is not None and worker is not threading.current_thread():
+            worker.join(timeout=2.0)
+
+    def monitor_pressure(self) -> float:
+        """The regulator's own output-pressure reading (MPa)."""
+        return self.monitor_counts() / FULL_SCALE * self.max_pressure_MPa
+
+    def vent(self) -> None:
+        self._stop_writer()
+        try:
+            self.set_counts(0)
+            self.last_command_MPa = 0.0
+        except Exception as exc:  # must never raise
+            self.vent_error = str(exc)
+
+    def close(self) -> None:
+        self._stop_writer()
+        self.adapter.close()
+
+    def stats_dict(self) -> dict[str, Any]:
+        return self.stats.as_dict()
+
+
+__all__ = ["ERROR_REPLIES", "FULL_SCALE", "ItvSerialRegulator", "TransportTimeout"]

@@ -1,0 +1,274 @@
+"""Modbus analog I/O (LabJack T7, generic Modbus ADC/DAC modules): sampler and regulator output.
+
+:class:`ModbusSampler` reads every Modbus analog input of the rig in ONE block request per
+sample (the span from the lowest to the highest channel register), decodes each channel's
+registers (:class:`~.calibration.RegisterCodec`) and calibrates volts → engineering units.
+It is software-polled (``hardware_timed = False``): the runner calls :meth:`read_block` at
+each deadline and gets one sample stamped on the rig's clock at the middle of the request
+(the instant the device most likely sampled its inputs).
+
+Channels that do not come over Modbus (a serial load-cell indicator) are plugged in as
+``extra`` sources: callables returning the latest value.
+
+:class:`ModbusAnalogOutput` is a :class:`~pmalab.rig.base.PressureRegulator` on an analog
+output register (LabJack DAC0 at 1000: 0–10 V → ITV1050 0–0.9 MPa).
+
+Timing honesty: :meth:`ModbusSampler.probe_rate` measures the block-read latency of the
+configured link; :meth:`ModbusSampler.check_rate` refuses a rate it cannot sustain, or (only
+with ``allow_reduced_rate``) lowers :attr:`sample_rate_Hz` to one it can.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from pmalab.errors import RigError
+from pmalab.rig.base import Block, Clock, MusclePressureSupply, PressureRegulator, Sampler
+from pmalab.rig.drivers.adapters import ValueOutOfRange
+from pmalab.rig.drivers.calibration import Calibration, RegisterCodec
+from pmalab.rig.drivers.modbus_link import FC_READ_HOLDING, ModbusLink
+
+#: rates a reduced-rate run may fall back to (Hz), highest first
+FALLBACK_RATES_HZ = (500.0, 400.0, 250.0, 200.0, 125.0, 100.0, 50.0, 25.0, 10.0)
+#: share of the sample period a block read may take at its 99th percentile (the runner and
+#: the writer need the rest)
+PERIOD_BUDGET = 0.8
+
+SAMPLED = ("position", "force", "muscle_pressure", "cylinder_pressure")
+
+
+@dataclass(frozen=True)
+class AnalogChannel:
+    """One analog input: register address, encoding, calibration, electrical range."""
+
+    name: str
+    address: int
+    codec: RegisterCodec
+    calibration: Calibration
+    raw_range: tuple[float, float] | None = None
+
+
+@dataclass
+class ProbeResult:
+    """Block-read latency of a link (ms) and what rate it sustains."""
+
+    n: int
+    mean_ms: float
+    p50_ms: float
+    p99_ms: float
+    max_ms: float
+    jitter_ms: float  # standard deviation of the latency
+    max_rate_Hz: float  # 1 / mean latency: back-to-back reads
+    sustainable_Hz: float  # PERIOD_BUDGET / p99 latency
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+class ModbusSampler(Sampler):
+    """Software-polled sampler: one Modbus block read → one sample of the four channels."""
+
+    hardware_timed = False
+
+    def __init__(
+        self,
+        link: ModbusLink,
+        channels: list[AnalogChannel],
+        clock: Clock,
+        *,
+        function: int = FC_READ_HOLDING,
+        sample_rate_Hz: float = 500.0,
+        allow_reduced_rate: bool = False,
+        extra: dict[str, Callable[[], float]] | None = None,
+        extra_stats: dict[str, Callable[[], dict[str, Any]]] | None = None,
+    ) -> None:
+        self.link = link
+        self.channels = channels
+        self.clock = clock
+        self.function = function
+        self.sample_rate_Hz = float(sample_rate_Hz)
+        self.requested_rate_Hz = float(sample_rate_Hz)
+        self.allow_reduced_rate = bool(allow_reduced_rate)
+        self.extra = dict(extra or {})
+        self.extra_stats = dict(extra_stats or {})
+        names = {c.name for c in channels} | set(self.extra)
+        missing = [n for n in SAMPLED if n not in names]
+        if missing:
+            raise ValueError(f"no source for channel(s) {', '.join(missing)}")
+        self.start_address = min(c.address for c in channels)
+        end = max(c.address + c.codec.width for c in channels)
+        self.count = end - self.start_address
+        if self.count > 125:
+            raise ValueError(f"analog inputs span {self.count} registers; one Modbus read carries at most 125")
+        self.last_probe: ProbeResult | None = None
+
+    # ----------------------------------------------------------------- reading
+    def _convert(self, regs: list[int]) -> dict[str, float]:
+        out: dict[str, float] = {}
+        for ch in self.channels:
+            i = ch.address - self.start_address
+            raw = ch.codec.decode(regs[i : i + ch.codec.width])
+            if not np.isfinite(raw) or (
+                ch.raw_range is not None and not ch.raw_range[0] <= raw <= ch.raw_range[1]
+            ):
+                raise ValueOutOfRange(
+                    f"{self.link.adapter.name}: channel {ch.name} raw value {raw:.4g} "
+                    f"outside {ch.raw_range} (register {ch.address})"
+                )
+            out[ch.name] = ch.calibration(raw)
+        return out
+
+    def read_values(self) -> dict[str, float]:
+        """One block read, calibrated (no timestamp)."""
+        values = self.link.read_registers(self.start_address, self.count, self.function, self._convert)
+        for name, source in self.extra.items():
+            values[name] = source()
+        return values
+
+    def read_block(self) -> Block:
+        t0 = self.clock.now()
+        v = self.read_values()
+        t1 = self.clock.now()
+        return Block.single(
+            0.5 * (t0 + t1), v["position"], v["force"], v["muscle_pressure"], v["cylinder_pressure"]
+        )
+
+    def tare(self, channel: str = "force", n: int = 50) -> float:
+        """Zero ``channel`` on the mean of ``n`` readings (load cell unloaded); returns the tare."""
+        idx = next((i for i, c in enumerate(self.channels) if c.name == channel), None)
+        if idx is None:
+            raise RigError(f"{channel}: not a Modbus channel of this rig, cannot tare")
+        mean = float(np.mean([self.read_values()[channel] for _ in range(n)]))
+        ch = self.channels[idx]
+        cal = Calibration(ch.calibration.coefficients, ch.calibration.tare + mean)
+        self.channels[idx] = AnalogChannel(ch.name, ch.address, ch.codec, cal, ch.raw_range)
+        return cal.tare
+
+    # ----------------------------------------------------------------- timing honesty
+    def probe_rate(self, n: int = 300) -> ProbeResult:
+        """Time ``n`` back-to-back block reads on the real link (wall clock)."""
+        lat = np.empty(n)
+        for i in range(n):
+            t0 = time.perf_counter()
+            self.read_values()
+            lat[i] = time.perf_counter() - t0
+        ms = lat * 1e3
+        p99 = float(np.percentile(ms, 99))
+        res = ProbeResult(
+            n=n,
+            mean_ms=float(ms.mean()),
+            p50_ms=float(np.median(ms)),
+            p99_ms=p99,
+            max_ms=float(ms.max()),
+            jitter_ms=float(ms.std()),
+            max_rate_Hz=float(1e3 / ms.mean()),
+            sustainable_Hz=float(PERIOD_BUDGET * 1e3 / p99),
+        )
+        self.last_probe = res
+        return res
+
+    def check_rate(self, rate_Hz: float | None = None, n: int = 300) -> ProbeResult:
+        """Probe, then accept ``rate_Hz``, lower it (``allow_reduced_rate``) or refuse.
+
+        Raises :class:`RigError` with one line when the link cannot sustain the rate and a
+        reduced rate was not allowed.  Sets :attr:`sample_rate_Hz` to the rate to run at.
+        """
+        rate = float(rate_Hz or self.requested_rate_Hz)
+        res = self.probe_rate(n)
+        if res.sustainable_Hz >= rate:
+            self.sample_rate_Hz = rate
+            return res
+        where = self.link.name
+        if not self.allow_reduced_rate:
+            raise RigError(
+                f"{where}: block reads take {res.p50_ms:.2f} ms (p99 {res.p99_ms:.2f} ms), "
+                f"sustainable about {res.sustainable_Hz:.0f} Hz < {rate:.0f} Hz requested; "
+                "use a faster link or set allow_reduced_rate = true in the rig file"
+            )
+        fallback = [r for r in FALLBACK_RATES_HZ if r <= min(res.sustainable_Hz, rate)]
+        if not fallback:
+            raise RigError(f"{where}: sustainable rate {res.sustainable_Hz:.1f} Hz is too low to record")
+        self.sample_rate_Hz = fallback[0]
+        return res
+
+    def stats(self) -> dict[str, Any]:
+        """Fault counters of the link(s), for the run's metadata."""
+        out: dict[str, Any] = {"modbus": self.link.stats.as_dict()}
+        for name, fn in self.extra_stats.items():
+            out[name] = fn()
+        return out
+
+    def close(self) -> None:
+        self.link.close()
+
+
+class ModbusAnalogOutput(PressureRegulator):
+    """A regulator driven by an analog output register (value MPa → raw volts → register)."""
+
+    def __init__(
+        self,
+        link: ModbusLink,
+        address: int,
+        codec: RegisterCodec,
+        calibration: Calibration,
+        raw_range: tuple[float, float] = (0.0, 10.0),
+        max_pressure_MPa: float = 0.9,
+        name: str = "regulator",
+    ) -> None:
+        self.link = link
+        self.address = address
+        self.codec = codec
+        self.calibration = calibration
+        self.raw_range = raw_range
+        self.max_pressure_MPa = float(max_pressure_MPa)
+        self.name = name
+        self.last_command_MPa = 0.0
+        self.vent_error: str | None = None
+
+    def raw_for(self, mpa: float) -> float:
+        """The analog-output value commanding ``mpa`` MPa, clamped to the output range."""
+        raw = self.calibration.inverse(mpa, self.raw_range)
+        return min(max(raw, self.raw_range[0]), self.raw_range[1])
+
+    def set_pressure(self, mpa: float) -> None:
+        if not -1e-9 <= mpa <= self.max_pressure_MPa + 1e-9:
+            raise RigError(f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa")
+        self.link.write_registers(self.address, self.codec.encode(self.raw_for(max(mpa, 0.0))))
+        self.last_command_MPa = float(mpa)
+
+    def vent(self) -> None:
+        try:
+            self.link.write_registers(self.address, self.codec.encode(self.raw_for(0.0)))
+            self.last_command_MPa = 0.0
+        except Exception as exc:  # vent must never raise: it runs on every exit path
+            self.vent_error = str(exc)
+
+
+class RegulatedMuscleSupply(MusclePressureSupply):
+    """The muscle fed by a second software-set regulator."""
+
+    automatic = True
+
+    def __init__(self, regulator: PressureRegulator) -> None:
+        self.regulator = regulator
+
+    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
+        self.regulator.set_pressure(mpa)
+
+    def vent(self) -> None:
+        self.regulator.vent()
+
+
+class ManualMuscleSupply(MusclePressureSupply):
+    """A hand-set regulator: the operator is asked to turn it; the runner waits for the reading."""
+
+    automatic = False
+
+    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
+        if prompt is not None:
+            prompt(f"set the muscle pressure regulator to {mpa:.3f} MPa")
