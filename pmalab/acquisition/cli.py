@@ -1,9 +1,149 @@
-"""CLI verbs of this area (see pmalab/cli.py)."""
+"""CLI verbs of the acquisition area: ``pmalab run`` and ``pmalab import``.
+
+``pmalab run --rig sim|RIG.toml --protocol P.toml --out F.h5 [--force] [--seed N]
+[--realtime] [--quiet] [--only ROLE_OR_RUN ...]`` records a protocol (the simulated rig
+runs on its virtual clock unless ``--realtime``); ``pmalab import CSV --out F.h5 ...``
+converts another DAQ's CSV into a contract file.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+from pathlib import Path
+
+from pmalab.errors import ConfigError, RigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add this area's verbs to the ``pmalab`` parser (filled in by the area's issue)."""
+    """Add ``run`` and ``import`` to the ``pmalab`` parser."""
+    p = sub.add_parser("run", help="run a test protocol on a rig and record it to HDF5",
+                       description="Run a protocol on a rig (or the simulated one) and record "
+                       "every run at 500 Hz into a crash-proof HDF5 run file.")
+    p.add_argument("--rig", required=True, help="'sim' or a rig TOML file")
+    p.add_argument("--protocol", required=True,
+                   help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)")
+    p.add_argument("--out", required=True, help="output HDF5 run file")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated rig")
+    p.add_argument("--realtime", action="store_true",
+                   help="simulated rig: run on the real clock instead of the virtual one")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--only", nargs="+", metavar="ROLE_OR_RUN",
+                   help="record only runs with these roles (identification, validation) "
+                   "or names")
+    p.set_defaults(func=cmd_run)
+
+    q = sub.add_parser("import", help="convert a CSV from another DAQ into a run file",
+                       description="Convert a CSV (one run) into a pmalab HDF5 run file. "
+                       "Columns default to time, position, force, muscle_pressure.")
+    q.add_argument("csv", help="input CSV file (header row with column names)")
+    q.add_argument("--out", required=True, help="output HDF5 run file")
+    q.add_argument("--force", action="store_true", help="overwrite an existing output")
+    for ch in ("time", "position", "force"):
+        q.add_argument(f"--{ch}-col", metavar="NAME", help=f"column holding {ch} "
+                       f"(default '{ch}')")
+    q.add_argument("--pressure-col", metavar="NAME",
+                   help="column holding the muscle pressure (default 'muscle_pressure')")
+    q.add_argument("--cylinder-col", metavar="NAME",
+                   help="column holding the cylinder pressure (optional)")
+    q.add_argument("--units", metavar="Q=U,...",
+                   help="units of the columns, e.g. position=m,force=kN,time=ms,pressure=kPa "
+                   "(defaults: s, mm, N, MPa)")
+    q.add_argument("--pressure", type=float, metavar="MPA",
+                   help="nominal muscle pressure in MPa (required without a pressure column)")
+    q.add_argument("--run", metavar="NAME", help="run name (default: the CSV's stem)")
+    q.add_argument("--delimiter", default=",", help="field separator (default ',')")
+    q.add_argument("--negate", nargs="+", default=[], choices=["position", "force"],
+                   help="flip the sign of these channels (e.g. a DAQ recording elongation)")
+    q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
+    q.add_argument("--frequency", type=float, metavar="HZ", help="frequency tag (Hz)")
+    q.set_defaults(func=cmd_import)
+
+
+def load_rig_spec(spec: str, *, seed: int = 0, realtime: bool = False):
+    """``sim`` or a rig TOML path → a Rig (the rig area's loader when available)."""
+    from pmalab.rig.base import RealClock
+
+    clock = RealClock() if realtime else None
+    try:
+        from pmalab.rig.loader import load_rig
+    except ImportError:
+        load_rig = None
+    if load_rig is not None:
+        return load_rig(spec, seed=seed, clock=clock)
+    if spec == "sim":
+        try:
+            from pmalab.rig.sim import make_sim_rig
+        except ImportError as exc:
+            raise RigError(f"--rig sim: the simulated rig is not available ({exc})") from None
+        return make_sim_rig(seed=seed, clock=clock)
+    if not Path(spec).exists():
+        raise ConfigError(f"{spec}: no such rig file")
+    raise RigError(f"{spec}: rig files need pmalab.rig.loader, which is not installed")
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from pmalab.acquisition.protocol import load_protocol
+    from pmalab.acquisition.runner import RunnerOptions, Terminated, run_protocol
+    from pmalab.paths import check_output
+
+    protocol = load_protocol(args.protocol)
+    if args.only:
+        roles = [o for o in args.only if o in ("identification", "validation", "other")]
+        names = [o for o in args.only if o not in roles]
+        protocol = _select_either(protocol, roles, names)
+    check_output(args.out, args.force)  # before the rig is even opened
+    rig = load_rig_spec(args.rig, seed=args.seed, realtime=args.realtime)
+
+    def on_term(signum, frame):  # SIGTERM aborts like Ctrl-C: vent, close, exit non-zero
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    opts = RunnerOptions(
+        progress=not args.quiet,
+        extra_attrs={"command_line": " ".join(sys.argv), "seed": args.seed,
+                     "rig_spec": args.rig},
+    )
+    try:
+        with rig:
+            results = run_protocol(rig, protocol, args.out, force=args.force, options=opts)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    for r in results:
+        print(r.summary())
+    total = sum(r.n_samples for r in results)
+    print(f"{args.out}: {len(results)} runs, {total} samples")
+    return 0
+
+
+def _select_either(protocol, roles, names):
+    from pmalab.acquisition.protocol import Protocol
+
+    runs = [r for r in protocol.runs if r.role in roles or r.name in names]
+    if not runs:
+        raise ConfigError(f"{protocol.path}: no run matches --only")
+    return Protocol(protocol.name, runs, protocol.path, protocol.description,
+                    protocol.sample_rate_Hz, protocol.text)
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    from pmalab.acquisition.csv_import import CsvImportOptions, import_csv, parse_units
+
+    cols = {}
+    for ch, val in (("time", args.time_col), ("position", args.position_col),
+                    ("force", args.force_col), ("muscle_pressure", args.pressure_col),
+                    ("cylinder_pressure", args.cylinder_col)):
+        if val:
+            cols[ch] = val
+    opts = CsvImportOptions(
+        columns=cols, units=parse_units(args.units), pressure_MPa=args.pressure, run=args.run,
+        delimiter=args.delimiter, negate=tuple(args.negate), waveform=args.waveform,
+        frequency_Hz=args.frequency,
+    )
+    run = import_csv(args.csv, args.out, opts, force=args.force)
+    print(f"{args.out}: run '{run.name}', {len(run)} samples, "
+          f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
+          f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa")
+    return 0

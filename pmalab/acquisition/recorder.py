@@ -186,7 +186,7 @@ class Recorder:
             f.attrs["format_version"] = FORMAT_VERSION
             for k, v in root_attrs.items():
                 f.attrs[k] = _attr(v)
-            grp = f.create_group("runs")
+            grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
                 g = grp.create_group(name)
                 for k, v in attrs.items():
