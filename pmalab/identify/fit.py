@@ -1,0 +1,512 @@
+"""Fitting one run: two-stage start, joint free-run refinement, honest uncertainty.
+
+Procedure (``fit_run``), all on the *free-run* prediction error (the model is driven by the
+measured, zero-phase filtered position only, never by the measured force):
+
+1. **Linear stage** (the seeds' first stage): least squares of F ≈ k·x + c0, the centreline.
+2. **Hysteretic stage**, automatic start without hand tuning.  Both laws are linear in one
+   scale parameter once the shape is fixed: for Bouc-Wen with n = 1, h(A·s) = s·h(A)
+   (h0 ∝ A), and for Duhem h is linear in b (with a = 0, h0 ∝ b).  So we search the shape on a
+   small log-spaced grid sized from the stroke (Bouc-Wen: decay rates β ± γ per mm;
+   Duhem: α per mm) and at every grid point solve (k, c0, scale) exactly by linear least
+   squares (variable projection).  The grid is the multi-start: the two best points are
+   refined in stage 3.
+3. **Joint refinement** of every free parameter with ``scipy.optimize.least_squares``
+   (``trf``, bounds, ``x_scale='jac'``).  Effects start from their own data-sized defaults
+   on top of the fitted base law.
+
+Uncertainty: the covariance is s²·(JᵀJ)⁻¹ at the optimum (J the Jacobian of the residual).
+Residuals of a hysteresis fit are strongly autocorrelated (a model error persists over a
+loop), so the naive standard errors are optimistic; we inflate the covariance by N/N_eff
+with N_eff = N·(1 − ρ₁)/(1 + ρ₁) from the lag-1 autocorrelation ρ₁ of the residual (the
+AR(1) effective sample size).  ``stderr_method`` says so in every result.
+
+Identifiability: pairs with |ρ| > 0.95 and a condition number of the column-scaled JᵀJ
+above 1e8 are reported in ``warnings``.  Defaults that remove known degeneracies:
+
+* Bouc-Wen: n fixed at 1 (n trades off against β, γ and makes the exact kernel possible);
+  if |ρ(β, γ)| > 0.95 (Brunot et al. 2017 report 0.998) we refit with γ = 0 and keep that
+  fix when the nrmse rises by less than 1 % relative — the warning records both numbers;
+* Duhem: a fixed at 0 — with F = k·x + c0 + h the force depends on k + a only (write
+  h = a·x + u: u obeys du = −α|dx|·u + (b − a)·dx), so k and a are structurally
+  non-identifiable.
+
+h0 (the hysteretic force at the first sample) is fitted: the run's own start state.  For
+predicting *another* run (validation) it is set by a burn-in instead (:func:`predict_free`).
+Nothing is excluded: every sample of the run enters the fit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
+
+from pmalab.errors import PmalabError
+from pmalab.identify.model import ForceModel
+from pmalab.identify.params import Params
+from pmalab.identify.signals import Signals
+from pmalab.identify.validate import loop_direction, metrics
+from pmalab.runfile import Run
+
+#: parameters fixed by default (value), per law, and why
+DEFAULT_FIXED: dict[str, dict[str, float]] = {"bouc-wen": {"n": 1.0}, "duhem": {"a": 0.0}}
+DEFAULT_FIXED_WHY: dict[str, str] = {
+    "n": "n fixed at 1 (default): n trades off against beta/gamma; free it with free=['n']",
+    "a": "a fixed at 0 (default): F depends on k + a only, so k and a are not separately identifiable",
+}
+#: parameters a fit may fix when they are collinear with another (value to fix at)
+COLLINEAR_FIXES: dict[str, list[tuple[str, float]]] = {"bouc-wen": [("gamma", 0.0)], "duhem": []}
+#: parameters that describe the run's start state, not the muscle (no pressure quadratic use)
+STATE_PARAMS = ("h0",)
+
+RHO_LIMIT = 0.95
+COND_LIMIT = 1e8
+FIX_TOLERANCE = 0.01  # accept an identifiability fix if nrmse rises by < 1 % (relative)
+
+STDERR_METHOD = (
+    "Jacobian covariance s^2 (J^T J)^-1 inflated by N/N_eff, N_eff = N(1-r1)/(1+r1) "
+    "from the lag-1 residual autocorrelation r1 (AR(1) effective sample size)"
+)
+
+
+class FitError(PmalabError):
+    """A fit cannot be done on this input (too short, constant position...)."""
+
+
+# --------------------------------------------------------------------------- results
+@dataclass
+class FitResult:
+    """The outcome of :func:`fit_run` (units: N, mm, MPa; see the model's parameter docs)."""
+
+    model: ForceModel
+    params: Params
+    #: free parameter names, the order of ``correlation``
+    names: list[str]
+    correlation: np.ndarray
+    warnings: list[str]
+    fixed: list[str]
+    rmse: float
+    nrmse: float
+    fit_percent: float
+    cost: float  # ½·Σ residual² (N²)
+    n_free: int
+    n_samples: int
+    n_eff: float
+    aic: float
+    bic: float
+    condition_number: float
+    metrics: dict = field(default_factory=dict)
+    stderr_method: str = STDERR_METHOD
+    label: str = ""
+    #: remarks that are not problems (e.g. a benign correlation explained)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def values(self) -> dict[str, float]:
+        return self.params.values()
+
+    @property
+    def stderr(self) -> dict[str, float | None]:
+        return {p.name: p.stderr for p in self.params}
+
+    def predict(self, sig: Signals | Run, *, burn_in: bool = False) -> np.ndarray:
+        """Force (N) along ``sig``: with the fitted h0 (same run) or a burn-in (other runs)."""
+        s = Signals.from_run(sig) if isinstance(sig, Run) else sig
+        if burn_in:
+            return predict_free(self.model, s, self.values)
+        return self.model.predict(s, self.values)
+
+    def summary(self) -> str:
+        lines = [f"{self.model.name}: fit {self.fit_percent:.2f} %  rmse {self.rmse:.3g} N  "
+                 f"nrmse {self.nrmse:.4f}"]
+        for p in self.params:
+            se = "fixed" if not p.vary else (f"± {p.stderr:.3g}" if p.stderr is not None else "± ?")
+            lines.append(f"  {p.name:>10} = {p.value:12.6g} {se} {p.unit}")
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return f"<FitResult {self.model.name} {self.label} fit={self.fit_percent:.2f}%>"
+
+
+# --------------------------------------------------------------------------- helpers
+def as_signals_and_force(data: Run | tuple[Signals, np.ndarray]) -> tuple[Signals, np.ndarray, str]:
+    """Accept a :class:`Run` or a ``(Signals, force)`` pair; check it is fit-able."""
+    if isinstance(data, Run):
+        if len(data) < 50:
+            raise FitError(f"{data.label}: too few samples to fit ({len(data)})")
+        sig, force, label = Signals.from_run(data), np.asarray(data.force, float), data.label
+    else:
+        try:
+            sig, force = data
+        except (TypeError, ValueError):
+            raise FitError("fit input must be a Run or a (Signals, force) pair") from None
+        force = np.asarray(force, dtype=np.float64)
+        label = ""
+        if force.shape != sig.t.shape:
+            raise FitError(f"force has {force.shape[0]} samples, position {sig.t.shape[0]}")
+    if not np.all(np.isfinite(force)) or not np.all(np.isfinite(sig.x)):
+        raise FitError(f"{label or 'input'}: NaN or infinite samples")
+    if np.ptp(sig.x) <= 1e-9:
+        raise FitError(f"{label or 'input'}: channel 'position' is constant (no stroke to fit)")
+    return sig, force, label
+
+
+def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
+    """Signals with one excitation period (or the whole run) prepended; returns (sig, P).
+
+    Rate-independent laws depend on the path only, so replaying the first cycle before the
+    run puts the hysteretic state on its periodic orbit at the first sample.
+    """
+    n = sig.t.shape[0]
+    dt = float(np.median(np.diff(sig.t)))
+    if sig.frequency_Hz and sig.frequency_Hz > 0:
+        P = int(round(1.0 / (sig.frequency_Hz * dt)))
+        P = min(max(P, 2), n)
+    else:
+        P = n
+    shift = sig.t[P - 1] - sig.t[0] + dt
+
+    def cat(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a[:P], a])
+
+    aug = replace(sig, t=np.concatenate([sig.t[:P] - shift, sig.t]), x=cat(sig.x), v=cat(sig.v),
+                  a=cat(sig.a), p=cat(sig.p), x_raw=cat(sig.x_raw))
+    return aug, P
+
+
+def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float]) -> np.ndarray:
+    """Free-run force (N) of ``model`` on ``sig`` with h0 set by a one-cycle burn-in."""
+    aug, P = burn_in_signals(sig)
+    th = dict(theta)
+    for s in STATE_PARAMS:
+        if s in th:
+            th[s] = 0.0
+    return model.predict(aug, th)[P:]
+
+
+def _lstsq(cols: Sequence[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, float]:
+    M = np.column_stack(cols)
+    coef, *_ = np.linalg.lstsq(M, y, rcond=None)
+    r = M @ coef - y
+    return coef, float(r @ r)
+
+
+def _shape_grid(law: str, stroke: float) -> list[dict[str, float]]:
+    """Shape parameters of the start grid, sized from the stroke (mm)."""
+    R = max(stroke, 1e-3)
+    if law == "bouc-wen":
+        out = []
+        for lam_a in np.geomspace(0.5, 64.0, 8) / R:  # approach rate to saturation, 1/mm
+            for ratio in (0.25, 1.0, 3.0):  # decay rate after a reversal / lam_a
+                lam_o = ratio * lam_a
+                out.append({"beta": 0.5 * (lam_o + lam_a), "gamma": 0.5 * (lam_o - lam_a), "n": 1.0})
+        return out
+    if law == "duhem":
+        return [{"alpha": float(a)} for a in np.geomspace(0.25, 128.0, 10) / R]
+    return [{}]
+
+
+_SCALE_PARAM = {"bouc-wen": "A", "duhem": "b"}
+
+
+def _grid_starts(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
+                 fixed: dict[str, float]) -> list[dict[str, float]]:
+    """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
+    law = model.law
+    base = {p.name: p.value for p in ps}
+    (k, c0), _ = _lstsq([sig.x, np.ones_like(sig.x)], force)  # stage 1: centreline
+    base.update(k=float(k), c0=float(c0))
+    scale = _SCALE_PARAM.get(law.name)
+    if scale is None or scale in fixed:
+        return [base]
+    scored = []
+    for shape in _shape_grid(law.name, float(np.ptp(sig.x))):
+        th = dict(base)
+        th.update({kk: v for kk, v in shape.items() if kk not in fixed})
+        th.update({kk: v for kk, v in fixed.items()})
+        if law.name == "bouc-wen" and th.get("n", 1.0) != 1.0:
+            th["n"] = 1.0  # the scale property needs n = 1; n is refined in stage 3
+        th[scale] = 1.0
+        th["h0"] = 0.0
+        if law.name == "duhem":
+            th["a"] = fixed.get("a", 0.0)
+        hu = law.h(sig.x, th, {})
+        if not np.all(np.isfinite(hu)) or np.ptp(hu) == 0:
+            continue
+        if law.name == "duhem" and th["a"] != 0.0:
+            # h = a·x-part + b·(unit-b part): solve with a fixed
+            hb = hu - law.h(sig.x, {**th, "b": 0.0}, {})
+            coef, sse = _lstsq([sig.x, np.ones_like(sig.x), hb], force - (hu - hb))
+        else:
+            coef, sse = _lstsq([sig.x, np.ones_like(sig.x), hu], force)
+        th.update(k=float(coef[0]), c0=float(coef[1]), **{scale: float(coef[2])})
+        scored.append((sse, th))
+    scored.sort(key=lambda s: s[0])
+    return [th for _, th in scored[:2]] or [base]
+
+
+def _autocorr1(r: np.ndarray) -> float:
+    r = r - r.mean()
+    d = float(r @ r)
+    return float(r[1:] @ r[:-1]) / d if d > 0 else 0.0
+
+
+@dataclass
+class _Problem:
+    model: ForceModel
+    sig: Signals
+    force: np.ndarray
+    ps: Params
+    free: list[str]
+
+    def theta(self, vec: np.ndarray) -> dict[str, float]:
+        th = self.ps.values()
+        th.update(zip(self.free, (float(v) for v in vec)))
+        return th
+
+    def residual(self, vec: np.ndarray) -> np.ndarray:
+        with np.errstate(all="ignore"):
+            pred = self.model.predict(self.sig, self.theta(vec))
+        r = pred - self.force
+        if not np.all(np.isfinite(r)):
+            r = np.nan_to_num(r, nan=1e9, posinf=1e9, neginf=-1e9)
+        return r
+
+
+def _refine(prob: _Problem, start: dict[str, float]) -> tuple[np.ndarray, object]:
+    lo = np.array([prob.ps[n].lo for n in prob.free])
+    hi = np.array([prob.ps[n].hi for n in prob.free])
+    x0 = np.array([start[n] for n in prob.free], dtype=float)
+    # strictly inside the bounds (trf requirement)
+    span = np.where(np.isfinite(hi - lo), hi - lo, np.abs(x0) + 1.0)
+    x0 = np.clip(x0, lo + 1e-9 * span, hi - 1e-9 * span)
+    res = least_squares(prob.residual, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+                        ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=100 * (len(x0) + 1))
+    return res.x, res
+
+
+def _uncertainty(prob: _Problem, res, warnings: list[str]) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(stderr, correlation, condition number, N_eff) from the Jacobian at the optimum."""
+    J = np.asarray(res.jac, dtype=float)
+    r = np.asarray(res.fun, dtype=float)
+    N, p = J.shape
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    Js = J / norms
+    sv = np.linalg.svd(Js, compute_uv=False)
+    cond = float((sv[0] / sv[-1]) ** 2) if sv[-1] > 0 else float("inf")
+    JtJ_s = Js.T @ Js
+    cov_s = np.linalg.pinv(JtJ_s, rcond=1e-15)
+    s2 = float(r @ r) / max(N - p, 1)
+    rho1 = min(max(_autocorr1(r), 0.0), 0.999)
+    n_eff = max(N * (1.0 - rho1) / (1.0 + rho1), p + 1.0)
+    cov = s2 * (N / n_eff) * cov_s / np.outer(norms, norms)
+    var = np.diag(cov).copy()
+    se = np.sqrt(np.where(var > 0, var, np.nan))
+    d = np.sqrt(np.abs(np.diag(cov_s)))
+    d[d == 0] = 1.0
+    corr = cov_s / np.outer(d, d)
+    corr = np.clip(corr, -1.0, 1.0)
+    return se, corr, cond, n_eff
+
+
+def _flag_pairs(names: list[str], corr: np.ndarray) -> list[tuple[str, str, float]]:
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > RHO_LIMIT:
+                out.append((names[i], names[j], float(corr[i, j])))
+    return out
+
+
+# --------------------------------------------------------------------------- fit_run
+def _fit_once(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[str, float],
+              init: dict[str, float]) -> tuple[Params, _Problem, object]:
+    ps = model.params(sig, force)
+    for name in list(fixed) + list(init):
+        if name not in ps:
+            raise FitError(f"unknown parameter '{name}' for model {model.name} "
+                           f"(has: {', '.join(ps.names())})")
+    for name, v in fixed.items():
+        ps[name].value = float(v)
+        ps[name].vary = False
+    law_names = ["k", "c0"] + [lp.name for lp in model.law.params]
+    if all(n in init or n in fixed for n in law_names):
+        starts = [{**ps.values(), **init, **fixed}]
+    else:
+        base_model = ForceModel(model.law) if model.effects else model
+        base_ps = base_model.params(sig, force)
+        grid = _grid_starts(base_model, sig, force, base_ps,
+                            {k: v for k, v in fixed.items() if k in base_ps})
+        starts = [{**ps.values(), **g, **init, **fixed} for g in grid]
+        if model.effects:
+            # refine the base law alone first; effects then start on top of it
+            bprob = _Problem(base_model, sig, force, base_ps, [])
+            for name, v in fixed.items():
+                if name in base_ps:
+                    base_ps[name].value, base_ps[name].vary = float(v), False
+            bprob.free = [p.name for p in base_ps if p.vary]
+            best = None
+            for st in grid:
+                xb, rb = _refine(bprob, {**base_ps.values(), **st})
+                if best is None or rb.cost < best[1].cost:
+                    best = (xb, rb)
+            assert best is not None
+            base_th = bprob.theta(best[0])
+            starts = [{**ps.values(), **base_th, **init, **fixed}]
+    for name, v in starts[0].items():
+        if name in ps:
+            ps[name].value = float(v)
+    prob = _Problem(model, sig, force, ps, [p.name for p in ps if p.vary])
+    if not prob.free:
+        raise FitError(f"every parameter of {model.name} is fixed: nothing to fit")
+    best = None
+    for st in starts:
+        xv, res = _refine(prob, st)
+        if best is None or res.cost < best[1].cost:
+            best = (xv, res)
+    assert best is not None
+    xv, res = best
+    for name, v in prob.theta(xv).items():
+        ps[name].value = v
+    return ps, prob, res
+
+
+def fit_run(
+    data: Run | tuple[Signals, np.ndarray],
+    model: ForceModel | str,
+    *,
+    fixed: dict[str, float | None] | None = None,
+    init: dict[str, float] | None = None,
+    free: Sequence[str] = (),
+    auto_fix: bool = True,
+) -> FitResult:
+    """Fit ``model`` to one run by free-run prediction error (see the module docstring).
+
+    ``data`` is a :class:`~pmalab.runfile.Run` (canonical units) or ``(Signals, force_N)``.
+    ``fixed`` maps parameter names to values held constant (``None``: hold at the start
+    value); the law's defaults (:data:`DEFAULT_FIXED`) apply unless named in ``free``.
+    ``init`` gives start values (skips the start grid when every base-law parameter is
+    given).  ``auto_fix`` lets the fit fix a collinear parameter (:data:`COLLINEAR_FIXES`)
+    when that costs < 1 % of nrmse; the warning records it.
+
+    BLAS runs single-threaded inside (tall-skinny 20 000 × 6 products are slower threaded,
+    and batches parallelise across runs instead).
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fit_run(data, model, fixed=fixed, init=init, free=free, auto_fix=auto_fix)
+
+
+def _fit_run(
+    data: Run | tuple[Signals, np.ndarray],
+    model: ForceModel | str,
+    *,
+    fixed: dict[str, float | None] | None,
+    init: dict[str, float] | None,
+    free: Sequence[str],
+    auto_fix: bool,
+) -> FitResult:
+    model = ForceModel(model) if isinstance(model, str) else model
+    sig, force, label = as_signals_and_force(data)
+    init = dict(init or {})
+    defaults = {k: v for k, v in DEFAULT_FIXED.get(model.law.name, {}).items() if k not in free}
+    fix: dict[str, float] = dict(defaults)
+    warnings: list[str] = []
+    ps0 = model.params(sig, force)
+    for k, v in (fixed or {}).items():
+        if k not in ps0:
+            raise FitError(f"unknown parameter '{k}' for model {model.name} "
+                           f"(has: {', '.join(ps0.names())})")
+        fix[k] = float(init.get(k, ps0[k].value)) if v is None else float(v)
+
+    ps, prob, res = _fit_once(model, sig, force, fix, init)
+    se, corr, cond, n_eff = _uncertainty(prob, res, warnings)
+    pred = prob.residual(res.x) + force
+    met = metrics(force, pred, sig.x)
+
+    if auto_fix:
+        pairs = _flag_pairs(prob.free, corr)
+        flagged = {a for a, b, _ in pairs} | {b for a, b, _ in pairs}
+        for name, value in COLLINEAR_FIXES.get(model.law.name, []):
+            if name not in flagged or name in fix:
+                continue
+            partners = ", ".join(f"rho({a},{b})={r:+.3f}" for a, b, r in pairs if name in (a, b))
+            fix2 = {**fix, name: value}
+            ps2, prob2, res2 = _fit_once(model, sig, force, fix2, init)
+            pred2 = prob2.residual(res2.x) + force
+            met2 = metrics(force, pred2, sig.x)
+            if met2["nrmse"] <= met["nrmse"] * (1.0 + FIX_TOLERANCE) + 1e-12:
+                warnings.append(
+                    f"{partners}: not identifiable on this run; fixed {name} = {value:g} "
+                    f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})")
+                fix, ps, prob, res, pred, met = fix2, ps2, prob2, res2, pred2, met2
+                se, corr, cond, n_eff = _uncertainty(prob, res, warnings)
+            else:
+                warnings.append(
+                    f"{partners}: kept {name} free — fixing it at {value:g} raised nrmse "
+                    f"{met['nrmse']:.4f} -> {met2['nrmse']:.4f}; their stderrs are large")
+
+    done = {n for w in warnings for n in prob.free if f"fixed {n} =" in w}
+    notes: list[str] = []
+    for a, b, r in _flag_pairs(prob.free, corr):
+        if {a, b} == {"k", "c0"} and abs(_centred_rho(corr, prob.free, float(np.mean(sig.x)), se)) < RHO_LIMIT:
+            # c0 is the tension extrapolated to x = 0, away from the data; the loop's centre
+            # c0 + k·mean(x) is not collinear with k, so this is a parametrisation artefact
+            notes.append(f"rho(k,c0)={r:+.3f} only because c0 is extrapolated to x = 0 "
+                         f"(data centred at x = {np.mean(sig.x):.3g} mm); not an identifiability problem")
+            continue
+        if a not in done and b not in done:
+            warnings.append(f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these parameters trade off")
+    if cond > COND_LIMIT:
+        warnings.append(f"condition number of scaled J^T J is {cond:.3g} (> {COND_LIMIT:.0e}): "
+                        "some parameter combination is poorly determined")
+    for i, name in enumerate(prob.free):
+        p = ps[name]
+        p.stderr = None if not np.isfinite(se[i]) else float(se[i])
+        span = p.hi - p.lo
+        if np.isfinite(span) and min(p.value - p.lo, p.hi - p.value) <= 1e-6 * span:
+            warnings.append(f"{name} = {p.value:.4g} is at its bound [{p.lo:g}, {p.hi:g}]")
+    for p in ps:
+        if not p.vary:
+            p.stderr = None
+    if not res.success:
+        warnings.append(f"optimizer did not converge: {res.message}")
+    ld = loop_direction(force, sig.x)
+    if ld < 0:
+        warnings.append(f"measured loop runs anti-physically (tension {abs(ld):.3g} N lower while "
+                        "stretching): check the position sign / channel mapping")
+
+    N = force.shape[0]
+    p_free = len(prob.free)
+    sse = float(np.sum((pred - force) ** 2))
+    ll = N * math.log(max(sse / N, 1e-300))
+    return FitResult(
+        model=model, params=ps, names=list(prob.free), correlation=corr, warnings=warnings,
+        fixed=[p.name for p in ps if not p.vary], rmse=met["rmse"], nrmse=met["nrmse"],
+        fit_percent=met["fit_percent"], cost=float(res.cost), n_free=p_free, n_samples=N,
+        n_eff=float(n_eff), aic=ll + 2 * p_free, bic=ll + p_free * math.log(N),
+        condition_number=cond, metrics=met, label=label, notes=notes,
+    )
+
+
+def _centred_rho(corr: np.ndarray, names: list[str], xm: float, se: np.ndarray) -> float:
+    """Correlation of k with the centred offset c0 + k·xm, from the fitted covariance."""
+    i, j = names.index("k"), names.index("c0")
+    si, sj = se[i], se[j]
+    if not (np.isfinite(si) and np.isfinite(sj)) or si == 0:
+        return 1.0
+    cov_kk, cov_cc, cov_kc = si * si, sj * sj, corr[i, j] * si * sj
+    var_m = cov_cc + 2 * xm * cov_kc + xm * xm * cov_kk
+    cov_km = cov_kc + xm * cov_kk
+    return float(cov_km / math.sqrt(cov_kk * var_m)) if var_m > 0 else 1.0
+
+
+def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[str]:
+    """Human-readable notes on the law's default fixes (for campaign-level warnings)."""
+    return [DEFAULT_FIXED_WHY[k] for k in DEFAULT_FIXED.get(model.law.name, {}) if k not in free]

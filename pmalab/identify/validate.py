@@ -1,0 +1,111 @@
+"""Validation metrics of a force prediction against a measurement.
+
+Definitions (DESIGN.md; MATLAB ``compare`` and the nonlinear-identification benchmarks):
+
+* ``rmse``  — RMS of (predicted − measured) force, N;
+* ``nrmse`` — rmse / standard deviation of the measured force (0 = perfect, 1 = no better
+  than the mean);
+* ``fit_percent`` = 100·(1 − nrmse);
+* ``max_error`` — largest |predicted − measured|, N;
+* ``energy_error_percent`` — signed error of the energy dissipated per cycle,
+  100·(E_model − E_measured)/E_measured, where E = −∮F dx is the loop area (N·mm = mJ;
+  positive for a physical loop: tension is higher while the muscle is stretched, x falling);
+  positive means the model dissipates too much;
+* ``branch_rmse`` — rmse on the ``stretch`` branch (x decreasing: the cylinder pulls the
+  muscle longer) and on the ``release`` branch (x increasing: the muscle contracts).
+
+``x`` should be the noise-robust (zero-phase filtered) drive position in mm; the branch of
+each sample is the sign of its smoothed velocity.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+
+def branch_masks(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks (stretch, release): x decreasing / x increasing."""
+    x = np.asarray(x, dtype=np.float64)
+    w = max(1, x.shape[0] // 400)
+    xs = uniform_filter1d(x, w, mode="nearest") if w > 1 else x
+    v = np.gradient(xs)
+    return v < 0.0, v > 0.0
+
+
+def loop_energy(force: np.ndarray, x: np.ndarray) -> tuple[float, float]:
+    """(−∮F dx over the whole record in N·mm, number of cycles).
+
+    The number of cycles is the travelled path divided by twice the stroke, so the energy
+    per cycle is the first value divided by the second.
+    """
+    f = np.asarray(force, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    dx = np.diff(x)
+    work = -float(np.sum(0.5 * (f[1:] + f[:-1]) * dx))
+    stroke = float(np.ptp(x))
+    cycles = float(np.sum(np.abs(dx))) / (2.0 * stroke) if stroke > 0 else 0.0
+    return work, cycles
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
+
+
+def metrics(measured: np.ndarray, predicted: np.ndarray, x: np.ndarray) -> dict:
+    """All validation metrics of ``predicted`` against ``measured`` force (N) along ``x`` (mm).
+
+    Returns ``{"rmse", "nrmse", "fit_percent", "max_error", "energy_error_percent",
+    "energy_measured_mJ_per_cycle", "energy_model_mJ_per_cycle", "branch_rmse":
+    {"stretch", "release"}}`` (floats; NaN where undefined, e.g. no cycle).
+    """
+    y = np.asarray(measured, dtype=np.float64)
+    yh = np.asarray(predicted, dtype=np.float64)
+    if y.shape != yh.shape or y.shape != np.shape(x):
+        raise ValueError(f"shape mismatch: measured {y.shape}, predicted {yh.shape}, x {np.shape(x)}")
+    e = yh - y
+    rmse = _rms(e)
+    sd = float(np.std(y))
+    nrmse = rmse / sd if sd > 0 else float("nan")
+    w_meas, cycles = loop_energy(y, x)
+    w_mod, _ = loop_energy(yh, x)
+    if cycles > 0 and abs(w_meas) > 0:
+        e_meas, e_mod = w_meas / cycles, w_mod / cycles
+        eerr = 100.0 * (e_mod - e_meas) / abs(e_meas)
+    else:
+        e_meas = e_mod = eerr = float("nan")
+    stretch, release = branch_masks(x)
+    return {
+        "rmse": rmse,
+        "nrmse": nrmse,
+        "fit_percent": 100.0 * (1.0 - nrmse),
+        "max_error": float(np.max(np.abs(e))) if e.size else float("nan"),
+        "energy_error_percent": float(eerr),
+        "energy_measured_mJ_per_cycle": float(e_meas),
+        "energy_model_mJ_per_cycle": float(e_mod),
+        "branch_rmse": {"stretch": _rms(e[stretch]), "release": _rms(e[release])},
+    }
+
+
+def loop_direction(force: np.ndarray, x: np.ndarray) -> float:
+    """Mean tension on the stretch branch minus on the release branch (N), at equal x.
+
+    Positive for a physical loop (friction makes tension higher while the muscle is being
+    stretched).  Compared bin by bin in x so that the force–position slope cancels.
+    """
+    f = np.asarray(force, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    stretch, release = branch_masks(x)
+    lo, hi = np.percentile(x, [10, 90])
+    if hi <= lo:
+        return 0.0
+    edges = np.linspace(lo, hi, 11)
+    diffs = []
+    for a, b in itertools.pairwise(edges):
+        inb = (x >= a) & (x < b)
+        s, r = inb & stretch, inb & release
+        if s.any() and r.any():
+            diffs.append(float(np.mean(f[s]) - np.mean(f[r])))
+    return float(np.mean(diffs)) if diffs else 0.0
