@@ -31,6 +31,7 @@ from typing import Any
 
 from pmalab.errors import ConfigError
 from pmalab.rig.base import Clock, Limits, Rig
+from pmalab.rig.drivers import make_modbus_rig
 
 RigFactory = Callable[..., Rig]
 
@@ -70,6 +71,7 @@ def _make_sim(
 
 #: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
 RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
+RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
 
 
 def _apply_limits(rig: Rig, table: Any, where: str) -> None:

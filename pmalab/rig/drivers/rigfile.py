@@ -1,22 +1,24 @@
 """Rig files for real devices (``[rig] kind = "modbus"``): parse, connect, check, build a Rig.
 
-Schema (see ``data/rigs/labjack-t7.toml`` for a commented example)::
+Schema (see ``data/rigs/labjack-t7.toml`` for a commented example).  Everything sits under
+``[rig]`` because :func:`pmalab.rig.loader.load_rig` passes the ``[rig]`` table to the kind's
+factory and handles ``[limits]`` itself::
 
     [rig]        kind = "modbus", name, sample_rate_Hz = 500, allow_reduced_rate = false,
                  probe_samples = 300 (0 skips the rate probe)
-    [transport]  type = "tcp" (host, port) | "rtu" (port, baudrate, parity, stopbits,
+    [rig.transport]  type = "tcp" (host, port) | "rtu" (port, baudrate, parity, stopbits,
                  bytesize); device_id, timeout_s, retries
-    [inputs]     function = "holding" | "input"; defaults data_type, word_order, scale, offset
-    [inputs.<channel>]   for position, force, muscle_pressure, cylinder_pressure:
+    [rig.inputs]     function = "holding" | "input"; defaults data_type, word_order, scale, offset
+    [rig.inputs.<channel>]   for position, force, muscle_pressure, cylinder_pressure:
                  address, (data_type, word_order, scale, offset), raw_range = [lo, hi],
                  points = [[raw, value], [raw, value]] | polynomial = [c0, c1, ...], tare;
                  or source = "indicator" (force from the serial load-cell indicator)
-    [outputs.cylinder_regulator]  type = "analog" (address, data_type, points raw→MPa,
+    [rig.outputs.cylinder_regulator]  type = "analog" (address, data_type, points raw→MPa,
                  raw_range, max_pressure_MPa) | "itv-serial" (port, baudrate, max_pressure_MPa)
-    [outputs.muscle_regulator]    same; absent = a manual regulator (the operator sets it)
-    [indicator]  port, baudrate, stale_after_s (when a channel has source = "indicator")
-    [limits]     fields of pmalab.rig.base.Limits
-    [emulator]   read only by ``pmalab emulate`` (truth file, seed, ...)
+    [rig.outputs.muscle_regulator]    same; absent = a manual regulator (the operator sets it)
+    [rig.indicator]  port, baudrate, stale_after_s (when a channel has source = "indicator")
+    [rig.emulator]   read only by ``pmalab emulate`` (truth file, seed, ...)
+    [limits]     fields of pmalab.rig.base.Limits (applied by the loader)
 
 Calibrations always map raw → engineering unit (volts → MPa, mm, N); outputs are inverted.
 
@@ -124,32 +126,53 @@ class ModbusRigSpec:
 
 
 # --------------------------------------------------------------------------- parsing
-def read_rig_toml(spec: str | Path | Mapping[str, Any]) -> tuple[dict[str, Any], Path | None, str]:
-    """Load a rig file (or take an already-parsed table)."""
-    if isinstance(spec, Mapping):
-        return dict(spec), None, ""
-    path = Path(spec)
+SECTION_KEYS = {
+    "name", "sample_rate_Hz", "allow_reduced_rate", "probe_samples",
+    "transport", "inputs", "outputs", "indicator", "emulator",
+}  # fmt: skip
+
+
+def read_modbus_rig_file(path: str | Path) -> ModbusRigSpec:
+    """Read and validate a ``kind = "modbus"`` rig file (the emulator's entry point)."""
+    path = Path(path)
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read rig file ({exc.strerror})") from exc
     try:
-        return tomllib.loads(text), path, text
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    section = dict(doc.get("rig", {}))
+    kind = section.pop("kind", None)
+    if kind != "modbus":
+        raise ConfigError(f"{path}: rig.kind: {kind!r} is not 'modbus' (nothing to emulate)")
+    rs = parse_modbus_rig(section, path)
+    rs.text = text
+    lim = doc.get("limits", {})
+    try:
+        rs.limits = Limits(**{k: float(v) for k, v in lim.items()})
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: limits: {exc}") from exc
+    return rs
 
 
-def parse_modbus_rig(spec: str | Path | Mapping[str, Any]) -> ModbusRigSpec:
-    """Validate a ``kind = "modbus"`` rig file; ConfigError names the file and field."""
-    data, path, text = read_rig_toml(spec)
+def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -> ModbusRigSpec:
+    """Validate the ``[rig]`` table of a ``kind = "modbus"`` file; ConfigError names file and field."""
+    path = rig_file
+    text = ""
     where = str(path) if path else "rig"
-    rig = _table(data, "rig", where)
+    data = {"rig": section, **{k: section[k] for k in ("transport", "inputs", "outputs", "indicator") if k in section}}
+    for key in section:
+        if key not in SECTION_KEYS:
+            raise ConfigError(f"{where}: rig.{key}: unknown key for kind 'modbus' (known: {', '.join(sorted(SECTION_KEYS))})")
+    rig = section
     tr = _table(data, "transport", where)
     ttype = str(tr.get("type", "tcp")).lower()
     if ttype not in ("tcp", "rtu"):
-        raise ConfigError(f"{where}: [transport] type {ttype!r} is not 'tcp' or 'rtu'")
+        raise ConfigError(f"{where}: [rig.transport] type {ttype!r} is not 'tcp' or 'rtu'")
     if ttype == "rtu" and not isinstance(tr.get("port"), str):
-        raise ConfigError(f"{where}: [transport] port must be a serial device path for type = 'rtu'")
+        raise ConfigError(f"{where}: [rig.transport] port must be a serial device path for type = 'rtu'")
     transport = TransportSpec(
         type=ttype,
         host=str(tr.get("host", "127.0.0.1")),
@@ -158,21 +181,21 @@ def parse_modbus_rig(spec: str | Path | Mapping[str, Any]) -> ModbusRigSpec:
         parity=str(tr.get("parity", "N")),
         stopbits=tr.get("stopbits", 1),
         bytesize=int(tr.get("bytesize", 8)),
-        device_id=_int(tr.get("device_id", 1), f"{where}: [transport] device_id", 0, 255),
-        timeout_s=_num(tr.get("timeout_s", 0.05), f"{where}: [transport] timeout_s", 1e-4),
-        retries=_int(tr.get("retries", 3), f"{where}: [transport] retries", 0, 20),
+        device_id=_int(tr.get("device_id", 1), f"{where}: [rig.transport] device_id", 0, 255),
+        timeout_s=_num(tr.get("timeout_s", 0.05), f"{where}: [rig.transport] timeout_s", 1e-4),
+        retries=_int(tr.get("retries", 3), f"{where}: [rig.transport] retries", 0, 20),
     )
     if ttype == "tcp":
-        _int(transport.port, f"{where}: [transport] port", 1, 65535)
+        _int(transport.port, f"{where}: [rig.transport] port", 1, 65535)
 
     inputs = _table(data, "inputs", where)
     fn_name = str(inputs.get("function", "holding")).lower()
     if fn_name not in ("holding", "input"):
-        raise ConfigError(f"{where}: [inputs] function {fn_name!r} is not 'holding' or 'input'")
+        raise ConfigError(f"{where}: [rig.inputs] function {fn_name!r} is not 'holding' or 'input'")
     channels: list[AnalogChannel] = []
     indicator_channels: list[str] = []
     for name in SAMPLED:
-        w = f"{where}: [inputs.{name}]"
+        w = f"{where}: [rig.inputs.{name}]"
         ch = inputs.get(name)
         if not isinstance(ch, Mapping):
             raise ConfigError(f"{w} missing (every rig needs {', '.join(SAMPLED)})")
@@ -189,17 +212,17 @@ def parse_modbus_rig(spec: str | Path | Mapping[str, Any]) -> ModbusRigSpec:
         channels.append(AnalogChannel(name, address, codec, cal, raw_range))
     _check_overlap(channels, where)
     if not channels:
-        raise ConfigError(f"{where}: [inputs] at least one channel must come over Modbus")
+        raise ConfigError(f"{where}: [rig.inputs] at least one channel must come over Modbus")
 
     indicator = None
     if indicator_channels:
         ind = _table(data, "indicator", where)
         if not isinstance(ind.get("port"), str):
-            raise ConfigError(f"{where}: [indicator] port must be a serial device path")
+            raise ConfigError(f"{where}: [rig.indicator] port must be a serial device path")
         indicator = IndicatorSpec(
             port=ind["port"],
             baudrate=int(ind.get("baudrate", 9600)),
-            stale_after_s=_num(ind.get("stale_after_s", 0.5), f"{where}: [indicator] stale_after_s", 0.01),
+            stale_after_s=_num(ind.get("stale_after_s", 0.5), f"{where}: [rig.indicator] stale_after_s", 0.01),
         )
 
     outs = data.get("outputs", {})
@@ -208,15 +231,9 @@ def parse_modbus_rig(spec: str | Path | Mapping[str, Any]) -> ModbusRigSpec:
         o = outs.get(oname)
         if o is None:
             if oname == "cylinder_regulator":
-                raise ConfigError(f"{where}: [outputs.cylinder_regulator] missing")
+                raise ConfigError(f"{where}: [rig.outputs.cylinder_regulator] missing")
             continue
         outputs[oname] = _parse_output(oname, o, where)
-
-    lim = data.get("limits", {})
-    try:
-        limits = Limits(**{k: float(v) for k, v in lim.items()})
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{where}: [limits] {exc}") from exc
 
     rate = _num(rig.get("sample_rate_Hz", 500.0), f"{where}: [rig] sample_rate_Hz", 1.0)
     return ModbusRigSpec(
@@ -232,13 +249,13 @@ def parse_modbus_rig(spec: str | Path | Mapping[str, Any]) -> ModbusRigSpec:
         indicator_channels=indicator_channels,
         outputs=outputs,
         indicator=indicator,
-        limits=limits,
-        emulator=dict(data.get("emulator", {})),
+        limits=Limits(),
+        emulator=dict(section.get("emulator", {})),
     )
 
 
 def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
-    w = f"{where}: [outputs.{name}]"
+    w = f"{where}: [rig.outputs.{name}]"
     if not isinstance(o, Mapping):
         raise ConfigError(f"{w} must be a table")
     otype = str(o.get("type", "analog")).lower()
@@ -269,19 +286,26 @@ def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
 
 
 # --------------------------------------------------------------------------- building
+def make_modbus_rig(
+    section: Mapping[str, Any], rig_file: Path | None = None, *, seed: int = 0, clock: Clock | None = None
+) -> Rig:
+    """The ``RIG_KINDS["modbus"]`` factory: parse the ``[rig]`` table, connect, check."""
+    return build_modbus_rig(parse_modbus_rig(section, rig_file), seed=seed, clock=clock)
+
+
 def build_modbus_rig(
-    spec: str | Path | Mapping[str, Any] | ModbusRigSpec,
+    spec: str | Path | ModbusRigSpec,
     *,
     seed: int = 0,
     clock: Clock | None = None,
     probe: bool = True,
 ) -> Rig:
-    """Connect every device of a modbus rig file, check it, and return the :class:`Rig`.
+    """Connect every device of a modbus rig, check it, and return the :class:`Rig`.
 
     ``seed`` is accepted for the loader's uniform signature (real devices are not seeded).
     """
     del seed
-    rs = spec if isinstance(spec, ModbusRigSpec) else parse_modbus_rig(spec)
+    rs = spec if isinstance(spec, ModbusRigSpec) else read_modbus_rig_file(spec)
     where = str(rs.path) if rs.path else "rig"
     if clock is None:
         clock = RealClock()
@@ -303,7 +327,7 @@ def build_modbus_rig(
     try:
         link.connect()
     except RigError as exc:
-        fail(RigError(f"{where}: Modbus {t.endpoint} unreachable: {exc}"))
+        fail(RigError(f"{where}: {exc} (device off, wrong host/port, or no `pmalab emulate` running?)"))
     opened.append(link)
 
     indicator = None
@@ -314,7 +338,7 @@ def build_modbus_rig(
         try:
             indicator.connect()
         except RigError as exc:
-            fail(RigError(f"{where}: [indicator] {exc}"))
+            fail(RigError(f"{where}: [rig.indicator] {exc}"))
         opened.append(indicator)
         for name in rs.indicator_channels:
             extra[name] = indicator.force
@@ -338,7 +362,7 @@ def build_modbus_rig(
             lo, hi = sampler.start_address, sampler.start_address + sampler.count - 1
             fail(
                 ConfigError(
-                    f"{where}: [inputs] registers {lo}–{hi} rejected by {t.endpoint} "
+                    f"{where}: [rig.inputs] registers {lo}–{hi} rejected by {t.endpoint} "
                     f"({link.last_error}); wrong register map?"
                 )
             )
@@ -349,7 +373,7 @@ def build_modbus_rig(
         try:
             regulators[oname] = _make_output(o, link)
         except RigError as exc:
-            fail(RigError(f"{where}: [outputs.{oname}] {exc}"))
+            fail(RigError(f"{where}: [rig.outputs.{oname}] {exc}"))
         reg = regulators[oname]
         if isinstance(reg, ItvSerialRegulator):
             opened.append(reg)
@@ -362,8 +386,8 @@ def build_modbus_rig(
                 reg.set_counts(0)  # type: ignore[attr-defined]
         except RigError as exc:
             if isinstance(link.last_error, DeviceExceptionReply) and link.last_error.code in (1, 2):
-                fail(ConfigError(f"{where}: [outputs.{oname}] address {o.address} rejected ({link.last_error}); wrong register map?"))
-            fail(RigError(f"{where}: [outputs.{oname}] {exc}"))
+                fail(ConfigError(f"{where}: [rig.outputs.{oname}] address {o.address} rejected ({link.last_error}); wrong register map?"))
+            fail(RigError(f"{where}: [rig.outputs.{oname}] {exc}"))
 
     timing: dict[str, Any] = {"requested_rate_Hz": rs.sample_rate_Hz}
     if probe and rs.probe_samples > 0:
@@ -384,7 +408,6 @@ def build_modbus_rig(
         "kind": "modbus",
         "name": rs.name,
         "rig_file": str(rs.path) if rs.path else None,
-        "rig_file_text": rs.text,
         "transport": t.endpoint,
         "device_id": t.device_id,
         "input_block": {"address": sampler.start_address, "count": sampler.count, "function": rs.function},
@@ -403,6 +426,8 @@ def build_modbus_rig(
         "sample_rate_Hz": sampler.sample_rate_Hz,
         "allow_reduced_rate": rs.allow_reduced_rate,
     }
+    if rs.text:
+        info["rig_file_text"] = rs.text
     return Rig(clock, sampler, regulators["cylinder_regulator"], supply, rs.limits, info)
 
 
@@ -419,7 +444,7 @@ def _make_output(o: OutputSpec, link: ModbusLink) -> PressureRegulator:
 def _table(data: Mapping[str, Any], key: str, where: str) -> Mapping[str, Any]:
     t = data.get(key)
     if not isinstance(t, Mapping):
-        raise ConfigError(f"{where}: missing [{key}] table")
+        raise ConfigError(f"{where}: missing [rig.{key}] table")
     return t
 
 
@@ -453,5 +478,5 @@ def _check_overlap(channels: list[AnalogChannel], where: str) -> None:
     for c in channels:
         for a in range(c.address, c.address + c.codec.width):
             if a in used:
-                raise ConfigError(f"{where}: [inputs.{c.name}] register {a} already used by {used[a]}")
+                raise ConfigError(f"{where}: [rig.inputs.{c.name}] register {a} already used by {used[a]}")
             used[a] = c.name
