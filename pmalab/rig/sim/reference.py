@@ -1,0 +1,69 @@
+"""A plain-numpy re-statement of the effects-off muscle law, to cross-check the kernel.
+
+Tests and benchmarks use it as an independent reference: drive it with a (true or
+measured) position history and the muscle pressure, and compare with what the compiled
+rig's load cell reports.  It implements only the baseline: static characteristic
+``F0(p)·(1 − x/x_max(p))`` (+ stretch term for x < 0) and the Maxwell-slip braid friction;
+none of the hidden effects.  Units: mm, MPa, N.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from pmalab.rig.sim.truth import Truth, default_truth
+
+
+def _q(truth: Truth, p: np.ndarray) -> np.ndarray:
+    m = truth.section("muscle")
+    pth = m["threshold_pressure_MPa"]
+    return np.clip((np.asarray(p, float) - pth) / (m["reference_pressure_MPa"] - pth), 0.0, None)
+
+
+def static_force(x: np.ndarray, p: np.ndarray, truth: Truth | None = None) -> np.ndarray:
+    """Baseline static tension F_s(x, p) in N (linear in x at fixed p)."""
+    truth = truth or default_truth()
+    m = truth.section("muscle")
+    q = _q(truth, p)
+    beta = m["force_pressure_curvature"]
+    f0 = m["max_force_N"] * ((1 - beta) * q + beta * q * q)
+    sc = m["contraction_pressure_scale"]
+    xm = np.maximum(m["max_contraction_mm"] * (1 - np.exp(-q / sc)) / (1 - math.exp(-1 / sc)), 0.5)
+    x = np.asarray(x, float)
+    f = f0 * (1.0 - x / xm)
+    return f + np.where(x < 0, -m["stretch_stiffness_N_per_mm"] * x, 0.0)
+
+
+def friction_force(
+    x: np.ndarray, p: np.ndarray, truth: Truth | None = None, u0: list[float] | None = None
+) -> np.ndarray:
+    """Baseline Maxwell-slip braid friction (N) along the position path ``x``.
+
+    ``u0``: initial element displacements (mm); default: all zero.
+    """
+    truth = truth or default_truth()
+    fr = truth.section("friction")
+    d = np.asarray(fr["presliding_mm"], float)
+    w = np.asarray(fr["weights"], float)
+    w = w / w.sum()
+    g = fr["pressure_curvature"]
+    q = _q(truth, p) * np.ones_like(np.asarray(x, float))
+    ftot = fr["slip_force_N"] * ((1 - g) * q + g * q * q)
+    x = np.asarray(x, float)
+    u = np.zeros(len(d)) if u0 is None else np.asarray(u0, float).copy()
+    out = np.empty_like(x)
+    prev = x[0]
+    for i, xi in enumerate(x):
+        u = np.clip(u + (xi - prev), -d, d)
+        prev = xi
+        out[i] = -ftot[i] * np.sum(w * u / d)
+    return out
+
+
+def baseline_tension(
+    x: np.ndarray, p: np.ndarray, truth: Truth | None = None, u0: list[float] | None = None
+) -> np.ndarray:
+    """Static + friction tension (N) of the baseline law along ``x`` at pressures ``p``."""
+    return static_force(x, p, truth) + friction_force(x, p, truth, u0)
