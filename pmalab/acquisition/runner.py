@@ -98,6 +98,18 @@ def _vent(rig: Rig) -> None:
         print(f"pmalab: warning: venting the muscle supply failed: {exc}", file=sys.stderr)
 
 
+def info_json(info: dict[str, Any]) -> str:
+    """Rig provenance as JSON text; live objects (e.g. the simulator) by their type name."""
+    clean: dict[str, Any] = {}
+    for k, v in info.items():
+        try:
+            json.dumps(v)
+            clean[k] = v
+        except (TypeError, ValueError):
+            clean[k] = f"<{type(v).__module__}.{type(v).__name__}>"
+    return json.dumps(clean, sort_keys=True)
+
+
 def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig) -> dict[str, Any]:
     """The per-run attrs (contract fields first, then provenance)."""
     return {
@@ -118,7 +130,7 @@ def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig) -> dict[str, Any]:
         "protocol_name": protocol.name,
         "protocol_file": protocol.path,
         "software_version": __version__,
-        "rig": json.dumps(rig.info, sort_keys=True, default=str),
+        "rig": info_json(rig.info),
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "clock": "virtual" if rig.clock.virtual else "real",
     }
@@ -138,7 +150,14 @@ def run_protocol(
     before anything moves.  Raises :class:`SafetyAbort` (after venting and closing the file
     with the aborted run's samples) on a trip, Ctrl-C, exception or device fault.
     """
-    opts = options or RunnerOptions()
+    try:
+        return _run_protocol(rig, protocol, out, force, options or RunnerOptions())
+    finally:
+        _vent(rig)  # every exit path, including a refused protocol or an existing output
+
+
+def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
+                  opts: RunnerOptions) -> list[RunResult]:
     preflight(protocol, rig)
     out = check_output(out, force)
     limits = effective_limits(rig)
@@ -150,7 +169,7 @@ def run_protocol(
         "protocol_name": protocol.name,
         "protocol_file": protocol.path,
         "protocol_text": protocol.text,
-        "rig": json.dumps(rig.info, sort_keys=True, default=str),
+        "rig": info_json(rig.info),
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "limits": json.dumps(limits.__dict__, sort_keys=True),
         "clock": "virtual" if rig.clock.virtual else "real",
@@ -340,7 +359,8 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
             if reason is not None:
                 # trip: vent in this sample period, keep the sample, then abort
                 _vent(rig)
-                add(t - t0, x, f, pm, pc, 0.0, lateness)
+                if math.isfinite(t + x + f + pm + pc):  # a NaN would break the contract
+                    add(t - t0, x, f, pm, pc, 0.0, lateness)
                 raise _Trip(f"{reason} at t={t - t0:.3f} s")
             # the waveform's value at this sample's nominal time; sent right after the
             # sample and held by the regulator until the next one

@@ -85,7 +85,7 @@ class SafetyMonitor:
         # NaN compares false everywhere; a sensor returning NaN is a fault, so test for it
         if not (force == force and position == position and muscle == muscle
                 and cylinder == cylinder):
-            return "sensor returned NaN"
+            return "sensor returned NaN (sample not stored)"
         if abs(force) > lim.max_force_N:
             return f"force {force:.1f} N beyond the load cell's range ±{lim.max_force_N:g} N"
         if position > lim.max_position_mm or position < lim.min_position_mm:
