@@ -98,7 +98,13 @@ def plan_pages(data: ReportData) -> list[Page]:
         pages.append(Page("Datasets and provenance", "provenance",
                           lambda: provenance_figure(inputs)))
 
-    # fit metrics
+    # fit metrics (validation rows borrow waveform/frequency from their traces)
+    tr_by_key = {_key(t.file, t.run): t for t in data.traces}
+    for r in val_rows:
+        t = tr_by_key.get(_key(r["file"], r["run"]))
+        if t is not None:
+            r.setdefault("waveform", t.waveform)
+            r.setdefault("frequency_Hz", t.frequency_Hz)
     if id_rows or val_rows:
         rows = [{**r, "role": "identification"} for r in id_rows] + [
             {**r, "role": "validation"} for r in val_rows]

@@ -17,6 +17,7 @@ from matplotlib.axes import Axes
 from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.ticker import MaxNLocator
 
 from pmalab.reports import style
 
@@ -63,10 +64,14 @@ def plot_binned(ax: Axes, variable: str, binned: Mapping[str, Any]) -> None:
         ax.set_xlabel(BINNED_VARIABLES.get(variable, variable))
     else:
         x = np.array([float(c) for c in centers])
+        if unit == "MPa" and x.size and np.nanmax(np.abs(x)) < 0.05:
+            # small pressure deviations read better in kPa
+            x, unit = x * 1e3, "kPa"
         ax.errorbar(x, mean, yerr=yerr, fmt="o-", color=style.MODEL, ms=3.5, capsize=2.5,
                     lw=0.9)
         name = BINNED_VARIABLES.get(variable, variable)
         ax.set_xlabel(f"{name} ({unit})" if unit else name)
+        ax.xaxis.set_major_locator(MaxNLocator(7))
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_ylabel("mean residual (N)")
     ax.set_title(f"Residual vs {BINNED_VARIABLES.get(variable, variable).split(' ')[0].lower()}")
@@ -83,7 +88,7 @@ def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
         ax.axhspan(-b, b, color="0.85", alpha=0.7, zorder=0, label=f"95 % bound ±{b:.3g}")
         ax.legend(loc="upper right")
         outside = int(np.sum(np.abs(vals[lags != 0]) > b))
-        title += f"  ({outside} of {int(np.sum(lags != 0))} lags outside)"
+        title += f"\n{outside} of {int(np.sum(lags != 0))} lags outside the bound"
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlabel("Lag (s)")
     ax.set_ylabel("correlation")
@@ -119,7 +124,7 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
         elif kind == "acf":
             plot_correlation(ax, diag["acf"], title="Residual autocorrelation")
         else:
-            plot_correlation(ax, diag["ccf_input"], title="Residual × input cross-corr.")
+            plot_correlation(ax, diag["ccf_input"], title="Residual–input cross-correlation")
     worst = diag.get("worst_region")
     if worst:
         fig.suptitle(f"{title}\nworst region: {worst}", fontweight="bold")
@@ -159,7 +164,8 @@ def plot_ranking(ax: Axes, ranking: Sequence[Mapping[str, Any]],
     ax.set_title("Effect ranking (best first)")
     ax.legend(handles=[b0, Line2D([], [], color=style.SIGNIFICANT, lw=6, label="after: significant"),
                        Line2D([], [], color=style.NOT_SIGNIFICANT, lw=6,
-                              label="after: not significant")], loc="lower right")
+                              label="after: not significant")],
+              loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=3, frameon=False)
     ax.grid(axis="y", visible=False)
     return b0, b1
 

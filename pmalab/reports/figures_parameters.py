@@ -53,7 +53,7 @@ def _fmt(v: float | None, digits: int = 4) -> str:
 
 def quadratic(q: Sequence[float], p: np.ndarray) -> np.ndarray:
     """θ(p) = q0 + q1·p + q2·p² (p in MPa)."""
-    q0, q1, q2 = (list(q) + [0.0, 0.0, 0.0])[:3]
+    q0, q1, q2 = ([*list(q), 0.0, 0.0, 0.0])[:3]
     return q0 + q1 * p + q2 * p * p
 
 
@@ -140,8 +140,11 @@ def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
     tab.auto_set_font_size(False)
     tab.set_fontsize(fontsize)
     tab.scale(1.0, row_height)
+    two_line = any("\n" in h for h in col_labels)
     for (r, c), cell in tab.get_celld().items():
         cell.set_linewidth(0.4)
+        if r == 0 and two_line:
+            cell.set_height(cell.get_height() * 1.7)
         if r == 0:
             cell.set_facecolor("#e8eef6")
             cell.set_text_props(fontweight="bold")
@@ -160,8 +163,9 @@ def _text_block(ax: Axes, heading: str, lines: Sequence[str], *, width: int = 15
         extra = len(wrapped) - max_lines + 1
         wrapped = [*wrapped[: max_lines - 1], f"  … ({extra} more lines)"]
     ax.text(0.0, 1.0, heading, fontweight="bold", va="top", transform=ax.transAxes)
-    ax.text(0.0, 0.86, "\n".join(wrapped) if wrapped else "none", va="top",
-            transform=ax.transAxes, fontsize=8.5, linespacing=1.35)
+    ax.annotate("\n".join(wrapped) if wrapped else "none", (0.0, 1.0),
+                xycoords="axes fraction", xytext=(0, -17), textcoords="offset points",
+                va="top", fontsize=8.5, linespacing=1.35)
 
 
 @style.styled
@@ -212,7 +216,7 @@ def parameter_table_figure(
         cells2 = []
         for name in parameter_names:
             q = list((pressure_fits or {}).get(name) or [])
-            q = (q + [None, None, None])[:3]
+            q = ([*q, None, None, None])[:3]
             cells2.append([name, unit_of(name, units), *(_fmt(x) for x in q),
                            _fmt(None if r2 is None else r2.get(name), 4)])
         _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.16, 0.16, 0.16, 0.1])
@@ -273,11 +277,11 @@ def _outline(c: int, r: int):
 
 
 METRIC_COLUMNS = [
-    ("rmse", "RMSE (N)", 3),
+    ("rmse", "RMSE\n(N)", 3),
     ("nrmse", "NRMSE", 3),
-    ("fit_percent", "fit (%)", 3),
-    ("max_error", "max |err| (N)", 3),
-    ("energy_error_percent", "loop energy err (%)", 2),
+    ("fit_percent", "fit\n(%)", 3),
+    ("max_error", "max |error|\n(N)", 3),
+    ("energy_error_percent", "loop energy\nerror (%)", 2),
 ]
 
 
@@ -289,13 +293,14 @@ def metrics_table_figure(
     notes: Sequence[str] = (),
 ) -> Figure:
     """One table row per run: role, run, p, f, waveform, RMSE, NRMSE, fit %, max error,
-    loop energy error, RMSE on the stretch/release branches.  ``rows`` are the run dicts
-    of ``identification.json`` with a ``role`` key."""
+    loop energy error, RMSE on the stretch/release branches; below it, fit % per run as
+    bars.  ``rows`` are the run dicts of ``identification.json`` with a ``role`` key."""
     fig = style.new_figure(title)
     nrow = len(rows)
-    axes = fig.subplots(2, 1, gridspec_kw={"height_ratios": [nrow + 2.0, 4.0]})
-    head = ["role", "run", "p (MPa)", "f (Hz)", "waveform"] + [h for _, h, _ in METRIC_COLUMNS] + [
-        "RMSE stretch (N)", "RMSE release (N)"]
+    axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": [nrow + 1.2, 5.0, 1.6]})
+    head = ["role", "run", "p\n(MPa)", "f\n(Hz)", "waveform"] + [h for _, h, _ in
+                                                              METRIC_COLUMNS] + [
+        "RMSE stretch\n(N)", "RMSE release\n(N)"]
     cells, hi = [], set()
     for i, r in enumerate(rows):
         f = r.get("frequency_Hz")
@@ -308,13 +313,27 @@ def metrics_table_figure(
         cells.append(row)
         if r.get("role") == "validation":
             hi.add((i, 0))
-    widths = [0.09, 0.15, 0.06, 0.05, 0.07] + [0.075] * len(METRIC_COLUMNS) + [0.085, 0.085]
+    widths = [0.1, 0.17, 0.06, 0.05, 0.07] + [0.075] * len(METRIC_COLUMNS) + [0.09, 0.09]
     _table(axes[0], cells, head, col_widths=widths, highlight=hi, row_height=1.6)
-    _text_block(axes[1], "Notes", [
+    ax = axes[1]
+    fits = [r.get("fit_percent") if r.get("fit_percent") is not None
+            else 100.0 * (1.0 - float(r["nrmse"])) for r in rows]
+    colours = [style.VALIDATION if r.get("role") == "validation" else style.MODEL for r in rows]
+    xs = np.arange(nrow)
+    ax.bar(xs, fits, color=colours, width=0.6)
+    for x, v in zip(xs, fits):
+        ax.text(x, v, f"{v:.1f}", ha="center", va="bottom", fontsize=8)
+    ax.set_xticks(xs, [f"{r.get('run', '')}\n{r['muscle_pressure_MPa']:.3f} MPa" for r in rows])
+    lo = min([*fits, 100.0])
+    ax.set_ylim(max(0.0, lo - 0.25 * (100.0 - lo) - 2.0), 100.0)
+    ax.set_ylabel("fit (%)")
+    ax.set_title("Fit per run (blue: identification, red: validation)")
+    ax.grid(axis="x", visible=False)
+    _text_block(axes[2], "Notes", [
         "NRMSE = RMS error / standard deviation of the measured tension; fit % = 100·(1 − NRMSE).",
         "Validation rows: the pressure-quadratic model's free-run prediction of runs not used "
         "for identification (shaded).",
         "Stretch branch: x decreasing (muscle lengthening, higher tension); release: x increasing.",
         *notes,
-    ])
+    ], max_lines=8)
     return fig

@@ -61,7 +61,7 @@ def title_page_figure(
 
     ``datasets``: dicts with role, label, p, f, waveform and the :func:`timing_stats` keys.
     """
-    fig = style.new_figure(None)
+    fig = style.new_figure(None, layout=False)
     fig.text(0.5, 0.96, "Pneumatic muscle identification report", ha="center", va="top",
              fontsize=20, fontweight="bold")
     sub = f"model: {model}" + (f"  +  {', '.join(effects)}" if effects else "  (base model)")
@@ -86,7 +86,7 @@ def title_page_figure(
         y -= 0.05 + 0.028 * len(lines)
     if datasets:
         rows = list(datasets)[:14]
-        h = 0.035 * (len(rows) + 1.5)
+        h = 0.027 * (len(rows) + 1)
         fig.text(0.05, y, "Runs and sampling", fontweight="bold", va="top", fontsize=10)
         ax = fig.add_axes((0.05, y - 0.02 - h, 0.9, h))
         head = ["role", "run", "p (MPa)", "f (Hz)", "waveform", "duration (s)", "samples",
@@ -102,7 +102,7 @@ def title_page_figure(
         _table(ax, cells, head, col_widths=[0.1, 0.2, 0.07, 0.06, 0.08, 0.09, 0.08, 0.08,
                                             0.12, 0.09], row_height=1.3)
         extra = len(datasets) - len(rows)
-        y -= 0.06 + h
+        y -= 0.07 + h
         if extra > 0:
             fig.text(0.05, y + 0.02, f"… {extra} more runs", fontsize=8.5)
     if summary:
@@ -117,7 +117,7 @@ def title_page_figure(
         for col, chunk in enumerate((items[:half], items[half:])):
             fig.text(0.05 + 0.45 * col, max(y, 0.2) - 0.03, "\n".join(chunk), va="top",
                      fontsize=8.5, linespacing=1.35)
-    fig.text(0.5, 0.02, "Sign convention: x = contraction in mm (positive = shorter than "
+    fig.text(0.5, 0.035, "Sign convention: x = contraction in mm (positive = shorter than "
              "nominal), F = tension in N, p = gauge pressure in MPa; errors are F_model − F.",
              ha="center", fontsize=8, color="0.3")
     return fig

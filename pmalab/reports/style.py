@@ -75,10 +75,19 @@ def styled(fn: Callable[P, R]) -> Callable[P, R]:
     return wrapper
 
 
-def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDSCAPE) -> Figure:
-    """An empty page-sized figure with an optional page title (call under :data:`RC`)."""
+def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDSCAPE,
+               *, layout: bool = True) -> Figure:
+    """An empty page-sized figure with an optional page title (call under :data:`RC`);
+    ``layout=False`` for free-form pages placed in figure coordinates."""
+    if not layout:
+        fig = Figure(figsize=figsize)
+        if title:
+            fig.suptitle(title, fontweight="bold")
+        return fig
     fig = Figure(figsize=figsize, layout="constrained")
-    fig.get_layout_engine().set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05)
+    # rect leaves a strip at the bottom for the page footer
+    fig.get_layout_engine().set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05,
+                                rect=(0.0, 0.025, 1.0, 0.975))
     if title:
         fig.suptitle(title, fontweight="bold")
     return fig
