@@ -109,10 +109,10 @@ def test_diagnosis_only_report(tmp_path):
 
 
 def test_no_overwrite_without_force_and_atomic_replace(tmp_path, full_report):
-    d, out, _ = full_report
+    d, _, _ = full_report
     dst = tmp_path / "r.pdf"
     dst.write_bytes(b"old")
-    with pytest.raises(OutputExistsError, match="r.pdf: already exists"):
+    with pytest.raises(OutputExistsError, match=r"r\.pdf: already exists"):
         build_report(d, dst)
     assert dst.read_bytes() == b"old"
     # a bad directory with --force leaves the old PDF untouched and no temporary file
@@ -199,7 +199,7 @@ def test_missing_and_empty_directories(tmp_path):
     with pytest.raises(ReportError, match="nope: no such directory"):
         build_report(tmp_path / "nope", tmp_path / "r.pdf")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(ReportError, match="holds neither identification.json nor diagnosis"):
+    with pytest.raises(ReportError, match=r"holds neither identification\.json nor diagnosis"):
         build_report(tmp_path / "empty", tmp_path / "r.pdf")
     (tmp_path / "empty" / "diagnosis.json").write_text('{"model": "duhem", ')
     with pytest.raises(ReportError, match=r"diagnosis.json: malformed JSON at line 1"):

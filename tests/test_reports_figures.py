@@ -1,0 +1,159 @@
+"""Each report figure alone, on small data: the numbers drawn are the numbers given."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import reports_fixtures as rf
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+from matplotlib.text import Text
+
+from pmalab.errors import OutputExistsError
+from pmalab.reports import ReportError, save_figure
+from pmalab.reports import figures as F
+from pmalab.reports.build import plan_pages
+from pmalab.reports.data import Trace, load_report_dir
+from pmalab.reports.style import MIN_FONT_PT
+
+
+def _trace(n: int = 50, p: float = 0.4, role: str = "identification") -> Trace:
+    tr = rf.synthetic_trace(p, 0.15, n=n)
+    return Trace(key="k", role=role, file="a.h5", run="r1", muscle_pressure_MPa=p,
+                 frequency_Hz=0.15, waveform="sine", model="bouc-wen", **tr)
+
+
+def _new_axes():
+    return Figure().add_subplot()
+
+
+def test_error_loop_has_one_segment_per_sample_pair_coloured_by_abs_error():
+    t = _trace(50)
+    ax = _new_axes()
+    lc = F.error_loop(ax, t.position, t.force, t.force_model)
+    segs = lc.get_segments()
+    assert len(segs) == 49
+    err = np.abs(t.force_model - t.force)
+    np.testing.assert_allclose(lc.get_array(), 0.5 * (err[:-1] + err[1:]))
+    # segments follow the model loop (x, F_model)
+    np.testing.assert_allclose(segs[10][0], [t.position[10], t.force_model[10]])
+    np.testing.assert_allclose(segs[10][1], [t.position[11], t.force_model[11]])
+    # long runs are thinned to at most max_points samples
+    long = _trace(5000)
+    lc2 = F.error_loop(_new_axes(), long.position, long.force, long.force_model, max_points=2000)
+    assert len(lc2.get_segments()) == len(range(0, 5000, 3)) - 1 == 1666
+
+
+def test_loops_figure_shares_one_error_scale():
+    ts = [_trace(80, p) for p in (0.3, 0.45, 0.6)]
+    ts[2].force_model = ts[2].force_model + 20.0  # a worse fit sets the scale
+    fig = F.loops_figure(ts, fit_percent=[95.0, None, 80.0])
+    lcs = [c for ax in fig.axes[:3] for c in ax.collections]
+    assert len(lcs) == 3
+    vmax = {lc.norm.vmax for lc in lcs}
+    assert len(vmax) == 1 and vmax.pop() == pytest.approx(np.max(np.abs(ts[2].error)))
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert "fit 95.0 %" in titles[0] and f"fit {ts[1].fit_percent:.1f} %" in titles[1]
+
+
+def test_ladder_plot_y_data_are_the_nrmse_values():
+    ladder = rf.diagnosis_doc()["ladder"]
+    line = F.plot_ladder(_new_axes(), ladder)
+    np.testing.assert_allclose(line.get_ydata(), [0.12, 0.04, 0.037])
+    np.testing.assert_array_equal(line.get_xdata(), [0, 1, 2])
+    labels = [t.get_text() for t in line.axes.get_xticklabels()]
+    assert labels == ["base model", "+ viscous-friction", "+ asymmetric-hysteresis"]
+
+
+def test_ranking_bars_and_significance_colours():
+    ranking = rf.diagnosis_doc()["ranking"]
+    before, after = F.plot_ranking(_new_axes(), ranking, ambiguous=["sensor-delay"])
+    np.testing.assert_allclose([b.get_width() for b in before], [0.12, 0.12, 0.12])
+    np.testing.assert_allclose([b.get_width() for b in after], [0.04, 0.11, 0.118])
+    greens = [b.get_facecolor()[1] > 0.5 and b.get_facecolor()[0] < 0.3 for b in after]
+    assert greens == [True, False, False]
+    # best effect drawn on top
+    assert after[0].get_y() > after[1].get_y() > after[2].get_y()
+    labels = [t.get_text() for t in before[0].axes.get_yticklabels()]
+    assert labels == ["viscous-friction", "asymmetric-hysteresis", "sensor-delay (ambiguous)"]
+
+
+def test_parameter_vs_pressure_draws_points_and_quadratic():
+    ax = _new_axes()
+    q = [1.0, -2.0, 3.0]
+    F.plot_parameter_vs_pressure(ax, "k", [0.2, 0.4, 0.6], [0.9, 0.7, 1.1], [0.1, None, 0.2],
+                                 q, r2=0.97, unit="N/mm", validation_pressures=[0.5])
+    (curve,) = [ln for ln in ax.lines if len(ln.get_xdata()) == 100]
+    p = curve.get_xdata()
+    np.testing.assert_allclose(curve.get_ydata(), 1 - 2 * p + 3 * p**2)
+    assert p.min() < 0.2 and p.max() > 0.6  # spans the identification pressures
+    assert ax.get_title() == "k (N/mm)   R² = 0.970"
+    pts = next(ln for ln in ax.lines if len(ln.get_xdata()) == 3)
+    np.testing.assert_allclose(pts.get_ydata(), [0.9, 0.7, 1.1])
+
+
+def test_residual_panels_and_correlation_bounds():
+    diag = rf.diagnosis_doc()["diagnostics"]["ident.h5:p4762"]
+    fig = F.residual_diagnostics_figure("ident.h5:p4762", diag)
+    visible = [ax for ax in fig.axes if ax.get_visible()]
+    assert len(visible) == 9  # 7 binned variables + ACF + CCF
+    labels = [ax.get_xlabel() for ax in visible]
+    assert "Pressure deviation p − p_nom (kPa)" in labels  # small MPa shown in kPa
+    assert "Contraction x (mm)" in labels and labels.count("Lag (s)") == 2
+    acf_ax = visible[7]
+    assert "lags outside the bound" in acf_ax.get_title()
+    assert "worst region: high stretch velocity" in fig._suptitle.get_text()
+
+
+def test_correlation_heatmap_outlines_near_collinear_pairs():
+    r = rf.identification_doc()[0]["runs"][0]
+    fig = F.correlation_figure([{"title": "x", **r["correlation"]}])
+    ax = fig.axes[0]
+    outlines = [p for p in ax.patches if isinstance(p, Rectangle) and not p.get_fill()]
+    assert len(outlines) == 2  # beta-gamma and gamma-beta
+    np.testing.assert_allclose(ax.images[0].get_array()[3, 4], 0.998)
+
+
+def _all_text(fig: Figure) -> list[Text]:
+    return [t for t in fig.findobj(Text) if t.get_visible() and t.get_text().strip()]
+
+
+def test_every_page_uses_fonts_of_at_least_8pt(tmp_path):
+    d = rf.write_full_dir(tmp_path / "res")
+    for page in plan_pages(load_report_dir(d)):
+        fig = page.make()
+        small = {(t.get_text()[:30], t.get_fontsize()) for t in _all_text(fig)
+                 if t.get_fontsize() < MIN_FONT_PT}
+        assert not small, f"{page.title}: text below {MIN_FONT_PT} pt: {sorted(small)[:5]}"
+
+
+def test_save_figure_png_svg_and_no_overwrite(tmp_path):
+    fig = F.ladder_figure(rf.diagnosis_doc()["ladder"])
+    png = save_figure(fig, tmp_path / "ladder.png")
+    svg = save_figure(fig, tmp_path / "sub" / "ladder.svg")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert b"<svg" in svg.read_bytes()[:500]
+    with pytest.raises(OutputExistsError):
+        save_figure(fig, png)
+    save_figure(fig, png, force=True)
+    with pytest.raises(ReportError, match="unsupported figure format"):
+        save_figure(fig, tmp_path / "ladder.jpg")
+
+
+def test_standalone_figures_return_figures():
+    doc, _ = rf.identification_doc()
+    t = _trace(60)
+    figs = [
+        F.time_history_figure([t]),
+        F.validation_figure([_trace(60, 0.5, "validation")], fit_percent=[91.0]),
+        F.ranking_figure(rf.diagnosis_doc()["ranking"]),
+        F.metrics_table_figure([{**r, "role": "identification"} for r in doc["runs"]]),
+        F.parameter_table_figure(doc["parameter_names"], doc["runs"], doc["pressure_fits"]),
+        F.title_page_figure(model="duhem"),
+        F.provenance_figure(doc["inputs"]),
+    ]
+    assert all(isinstance(f, Figure) for f in figs)
+    table_fig = figs[4]
+    cells = table_fig.axes[0].tables[0].get_celld()
+    texts = {c.get_text().get_text() for c in cells.values()}
+    assert "1 (fixed)" in texts and any(s.startswith("-38.45 ± 0.77") for s in texts)
