@@ -32,7 +32,8 @@ above 1e8 are reported in ``warnings``.  Defaults that remove known degeneracies
   non-identifiable.
 
 h0 (the hysteretic force at the first sample) is fitted: the run's own start state.  For
-predicting *another* run (validation) it is set by a burn-in instead (:func:`predict_free`).
+predicting *another* run (validation) it is estimated from that run's first 50 ms of
+force, or set by a burn-in / to zero (:func:`predict_free`).
 Nothing is excluded: every sample of the run enters the fit.
 """
 
@@ -114,12 +115,16 @@ class FitResult:
     def stderr(self) -> dict[str, float | None]:
         return {p.name: p.stderr for p in self.params}
 
-    def predict(self, sig: Signals | Run, *, burn_in: bool = False) -> np.ndarray:
-        """Force (N) along ``sig``: with the fitted h0 (same run) or a burn-in (other runs)."""
-        s = Signals.from_run(sig) if isinstance(sig, Run) else sig
-        if burn_in:
-            return predict_free(self.model, s, self.values)
-        return self.model.predict(s, self.values)
+    def predict(self, sig: Signals | Run, *, initial: str | None = None,
+                force: np.ndarray | None = None) -> np.ndarray:
+        """Force (N) along ``sig``.  ``initial=None``: the fitted h0 (the fitted run itself);
+        otherwise h0 is set as :func:`predict_free` describes (another run)."""
+        if isinstance(sig, Run):
+            force = sig.force if force is None else force
+            sig = Signals.from_run(sig)
+        if initial is None:
+            return self.model.predict(sig, self.values)
+        return predict_free(self.model, sig, self.values, force=force, initial=initial)
 
     def summary(self) -> str:
         lines = [f"{self.model.name}: fit {self.fit_percent:.2f} %  rmse {self.rmse:.3g} N  "
@@ -180,14 +185,44 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
     return aug, P
 
 
-def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float]) -> np.ndarray:
-    """Free-run force (N) of ``model`` on ``sig`` with h0 set by a one-cycle burn-in."""
-    aug, P = burn_in_signals(sig)
+#: how a prediction of another run sets the start state h0 (see :func:`predict_free`)
+INITIAL_STATES = ("estimate", "burn-in", "zero")
+#: samples used to estimate the initial state (50 ms at 500 Hz)
+INITIAL_WINDOW_S = 0.05
+
+
+def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
+                 force: np.ndarray | None = None, initial: str = "estimate") -> np.ndarray:
+    """Free-run force (N) of ``model`` on ``sig``; the start state h0 is set by ``initial``:
+
+    * ``"estimate"`` (default when ``force`` is given): h0 from the first 50 ms of the
+      measured force, h0 = median(F − F_model(h0 = 0)) over that window — the initial
+      condition estimate of MATLAB ``compare``.  Only the state is taken from the data;
+      every sample (the window included) is then predicted in free run from the position.
+    * ``"burn-in"``: the first excitation period is replayed before the run, putting h on
+      its periodic orbit (for records that start mid-cycle on a cycled muscle);
+    * ``"zero"``: h0 = 0, a virgin state (a record that starts from rest).
+    """
     th = dict(theta)
     for s in STATE_PARAMS:
         if s in th:
             th[s] = 0.0
-    return model.predict(aug, th)[P:]
+    if initial == "estimate" and force is None:
+        initial = "burn-in"
+    if initial == "zero":
+        return model.predict(sig, th)
+    if initial == "burn-in":
+        aug, P = burn_in_signals(sig)
+        return model.predict(aug, th)[P:]
+    if initial != "estimate":
+        raise ValueError(f"initial must be one of {INITIAL_STATES}, not {initial!r}")
+    pred0 = model.predict(sig, th)
+    if "h0" not in th:
+        return pred0
+    dt = float(np.median(np.diff(sig.t)))
+    m = max(1, min(sig.t.shape[0], int(round(INITIAL_WINDOW_S / dt))))
+    th["h0"] = float(np.median(np.asarray(force)[:m] - pred0[:m]))
+    return model.predict(sig, th)
 
 
 def _lstsq(cols: Sequence[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, float]:
@@ -510,3 +545,17 @@ def _centred_rho(corr: np.ndarray, names: list[str], xm: float, se: np.ndarray) 
 def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[str]:
     """Human-readable notes on the law's default fixes (for campaign-level warnings)."""
     return [DEFAULT_FIXED_WHY[k] for k in DEFAULT_FIXED.get(model.law.name, {}) if k not in free]
+
+
+def fit_campaign(runs, model, **kwargs):
+    """See :func:`pmalab.identify.campaign.fit_campaign` (re-exported here for convenience)."""
+    from pmalab.identify.campaign import fit_campaign as _fc
+
+    return _fc(runs, model, **kwargs)
+
+
+def predict_run(campaign_fit, run):
+    """See :func:`pmalab.identify.campaign.predict_run`."""
+    from pmalab.identify.campaign import predict_run as _pr
+
+    return _pr(campaign_fit, run)
