@@ -1,9 +1,77 @@
-"""CLI verbs of this area (see pmalab/cli.py)."""
+"""CLI verbs of the rig area: ``pmalab emulate``.
+
+``pmalab emulate --rig data/rigs/labjack-t7.toml`` starts wire-level emulators of every
+device the rig file names (Modbus TCP/RTU I/O module, SMC ITV on RS-232C, load-cell
+indicator), all driven by one simulated rig, prints their endpoints and runs until Ctrl-C.
+In another shell, ``pmalab run --rig data/rigs/labjack-t7.toml ...`` then records through
+the real drivers.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import threading
+import time
+
+from pmalab.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add this area's verbs to the ``pmalab`` parser (filled in by the area's issue)."""
+    """Add ``emulate`` to the ``pmalab`` parser."""
+    p = sub.add_parser(
+        "emulate",
+        help="emulate a rig file's devices (Modbus, serial) on the simulated rig",
+        description=(
+            "Start wire-level emulators for every device of a kind = 'modbus' rig file, "
+            "driven by the simulated rig's physics in real time; runs until Ctrl-C."
+        ),
+    )
+    p.add_argument("--rig", required=True, help="rig TOML file (kind = 'modbus')")
+    p.add_argument("--truth", default=None, help="truth TOML of the simulated rig (default: the rig file's [rig.emulator] truth)")
+    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default: [rig.emulator] seed)")
+    p.add_argument("--port", type=int, default=None, help="TCP port to listen on instead of the rig file's")
+    p.add_argument("--no-baud-pacing", action="store_true", help="RTU: deliver bytes at once instead of at the baud rate")
+    p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)  # tests: stop after N s
+    p.set_defaults(func=run_emulate)
+
+
+def run_emulate(args: argparse.Namespace) -> int:
+    from pmalab.rig.emulators.launcher import start_emulators
+
+    try:
+        emus = start_emulators(
+            args.rig,
+            tcp_port=args.port,
+            truth=args.truth,
+            seed=args.seed,
+            baud_pacing=False if args.no_baud_pacing else None,
+        )
+    except FileExistsError as exc:
+        raise ConfigError(f"{args.rig}: {exc}") from None
+    except OSError as exc:
+        raise ConfigError(f"{args.rig}: cannot start the emulators ({exc})") from None
+    stop = threading.Event()
+
+    def on_term(*_: object) -> None:
+        stop.set()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        print(f"pmalab emulate: {emus.spec.name} — simulated rig in real time", flush=True)
+        for line in emus.endpoints():
+            print(f"  {line}", flush=True)
+        print(f"  now: pmalab run --rig {args.rig} --protocol PROTOCOL.toml --out FILE.h5", flush=True)
+        print("  Ctrl-C to stop", flush=True)
+        t_end = None if args.duration is None else time.monotonic() + args.duration
+        while not stop.is_set() and (t_end is None or time.monotonic() < t_end):
+            stop.wait(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        emus.stop()
+        m = emus.modbus.model
+        print(f"pmalab emulate: stopped ({m.reads} block reads, {m.writes} writes served)", file=sys.stderr, flush=True)
+    return 0

@@ -377,7 +377,7 @@ def build_modbus_rig(
         reg = regulators[oname]
         if isinstance(reg, ItvSerialRegulator):
             opened.append(reg)
-            extra_stats[oname] = reg.stats_dict
+            sampler.extra_stats[oname] = reg.stats_dict
         # command zero (vented) before anything else: checks the output register too
         try:
             if isinstance(reg, ModbusAnalogOutput):
