@@ -135,7 +135,10 @@ class RigPhysics:
         self._st, self._pend_t, self._pend_v, self._ptr, self._hist = K.new_buffers()
         reg = truth.section("regulator")
         self.cylinder_max_MPa = float(reg["max_pressure_MPa"])
-        self._cyl_levels = 2 ** int(reg["bits"]) - 1
+        levels = 2 ** int(reg["bits"]) - 1
+        self._q_per_mpa = levels / self.cylinder_max_MPa
+        self._mpa_per_q = self.cylinder_max_MPa / levels
+        self._tail = 0
         self._dead = reg["dead_time_ms"] * 1e-3
         self.muscle_max_MPa = float(truth.section("muscle")["max_pressure_MPa"])
         self._rng = np.random.default_rng(self.seed)
@@ -174,26 +177,25 @@ class RigPhysics:
     def set_cylinder_command(self, mpa: float) -> None:
         """Command the ITV regulator (MPa, 0..0.9): quantized, then applied after the dead time."""
         mpa = float(mpa)
-        if not math.isfinite(mpa) or mpa < -1e-9 or mpa > self.cylinder_max_MPa + 1e-9:
+        cmax = self.cylinder_max_MPa
+        if not -1e-9 <= mpa <= cmax + 1e-9:  # also rejects NaN
             raise RigError(
-                f"simulated ITV regulator: command {mpa:g} MPa outside its range "
-                f"0–{self.cylinder_max_MPa:g} MPa"
+                f"simulated ITV regulator: command {mpa:g} MPa outside its range 0–{cmax:g} MPa"
             )
-        mpa = min(max(mpa, 0.0), self.cylinder_max_MPa)
-        q = (
-            round(mpa / self.cylinder_max_MPa * self._cyl_levels)
-            / self._cyl_levels
-            * self.cylinder_max_MPa
-        )
+        mpa = 0.0 if mpa < 0.0 else (cmax if mpa > cmax else mpa)
         self._cylinder_command = mpa
+        # 2^bits − 1 levels over 0..max, as the regulator's DAC/serial setpoint resolves it
+        q = round(mpa * self._q_per_mpa) * self._mpa_per_q
         ptr = self._ptr
-        if ptr[K.R_TAIL] - ptr[K.R_HEAD] >= K.PEND_SIZE:
-            # more commands in flight than the dead time can hold: drop the oldest
+        tail = self._tail
+        if tail - ptr[K.R_HEAD] >= K.PEND_SIZE:
+            # more commands in flight than the queue holds: drop the oldest
             ptr[K.R_HEAD] += 1
-        i = ptr[K.R_TAIL] % K.PEND_SIZE
+        i = tail % K.PEND_SIZE
         self._pend_t[i] = self._st[K.S_T] + self._dead
         self._pend_v[i] = q
-        ptr[K.R_TAIL] += 1
+        self._tail = tail + 1
+        ptr[K.R_TAIL] = tail + 1
 
     def set_muscle_supply(self, mpa: float) -> None:
         """Set the muscle regulator's setpoint (MPa, 0..rated pressure)."""

@@ -34,8 +34,8 @@ class SimSampler(Sampler):
         self.sample_rate_Hz = float(sample_rate_Hz)
 
     def read_block(self) -> Block:
-        o = self.physics.advance_and_sample(self.clock.now())
-        return Block(o[0:1].copy(), o[1:2].copy(), o[2:3].copy(), o[3:4].copy(), o[4:5].copy())
+        o = self.physics.advance_and_sample(self.clock.now()).copy()
+        return Block(o[0:1], o[1:2], o[2:3], o[3:4], o[4:5])
 
 
 class SimCylinderRegulator(PressureRegulator):

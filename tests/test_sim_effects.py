@@ -1,0 +1,155 @@
+"""Each hidden effect, when enabled, changes what it should (and only that)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pmalab.paths import TRUTH_DIR
+from pmalab.rig.sim.demo import hysteresis_width, run_isobaric
+from pmalab.rig.sim.reference import baseline_tension, static_force
+from pmalab.rig.sim.truth import default_truth, load_truth
+
+P0 = 0.4762
+
+
+def _run(eid: str | None, **kw) -> dict:
+    truth = None if eid is None else TRUTH_DIR / f"hidden-{eid}.toml"
+    kw.setdefault("muscle_MPa", P0)
+    return run_isobaric(truth, **kw)
+
+
+def _branch_masks(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    k = 25
+    xs = np.convolve(x, np.ones(k) / k, mode="same")
+    v = np.gradient(xs)
+    return v < -0.002, v > 0.002
+
+
+def test_sensor_delay_shifts_position_against_force():
+    def lag(d):
+        meas, true = d["position"], d["true_position"]
+        errs = [np.sqrt(np.mean((meas[k:] - true[: len(true) - k]) ** 2)) for k in range(0, 40)]
+        return int(np.argmin(errs))
+
+    assert lag(_run(None)) <= 1  # 1 ms sensor lag only
+    assert 19 <= lag(_run("sensor-delay")) <= 21  # 40 ms at 500 Hz
+    # the force channel is not delayed
+    d = _run("sensor-delay")
+    ok = np.abs(d["force"] - d["true_tension"])
+    assert np.sqrt(np.mean(ok**2)) < 1.5
+
+
+def test_pressure_variation_makes_pressure_follow_x_and_force_the_actual_pressure():
+    base = _run(None)
+    d = _run("pressure-variation")
+    r0 = np.corrcoef(base["muscle_pressure"], base["position"])[0, 1]
+    r1 = np.corrcoef(d["muscle_pressure"], d["position"])[0, 1]
+    assert abs(r0) < 0.2
+    assert r1 < -0.5, r1  # volume grows with contraction: pressure falls as x rises
+    # (the slow regulator's refill puts it partly in phase with ẋ, hence not −1)
+    swing = np.ptp(d["true_muscle_pressure"])
+    assert 0.01 < swing < 0.06, swing
+    # force follows the ACTUAL pressure: the truth law with the true pressure history fits,
+    # with the nominal pressure it does not
+    truth = load_truth(TRUTH_DIR / "hidden-pressure-variation.toml")
+    x = np.concatenate([d["true_position"][:1] - 20, d["true_position"]])
+    p = np.concatenate([d["true_muscle_pressure"][:1], d["true_muscle_pressure"]])
+    sl = slice(len(x) // 4, None)
+    actual = baseline_tension(x, p, truth)[1:]
+    nominal = baseline_tension(x, np.full_like(x, P0), truth)[1:]
+    e_act = np.sqrt(np.mean((d["true_tension"][sl] - actual[sl]) ** 2))
+    e_nom = np.sqrt(np.mean((d["true_tension"][sl] - nominal[sl]) ** 2))
+    assert e_act < 1.0 and e_nom > 8.0, (e_act, e_nom)
+
+
+def test_viscous_friction_widens_the_loop_with_speed():
+    def widths(eid):
+        return [
+            hysteresis_width(d["position"], d["force"])
+            for d in (
+                _run(eid, frequency_Hz=0.1, magnitude_MPa=0.35),
+                _run(eid, frequency_Hz=0.3, magnitude_MPa=0.35),
+            )
+        ]
+
+    w0 = widths(None)
+    w1 = widths("viscous-friction")
+    assert abs(w0[1] - w0[0]) < 6.0, w0  # the baseline is (nearly) rate independent
+    assert w1[1] - w1[0] > 15.0, w1  # 2 N·s/mm: wider at 0.3 Hz
+    # and the viscous term is −c·ẋ
+    d = _run("viscous-friction", frequency_Hz=0.3)
+    v = np.gradient(d["true_position"], d["time"])
+    x = np.concatenate([d["true_position"][:1] - 20, d["true_position"]])
+    ref = baseline_tension(x, np.full_like(x, P0))[1:]
+    sl = slice(len(v) // 4, -5)
+    c = np.linalg.lstsq(-v[sl, None], (d["true_tension"] - ref)[sl], rcond=None)[0][0]
+    assert c == pytest.approx(2.0, rel=0.05)
+
+
+def test_asymmetric_hysteresis_stretch_branch_carries_more_friction():
+    def ratio(eid):
+        d = _run(eid, cycles=1)
+        x, f = d["true_position"], d["force"]
+        fs = static_force(x, P0)
+        dn, up = _branch_masks(x)
+        mid = (x > np.percentile(x, 30)) & (x < np.percentile(x, 70))
+        return np.mean((f - fs)[dn & mid]) / np.mean((fs - f)[up & mid])
+
+    assert ratio(None) == pytest.approx(1.0, abs=0.1)
+    # ≥ the slip-force factor 1.6: the longer pre-sliding on the stretch side also keeps
+    # the contraction branch from saturating fully
+    assert 1.5 < ratio("asymmetric-hysteresis") < 3.0
+
+
+def test_nonlinear_stiffness_curves_the_static_characteristic():
+    def curvature(eid):
+        d = _run(eid, cycles=1)
+        x, f = d["true_position"], d["force"]
+        dn, up = _branch_masks(x)
+        grid = np.linspace(np.percentile(x, 10), np.percentile(x, 90), 25)
+        o1, o2 = np.argsort(x[dn]), np.argsort(x[up])
+        mean_branch = 0.5 * (
+            np.interp(grid, x[dn][o1], f[dn][o1]) + np.interp(grid, x[up][o2], f[up][o2])
+        )
+        return np.polyfit(grid, mean_branch, 2)[0]  # N/mm²
+
+    c0 = curvature(None)
+    c1 = curvature("nonlinear-stiffness")
+    assert abs(c0) < 0.05, c0
+    # F0(1−s)(1−κs) has second derivative 2κ·F0/x_max² > 0
+    assert c1 > 0.3, c1
+
+
+def test_inertia_load_cell_reads_tension_minus_mass_times_acceleration():
+    d = _run("inertia", frequency_Hz=2.0, magnitude_MPa=0.35, cycles=2)
+    t = d["time"]
+    a = np.gradient(np.gradient(d["true_position"], t), t)  # mm/s²
+    sl = slice(100, -100)
+    m = np.linalg.lstsq(-1e-3 * a[sl, None], (d["force"] - d["true_tension"])[sl], rcond=None)[0][0]
+    assert m == pytest.approx(15.0, rel=0.15), m
+    base = _run(None, frequency_Hz=2.0, magnitude_MPa=0.35, cycles=2)
+    a0 = np.gradient(np.gradient(base["true_position"], t), t)
+    m0 = np.linalg.lstsq(
+        -1e-3 * a0[sl, None], (base["force"] - base["true_tension"])[sl], rcond=None
+    )[0][0]
+    assert abs(m0) < 1.0, m0
+
+
+def test_sensor_drift_is_a_ramp_in_time():
+    # drift touches only the sensors: with the same seed, the difference to the
+    # drift-free run is the ramp itself (up to the sensors' quantization)
+    d = _run("sensor-drift", cycles=1)
+    b = _run(None, cycles=1)
+    t = d["time"]
+    assert np.array_equal(d["true_position"], b["true_position"])
+    assert np.allclose(d["force"] - b["force"], 30.0 / 60.0 * t, atol=0.11)
+    assert np.allclose(d["position"] - b["position"], 0.03 / 60.0 * t, atol=0.0011)
+    assert np.array_equal(d["muscle_pressure"], b["muscle_pressure"])
+
+
+def test_every_effect_off_by_default():
+    t = default_truth()
+    assert t.enabled_effects() == []
+    for sec in t.effects.values():
+        assert sec["enabled"] is False
