@@ -1,10 +1,16 @@
-"""Asymmetric hysteresis: loops whose contracting and stretching branches differ in shape.
+"""Asymmetric hysteresis: loops whose stretching and contracting branches differ in shape.
 
-For Bouc-Wen this is Song & Der Kiureghian's generalized law (2006): the shape term
-β·sgn(ẋh) + γ gains ψ_v·sgn(ẋ) + ψ_h·sgn(h) + ψ_x·sgn(x − x_c), so the loop can saturate
-faster on one branch, on one side of zero h, or on one side of the mid-stroke x_c (here the
-run's mean contraction, not fitted).  For Duhem the memory rate α and the reversal slope b
-become direction dependent: α·(1 + ψ_α·σ), b·(1 + ψ_b·σ) with σ = sgn(ẋ).
+Bouc-Wen: Song & Der Kiureghian's generalized law (2006) lets the shape term depend on the
+direction of motion, β·sgn(ẋh) + γ + ψ_v·sgn(ẋ) + ψ_h·sgn(h) (see
+:mod:`pmalab.identify.hysteresis`), which changes each branch's decay rate — and with it
+its saturation level, since the initial slope A is common to both.  Braid friction also
+has a different *initial* stiffness on each branch (different pre-sliding lengths), so we
+add a direction-dependent slope: the law is driven by the path coordinate
+x' = x + ψ_a·∫|dx| (dx' = (1 + ψ_a·σ)·dx, σ = sgn(ẋ)), which scales both A and the decay
+rate of one branch.  The effect returns h_asym − h, the change of the hysteretic force.
+
+Duhem (Coleman–Hodgdon): the memory rate α and the reversal slope b become direction
+dependent, α·(1 + ψ_α·σ), b·(1 + ψ_b·σ), through the law's own extras.
 """
 
 from __future__ import annotations
@@ -12,44 +18,60 @@ from __future__ import annotations
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
+from pmalab.identify.hysteresis import BoucWen
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals
+
+
+def path_warp(x: np.ndarray, psi_a: float) -> np.ndarray:
+    """x' = x + ψ_a·(cumulative |dx|): each step scaled by (1 + ψ_a·sgn(dx))."""
+    travelled = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(x)))])
+    return x + psi_a * travelled
 
 
 class AsymmetricHysteresis(Effect):
     id = "asymmetric-hysteresis"
     title = "Asymmetric hysteresis (generalized Bouc-Wen / direction-dependent Duhem)"
     explanation = (
-        "The braid and bladder do not load and unload symmetrically: the stretching branch "
-        "of a McKibben loop is often steeper than the contracting one and the loop is "
-        "fuller at high contraction. The symmetric Bouc-Wen/Duhem law forces mirror-image "
-        "branches; the generalized law lets each branch and each end of the stroke saturate "
-        "at its own rate."
+        "The braid and bladder do not load and unload symmetrically: friction and the "
+        "pre-sliding stiffness differ between stretching and contracting, so the two "
+        "branches of the loop have different shapes. The symmetric Bouc-Wen/Duhem law forces "
+        "mirror-image branches; the generalized law (Song & Der Kiureghian) gives each "
+        "direction its own slope and saturation."
     )
     signature = (
-        "Residual that differs in shape between the two branches (binned residual against "
-        "branch and position not mirror-symmetric), largest just after reversals and at one "
-        "end of the stroke, unchanged with frequency."
+        "Residual that differs between the two branches (binned residual against branch "
+        "and position not mirror-symmetric), largest just after reversals, unchanged with "
+        "frequency."
+    )
+    experiment = (
+        "record minor loops (small reversals at several points of the stroke) at a low "
+        "frequency: branch asymmetry changes the shape after every reversal in the same way"
     )
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        # the ψ's carry the same units as β, γ (sizes relative to them); Duhem's are ratios
         return [
-            Param("asym_psi_v", 0.0, -5.0, 5.0, "1/mm·N^(1-n)",
-                  doc="Bouc-Wen: shape term for the direction of motion (ψ_v); Duhem: ψ_α"),
-            Param("asym_psi_h", 0.0, -5.0, 5.0, "1/mm·N^(1-n)",
-                  doc="Bouc-Wen: shape term for the sign of h (ψ_h); Duhem: ψ_b"),
-            Param("asym_psi_x", 0.0, -5.0, 5.0, "1/mm·N^(1-n)",
-                  doc="Bouc-Wen: shape term for the side of mid-stroke (ψ_x); unused for Duhem"),
+            Param("asym_psi_a", 0.0, -0.8, 0.8, "-",
+                  doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; unused for Duhem"),
+            Param("asym_psi_v", 0.0, -5.0, 5.0, "1/mm",
+                  doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α"),
+            Param("asym_psi_h", 0.0, -5.0, 5.0, "1/mm",
+                  doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b"),
         ]
+
+    def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
+        return ("asym_psi_a",) if law_name == "duhem" else ()
 
     def law_extras(self, law_name: str, sig: Signals, theta: dict[str, float]) -> dict[str, float]:
         if law_name == "duhem":
-            # ratios, kept inside (−1, 1) so α and b keep their sign on both branches
+            # ratios kept inside (−1, 1) so α and b keep their sign on both branches
             return {"psi_alpha": float(np.tanh(theta["asym_psi_v"])),
                     "psi_b": float(np.tanh(theta["asym_psi_h"]))}
-        return {"psi_v": theta["asym_psi_v"], "psi_h": theta["asym_psi_h"],
-                "psi_x": theta["asym_psi_x"], "x_c": float(np.mean(sig.x))}
+        return {}
 
-    def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
-        return ("asym_psi_x",) if law_name == "duhem" else ()
+    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
+        if "A" not in theta:  # Duhem: handled by the law's extras
+            return 0.0
+        extras = {"psi_v": theta["asym_psi_v"], "psi_h": theta["asym_psi_h"]}
+        h_asym = BoucWen().h(path_warp(sig.x, theta["asym_psi_a"]), theta, extras)
+        return h_asym - h

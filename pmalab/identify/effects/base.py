@@ -37,6 +37,9 @@ class Effect:
     explanation: ClassVar[str] = ""
     #: the residual signature that points to this effect
     signature: ClassVar[str] = ""
+    #: the experiment that would tell this effect apart from look-alikes (diagnosis shows it
+    #: when the ranking is ambiguous)
+    experiment: ClassVar[str] = ""
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         """Parameters with start values and bounds sized from the data.

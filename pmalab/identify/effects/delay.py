@@ -39,6 +39,10 @@ class SensorDelay(Effect):
         "frequency."
     )
 
+    experiment = (
+        "repeat at two or more frequencies: a delay's phase error grows with frequency (ωτ) while viscous force grows with velocity amplitude; or time-stamp a sharp force step on both channels"
+    )
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         return [Param("delay_tau", 0.0, -0.1, 0.1, "s",
                       doc="position channel lag behind the force channel (s)")]

@@ -27,6 +27,10 @@ class SensorDrift(Effect):
         "ones, whatever the branch or position; the autocorrelation stays high at long lags."
     )
 
+    experiment = (
+        "repeat the same run twice in a row, or record a long run: drift grows with elapsed time while loop-shape effects repeat every cycle"
+    )
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         dur = max(float(sig.t[-1] - sig.t[0]), 1e-3)
         lim = 5.0 * force_scale / dur

@@ -30,6 +30,10 @@ class Inertia(Effect):
         "growing with frequency squared."
     )
 
+    experiment = (
+        "repeat at a higher frequency (≥ 1 Hz): an inertial force grows with the square of the frequency, friction and delay effects only linearly"
+    )
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         amax = float(np.max(np.abs(sig.a))) * 1e-3 or 1e-3
         lim = max(3.0 * force_scale / amax, 1.0)

@@ -29,6 +29,10 @@ class NonlinearStiffness(Effect):
         "centre line is curved), independent of velocity and frequency."
     )
 
+    experiment = (
+        "run a slow loop over the full stroke: a curved static characteristic bends the loop's centre line the same way on both branches"
+    )
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         half = max(0.5 * float(np.ptp(sig.x)), 1e-3)
         # bounds: each term at most 3 force standard deviations at the stroke end

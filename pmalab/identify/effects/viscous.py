@@ -28,6 +28,10 @@ class ViscousFriction(Effect):
         "growing with test frequency."
     )
 
+    experiment = (
+        "repeat at two or more frequencies and amplitudes with a triangle wave: viscous force is constant along each constant-speed branch and jumps at reversals, while a channel delay only shifts the loop in time"
+    )
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         vmax = float(np.max(np.abs(sig.v))) or 1.0
         # bound: a viscous force up to 3 force standard deviations at the peak velocity

@@ -1,0 +1,221 @@
+"""Residual diagnostics: where a model fails, and the pattern that names the missing effect.
+
+The residual is r = measured − model force (N): r > 0 where the model's tension is too low.
+For one run we give
+
+* binned means of r against position, velocity, sign of velocity, acceleration, the
+  measured muscle pressure's deviation from nominal, time and loop branch, each with a 95 %
+  confidence interval.  The residual of a free-run prediction is strongly autocorrelated,
+  so the interval uses an *effective* count per bin, n / τ_int (τ_int: integrated
+  autocorrelation time of r), not n — otherwise every wiggle looks significant;
+* the residual's autocorrelation and its cross-correlation with the input (the drive
+  position) with the ±1.96/√N white-noise bounds;
+* the localised failure: r.m.s. error in each cell of (branch × third of the stroke) and by
+  loop phase, and the worst cell in words ("stretch branch, high contraction ...").
+
+Across runs: mean and r.m.s. residual per pressure level and per test frequency.
+Sign conventions: x contraction (mm), stretch branch = x falling (ẋ < 0), release (the
+muscle contracts) = x rising.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from scipy.signal import hilbert
+
+from pmalab.identify.ranking import integrated_act
+from pmalab.identify.signals import Signals
+
+N_BINS = 12
+#: the binned variables diagnosis.json holds, with their units
+BINNED_UNITS = {
+    "position": "mm",
+    "velocity": "mm/s",
+    "velocity_sign": "-",
+    "acceleration": "mm/s²",
+    "pressure_deviation": "MPa",
+    "time": "s",
+    "branch": "-",
+}
+
+
+def _ci_scale(r: np.ndarray) -> float:
+    """How many raw samples make one independent one (τ_int of the residual)."""
+    return integrated_act(r[:: max(1, r.shape[0] // 4000)]) * max(1, r.shape[0] // 4000)
+
+
+def binned_mean(values: np.ndarray, r: np.ndarray, tau: float, unit: str,
+                n_bins: int = N_BINS, categories: Sequence[float] | None = None) -> dict[str, Any]:
+    """Mean residual per bin of ``values`` with a 95 % CI using n_eff = n / tau per bin.
+
+    ``categories``: exact category values (e.g. −1, +1) instead of equal-width bins over
+    the 1st–99th percentile range.  Empty bins give ``None``.
+    """
+    if categories is not None:
+        idx = [values == c for c in categories]
+        centers = [float(c) for c in categories]
+    else:
+        lo, hi = np.percentile(values, [1.0, 99.0])
+        if not hi > lo:
+            lo, hi = float(values.min()) - 0.5, float(values.max()) + 0.5
+        edges = np.linspace(lo, hi, n_bins + 1)
+        which = np.clip(np.digitize(values, edges) - 1, 0, n_bins - 1)
+        idx = [which == i for i in range(n_bins)]
+        centers = [float(c) for c in 0.5 * (edges[1:] + edges[:-1])]
+    mean: list[float | None] = []
+    ci: list[float | None] = []
+    count: list[int] = []
+    for m in idx:
+        n = int(m.sum())
+        count.append(n)
+        if n < 3:
+            mean.append(None)
+            ci.append(None)
+            continue
+        rv = r[m]
+        n_eff = max(n / tau, 1.0)
+        mean.append(float(np.mean(rv)))
+        ci.append(float(1.96 * np.std(rv, ddof=1) / np.sqrt(n_eff)))
+    return {"centers": centers, "mean": mean, "ci95": ci, "count": count, "unit": unit}
+
+
+def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
+    """Normalised cross-correlation c[k] = corr(a[t], b[t − k]) for k = −max_lag..max_lag."""
+    a = a - a.mean()
+    b = b - b.mean()
+    n = a.shape[0]
+    nfft = 1 << (2 * n - 1).bit_length()
+    c = np.fft.irfft(np.fft.rfft(a, nfft) * np.conj(np.fft.rfft(b, nfft)), nfft)
+    norm = np.sqrt(np.sum(a * a) * np.sum(b * b)) or 1.0
+    lags = np.arange(-max_lag, max_lag + 1)
+    return c[lags % nfft] / norm
+
+
+def _lag_grid(t: np.ndarray, frequency_Hz: float | None, n_lags: int = 60) -> tuple[int, int, float]:
+    """(stride, max lag in samples, dt): lags up to one cycle (≤ 5 s), about n_lags points."""
+    dt = float(np.median(np.diff(t)))
+    span = min(1.0 / frequency_Hz if frequency_Hz else 2.0, 5.0, 0.5 * float(t[-1] - t[0]))
+    max_lag = max(int(span / dt), 1)
+    stride = max(1, max_lag // n_lags)
+    return stride, max_lag, dt
+
+
+def branch_of(v: np.ndarray) -> np.ndarray:
+    """−1 on the stretch branch (x falling), +1 on the release branch (x rising)."""
+    return np.where(v < 0.0, -1.0, 1.0)
+
+
+def loop_regions(x: np.ndarray, v: np.ndarray, r: np.ndarray) -> list[dict[str, Any]]:
+    """r.m.s. and mean residual in each (branch × third of the stroke) cell."""
+    lo, hi = np.percentile(x, [0.5, 99.5])
+    edges = [lo + (hi - lo) * k / 3.0 for k in range(4)]
+    names = ("low contraction", "mid contraction", "high contraction")
+    which = np.digitize(x, edges[1:3])  # 0, 1, 2: the stroke's thirds
+    out = []
+    for bname, bmask in (("stretch branch (x falling)", v < 0), ("release branch (x rising)", v >= 0)):
+        for i, pname in enumerate(names):
+            m = bmask & (which == i)
+            n = int(m.sum())
+            out.append({
+                "branch": bname, "position": pname,
+                "x_range_mm": [float(edges[i]), float(edges[i + 1])],
+                "n": n,
+                "rms": float(np.sqrt(np.mean(r[m] ** 2))) if n else None,
+                "mean": float(np.mean(r[m])) if n else None,
+            })
+    return out
+
+
+def loop_phase(x: np.ndarray, r: np.ndarray, n_bins: int = 8) -> dict[str, Any]:
+    """r.m.s. and mean residual by loop phase (0° = maximum contraction, 180° = minimum)."""
+    z = hilbert(x - np.mean(x))
+    ph = np.degrees(np.angle(z)) % 360.0
+    edges = np.linspace(0.0, 360.0, n_bins + 1)
+    which = np.clip(np.digitize(ph, edges) - 1, 0, n_bins - 1)
+    rms, mean = [], []
+    for i in range(n_bins):
+        m = which == i
+        rms.append(float(np.sqrt(np.mean(r[m] ** 2))) if m.any() else None)
+        mean.append(float(np.mean(r[m])) if m.any() else None)
+    return {"centers_deg": [float(c) for c in 0.5 * (edges[1:] + edges[:-1])], "rms": rms,
+            "mean": mean, "note": "0° = maximum contraction; 0°–180° stretch branch (x falling), 180°–360° release"}
+
+
+def describe_worst(regions: list[dict[str, Any]], total_rms: float) -> str:
+    """The worst cell in words, with the sign of the error."""
+    cells = [c for c in regions if c["rms"] is not None and c["n"] > 0]
+    if not cells:
+        return "no data"
+    w = max(cells, key=lambda c: c["rms"])
+    sense = "model tension too low" if w["mean"] > 0 else "model tension too high"
+    lo, hi = w["x_range_mm"]
+    return (f"{w['branch'].split(' (')[0]}, {w['position']} (x {lo:.1f}–{hi:.1f} mm): "
+            f"rms error {w['rms']:.3g} N ({w['rms'] / total_rms:.1f}× the run's {total_rms:.3g} N), "
+            f"mean {w['mean']:+.3g} N: {sense}")
+
+
+def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) -> dict[str, Any]:
+    """Every single-run diagnostic of the residual measured − model (full-rate signals)."""
+    r = np.asarray(force, dtype=np.float64) - np.asarray(model_force, dtype=np.float64)
+    tau = _ci_scale(r)
+    v = sig.v
+    binned = {
+        "position": binned_mean(sig.x, r, tau, "mm"),
+        "velocity": binned_mean(v, r, tau, "mm/s"),
+        "velocity_sign": binned_mean(np.sign(v), r, tau, "-", categories=(-1.0, 1.0)),
+        "acceleration": binned_mean(sig.a, r, tau, "mm/s²"),
+        "pressure_deviation": binned_mean(sig.p - sig.p_nom, r, tau, "MPa"),
+        "time": binned_mean(sig.t - sig.t[0], r, tau, "s"),
+        "branch": binned_mean(branch_of(v), r, tau, "-", categories=(-1.0, 1.0)),
+    }
+    stride, max_lag, dt = _lag_grid(sig.t, sig.frequency_Hz)
+    n = r.shape[0]
+    bound = float(1.96 / np.sqrt(n))
+    acf = correlation(r, r, max_lag)[max_lag:][::stride]
+    ccf = correlation(r, sig.x, max_lag)[::stride]
+    lags_acf = np.arange(0, max_lag + 1)[::stride] * dt
+    lags_ccf = np.arange(-max_lag, max_lag + 1)[::stride] * dt
+    regions = loop_regions(sig.x, v, r)
+    total = float(np.sqrt(np.mean(r**2)))
+    k_peak = int(np.argmax(np.abs(ccf)))
+    return {
+        "binned": binned,
+        "acf": {"lags_s": [float(x) for x in lags_acf], "values": [float(x) for x in acf],
+                "bound95": bound},
+        "ccf_input": {"lags_s": [float(x) for x in lags_ccf], "values": [float(x) for x in ccf],
+                      "bound95": bound, "input": "position",
+                      "peak_lag_s": float(lags_ccf[k_peak])},
+        "worst_region": describe_worst(regions, total),
+        "regions": regions,
+        "loop_phase": loop_phase(sig.x, r),
+        "rmse": total,
+        "nrmse": float(total / np.std(force)) if np.std(force) > 0 else None,
+        "tau_int_s": float(tau * dt),
+    }
+
+
+def campaign_diagnostics(items: Sequence[tuple[float, float | None, np.ndarray]]) -> dict[str, Any]:
+    """Residual by pressure level and frequency across runs: items = (p_nom, f, residual)."""
+    out: dict[str, Any] = {}
+    for name, idx, unit in (("pressure_level", 0, "MPa"), ("frequency", 1, "Hz")):
+        groups: dict[float, list[np.ndarray]] = {}
+        for it in items:
+            key = it[idx]
+            if key is None:
+                continue
+            groups.setdefault(round(float(key), 4), []).append(it[2])
+        centers = sorted(groups)
+        mean, rms, ci = [], [], []
+        for c in centers:
+            rs = groups[c]
+            allr = np.concatenate(rs)
+            per_run = [float(np.sqrt(np.mean(x**2))) for x in rs]
+            mean.append(float(np.mean(allr)))
+            rms.append(float(np.sqrt(np.mean(allr**2))))
+            ci.append(float(1.96 * np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+                      if len(per_run) > 1 else None)
+        out[name] = {"centers": centers, "mean": mean, "rms": rms, "ci95_rms": ci, "unit": unit}
+    return out
