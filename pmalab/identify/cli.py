@@ -1,9 +1,182 @@
-"""CLI verbs of this area (see pmalab/cli.py)."""
+"""CLI verbs of this area (see pmalab/cli.py): ``identify`` (and ``diagnose``).
+
+Each verb has its own ``_register_<verb>(sub)``; :func:`register` calls them all, so a new
+verb is one function and one line here.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
+
+from pmalab.errors import PmalabError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add this area's verbs to the ``pmalab`` parser (filled in by the area's issue)."""
+    """Add this area's verbs to the ``pmalab`` parser."""
+    _register_identify(sub)
+    _register_diagnose(sub)
+
+
+# --------------------------------------------------------------------------- identify
+def _register_identify(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "identify",
+        help="fit Bouc-Wen or Duhem models per run, pressure quadratics, validation",
+        description=(
+            "Identify F = k·x + c0 + h (Bouc-Wen or Duhem h) on every run of the given files, "
+            "fit each parameter as a quadratic in muscle pressure, and validate the "
+            "pressure-quadratic model on held-out runs (runs with role 'validation' in the "
+            "inputs, and every run of --validate files).  Writes OUT/identification.json "
+            "and OUT/predictions.h5."
+        ),
+    )
+    p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
+    p.add_argument("--model", required=True, choices=("bouc-wen", "duhem"), help="hysteresis law")
+    p.add_argument("--add", action="append", default=[], metavar="EFFECT",
+                   help="add an effect by id (repeatable), e.g. viscous-friction")
+    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
+                   help="Python file defining user effects (Effect subclasses)")
+    p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
+                   help="held-out run files to validate on")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--jobs", type=int, default=2, metavar="N",
+                   help="parallel worker processes (default 2)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the fits on a Dask distributed scheduler (tcp://host:port)")
+    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold a parameter at a value (repeatable)")
+    p.add_argument("--free", action="append", default=[], metavar="NAME",
+                   help="free a parameter the law fixes by default (bouc-wen: n; duhem: a)")
+    p.add_argument("--initial", default="estimate", choices=("estimate", "burn-in", "zero"),
+                   help="start state of validation predictions (default: estimate from the "
+                        "first 50 ms of force)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_identify)
+
+
+def _parse_fix(items: list[str]) -> dict[str, float]:
+    out = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            out[name.strip()] = float(val)
+        except ValueError:
+            raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+    return out
+
+
+def run_identify(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pmalab.identify.api import identify, load
+    from pmalab.paths import check_output
+
+    if args.jobs < 1:
+        raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
+    for f in args.effects:
+        if not Path(f).is_file():
+            raise PmalabError(f"--effects {f}: no such file")
+    out = Path(args.out)
+    # refuse early, before any work, if outputs exist
+    check_output(out / "identification.json", args.force)
+    check_output(out / "predictions.h5", args.force)
+    runs = load(args.files)
+    val = load(args.validate) if args.validate else []
+    res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
+                   jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
+                   free=args.free, initial=args.initial, progress=not args.quiet)
+    jpath, hpath = res.save(out, force=args.force)
+
+    for n in res.notes:
+        print(f"note: {n}", file=sys.stderr)
+    w = max([len(rf.label) for rf in res.campaign.runs] + [len(v.run.label) for v in res.validation] + [10])
+    print(f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
+          f"{len(res.validation)} validation run(s)")
+    for rf in res.campaign.runs:
+        r = rf.result
+        print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
+              f"rmse {r.rmse:7.3g} N" + (f"  ({len(r.warnings)} warning(s))" if r.warnings else ""))
+    for v in res.validation:
+        m = v.metrics
+        print(f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
+              f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
+              f"energy {m['energy_error_percent']:+.1f} %")
+    for wmsg in res.warnings:
+        print(f"warning: {wmsg}", file=sys.stderr)
+    print(f"wrote {jpath} and {hpath}")
+    return 0
+
+
+# --------------------------------------------------------------------------- diagnose
+def _register_diagnose(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "diagnose",
+        help="where the model fails, which effect is missing, and the error falling",
+        description=(
+            "Fit the base model, rank every effect of the catalogue (and --effects files) on "
+            "held-out data, climb the ladder (add the best significant effect, repeat), and "
+            "localise the base model's error.  Writes OUT/diagnosis.json and "
+            "OUT/predictions.h5; prints the ranking and the ladder."
+        ),
+    )
+    p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
+    p.add_argument("--model", required=True, choices=("bouc-wen", "duhem"), help="hysteresis law")
+    p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
+                   help="held-out run files (default: the last third of every run)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
+                   help="Python file defining user effects (Effect subclasses), repeatable")
+    p.add_argument("--only", action="append", default=None, metavar="EFFECT",
+                   help="rank only these effect ids (repeatable; default: all)")
+    p.add_argument("--max-steps", type=int, default=3, metavar="N",
+                   help="most effects the ladder adds (default 3)")
+    p.add_argument("--jobs", type=int, default=2, metavar="N",
+                   help="parallel worker processes (default 2)")
+    p.add_argument("--plot", default=None, metavar="FILE.png",
+                   help="also save the ranking/ladder figure")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_diagnose)
+
+
+def run_diagnose(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pmalab.identify.diagnose import diagnose, write_outputs
+    from pmalab.paths import check_output
+    from pmalab.runfile import read_many
+
+    if args.jobs < 1:
+        raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
+    if args.max_steps < 0:
+        raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
+    out = Path(args.out)
+    check_output(out / "diagnosis.json", args.force)
+    check_output(out / "predictions.h5", args.force)
+    runs = read_many(args.files)
+    val = read_many(args.validate) if args.validate else []
+    d = diagnose(runs, model=args.model, validate=val, effects=args.only,
+                 effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
+                 progress=not args.quiet and sys.stderr.isatty())
+    jpath, hpath = write_outputs(d, out, force=args.force)
+    print(f"Effect ranking ({args.model}; held-out nrmse without → with each effect):")
+    print(d.ranking_table())
+    if d.ambiguous:
+        print(f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: "
+              f"{d.suggested_experiment}")
+    print("\nLadder (the error falling step by step):")
+    print(d.ladder_table())
+    worst = sorted(d.diagnostics.items(), key=lambda kv: -kv[1]["rmse"])[:3]
+    print("\nWhere the base model fails:")
+    for key, dg in worst:
+        print(f"  {key}: {dg['worst_region']}")
+    print(f"\n{d.summary}")
+    if args.plot:
+        d.plot(check_output(args.plot, args.force))
+    print(f"wrote {jpath} and {hpath}")
+    return 0
+

@@ -1,0 +1,362 @@
+"""Diagnosis: where the model fails, which effect is missing, and the error falling.
+
+``diagnose(runs, model="bouc-wen")`` (and ``pmalab diagnose``):
+
+1. fits the base law on every pressure group (runs at one nominal pressure share
+   parameters; each run keeps its own h0 and c0), on each run's first ⅔, and scores the
+   free-run prediction on the last ⅓ (or on ``validate`` runs through pressure quadratics);
+2. ranks every catalogue effect (:mod:`pmalab.identify.ranking`) and climbs the ladder
+   (:mod:`pmalab.identify.ladder`);
+3. refits the base and the final ladder model on whole runs and computes the residual
+   diagnostics of each (:mod:`pmalab.identify.diagnostics`);
+4. writes ``diagnosis.json`` and ``predictions.h5`` (roles ``diagnosis`` for the base
+   model, ``diagnosis-final`` for the final ladder model).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pmalab.errors import PmalabError
+from pmalab.identify.diagnostics import campaign_diagnostics, run_diagnostics
+from pmalab.identify.effects import EFFECTS, load_user_effects
+from pmalab.identify.hysteresis import LAWS
+from pmalab.identify.ladder import LadderStep, Round, run_ladder
+from pmalab.identify.ranking import (
+    FIT_FRACTION,
+    Candidate,
+    PreparedRun,
+    build_model,
+    fit_group,
+    prepare_run,
+)
+from pmalab.runfile import Run
+
+PREDICTIONS_FORMAT = "pmalab.predictions"
+
+#: what separates two look-alike effects (pairs not listed: each effect's own experiment)
+PAIR_EXPERIMENTS: dict[frozenset[str], str] = {
+    frozenset({"sensor-delay", "viscous-friction"}): (
+        "repeat at two or more frequencies (e.g. 0.2 and 1 Hz) at the same pressure: a "
+        "delay's phase error grows with frequency while viscous force grows with velocity "
+        "amplitude; a triangle wave also helps (viscous force is constant on each branch)"
+    ),
+    frozenset({"sensor-delay", "inertia"}): (
+        "repeat at three or more frequencies: an inertial force grows with the square of the "
+        "frequency, a delay's error linearly"
+    ),
+    frozenset({"viscous-friction", "inertia"}): (
+        "repeat at several frequencies: inertia grows with frequency squared and is in phase "
+        "with position, viscous force grows linearly and is in phase with velocity"
+    ),
+    frozenset({"nonlinear-stiffness", "asymmetric-hysteresis"}): (
+        "record a slow loop over the full stroke plus minor loops: a curved static "
+        "characteristic bends the centre line on both branches alike, asymmetry only the "
+        "branch shapes after reversals"
+    ),
+}
+
+
+class DiagnoseError(PmalabError):
+    """Bad diagnosis input (no runs, unknown model, too short runs...)."""
+
+
+@dataclass
+class Diagnosis:
+    """The result of :func:`diagnose` (JSON-ready pieces plus the arrays for plots)."""
+
+    model: str
+    ranking: list[dict[str, Any]]
+    ambiguous: list[str]
+    suggested_experiment: str
+    ladder: list[dict[str, Any]]
+    diagnostics: dict[str, Any]
+    campaign: dict[str, Any]
+    summary: str
+    rounds: list[dict[str, Any]] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    #: per run: (run, base model force at full rate, final model force at full rate)
+    traces: list[tuple[Run, np.ndarray, np.ndarray]] = field(default_factory=list, repr=False)
+    final_effects: list[str] = field(default_factory=list)
+
+    @property
+    def winner(self) -> str | None:
+        """The first effect the ladder added (None when nothing is significant)."""
+        return self.ladder[1]["added"] if len(self.ladder) > 1 else None
+
+    def to_json(self) -> dict[str, Any]:
+        out = {
+            "model": self.model,
+            "ranking": self.ranking,
+            "ambiguous": self.ambiguous,
+            "suggested_experiment": self.suggested_experiment,
+            "ladder": self.ladder,
+            "diagnostics": self.diagnostics,
+            "campaign_diagnostics": self.campaign,
+            "rounds": self.rounds,
+            "final_model": "+".join([self.model, *self.final_effects]),
+            "settings": self.settings,
+            "summary": self.summary,
+        }
+        return json.loads(json.dumps(out, default=_json_default))
+
+    def ranking_table(self) -> str:
+        """The ranking as a fixed-width text table."""
+        rows = [("effect", "nrmse before", "nrmse after", "fall %", "ΔAIC", "k", "significant")]
+        for r in self.ranking:
+            rows.append((r["effect"], f"{r['nrmse_before']:.4f}", f"{r['nrmse_after']:.4f}",
+                         f"{r['fall_percent']:+.1f}", f"{r['delta_aic']:.1f}", str(r["n_params"]),
+                         "yes" if r["significant"] else ("ambiguous" if r["effect"] in self.ambiguous
+                                                         else "no")))
+        return _table(rows)
+
+    def ladder_table(self) -> str:
+        rows = [("step", "model", "added", "nrmse", "fit %")]
+        for s in self.ladder:
+            rows.append((str(s["step"]), "+".join([self.model, *s["effects"]]), s["added"] or "-",
+                         f"{s['nrmse']:.4f}", f"{s['fit_percent']:.2f}"))
+        return _table(rows)
+
+    def plot(self, path: str | Path | None = None):  # -> matplotlib Figure
+        """Ranking (held-out nrmse before/after per effect) and the ladder, side by side."""
+        import matplotlib
+
+        if path is not None:
+            matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+
+        fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+        names = [r["effect"] for r in self.ranking][::-1]
+        before = [r["nrmse_before"] for r in self.ranking][::-1]
+        after = [r["nrmse_after"] for r in self.ranking][::-1]
+        y = np.arange(len(names))
+        a1.barh(y + 0.2, before, 0.4, color="0.7", label="without")
+        a1.barh(y - 0.2, after, 0.4, label="with the effect",
+                color=["tab:green" if r["significant"] else "tab:blue" for r in self.ranking][::-1])
+        a1.set_yticks(y, names)
+        a1.set_xlabel("held-out nrmse")
+        a1.set_title("Effect ranking")
+        a1.legend(loc="lower right")
+        steps = [s["step"] for s in self.ladder]
+        a2.plot(steps, [s["nrmse"] for s in self.ladder], "o-")
+        for s in self.ladder:
+            a2.annotate(s["added"] or self.model, (s["step"], s["nrmse"]),
+                        textcoords="offset points", xytext=(4, 6), fontsize=8)
+        a2.set_xticks(steps)
+        a2.set_xlabel("ladder step")
+        a2.set_ylabel("held-out nrmse")
+        a2.set_title("Ladder: the error falling")
+        a2.set_ylim(bottom=0)
+        if path is not None:
+            fig.savefig(path)
+        return fig
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o).__name__)
+
+
+def _table(rows: list[tuple[str, ...]]) -> str:
+    w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = []
+    for j, r in enumerate(rows):
+        lines.append("  ".join(c.ljust(w[i]) if i == 0 else c.rjust(w[i]) for i, c in enumerate(r)))
+        if j == 0:
+            lines.append("  ".join("-" * x for x in w))
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- orchestration
+def suggest_experiment(ambiguous: Sequence[str]) -> str:
+    """What to measure next to separate the ambiguous effects."""
+    if len(ambiguous) < 2:
+        return ""
+    pair = frozenset(ambiguous[:2])
+    if pair in PAIR_EXPERIMENTS:
+        return PAIR_EXPERIMENTS[pair]
+    texts = []
+    for e in ambiguous:
+        cls = EFFECTS.get(e)
+        if cls is not None and cls.experiment:
+            texts.append(f"for {e}: {cls.experiment}")
+    return "; ".join(texts) or "repeat at other frequencies, amplitudes and pressures"
+
+
+def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
+                  ambiguous: Sequence[str]) -> list[dict[str, Any]]:
+    """First-round ranking, re-marked: *significant* only where the ladder added the effect."""
+    if not rounds:
+        return []
+    added = [s.added for s in steps[1:]]
+    cands: list[Candidate] = list(rounds[0].candidates)
+    out = []
+    for c in cands:
+        d = c.as_json()
+        d["significant_alone"] = d["significant"]
+        d["significant"] = c.effect in added
+        d["ladder_step"] = added.index(c.effect) + 1 if c.effect in added else None
+        out.append(d)
+    # best first: ladder order, then the rest by held-out nrmse with the effect
+    out.sort(key=lambda d: (d["ladder_step"] is None, d["ladder_step"] or 0, d["nrmse_after"]))
+    return out
+
+
+def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: list[str],
+             diags: dict[str, Any], suggestion: str) -> str:
+    base = ladder[0]
+    parts = [f"Base {model} model: held-out nrmse {base['nrmse']:.4f} (fit {base['fit_percent']:.1f} %)."]
+    if diags:
+        worst_key = max(diags, key=lambda k: diags[k].get("rmse", 0.0))
+        parts.append(f"It fails worst on {worst_key}: {diags[worst_key]['worst_region']}.")
+    if len(ladder) == 1:
+        best = ranking[0] if ranking else None
+        parts.append("No missing effect is significant: the base model explains the data"
+                     + (f" (best candidate {best['effect']}: nrmse {best['nrmse_before']:.4f} → "
+                        f"{best['nrmse_after']:.4f}, not enough)." if best else "."))
+    else:
+        steps = " → ".join(f"+{s['added']} {s['nrmse']:.4f}" for s in ladder[1:])
+        first = ladder[1]
+        fall = 100.0 * (1.0 - first["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
+        parts.append(f"Missing effect: {first['added']} (held-out nrmse falls {fall:.0f} %).")
+        parts.append(f"Ladder: {base['nrmse']:.4f} {steps}; nothing significant left.")
+    if ambiguous:
+        parts.append(f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
+                     f"to separate them, {suggestion}.")
+    return " ".join(parts)
+
+
+def _full_fit(law: str, effects: Sequence[str], group: Sequence[PreparedRun],
+              start: Sequence[dict[str, float]]) -> list[dict[str, float]]:
+    """Refit a group on whole runs (warm start) — the fit the diagnostics are made on."""
+    full = [PreparedRun(key=p.key, run=p.run, sig=p.sig, dsig=p.dsig, dforce=p.dforce,
+                        fit_mask=np.ones_like(p.fit_mask), val_mask=np.zeros_like(p.val_mask))
+            for p in group]
+    ths, _, _ = fit_group(build_model(law, effects), full, start)
+    return ths
+
+
+def diagnose(
+    runs: Sequence[Run],
+    model: str = "bouc-wen",
+    validate: Sequence[Run] = (),
+    effects: Sequence[str] | None = None,
+    effects_files: Sequence[str | Path] = (),
+    max_steps: int = 3,
+    jobs: int = 1,
+    progress: bool = False,
+) -> Diagnosis:
+    """Diagnose ``model`` on ``runs``: rank the effects, climb the ladder, localise the error.
+
+    ``effects``: candidate ids (default: the whole catalogue, plus any user effects loaded
+    from ``effects_files``).  ``validate``: held-out runs (default: each run's last third).
+    """
+    if model not in LAWS:
+        raise DiagnoseError(f"unknown model '{model}' (choose from {', '.join(LAWS)})")
+    runs = list(runs)
+    if not runs:
+        raise DiagnoseError("no runs to diagnose")
+    user: list[str] = []
+    for f in effects_files:
+        user += load_user_effects(f)
+    cand = list(effects) if effects is not None else [*EFFECTS]
+    for e in [*cand, *user]:
+        if e not in EFFECTS:
+            raise DiagnoseError(f"unknown effect '{e}' (choose from {', '.join(EFFECTS)})")
+    cand += [u for u in user if u not in cand]
+    for r in [*runs, *validate]:
+        if len(r) < 200:
+            raise DiagnoseError(f"{r.label}: too few samples to diagnose ({len(r)}; need ≥ 200)")
+    train = [prepare_run(r, None if validate else FIT_FRACTION) for r in runs]
+    val = [prepare_run(r, None) for r in validate]
+    steps, rounds, gidx = run_ladder(train, model, cand, val, max_steps, jobs, progress)
+    amb = rounds[0].ambiguous if rounds else []
+    suggestion = suggest_experiment(amb)
+    final = steps[-1].effects
+
+    # whole-run refits of the base and the final model → diagnostics and predictions
+    diagnostics: dict[str, Any] = {}
+    traces: list[tuple[Run, np.ndarray, np.ndarray]] = []
+    camp_items = []
+    base_model, final_model = build_model(model, ()), build_model(model, final)
+    for gi, g in enumerate(gidx):
+        group = [train[i] for i in g]
+        th_base = _full_fit(model, (), group, steps[0].fits[gi].thetas)
+        th_final = (th_base if not final
+                    else _full_fit(model, final, group, steps[-1].fits[gi].thetas))
+        for pr, tb, tf in zip(group, th_base, th_final):
+            fb = base_model.predict(pr.sig, tb)
+            ff = final_model.predict(pr.sig, tf)
+            diagnostics[pr.key] = run_diagnostics(pr.sig, pr.run.force, fb)
+            diagnostics[pr.key]["nrmse_final"] = float(
+                np.sqrt(np.mean((pr.run.force - ff) ** 2)) / np.std(pr.run.force))
+            traces.append((pr.run, fb, ff))
+            camp_items.append((pr.sig.p_nom, pr.run.frequency, pr.run.force - fb))
+    ladder = [s.as_json() for s in steps]
+    ranking = _ranking_json(rounds, steps, amb)
+    summary = _summary(model, ladder, ranking, amb, diagnostics, suggestion)
+    rounds_json = [{"step": r.step, "ambiguous": r.ambiguous,
+                    "candidates": [c.as_json() for c in r.candidates]} for r in rounds]
+    settings = {"fit_fraction": None if validate else FIT_FRACTION,
+                "validation": "validation runs (pressure quadratics)" if validate
+                else "last third of each run (fit on the first two thirds)",
+                "groups": [[train[i].key for i in g] for g in gidx],
+                "max_steps": max_steps, "candidates": cand}
+    return Diagnosis(model=model, ranking=ranking, ambiguous=list(amb),
+                     suggested_experiment=suggestion, ladder=ladder, diagnostics=diagnostics,
+                     campaign=campaign_diagnostics(camp_items), summary=summary,
+                     rounds=rounds_json, settings=settings, traces=traces,
+                     final_effects=list(final))
+
+
+# --------------------------------------------------------------------------- writing
+def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+    """DIR/diagnosis.json and DIR/predictions.h5 (refuses to overwrite without ``force``)."""
+    import h5py
+
+    from pmalab.paths import check_output
+
+    d = Path(out_dir)
+    jpath = check_output(d / "diagnosis.json", force)
+    hpath = check_output(d / "predictions.h5", force)
+    d.mkdir(parents=True, exist_ok=True)
+    jpath.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False))
+    final_name = "+".join([diag.model, *diag.final_effects])
+    with h5py.File(hpath, "w") as f:
+        f.attrs["format"] = PREDICTIONS_FORMAT
+        f.attrs["format_version"] = 1
+        grp = f.create_group("runs")
+        used: set[str] = set()
+        for run, fb, ff in diag.traces:
+            for role, pred, name in (("diagnosis", fb, diag.model),
+                                     ("diagnosis-final", ff, final_name)):
+                key = _unique(f"{Path(run.file).stem + '-' if run.file else ''}{run.name}"
+                              f"{'-final' if role != 'diagnosis' else ''}", used)
+                g = grp.create_group(key)
+                for ch, arr in (("time", run.time), ("position", run.position),
+                                ("muscle_pressure", run.muscle_pressure), ("force", run.force),
+                                ("force_model", pred)):
+                    g.create_dataset(ch, data=np.asarray(arr, dtype=np.float64))
+                g.attrs.update({"role": role, "file": run.file, "run": run.name,
+                                "muscle_pressure_MPa": run.nominal_pressure,
+                                "frequency_Hz": run.frequency if run.frequency else np.nan,
+                                "waveform": str(run.attrs.get("waveform", "")), "model": name})
+    return jpath, hpath
+
+
+def _unique(key: str, used: set[str]) -> str:
+    k, i = key.replace("/", "_"), 2
+    while k in used:
+        k = f"{key}-{i}"
+        i += 1
+    used.add(k)
+    return k
