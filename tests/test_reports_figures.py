@@ -95,14 +95,17 @@ def test_parameter_vs_pressure_draws_points_and_quadratic():
 def test_residual_panels_and_correlation_bounds():
     diag = rf.diagnosis_doc()["diagnostics"]["ident.h5:p4762"]
     fig = F.residual_diagnostics_figure("ident.h5:p4762", diag)
-    visible = [ax for ax in fig.axes if ax.get_visible()]
-    assert len(visible) == 9  # 7 binned variables + ACF + CCF
+    visible = [ax for ax in fig.axes if ax.get_visible() and ax.get_label() != "<colorbar>"]
+    # 7 binned variables + ACF + CCF + loop regions + loop phase
+    assert len(visible) == 11
     labels = [ax.get_xlabel() for ax in visible]
     assert "Pressure deviation p − p_nom (kPa)" in labels  # small MPa shown in kPa
     assert "Contraction x (mm)" in labels and labels.count("Lag (s)") == 2
     acf_ax = visible[7]
     assert "lags outside the bound" in acf_ax.get_title()
-    assert "worst region: high stretch velocity" in fig._suptitle.get_text()
+    assert "worst region: stretch, high contraction" in fig._suptitle.get_text()
+    regions = visible[9]
+    np.testing.assert_allclose(regions.images[0].get_array(), [[3.1, 4.0, 6.1], [2.5, 3.0, 3.3]])
 
 
 def test_correlation_heatmap_outlines_near_collinear_pairs():

@@ -70,8 +70,9 @@ class Trace:
 
     @property
     def error(self) -> np.ndarray:
-        """Model minus measured tension (N)."""
-        return self.force_model - self.force
+        """Residual: measured minus model tension (N), as in diagnosis.json (positive =
+        model tension too low)."""
+        return self.force - self.force_model
 
     @property
     def nrmse(self) -> float:
@@ -317,6 +318,21 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
                                f"has {len(vals)} values for {len(lags)} lags")
             doc.get(c, "bound95", f"{w}.{kind}", "number", required=False)
         doc.get(d, "worst_region", w, "str", required=False)
+        for i, c in enumerate(doc.get(d, "regions", w, "list", required=False) or []):
+            wr = f"{w}.regions[{i}]"
+            doc.check(c, wr, "dict")
+            doc.get(c, "branch", wr, "str")
+            doc.get(c, "position", wr, "str")
+            doc.get(c, "rms", wr, "number", nullable=True)
+            doc.get(c, "mean", wr, "number", required=False, nullable=True)
+        ph = doc.get(d, "loop_phase", w, "dict", required=False)
+        if ph is not None:
+            wp = f"{w}.loop_phase"
+            c = doc.numbers(doc.get(ph, "centers_deg", wp, "list"), f"{wp}.centers_deg")
+            for k in ("mean", "rms"):
+                v = doc.get(ph, k, wp, "list", required=False)
+                if v is not None and len(doc.numbers(v, f"{wp}.{k}", nullable=True)) != len(c):
+                    raise doc.fail(f"{wp}.{k}", f"has {len(v)} values for {len(c)} centers")
     return obj
 
 

@@ -3,7 +3,7 @@ arrays, :class:`~pmalab.reports.data.Trace`) and return a matplotlib Figure; exp
 with :func:`save_figure` (PNG/SVG/PDF by suffix).
 
 Units throughout: time s, contraction x mm (positive = shorter), tension F N, pressure
-MPa; errors are F_model − F in N.
+MPa; residuals are F − F_model in N (measured − model).
 """
 
 from pmalab.reports.figures_diagnosis import (

@@ -1,7 +1,7 @@
 """Figures of the model diagnosis: binned residuals, residual auto-/cross-correlation,
 the effect ranking and the ladder (nrmse as effects are added one at a time).
 
-Residuals are ``F_model − F`` in N; NRMSE = RMS error / std of the measured tension.
+Residuals are ``F − F_model`` (measured − model) in N, as written by diagnose; NRMSE = RMS error / std of the measured tension.
 Inputs are the plain dicts of ``diagnosis.json``.
 """
 
@@ -70,10 +70,10 @@ def plot_binned(ax: Axes, variable: str, binned: Mapping[str, Any]) -> None:
         ax.errorbar(x, mean, yerr=yerr, fmt="o-", color=style.MODEL, ms=3.5, capsize=2.5,
                     lw=0.9)
         name = BINNED_VARIABLES.get(variable, variable)
-        ax.set_xlabel(f"{name} ({unit})" if unit else name)
+        ax.set_xlabel(f"{name} ({unit})" if unit and unit not in ("-", "–") else name)
         ax.xaxis.set_major_locator(MaxNLocator(7))
     ax.axhline(0.0, color="0.3", lw=0.7)
-    ax.set_ylabel("mean residual (N)")
+    ax.set_ylabel("mean F − F_model (N)")
     ax.set_title(f"Residual vs {BINNED_VARIABLES.get(variable, variable).split(' ')[0].lower()}")
 
 
@@ -86,13 +86,63 @@ def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
     b = corr.get("bound95")
     if b is not None:
         ax.axhspan(-b, b, color="0.85", alpha=0.7, zorder=0, label=f"95 % bound ±{b:.3g}")
-        ax.legend(loc="upper right")
+        ax.legend(loc="best")
         outside = int(np.sum(np.abs(vals[lags != 0]) > b))
         title += f"\n{outside} of {int(np.sum(lags != 0))} lags outside the bound"
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlabel("Lag (s)")
     ax.set_ylabel("correlation")
     ax.set_title(title)
+
+
+def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
+    """R.m.s. residual (N) in each (branch × part of the stroke) cell as a heatmap; the
+    cell's mean residual is written under its r.m.s."""
+    branches = list(dict.fromkeys(str(c["branch"]) for c in regions))
+    parts = list(dict.fromkeys(str(c["position"]) for c in regions))
+    rms = np.full((len(branches), len(parts)), np.nan)
+    mean = np.full_like(rms, np.nan)
+    for c in regions:
+        i, j = branches.index(str(c["branch"])), parts.index(str(c["position"]))
+        rms[i, j] = np.nan if c.get("rms") is None else float(c["rms"])
+        mean[i, j] = np.nan if c.get("mean") is None else float(c["mean"])
+    im = ax.imshow(rms, cmap=style.ERROR_CMAP, aspect="auto",
+                   vmin=0.0, vmax=max(float(np.nanmax(rms, initial=0.0)), 1e-12))
+    ax.grid(False)
+    ax.set_xticks(range(len(parts)), [p.replace(" contraction", "") for p in parts])
+    ax.set_xlabel("part of the stroke (contraction)")
+    ax.set_yticks(range(len(branches)), [b.split(" (")[0].replace(" branch", "") + "\n("
+                                          + b.split(" (")[1] if " (" in b else b
+                                          for b in branches])
+    vmax = float(np.nanmax(rms, initial=0.0))
+    for i in range(rms.shape[0]):
+        for j in range(rms.shape[1]):
+            if np.isfinite(rms[i, j]):
+                txt = f"{rms[i, j]:.3g} N" + (f"\nmean {mean[i, j]:+.2g}"
+                                             if np.isfinite(mean[i, j]) else "")
+                ax.text(j, i, txt, ha="center", va="center", fontsize=8,
+                        color="white" if rms[i, j] < 0.6 * vmax else "black")
+    ax.set_title("R.m.s. residual by loop region")
+    ax.figure.colorbar(im, ax=ax, label="rms (N)", shrink=0.9)
+
+
+def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
+    """Mean and r.m.s. residual against loop phase (deg; 0° = maximum contraction)."""
+    c = np.asarray(phase["centers_deg"], dtype=float)
+    for key, colour, mk in (("rms", style.VALIDATION, "s-"), ("mean", style.MODEL, "o-")):
+        if phase.get(key) is not None:
+            v = np.array([np.nan if x is None else float(x) for x in phase[key]])
+            ax.plot(c, v, mk, color=colour, ms=3.5, label=key)
+    ax.axvspan(90.0, 270.0, color="0.9", zorder=0, label="stretch (x falling)")
+    ax.axhline(0.0, color="0.3", lw=0.7)
+    ax.set_xlim(0.0, 360.0)
+    ax.set_xticks([0, 90, 180, 270, 360])
+    ax.set_xlabel("Loop phase (deg, 0 = max contraction)")
+    ax.set_ylabel("F − F_model (N)")
+    ax.set_title("Residual by loop phase")
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(lo, hi + 0.45 * (hi - lo))  # headroom for the legend
+    ax.legend(loc="upper center", ncols=2, fontsize=8)
 
 
 @style.styled
@@ -110,8 +160,12 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
         panels.append(("acf", None))
     if diag.get("ccf_input"):
         panels.append(("ccf", None))
+    if diag.get("regions"):
+        panels.append(("regions", None))
+    if diag.get("loop_phase"):
+        panels.append(("phase", None))
     n = len(panels)
-    ncols = 3 if n > 4 else max(1, min(n, 2))
+    ncols = 4 if n > 9 else 3 if n > 4 else max(1, min(n, 2))
     nrows = max(1, math.ceil(n / ncols))
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for i, ax in enumerate(axes):
@@ -121,13 +175,18 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
         kind, var = panels[i]
         if kind == "binned":
             plot_binned(ax, var, binned[var])
+        elif kind == "regions":
+            plot_regions(ax, diag["regions"])
+        elif kind == "phase":
+            plot_phase(ax, diag["loop_phase"])
         elif kind == "acf":
             plot_correlation(ax, diag["acf"], title="Residual autocorrelation")
         else:
             plot_correlation(ax, diag["ccf_input"], title="Residual–input cross-correlation")
     worst = diag.get("worst_region")
     if worst:
-        fig.suptitle(f"{title}\nworst region: {worst}", fontweight="bold")
+        wrapped = "\n".join(textwrap.wrap(f"worst region: {worst}", 140))
+        fig.suptitle(f"{title}\n{wrapped}", fontweight="bold", fontsize=11)
     return fig
 
 

@@ -26,13 +26,22 @@ KNOWN_UNITS = {
     "alpha": "1/mm",
     "a": "N/mm",
     "b": "N/mm",
+    "beta": "1/mm·N^(1−n)",
+    "gamma": "1/mm·N^(1−n)",
     "n": "–",
-    "c_v": "N·s/mm",
-    "c": "N·s/mm",
-    "delay": "s",
-    "tau": "s",
-    "m": "kg",
-    "drift": "N/s",
+    "h0": "N",
+    # effects (pmalab.identify.effects)
+    "visc_c": "N·s/mm",
+    "asym_psi_v": "1/mm·N^(1−n)",
+    "asym_psi_h": "1/mm·N^(1−n)",
+    "asym_psi_x": "1/mm·N^(1−n)",
+    "stiff_k2": "N/mm²",
+    "stiff_k3": "N/mm³",
+    "pv_g0": "N/MPa",
+    "pv_g1": "N/(MPa·mm)",
+    "delay_tau": "s",
+    "inertia_m": "kg",
+    "drift_d": "N/s",
 }
 
 CORR_WARN = 0.95  # |ρ| above which a pair is flagged as poorly identifiable
@@ -87,12 +96,12 @@ def plot_parameter_vs_pressure(
     for i, vp in enumerate(validation_pressures):
         ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
                    label="validation p" if i == 0 else None)
-    title = f"{name} ({unit})" if unit and unit != "–" else name
+    title = f"{name} ({unit})" if unit and unit not in ("–", "-") else name
     if r2 is not None and math.isfinite(r2):
         title += f"   R² = {r2:.3f}"
     ax.set_title(title)
     ax.set_xlabel(style.PRESSURE)
-    ax.set_ylabel(f"{name} ({unit})" if unit and unit != "–" else name)
+    ax.set_ylabel(f"{name} ({unit})" if unit and unit not in ("–", "-") else name)
 
 
 @style.styled

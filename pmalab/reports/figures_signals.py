@@ -3,7 +3,7 @@ validation overlays.
 
 Sign convention (DESIGN.md): x is the contraction in mm (positive = shorter), F the
 tension in N; in an F–x loop the tension is higher while the muscle is being stretched
-(x decreasing) than while it contracts.  Errors are ``F_model − F`` in N.
+(x decreasing) than while it contracts.  Residuals are ``F − F_model`` (measured − model) in N.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def error_loop(
     measured_label: str = "measured",
 ) -> LineCollection:
     """Draw a measured F–x loop (thin black) and the model loop as segments coloured by the
-    absolute error |F_model − F| (N) at each segment (mean of its two end samples).
+    absolute error |F − F_model| (N) at each segment (mean of its two end samples).
 
     At most ``max_points`` samples are drawn (uniform stride), so a loop of n ≤ max_points
     samples has exactly n − 1 coloured segments.  Returns the LineCollection (its array
@@ -128,7 +128,7 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
         a1.legend(loc="upper right", ncols=2)
         a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.7)
         a2.axhline(0.0, color="0.4", lw=0.6)
-        a2.set_ylabel("Error (N)")
+        a2.set_ylabel(style.RESIDUAL)
         rms = float(np.sqrt(np.mean(t.error**2)))
         a2.text(0.01, 0.95, f"RMSE {rms:.2f} N, fit {t.fit_percent:.1f} %",
                 transform=a2.transAxes, va="top", fontsize=8,
@@ -167,7 +167,7 @@ def validation_figure(
         a1.legend(loc="upper right", ncols=2)
         a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.7)
         a2.axhline(0.0, color="0.4", lw=0.6)
-        a2.set_ylabel("Error (N)")
+        a2.set_ylabel(style.RESIDUAL)
         a2.set_xlabel(style.TIME)
         a1.sharex(a2)
     if lc is not None:

@@ -118,7 +118,7 @@ def title_page_figure(
             fig.text(0.05 + 0.45 * col, max(y, 0.2) - 0.03, "\n".join(chunk), va="top",
                      fontsize=8.5, linespacing=1.35)
     fig.text(0.5, 0.035, "Sign convention: x = contraction in mm (positive = shorter than "
-             "nominal), F = tension in N, p = gauge pressure in MPa; errors are F_model − F.",
+             "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
              ha="center", fontsize=8, color="0.3")
     return fig
 

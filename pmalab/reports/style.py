@@ -57,8 +57,8 @@ TIME = "Time t (s)"
 POSITION = "Contraction x (mm)"
 FORCE = "Tension F (N)"
 PRESSURE = "Muscle pressure p (MPa)"
-ERROR = "Error F_model − F (N)"
-ABS_ERROR = "|F_model − F| (N)"
+RESIDUAL = "F − F_model (N)"
+ABS_ERROR = "|F − F_model| (N)"
 
 P = ParamSpec("P")
 R = TypeVar("R")
