@@ -149,7 +149,11 @@ class ItvSerialRegulator(PressureRegulator):
             self.adapter.open()
         except (OSError, TransportError) as exc:
             raise RigError(f"{self.name} {self.adapter.name}: cannot open ({_reason(exc)})") from exc
-        self.monitor_pressure()
+        try:
+            self.monitor_pressure()
+        except RigError:
+            self.adapter.close()
+            raise
 
     def set_pressure(self, mpa: float) -> None:
         """Queue ``mpa`` MPa for the writer thread; raise a fault the thread met earlier."""

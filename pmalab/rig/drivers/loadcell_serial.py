@@ -13,7 +13,8 @@ info says so).  Sign: the indicator shows tension as positive (force = tension i
 
 Faults: an unparsable line is counted (``bad_frames``) and skipped; no line for
 ``stale_after_s`` → :class:`RigError` (disconnected indicator); an ``OL`` line →
-:class:`RigError` (overload is a safety event: the runner vents and aborts).
+:class:`RigError` at the next reading even if a normal line followed it (overload is a
+safety event, latched: the runner vents and aborts).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ class LoadCellIndicator:
         self._stop = threading.Event()
         self._error: str | None = None
         self._t_first: float | None = None
+        self._overload_latched = False
 
     def connect(self, wait_s: float = 1.0) -> None:
         """Open the port, start reading, and wait for a first valid line (one clear line if none)."""
@@ -117,6 +119,8 @@ class LoadCellIndicator:
             with self._lock:
                 self.latest = reading
                 self.lines += 1
+                if reading.overload:
+                    self._overload_latched = True  # even one OL line between two samples
                 if self._t_first is None:
                     self._t_first = now
 
@@ -124,13 +128,14 @@ class LoadCellIndicator:
         """The newest reading; RigError when it is stale or an overload."""
         with self._lock:
             r = self.latest
+            overload, self._overload_latched = self._overload_latched, False
         now = time.perf_counter()
         if r is None or now - r.received_at > self.stale_after_s:
             self.stats.timeouts += 1
             self.stats.failures += 1
             extra = f" ({self._error})" if self._error else ""
             raise RigError(f"{self.name} {self.adapter.name}: no weight line for more than {self.stale_after_s} s{extra}")
-        if r.overload:
+        if overload or r.overload:
             self.stats.out_of_range += 1
             self.stats.failures += 1
             raise RigError(f"{self.name} {self.adapter.name}: load cell OVERLOAD")

@@ -106,6 +106,8 @@ class ModbusSampler(Sampler):
         if self.count > 125:
             raise ValueError(f"analog inputs span {self.count} registers; one Modbus read carries at most 125")
         self.last_probe: ProbeResult | None = None
+        #: other devices to release with the sampler (serial indicator, ITV regulators)
+        self.closers: list[Callable[[], None]] = []
 
     # ----------------------------------------------------------------- reading
     def _convert(self, regs: list[int]) -> dict[str, float]:
@@ -204,6 +206,13 @@ class ModbusSampler(Sampler):
         return out
 
     def close(self) -> None:
+        """Release the Modbus link and every device registered in :attr:`closers`."""
+        for close in self.closers:
+            try:
+                close()
+            except Exception:
+                pass
+        self.closers.clear()
         self.link.close()
 
 

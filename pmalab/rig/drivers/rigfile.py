@@ -354,6 +354,7 @@ def build_modbus_rig(
         extra=extra,
         extra_stats=extra_stats,
     )
+    sampler.closers.extend(dev.close for dev in opened if dev is not link)
     # one block read: a rejected address means the register map is wrong
     try:
         sampler.read_values()
@@ -377,6 +378,7 @@ def build_modbus_rig(
         reg = regulators[oname]
         if isinstance(reg, ItvSerialRegulator):
             opened.append(reg)
+            sampler.closers.append(reg.close)
             sampler.extra_stats[oname] = reg.stats_dict
         # command zero (vented) before anything else: checks the output register too
         try:
