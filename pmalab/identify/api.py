@@ -1,0 +1,283 @@
+"""The notebook API: load → identify → predict → plot, in a few lines.
+
+>>> from pmalab.identify import load, identify
+>>> runs = load("campaign.h5")                       # every run of the file (canonical units)
+>>> res = identify(runs, model="bouc-wen")           # runs with role "validation" are held out
+>>> res.parameters                                   # DataFrame: one row per run
+>>> res.validation_table                             # fit %, nrmse, energy error per held-out run
+>>> force = res.predict(runs[0])                     # pressure-quadratic free-run prediction (N)
+>>> res.plot_loops()                                 # measured vs model force–position loops
+>>> res.save("out/")                                 # identification.json + predictions.h5
+
+Units everywhere: time s, position mm (contraction, + = shorter), force N (tension),
+pressure MPa.  Plots use matplotlib only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pmalab.errors import PmalabError
+from pmalab.identify.batch import DEFAULT_JOBS
+from pmalab.identify.campaign import CampaignFit, ModelSpec, fit_campaign
+from pmalab.identify.model import ForceModel
+from pmalab.identify.signals import Signals
+from pmalab.identify.validate import metrics
+from pmalab.runfile import Run, read_runs
+
+
+class RunList(list):
+    """A list of :class:`~pmalab.runfile.Run` with a readable summary."""
+
+    def by_role(self, role: str) -> RunList:
+        return RunList(r for r in self if r.attrs.get("role") == role)
+
+    def __getitem__(self, key):  # type: ignore[override]
+        if isinstance(key, str):
+            for r in self:
+                if r.name == key or r.label == key:
+                    return r
+            raise KeyError(key)
+        out = super().__getitem__(key)
+        return RunList(out) if isinstance(key, slice) else out
+
+    def __repr__(self) -> str:
+        rows = [f"{r.label}  p={r.nominal_pressure:.4g} MPa  f={r.frequency} Hz  "
+                f"{r.attrs.get('waveform', '')}  {len(r)} samples  {r.attrs.get('role', '')}"
+                for r in self]
+        return f"RunList({len(self)} runs)\n  " + "\n  ".join(rows)
+
+
+def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None = None) -> RunList:
+    """Every run of the given contract files (or the named ``runs``), canonical units."""
+    flat: list[str | Path] = []
+    for p in paths:
+        flat.extend(p if isinstance(p, list | tuple) else [p])
+    out = RunList()
+    for p in flat:
+        out.extend(read_runs(p, runs))
+    return out
+
+
+@dataclass
+class Validation:
+    """One held-out run predicted by the pressure-quadratic model."""
+
+    run: Run
+    force_model: np.ndarray
+    metrics: dict
+    x_drive: np.ndarray
+
+    @property
+    def fit_percent(self) -> float:
+        return float(self.metrics["fit_percent"])
+
+
+@dataclass
+class Identification:
+    """Result of :func:`identify`: per-run fits, pressure quadratics, validation."""
+
+    campaign: CampaignFit
+    runs: list[Run]
+    validation: list[Validation] = field(default_factory=list)
+    spec: ModelSpec | None = None
+    initial: str = "estimate"
+    notes: list[str] = field(default_factory=list)
+
+    # ---- model
+    @property
+    def model(self) -> ForceModel:
+        return self.campaign.model
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.campaign.warnings)
+
+    def theta(self, p_MPa: float) -> dict[str, float]:
+        """Parameters at nominal pressure ``p_MPa`` from the quadratics."""
+        return self.campaign.theta(p_MPa)
+
+    def predict(self, run: Run, p_MPa: float | None = None) -> np.ndarray:
+        """Free-run force prediction (N) of any run from its position and pressure."""
+        return self.campaign.predict(run, p_MPa, initial=self.initial)
+
+    def validate(self, runs: Iterable[Run]) -> list[Validation]:
+        """Predict held-out runs and add them to :attr:`validation`."""
+        new = []
+        for r in runs:
+            sig = Signals.from_run(r)
+            fm = self.campaign.predict(sig, force=r.force, initial=self.initial)
+            new.append(Validation(run=r, force_model=fm, metrics=metrics(r.force, fm, sig.x),
+                                  x_drive=sig.x))
+        self.validation.extend(new)
+        return new
+
+    # ---- tables (pandas, imported lazily)
+    @property
+    def parameters(self):
+        """DataFrame: one row per identification run, parameters, fit % and stderr."""
+        import pandas as pd
+
+        rows = []
+        for rf in self.campaign.runs:
+            row = {"run": rf.label, "p_MPa": rf.p_nom, "f_Hz": rf.frequency_Hz,
+                   "fit_percent": rf.result.fit_percent, "nrmse": rf.result.nrmse}
+            for p in rf.result.params:
+                row[p.name] = p.value
+                row[f"{p.name}_stderr"] = p.stderr
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("run")
+
+    @property
+    def pressure_table(self):
+        """DataFrame: q0, q1, q2 and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in MPa)."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            [{"parameter": n, "q0": pf.coef[0], "q1": pf.coef[1], "q2": pf.coef[2],
+              "degree": pf.degree, "r2": pf.r2} for n, pf in self.campaign.pressure.items()]
+        ).set_index("parameter")
+
+    @property
+    def validation_table(self):
+        """DataFrame: validation metrics per held-out run."""
+        import pandas as pd
+
+        rows = []
+        for v in self.validation:
+            m = v.metrics
+            rows.append({"run": v.run.label, "p_MPa": v.run.nominal_pressure,
+                         "f_Hz": v.run.frequency, "fit_percent": m["fit_percent"],
+                         "nrmse": m["nrmse"], "rmse_N": m["rmse"], "max_error_N": m["max_error"],
+                         "energy_error_percent": m["energy_error_percent"],
+                         "stretch_rmse_N": m["branch_rmse"]["stretch"],
+                         "release_rmse_N": m["branch_rmse"]["release"]})
+        return pd.DataFrame(rows).set_index("run") if rows else pd.DataFrame()
+
+    # ---- plots (matplotlib only)
+    def plot_loops(self, which: str = "all", ncols: int = 3):
+        """Measured (grey) vs model (colour) force–position loops; returns the Figure.
+
+        ``which``: ``"identification"``, ``"validation"`` or ``"all"``.
+        """
+        import matplotlib.pyplot as plt
+
+        panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
+        if which in ("all", "identification"):
+            for rf, run in zip(self.campaign.runs, self.runs):
+                fm = rf.result.predict(run)
+                panels.append((f"{rf.label}\nfit {rf.result.fit_percent:.1f} %", run.position,
+                               run.force, fm))
+        if which in ("all", "validation"):
+            for v in self.validation:
+                panels.append((f"{v.run.label} (validation)\nfit {v.fit_percent:.1f} %",
+                               v.run.position, v.run.force, v.force_model))
+        n = max(len(panels), 1)
+        nc = min(ncols, n)
+        nr = int(np.ceil(n / nc))
+        fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.4 * nr), squeeze=False)
+        for ax, (title, x, f, fm) in zip(axes.flat, panels):
+            ax.plot(x, f, color="0.6", lw=0.8, label="measured")
+            ax.plot(x, fm, lw=1.0, label=self.model.name)
+            ax.set_title(title, fontsize=8)
+            ax.set_xlabel("contraction x (mm)")
+            ax.set_ylabel("tension F (N)")
+        for ax in list(axes.flat)[len(panels):]:
+            ax.set_visible(False)
+        if panels:
+            axes.flat[0].legend(fontsize=7)
+        fig.tight_layout()
+        return fig
+
+    def plot_parameters(self):
+        """Each parameter against pressure with ±stderr bars and its quadratic."""
+        import matplotlib.pyplot as plt
+
+        names = [n for n in self.campaign.parameter_names]
+        nc = 3
+        nr = int(np.ceil(len(names) / nc))
+        fig, axes = plt.subplots(nr, nc, figsize=(4.0 * nc, 3.0 * nr), squeeze=False)
+        for ax, name in zip(axes.flat, names):
+            pf = self.campaign.pressure[name]
+            se = [np.nan if s is None else s for s in pf.stderr]
+            ax.errorbar(pf.pressures, pf.values, yerr=se, fmt="o", ms=4)
+            pp = np.linspace(min(pf.pressures), max(pf.pressures), 50)
+            ax.plot(pp, pf(pp), lw=1)
+            ax.set_title(f"{name}  (R² {pf.r2:.3f})", fontsize=9)
+            ax.set_xlabel("muscle pressure (MPa)")
+        for ax in list(axes.flat)[len(names):]:
+            ax.set_visible(False)
+        fig.tight_layout()
+        return fig
+
+    # ---- output
+    def save(self, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+        """Write ``identification.json`` and ``predictions.h5`` into ``out_dir``."""
+        from pmalab.identify.outputs import write_outputs
+
+        return write_outputs(self, out_dir, force=force)
+
+    def __repr__(self) -> str:
+        lines = [f"Identification({self.model.name}: {len(self.campaign.runs)} runs, "
+                 f"{len(self.validation)} validation)"]
+        for rf in self.campaign.runs:
+            lines.append(f"  identify  {rf.label:40s} p={rf.p_nom:.4g} MPa  fit {rf.result.fit_percent:6.2f} %")
+        for v in self.validation:
+            lines.append(f"  validate  {v.run.label:40s} p={v.run.nominal_pressure:.4g} MPa  "
+                         f"fit {v.fit_percent:6.2f} %")
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def split_roles(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
+    """(identification, validation) by each run's ``role`` attr (missing: identification)."""
+    ident = [r for r in runs if r.attrs.get("role") != "validation"]
+    val = [r for r in runs if r.attrs.get("role") == "validation"]
+    return ident, val
+
+
+def identify(
+    runs: Sequence[Run] | Run,
+    model: str | ForceModel = "bouc-wen",
+    *,
+    effects: Sequence[str] = (),
+    effects_files: Sequence[str] = (),
+    validate: Sequence[Run] | None = None,
+    jobs: int = DEFAULT_JOBS,
+    scheduler: str | None = None,
+    fixed: dict[str, float | None] | None = None,
+    free: Sequence[str] = (),
+    initial: str = "estimate",
+    progress: bool = False,
+) -> Identification:
+    """Identify ``model`` on ``runs`` and validate on held-out runs.
+
+    Runs whose ``role`` attr is ``"validation"`` are held out automatically (and added to
+    ``validate``); nothing else is dropped.  ``effects``: effect ids to add (``--add``);
+    ``effects_files``: Python files defining user effects.  ``initial``: how a validation
+    run's start state is set (``estimate`` | ``burn-in`` | ``zero``).
+    """
+    runs_l = [runs] if isinstance(runs, Run) else list(runs)
+    ident, held = split_roles(runs_l)
+    notes = [f"{r.label}: role 'validation' in the run file, held out for validation"
+             for r in held]
+    if not ident:
+        raise PmalabError("no identification runs: every given run has role 'validation'")
+    if isinstance(model, ForceModel):
+        spec = None
+        fm: ForceModel | ModelSpec = model
+        if effects or effects_files:
+            raise PmalabError("pass effects inside the ForceModel or as ids, not both")
+    else:
+        spec = ModelSpec(model, tuple(effects), tuple(str(f) for f in effects_files))
+        spec.build()  # fail early (unknown model/effect) before any work
+        fm = spec
+    cf = fit_campaign(ident, fm, fixed=fixed, free=free, jobs=jobs, scheduler=scheduler,
+                      progress=progress)
+    res = Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes)
+    res.validate([*held, *(validate or [])])
+    return res

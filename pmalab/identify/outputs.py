@@ -1,0 +1,267 @@
+"""Writing an identification: ``identification.json`` and ``predictions.h5``.
+
+``identification.json`` (DESIGN.md keys; more keys are welcome to readers)::
+
+    {"model", "effects": [ids], "pmalab_version", "created",
+     "inputs": [{"file", "runs": [...], "provenance": {...}}],
+     "parameter_names": [...],
+     "runs": [{"file", "run", "role": "identification", "muscle_pressure_MPa", "frequency_Hz",
+               "waveform", "parameters": {name: value}, "stderr": {name: value|null},
+               "correlation": {"names": [...], "matrix": [[...]]}, "fixed": [...],
+               "warnings": [...], "rmse", "nrmse", "fit_percent", "max_error",
+               "energy_error_percent", "branch_rmse": {"stretch", "release"}}],
+     "pressure_fits": {name: [q0, q1, q2]},
+     "pressure_fit_stats": {name: {"r2", "residuals", "pressures", "values", "stderr"}},
+     "validation": [{"file", "run", "muscle_pressure_MPa", "frequency_Hz", "rmse", "nrmse",
+                     "fit_percent", "max_error", "energy_error_percent", "branch_rmse"}],
+     "warnings": [...]}
+
+NaN/inf values are written as ``null`` (strict JSON).
+
+``predictions.h5``: root attrs ``format = "pmalab.predictions"``, ``format_version = 1``,
+``model``; one group ``/runs/<key>`` per identification and validation run with datasets
+``time`` (s), ``position`` (mm, measured), ``muscle_pressure`` (MPa), ``force`` (N,
+measured), ``force_model`` (N) and attrs ``role``, ``file``, ``run``,
+``muscle_pressure_MPa``, ``frequency_Hz``, ``waveform``, ``model``.  For identification
+runs ``force_model`` is the run's own fit; ``force_model_quadratic`` adds the
+pressure-quadratic model's prediction.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from pmalab import __version__
+from pmalab.errors import PmalabError
+from pmalab.identify.fit import STDERR_METHOD
+from pmalab.paths import check_output
+from pmalab.runfile import Run
+
+if TYPE_CHECKING:
+    from pmalab.identify.api import Identification
+
+PREDICTIONS_FORMAT = "pmalab.predictions"
+PREDICTIONS_VERSION = 1
+
+
+def _clean(v: Any) -> Any:
+    """JSON-safe: numpy → Python, NaN/inf → None."""
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_clean(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _clean(v.tolist())
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def _sha256(path: Path) -> str | None:
+    try:
+        h = hashlib.sha256()
+        with open(path, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        return h.hexdigest()
+    except OSError:
+        return None
+
+
+def _file_attrs(path: Path) -> dict:
+    try:
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            return {k: _decode(v) for k, v in f.attrs.items()}
+    except (OSError, ImportError):
+        return {}
+
+
+def _decode(v: Any) -> Any:
+    if isinstance(v, bytes):
+        v = v.decode("utf-8", "replace")
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if isinstance(v, str) and v[:1] in "{[":
+        try:
+            return json.loads(v)
+        except json.JSONDecodeError:
+            return v
+    return v
+
+
+def _run_provenance(run: Run) -> dict:
+    keep = {}
+    for k, v in run.attrs.items():
+        keep[k] = _decode(v)
+    return keep
+
+
+def _inputs(runs: list[tuple[Run, str]]) -> list[dict]:
+    by_file: dict[str, dict] = {}
+    for run, role in runs:
+        key = run.file or "<memory>"
+        d = by_file.setdefault(key, {"file": key, "runs": [], "roles": {}, "provenance": {}})
+        d["runs"].append(run.name)
+        d["roles"][run.name] = role
+        d["provenance"].setdefault("runs", {})[run.name] = _run_provenance(run)
+    for key, d in by_file.items():
+        if key != "<memory>":
+            p = Path(key)
+            d["provenance"]["sha256"] = _sha256(p)
+            d["provenance"]["size_bytes"] = p.stat().st_size if p.exists() else None
+            d["provenance"]["file_attrs"] = _file_attrs(p)
+    return list(by_file.values())
+
+
+def _metric_block(m: dict) -> dict:
+    return {
+        "rmse": m["rmse"], "nrmse": m["nrmse"], "fit_percent": m["fit_percent"],
+        "max_error": m["max_error"], "energy_error_percent": m["energy_error_percent"],
+        "energy_measured_mJ_per_cycle": m.get("energy_measured_mJ_per_cycle"),
+        "energy_model_mJ_per_cycle": m.get("energy_model_mJ_per_cycle"),
+        "branch_rmse": dict(m["branch_rmse"]),
+    }
+
+
+def identification_dict(res: Identification) -> dict:
+    """The ``identification.json`` content of an :class:`Identification`."""
+    cf = res.campaign
+    model = cf.model
+    names = cf.parameter_names
+    units = {p.name: p.unit for p in cf.runs[0].result.params} if cf.runs else {}
+    docs = {p.name: p.doc for p in cf.runs[0].result.params} if cf.runs else {}
+    runs_out = []
+    for rf, run in zip(cf.runs, res.runs):
+        r = rf.result
+        q = cf.validate(run, initial=res.initial)
+        runs_out.append({
+            "file": rf.file, "run": rf.run, "role": "identification",
+            "muscle_pressure_MPa": rf.p_nom, "frequency_Hz": rf.frequency_Hz,
+            "waveform": rf.waveform,
+            "parameters": r.values,
+            "stderr": r.stderr,
+            "correlation": {"names": list(r.names), "matrix": np.asarray(r.correlation).tolist()},
+            "fixed": list(r.fixed),
+            "warnings": list(r.warnings),
+            "notes": list(r.notes),
+            **_metric_block(r.metrics),
+            "n_samples": r.n_samples, "n_eff": r.n_eff, "n_free": r.n_free,
+            "aic": r.aic, "bic": r.bic, "condition_number": r.condition_number,
+            "quadratic_model": {"fit_percent": q["fit_percent"], "nrmse": q["nrmse"],
+                                "rmse": q["rmse"]},
+        })
+    val_out = []
+    for v in res.validation:
+        run = v.run
+        val_out.append({
+            "file": run.file, "run": run.name, "role": "validation",
+            "muscle_pressure_MPa": run.nominal_pressure, "frequency_Hz": run.frequency,
+            "waveform": str(run.attrs.get("waveform", "")),
+            **_metric_block(v.metrics),
+        })
+    warnings = list(cf.warnings)
+    for rf in cf.runs:
+        warnings += [f"{rf.label}: {w}" for w in rf.result.warnings]
+    all_runs = [(r, "identification") for r in res.runs] + [(v.run, "validation") for v in res.validation]
+    out = {
+        "model": model.law.name,
+        "model_full": model.name,
+        "effects": [e.id for e in model.effects],
+        "pmalab_version": __version__,
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "inputs": _inputs(all_runs),
+        "parameter_names": names,
+        "parameter_units": units,
+        "parameter_docs": docs,
+        "state_parameters": ["h0"],
+        "runs": runs_out,
+        "pressure_fits": {n: list(pf.coef) for n, pf in cf.pressure.items()},
+        "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
+        "validation": val_out,
+        "warnings": warnings,
+        "notes": list(res.notes),
+        "method": {
+            "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
+                   "scale) then joint scipy least_squares (trf, bounds) on free-run error",
+            "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
+            "stderr": STDERR_METHOD,
+            "initial_state_validation": res.initial,
+            "pressure_fits": "theta(p) = q0 + q1 p + q2 p^2 (p in MPa), weighted by 1/stderr",
+        },
+    }
+    return _clean(out)
+
+
+def _unique_key(grp, base: str) -> str:
+    key = base.replace("/", "_")
+    i = 2
+    while key in grp:
+        key = f"{base}__{i}"
+        i += 1
+    return key
+
+
+def write_predictions(res: Identification, path: Path) -> None:
+    import h5py
+
+    cf = res.campaign
+    with h5py.File(path, "w") as f:
+        f.attrs["format"] = PREDICTIONS_FORMAT
+        f.attrs["format_version"] = PREDICTIONS_VERSION
+        f.attrs["model"] = cf.model.name
+        grp = f.create_group("runs")
+        items: list[tuple[Run, str, np.ndarray, np.ndarray | None]] = []
+        for rf, run in zip(cf.runs, res.runs):
+            items.append((run, "identification", rf.result.predict(run),
+                          cf.predict(run, initial=res.initial)))
+        for v in res.validation:
+            items.append((v.run, "validation", v.force_model, None))
+        for run, role, fm, fq in items:
+            stem = Path(run.file).stem if run.file else "memory"
+            g = grp.create_group(_unique_key(grp, f"{stem}__{run.name}"))
+            for name, data, unit in (("time", run.time, "s"), ("position", run.position, "mm"),
+                                     ("muscle_pressure", run.muscle_pressure, "MPa"),
+                                     ("force", run.force, "N"), ("force_model", fm, "N")):
+                ds = g.create_dataset(name, data=np.asarray(data, dtype=np.float64))
+                ds.attrs["units"] = unit
+            if fq is not None:
+                ds = g.create_dataset("force_model_quadratic", data=np.asarray(fq, dtype=np.float64))
+                ds.attrs["units"] = "N"
+            g.attrs["role"] = role
+            g.attrs["file"] = run.file
+            g.attrs["run"] = run.name
+            g.attrs["muscle_pressure_MPa"] = float(run.nominal_pressure)
+            g.attrs["frequency_Hz"] = float(run.frequency) if run.frequency is not None else float("nan")
+            g.attrs["waveform"] = str(run.attrs.get("waveform", ""))
+            g.attrs["model"] = cf.model.name
+
+
+def write_outputs(res: Identification, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+    """Write ``out_dir/identification.json`` and ``out_dir/predictions.h5``."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise PmalabError(f"{out}: exists and is not a directory")
+    jpath = check_output(out / "identification.json", force)
+    hpath = check_output(out / "predictions.h5", force)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = identification_dict(res)
+    tmp = jpath.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    tmp.replace(jpath)
+    htmp = hpath.with_suffix(".h5.tmp")
+    write_predictions(res, htmp)
+    htmp.replace(hpath)
+    return jpath, hpath
