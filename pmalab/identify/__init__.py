@@ -1,0 +1,39 @@
+"""Identification: hysteresis models, fitting, pressure quadratics, validation, diagnosis.
+
+Notebook use (names are imported lazily so ``pmalab --help`` stays fast)::
+
+    from pmalab.identify import load, identify
+    runs = load("campaign.h5")
+    res = identify(runs, model="bouc-wen", validate=load("held-out.h5"))
+    res.predict(runs[0]); res.plot_loops(); res.save("out/")
+
+Lower level: ``fit_run``, ``fit_campaign``, ``predict_run``, ``metrics``, ``ForceModel``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "load": "pmalab.identify.api",
+    "identify": "pmalab.identify.api",
+    "Identification": "pmalab.identify.api",
+    "fit_run": "pmalab.identify.fit",
+    "FitResult": "pmalab.identify.fit",
+    "fit_campaign": "pmalab.identify.campaign",
+    "predict_run": "pmalab.identify.campaign",
+    "CampaignFit": "pmalab.identify.campaign",
+    "metrics": "pmalab.identify.validate",
+    "ForceModel": "pmalab.identify.model",
+    "Signals": "pmalab.identify.signals",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'pmalab.identify' has no attribute {name!r}")
+    return getattr(importlib.import_module(mod), name)
