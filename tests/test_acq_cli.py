@@ -125,3 +125,15 @@ def test_only_selects_runs_by_role(tmp_path):
     assert main(["run", "--rig", "sim", "--protocol", "seed-bouc-wen", "--out", str(out),
                  "--quiet", "--only", "validation"]) == 0
     assert [r.name for r in read_runs(out)] == ["valid-498kPa-0.1Hz", "valid-304kPa-0.3Hz"]
+
+
+def test_manual_muscle_regulator_prompts_operator(tmp_path, capsys):
+    rig = tmp_path / "manual.toml"
+    rig.write_text('[rig]\nkind = "sim"\nmanual_muscle_regulator = true\n')
+    out = tmp_path / "m.h5"
+    assert main(["run", "--rig", str(rig), "--protocol", "quick", "--out", str(out),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "run 'quick-400kPa': Set the muscle regulator to 0.4 MPa" in err
+    (r,) = read_runs(out)
+    assert abs(r.muscle_pressure.mean() - 0.4) < 0.01  # recording waited for the operator

@@ -89,6 +89,16 @@ def test_kill9_realtime_keeps_samples_up_to_one_second_before(tmp_path):
     np.testing.assert_allclose(np.diff(r.time).mean(), 1 / 500, rtol=1e-3)
     assert r.cylinder_pressure_command is not None and len(r.cylinder_pressure_command) == len(r)
     assert not out.with_name(out.name + ".partial").exists()
+    # `pmalab recover` makes it a plain closed file for other tools, marked aborted
+    from pmalab.cli import main
+
+    n = len(r)
+    assert main(["recover", str(out)]) == 0
+    with h5py.File(out, "r") as f:
+        assert f["runs/long-400kPa/time"].shape == (n,)
+    (r2,) = read_runs(out)
+    assert r2.attrs["status"].startswith("aborted: recording interrupted") and len(r2) == n
+    np.testing.assert_array_equal(r2.force, r.force)
 
 
 def test_kill9_during_fast_virtual_run_leaves_readable_file(tmp_path):

@@ -202,7 +202,8 @@ def test_manual_muscle_regulator_prompts_and_waits_for_stable_pressure(tmp_path)
     prompts: list[str] = []
     opts = RunnerOptions(progress=False, prompt=prompts.append)
     run_protocol(rig, _proto(), tmp_path / "m.h5", options=opts)
-    assert any("set the muscle pressure to 0.4 MPa" in p for p in prompts)
+    assert any(p.startswith("run 'first': fake operator asked for 0.4") and "±0.01 MPa" in p
+               for p in prompts)
     r = read_runs(tmp_path / "m.h5")[1]
     # recording started only once the (lagging) pressure was within tolerance
     assert abs(r.muscle_pressure[:250].mean() - 0.5) < 0.01

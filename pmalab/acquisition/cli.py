@@ -1,4 +1,4 @@
-"""CLI verbs of the acquisition area: ``pmalab run`` and ``pmalab import``.
+"""CLI verbs of the acquisition area: ``pmalab run``, ``pmalab import``, ``pmalab recover``.
 
 ``pmalab run --rig sim|RIG.toml --protocol P.toml --out F.h5 [--force] [--seed N]
 [--realtime] [--quiet] [--only ROLE_OR_RUN ...]`` records a protocol (the simulated rig
@@ -60,6 +60,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
     q.add_argument("--frequency", type=float, metavar="HZ", help="frequency tag (Hz)")
     q.set_defaults(func=cmd_import)
+
+    r = sub.add_parser("recover", help="close a run file whose recording was killed",
+                       description="Rewrite a run file whose writer died (kill -9, power "
+                       "cut) as a plainly closed HDF5 file that any tool opens; runs cut "
+                       "mid-recording are marked aborted.  pmalab's own reader does not "
+                       "need this.")
+    r.add_argument("file", help="the run file")
+    r.add_argument("--out", help="write here instead of replacing FILE")
+    r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    r.set_defaults(func=cmd_recover)
 
 
 def load_rig_spec(spec: str, *, seed: int = 0, realtime: bool = False):
@@ -146,4 +156,14 @@ def cmd_import(args: argparse.Namespace) -> int:
     print(f"{args.out}: run '{run.name}', {len(run)} samples, "
           f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
           f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa")
+    return 0
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    from pmalab.acquisition.recover import recover
+
+    fixed = recover(args.file, args.out, force=args.force)
+    where = args.out or args.file
+    print(f"{where}: closed; " + (f"marked aborted: {', '.join(fixed)}" if fixed
+                                  else "no run was cut mid-recording"))
     return 0

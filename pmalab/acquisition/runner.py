@@ -309,9 +309,10 @@ def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: Saf
     if supply.automatic:
         supply.request(target)
     else:
-        supply.request(target, prompt)
-        prompt(f"run '{spec.name}': set the muscle pressure to {target:.4g} MPa "
-               f"(±{tol:g}); the run starts when the reading is stable")
+        # the supply words the request; the runner adds which run and when it will start
+        supply.request(target, lambda text: prompt(
+            f"run '{spec.name}': {text} (recording starts once the reading is within "
+            f"±{tol:g} MPa of {target:.4g} MPa and stable)"))
     if pbar is not None:
         pbar.set_postfix_str(f"{spec.name}: waiting for {target:.3g} MPa")
     clock, sampler = rig.clock, rig.sampler

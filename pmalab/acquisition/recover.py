@@ -1,0 +1,76 @@
+"""``pmalab recover``: turn a run file whose writer died into a plainly closed HDF5 file.
+
+:func:`pmalab.runfile.read_runs` already reads such a file (it opens it in SWMR-read mode),
+but other tools (HDFView, MATLAB ``h5read``, a plain ``h5py.File(path, "r")``) refuse it
+while its "open for write" flag is set.  ``recover`` copies everything into a fresh file
+(temporary name, then an atomic rename), marks each run that was cut mid-recording
+(status ``running``) as ``aborted: recording interrupted (writer killed; recovered)``, and
+leaves finished and never-started runs as they were.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from pmalab.errors import RunFileError
+from pmalab.runfile import FORMAT
+
+
+def recover(path: str | Path, out: str | Path | None = None, *, force: bool = False) -> list[str]:
+    """Rewrite ``path`` (or into ``out``) as a closed file; return the runs marked aborted."""
+    import h5py
+
+    from pmalab.paths import check_output
+
+    src_path = Path(path)
+    if not src_path.exists():
+        raise RunFileError(f"{src_path}: no such file")
+    dst_path = Path(out) if out is not None else src_path
+    if out is not None:
+        check_output(dst_path, force)
+    try:
+        src = h5py.File(src_path, "r", swmr=True)
+    except OSError:
+        try:
+            src = h5py.File(src_path, "r")
+        except OSError as exc:
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise RunFileError(f"{src_path}: not a readable HDF5 file ({first})") from None
+    tmp = dst_path.with_name(dst_path.name + ".recovering")
+    fixed: list[str] = []
+    try:
+        if src.attrs.get("format") not in (FORMAT, FORMAT.encode()):
+            raise RunFileError(f"{src_path}: not a pmalab run file")
+        with h5py.File(tmp, "w") as dst:
+            for k, v in src.attrs.items():
+                dst.attrs[k] = v
+            runs = dst.create_group("runs", track_order=True)
+            for name in src["runs"]:
+                g = src["runs"][name]
+                d = runs.create_group(name)
+                for k, v in g.attrs.items():
+                    d.attrs[k] = v
+                lengths = [g[c].shape[0] for c in g if g[c].ndim == 1 and g[c].maxshape == (None,)]
+                n = min(lengths, default=0)
+                for c in g:
+                    ds = g[c]
+                    data = ds[:n] if ds.maxshape == (None,) else ds[()]
+                    new = d.create_dataset(c, data=data, dtype=ds.dtype)
+                    for k, v in ds.attrs.items():
+                        new.attrs[k] = v
+                if "status" in g:
+                    status = g["status"][()].decode("utf-8", "replace").rstrip("\x00 ")
+                    if status == "running":
+                        d["status"][()] = np.bytes_(
+                            b"aborted: recording interrupted (writer killed; recovered)")
+                        fixed.append(name)
+        src.close()
+        os.replace(tmp, dst_path)
+    except BaseException:
+        src.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    return fixed
