@@ -518,7 +518,7 @@ def _fit_run(
     met = metrics(force, pred, sig.x)
 
     if auto_fix:
-        pairs = _flag_pairs(prob.free, corr)
+        pairs = _flag_pairs(prob.free, _centred_corr(corr, prob.free, se, float(np.mean(sig.x))))
         flagged = {a for a, b, _ in pairs} | {b for a, b, _ in pairs}
         for name, value in COLLINEAR_FIXES.get(model.law.name, []):
             if name not in flagged or name in fix:
@@ -541,12 +541,16 @@ def _fit_run(
 
     done = {n for w in warnings for n in prob.free if f"fixed {n} =" in w}
     notes: list[str] = []
+    xm = float(np.mean(sig.x))
+    corr_c = _centred_corr(corr, prob.free, se, xm)
     for a, b, r in _flag_pairs(prob.free, corr):
-        if {a, b} == {"k", "c0"} and abs(_centred_rho(corr, prob.free, float(np.mean(sig.x)), se)) < RHO_LIMIT:
-            # c0 is the tension extrapolated to x = 0, away from the data; the loop's centre
-            # c0 + k·mean(x) is not collinear with k, so this is a parametrisation artefact
-            notes.append(f"rho(k,c0)={r:+.3f} only because c0 is extrapolated to x = 0 "
-                         f"(data centred at x = {np.mean(sig.x):.3g} mm); not an identifiability problem")
+        rc = corr_c[prob.free.index(a), prob.free.index(b)]
+        if "c0" in (a, b) and abs(rc) <= RHO_LIMIT:
+            # c0 is the tension extrapolated to x = 0, away from the data; with the offset
+            # taken at the data's centre (c0 + k·mean x) the pair is not collinear, so this
+            # is a parametrisation artefact, not an identifiability problem
+            notes.append(f"rho({a},{b})={r:+.3f} only because c0 is extrapolated to x = 0 "
+                         f"(data centred at x = {xm:.3g} mm; centred offset: rho={rc:+.3f})")
             continue
         if a not in done and b not in done:
             warnings.append(f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these parameters trade off")
@@ -582,16 +586,18 @@ def _fit_run(
     )
 
 
-def _centred_rho(corr: np.ndarray, names: list[str], xm: float, se: np.ndarray) -> float:
-    """Correlation of k with the centred offset c0 + k·xm, from the fitted covariance."""
-    i, j = names.index("k"), names.index("c0")
-    si, sj = se[i], se[j]
-    if not (np.isfinite(si) and np.isfinite(sj)) or si == 0:
-        return 1.0
-    cov_kk, cov_cc, cov_kc = si * si, sj * sj, corr[i, j] * si * sj
-    var_m = cov_cc + 2 * xm * cov_kc + xm * xm * cov_kk
-    cov_km = cov_kc + xm * cov_kk
-    return float(cov_km / math.sqrt(cov_kk * var_m)) if var_m > 0 else 1.0
+def _centred_corr(corr: np.ndarray, names: list[str], se: np.ndarray, xm: float) -> np.ndarray:
+    """Correlation matrix with c0 replaced by the centred offset c0 + k·xm (same order)."""
+    if "k" not in names or "c0" not in names:
+        return corr
+    s = np.where(np.isfinite(se), se, 0.0)
+    cov = corr * np.outer(s, s)
+    T = np.eye(len(names))
+    T[names.index("c0"), names.index("k")] = xm
+    cov_c = T @ cov @ T.T
+    d = np.sqrt(np.abs(np.diag(cov_c)))
+    d[d == 0] = 1.0
+    return np.clip(cov_c / np.outer(d, d), -1.0, 1.0)
 
 
 def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[str]:
