@@ -112,3 +112,20 @@ def test_kill9_during_fast_virtual_run_leaves_readable_file(tmp_path):
     assert np.all(np.diff(r.time) > 0)
     for ch, v in r.channels().items():
         assert len(v) == len(r) and np.all(np.isfinite(v)), ch
+
+
+@pytest.mark.parametrize("sig, needle", [(signal.SIGINT, "interrupted (Ctrl-C)"),
+                                         (signal.SIGTERM, "terminated (SIGTERM)")])
+def test_ctrl_c_and_sigterm_close_the_file_and_exit_nonzero(tmp_path, sig, needle):
+    proc, out = _start(tmp_path, "--realtime")
+    _wait_for_samples(proc, out)
+    time.sleep(0.5)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=20)
+    lines = err.decode().strip().splitlines()
+    assert proc.returncode == 4, err
+    assert len(lines) == 1 and needle in lines[0] and "vented" in lines[0]
+    with h5py.File(out, "r") as f:  # closed cleanly: a plain open works
+        assert f["runs/never-started/status"][()].decode().startswith("not run")
+    (r,) = read_runs(out)
+    assert r.attrs["status"] == f"aborted: {needle}" and len(r) > 100

@@ -215,3 +215,30 @@ def test_pressure_that_never_settles_aborts_with_vent(tmp_path):
     with pytest.raises(SafetyAbort, match=r"did not settle at 0.4 MPa within 3 s"):
         run_protocol(rig, _proto(text), tmp_path / "s.h5", options=_opts())
     assert rig.cylinder_regulator.vent_times()
+
+
+@pytest.mark.parametrize("sig, needle", [("SIGINT", "interrupted (Ctrl-C)"),
+                                         ("SIGTERM", "terminated (SIGTERM)")])
+def test_real_signal_is_acted_on_at_the_next_sample(tmp_path, sig, needle):
+    """A real SIGINT/SIGTERM (not an exception injected by the sampler) is deferred to the
+    top of the sample loop, so the file stays consistent, and still vents within 1 sample."""
+    import os
+    import signal
+
+    t_sig = 1.9
+
+    def fault(t, n):
+        if abs(t - t_sig) < DT / 2:
+            os.kill(os.getpid(), getattr(signal, sig))
+        return None
+
+    rig = make_fake_rig(fault)
+    out = tmp_path / "sig.h5"
+    with pytest.raises(SafetyAbort, match=needle.replace("(", r"\(").replace(")", r"\)")):
+        run_protocol(rig, _proto(), out, options=_opts())
+    vents = rig.cylinder_regulator.vent_times()
+    assert vents and t_sig <= vents[0] <= t_sig + DT + 1e-9
+    (r,) = read_runs(out)
+    assert r.attrs["status"] == f"aborted: {needle}"
+    assert len(r) > 100 and np.all(np.diff(r.time) > 0)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored

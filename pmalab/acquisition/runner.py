@@ -25,7 +25,9 @@ import gc
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -93,6 +95,8 @@ class RunnerOptions:
     #: ~60 µs.  Silently skipped where not permitted (recorded in the file's attrs).
     realtime_priority: bool = True
     realtime_priority_level: int = 50
+    #: run-time state: the signal (SIGINT/SIGTERM) received and not yet acted on
+    pending_signal: dict[str, int | None] = field(default_factory=lambda: {"sig": None})
 
 
 def _vent(rig: Rig) -> None:
@@ -161,11 +165,45 @@ def run_protocol(
     """
     opts = options or RunnerOptions()
     try:
-        with _realtime_scheduling(rig, opts) as sched:
+        with _deferred_signals(opts.pending_signal), _realtime_scheduling(rig, opts) as sched:
             opts.extra_attrs.setdefault("scheduling", sched)
             return _run_protocol(rig, protocol, out, force, opts)
     finally:
         _vent(rig)  # every exit path, including a refused protocol or an existing output
+
+
+@contextlib.contextmanager
+def _deferred_signals(pending: dict[str, int | None]):
+    """Turn SIGINT/SIGTERM into a flag the sample loop checks once per sample.
+
+    An exception raised at an arbitrary bytecode could land between two HDF5 writes or
+    half-way through buffering a sample; acting on the flag at the top of the loop keeps
+    the file consistent and still vents within a sample period.  A second signal raises
+    at once (an operator hammering Ctrl-C means it).  Main thread only.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        if pending["sig"] is not None:
+            raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+        pending["sig"] = signum
+
+    old_int = signal.signal(signal.SIGINT, handler)
+    old_term = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+def _check_signal(pending: dict[str, int | None]) -> None:
+    sig = pending["sig"]
+    if sig is not None:
+        pending["sig"] = None
+        raise Terminated() if sig == signal.SIGTERM else KeyboardInterrupt()
 
 
 @contextlib.contextmanager
@@ -285,7 +323,7 @@ def _progress(protocol: Protocol, enabled: bool):
 
     return tqdm(total=round(protocol.duration_s, 1), unit="s", file=sys.stderr,
                 desc=protocol.name, bar_format="{desc}: {percentage:3.0f}%|{bar}| "
-                "{n:.0f}/{total:.0f} s [{elapsed}<{remaining}] {postfix}")
+                "{n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}")
 
 
 def _default_prompt(msg: str) -> None:
@@ -322,7 +360,9 @@ def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: Saf
     t_start = clock.now()
     k = 0
     last_note = t_start
+    pending = opts.pending_signal
     while True:
+        _check_signal(pending)
         if not sampler.hardware_timed:
             clock.sleep_until(t_start + k * dt)
             k += 1
@@ -373,7 +413,10 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
     since_update = 0  # samples since the progress bar moved
     last_t = None
     cmd = 0.0
+    pending = opts.pending_signal
     while k < n_total:
+        if pending["sig"] is not None:
+            _check_signal(pending)
         if not hw:
             deadline = t0 + k * dt
             clock.sleep_until(deadline)
@@ -425,3 +468,5 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                 w.n_missed += skip
                 k += skip
     reg.set_pressure(0.0)
+    if pbar is not None and since_update:
+        pbar.update(since_update * dt)
