@@ -21,7 +21,8 @@ Muscle tension ``T = F_static(x, p) + F_friction(u, p) + F_viscous(ẋ)``:
   nonlinear-stiffness effect is on (then it is Tondu–Lopez-like, quadratic in contraction).
   ``F0(p) = Fmax·((1−β)q + βq²)`` and ``x_max(p) ∝ 1 − exp(−q/σ)`` with
   ``q = (p − p_th)/(p_ref − p_th)`` clipped at 0: no force below the threshold pressure.
-  Beyond nominal length (x < 0) the braid adds a stiff stretch term.
+  Beyond nominal length (x < 0) the braid adds a stiff stretch term; shorter than its
+  free contraction (s > 1) the muscle is slack.  A muscle only pulls: T ≥ 0.
 * ``F_friction = −Σ z_i``: braid friction as a Maxwell-slip model — elastic elements of
   pre-sliding displacement δ_i that slip at force f_i(p) ∝ pressure.  While the muscle is
   stretched (x decreasing) the elements sit at −f_i and add tension: the loop runs in the
@@ -97,6 +98,7 @@ P_TAU_YF = 31
 P_TAU_YPM = 32
 P_TAU_YPC = 33
 P_HMAX = 34
+P_FPOS = 35
 P_DELTA0 = 40  # 8 slots
 P_W0 = 48  # 8 slots
 N_PARAM = 56
@@ -120,7 +122,7 @@ HIST_SIZE = 8192
 
 @njit(cache=True)
 def _static_terms(par, x, p):
-    """Muscle static tension (N), its x-derivative (N/mm), and q = normalised pressure."""
+    """Static tension (N), its x-derivative (N/mm), q = normalised pressure, x_max (mm)."""
     pth = par[P_PTH]
     q = (p - pth) / (par[P_PREF] - pth)
     if q < 0.0:
@@ -137,20 +139,30 @@ def _static_terms(par, x, p):
         fs = f0 * (1.0 - s) * (1.0 - kap * s)
         dfdx = f0 * (-1.0 - kap + 2.0 * kap * s) / xm
     else:
-        # beyond free contraction: continue with the slope at s = 1 (end caps, bladder)
-        fs = -f0 * (1.0 - kap) * (s - 1.0)
-        dfdx = -f0 * (1.0 - kap) / xm
+        # shorter than its free contraction the muscle is slack: it cannot push
+        fs = 0.0
+        dfdx = 0.0
     if x < 0.0:
         fs += -par[P_KSTRETCH] * x
         dfdx += -par[P_KSTRETCH]
-    return fs, dfdx, q
+    return fs, dfdx, q, xm
 
 
 @njit(cache=True)
-def _friction_terms(par, st, q, v):
-    """Braid friction tension (N) from the Maxwell-slip elements, and its x-stiffness."""
+def _friction_terms(par, st, q, v, s):
+    """Braid friction tension (N) from the Maxwell-slip elements, and its x-stiffness.
+
+    ``s = x / x_max(p)``: with the asymmetric-hysteresis effect the slip forces also scale
+    with ``1 + g·(1 − 2s)`` (s clipped to 0..1) — more friction where the muscle is
+    stretched and the braid presses harder — so the loop is wide at one end and narrow at
+    the other instead of point-symmetric.
+    """
     gam = par[P_FGAMMA]
     ftot = par[P_FSLIP] * ((1.0 - gam) * q + gam * q * q)
+    g = par[P_FPOS]
+    if g != 0.0:
+        sc = 0.0 if s < 0.0 else (1.0 if s > 1.0 else s)
+        ftot *= 1.0 + g * (1.0 - 2.0 * sc)
     rf = par[P_RF]
     rd = par[P_RD]
     ne = int(par[P_NE])
@@ -175,10 +187,10 @@ def _friction_terms(par, st, q, v):
 @njit(cache=True)
 def forces(st, par):
     """(static, friction, viscous, tension) at the current state, N."""
-    fs, _, q = _static_terms(par, st[S_X], st[S_PM])
-    ff, _ = _friction_terms(par, st, q, st[S_V])
+    fs, _, q, xm = _static_terms(par, st[S_X], st[S_PM])
+    ff, _ = _friction_terms(par, st, q, st[S_V], st[S_X] / xm)
     fv = -par[P_CVISC] * st[S_V]
-    return fs, ff, fv, fs + ff + fv
+    return fs, ff, fv, max(fs + ff + fv, 0.0)
 
 
 @njit(cache=True)
@@ -241,9 +253,14 @@ def advance(st, par, pend_t, pend_v, ptr, hist, t_target):
             pm = 0.0
         st[S_PM] = pm
         # --- forces and their Jacobian
-        fs, dfs, q = _static_terms(par, x, pm)
-        ff, dff = _friction_terms(par, st, q, v)
+        fs, dfs, q, xm = _static_terms(par, x, pm)
+        ff, dff = _friction_terms(par, st, q, v, x / xm)
         tension = fs + ff - cv * v
+        if tension < 0.0:
+            # a muscle only pulls: friction cannot make the tension negative (slack)
+            tension = 0.0
+            dfs = 0.0
+            dff = 0.0
         th = math.tanh(v / eps)
         rv = v / vs
         fslip = fc + fsx * math.exp(-rv * rv)

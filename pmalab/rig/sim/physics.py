@@ -74,6 +74,7 @@ def build_params(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     ah = truth.effect("asymmetric_hysteresis")
     p[K.P_RF] = ah["stretch_friction_factor"] if ah else 1.0
     p[K.P_RD] = ah["stretch_presliding_factor"] if ah else 1.0
+    p[K.P_FPOS] = ah["friction_position_gain"] if ah else 0.0
     ns = truth.effect("nonlinear_stiffness")
     p[K.P_KAPPA] = ns["curvature"] if ns else 0.0
     s = truth.section("sensors")
@@ -282,7 +283,7 @@ class RigPhysics:
     # ------------------------------------------------------------------ helpers
     def static_force(self, x: float, p: float) -> float:
         """The truth model's static tension F_s(x, p) (N) — no friction, no dynamics."""
-        fs, _, _ = K._static_terms(self._par, float(x), float(p))
+        fs, _, _, _ = K._static_terms(self._par, float(x), float(p))
         return float(fs)
 
     def settle(self, duration: float = 1.0) -> None:

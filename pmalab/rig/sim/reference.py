@@ -3,7 +3,7 @@
 Tests and benchmarks use it as an independent reference: drive it with a (true or
 measured) position history and the muscle pressure, and compare with what the compiled
 rig's load cell reports.  It implements only the baseline: static characteristic
-``F0(p)·(1 − x/x_max(p))`` (+ stretch term for x < 0) and the Maxwell-slip braid friction;
+``F0(p)·(1 − x/x_max(p))`` (+ stretch term for x < 0, slack beyond x_max) and the Maxwell-slip braid friction;
 none of the hidden effects.  Units: mm, MPa, N.
 """
 
@@ -32,7 +32,7 @@ def static_force(x: np.ndarray, p: np.ndarray, truth: Truth | None = None) -> np
     sc = m["contraction_pressure_scale"]
     xm = np.maximum(m["max_contraction_mm"] * (1 - np.exp(-q / sc)) / (1 - math.exp(-1 / sc)), 0.5)
     x = np.asarray(x, float)
-    f = f0 * (1.0 - x / xm)
+    f = np.maximum(f0 * (1.0 - x / xm), 0.0)  # slack beyond free contraction
     return f + np.where(x < 0, -m["stretch_stiffness_N_per_mm"] * x, 0.0)
 
 
@@ -65,5 +65,6 @@ def friction_force(
 def baseline_tension(
     x: np.ndarray, p: np.ndarray, truth: Truth | None = None, u0: list[float] | None = None
 ) -> np.ndarray:
-    """Static + friction tension (N) of the baseline law along ``x`` at pressures ``p``."""
-    return static_force(x, p, truth) + friction_force(x, p, truth, u0)
+    """Static + friction tension (N) of the baseline law along ``x`` at pressures ``p``
+    (never negative: a muscle only pulls)."""
+    return np.maximum(static_force(x, p, truth) + friction_force(x, p, truth, u0), 0.0)

@@ -142,6 +142,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "stretch_presliding_factor": F(
             1.0, 0.0, None, True, "pre-sliding displacement while stretching ÷ while contracting"
         ),
+        "friction_position_gain": F(
+            0.0, -0.9, 0.9, False, "slip force × (1 + g·(1 − 2x/x_max)): wide loop end ≠ narrow end"
+        ),
     },
     "effects.nonlinear_stiffness": {
         "enabled": F(False, kind="bool"),
