@@ -53,9 +53,8 @@ FULL_PAGES = [
     "Title page",
     "Datasets and provenance",
     "Fit quality table",
-    "Time histories — identification (1/2)",
-    "Time histories — identification (2/2)",
-    "Measured vs model loops per pressure level — identification",
+    "Time histories — identification, bouc-wen",
+    "Measured vs model loops per pressure level — identification, bouc-wen",
     "Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²",
     "Identified parameters (value ± standard error) and identifiability",
     "Parameter correlation (identifiability); |ρ| > 0.95 outlined",
@@ -68,12 +67,12 @@ FULL_PAGES = [
 def test_full_report_pages_render_and_none_is_blank(full_report):
     _, out, lines = full_report
     imgs = render_pages(out)
-    assert len(imgs) == len(FULL_PAGES) == 12
+    assert len(imgs) == len(FULL_PAGES) == 11
     for i, img in enumerate(imgs):
         frac = ink_fraction(img)
         assert frac > 0.01, f"page {i + 1} ({FULL_PAGES[i]}) looks blank: {frac:.4f}"
     # one progress line per page, in order
-    assert lines == [f"page {i}/12: {t}" for i, t in enumerate(FULL_PAGES, 1)]
+    assert lines == [f"page {i}/11: {t}" for i, t in enumerate(FULL_PAGES, 1)]
 
 
 def test_page_plan_matches_contents(full_report):
@@ -84,7 +83,7 @@ def test_page_plan_matches_contents(full_report):
 def test_identification_only(tmp_path):
     d = rf.write_identification_dir(tmp_path / "id")
     titles = [p.title for p in plan_pages(load_report_dir(d))]
-    assert titles == FULL_PAGES[:10]
+    assert titles == FULL_PAGES[:9]
     # one pressure level and no validation: no validation page, one loop, one time page
     d1 = rf.write_identification_dir(tmp_path / "id1", pressures=[0.4762], validation=[])
     titles = [p.title for p in plan_pages(load_report_dir(d1))]
@@ -98,8 +97,9 @@ def test_diagnosis_only_report(tmp_path):
     out = build_report(d, tmp_path / "diag.pdf")
     imgs = render_pages(out)
     titles = [p.title for p in plan_pages(load_report_dir(d))]
-    assert titles == ["Title page", "Time histories — base model (diagnosis)",
-                      "Measured vs model loops per pressure level — base model (diagnosis)",
+    assert titles == ["Title page", "Time histories — base model bouc-wen (diagnosis)",
+                      "Measured vs model loops per pressure level — base model bouc-wen "
+                      "(diagnosis)",
                       "Residual diagnostics — ident.h5:p4762", "Effect ranking and ladder"]
     assert len(imgs) == 5
     assert min(ink_fraction(i) for i in imgs) > 0.01
@@ -244,3 +244,15 @@ def test_cli_error_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"pmalab report: error: {d / 'identification.json'}: parameter_names: "
                    "missing key"]
+
+
+def test_many_runs_are_split_over_pages(tmp_path):
+    ps = [0.1, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6]
+    d = rf.write_identification_dir(tmp_path / "many", pressures=ps, validation=rf.VAL_RUNS * 1)
+    titles = [p.title for p in plan_pages(load_report_dir(d))]
+    assert [t for t in titles if t.startswith("Time histories")] == [
+        f"Time histories — identification, bouc-wen ({i}/3)" for i in (1, 2, 3)]
+    assert sum(t.startswith("Measured vs model loops") for t in titles) == 2
+    assert sum(t.startswith("Identified parameters") for t in titles) == 2
+    assert sum(t.startswith("Parameter correlation") for t in titles) == 2
+    assert sum(t.startswith("Parameters against") for t in titles) == 1

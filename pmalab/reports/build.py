@@ -35,12 +35,12 @@ from pmalab.reports.figures_parameters import (
 from pmalab.reports.figures_signals import loops_figure, time_history_figure, validation_figure
 from pmalab.reports.figures_text import provenance_figure, timing_stats, title_page_figure
 
-TIME_PER_PAGE = 2
-LOOPS_PER_PAGE = 4
+TIME_PER_PAGE = 3
+LOOPS_PER_PAGE = 6
 VALIDATION_PER_PAGE = 2
 PARAMS_PER_PAGE = 9
 TABLE_RUNS_PER_PAGE = 5
-CORR_PER_PAGE = 4
+CORR_PER_PAGE = 6
 
 
 @dataclass
@@ -115,10 +115,11 @@ def plan_pages(data: ReportData) -> list[Page]:
 
     # time histories and loops: identification runs, else the diagnosis base model's runs
     id_traces, id_fits = _ordered(data.traces_with_role("identification"), id_rows)
-    what = "identification"
+    model = data.model or "model"
+    what = f"identification, {model}"
     if not id_traces:
         id_traces, id_fits = _ordered(data.traces_with_role("diagnosis"), [])
-        what = "base model (diagnosis)"
+        what = f"base model {model} (diagnosis)"
     th = _chunks(id_traces, TIME_PER_PAGE)
     for i, chunk in enumerate(th):
         title = f"Time histories — {what}" + _part(i, len(th))

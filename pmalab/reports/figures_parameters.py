@@ -241,13 +241,11 @@ def correlation_figure(
     *,
     title: str = "Parameter correlation (identifiability); |ρ| > 0.95 is outlined",
 ) -> Figure:
-    """Up to four correlation heatmaps (2 × 2). ``entries``: dicts with ``title``,
+    """Up to six correlation heatmaps (2 × 3). ``entries``: dicts with ``title``,
     ``names`` and ``matrix`` (ρ in [−1, 1])."""
     fig = style.new_figure(title)
     n = len(entries)
-    ncols = 1 if n == 1 else 2
-    nrows = 1 if n <= 2 else 2
-    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    axes = fig.subplots(*style.grid_shape(n), squeeze=False).ravel()
     im = None
     for i, ax in enumerate(axes):
         if i >= n:
@@ -262,7 +260,8 @@ def correlation_figure(
         ax.set_yticks(range(len(names)), names)
         ax.set_title(str(e.get("title", "")))
         fs = 8.5 if len(names) <= 8 else 8.0
-        if len(names) <= 12:
+        # write ρ into the cells only while they are wide enough for "-0.99" at 8 pt
+        if len(names) <= (12 if len(axes) <= 4 else 8):
             for r in range(len(names)):
                 for c in range(len(names)):
                     v = m[r, c]

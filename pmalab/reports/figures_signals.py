@@ -82,15 +82,13 @@ def loops_figure(
     title: str = "Measured vs model loops",
     fit_percent: Sequence[float | None] | None = None,
 ) -> Figure:
-    """Up to four F–x loops (2 × 2 grid), one per run/pressure level, on one |error| scale.
+    """Up to six F–x loops (2 × 3 grid), one per run/pressure level, on one |error| scale.
 
     ``fit_percent`` (same order as ``traces``) overrides the fit % computed from the trace.
     """
     fig = style.new_figure(title)
     n = len(traces)
-    ncols = 1 if n == 1 else 2
-    nrows = 1 if n <= 2 else 2
-    axes = np.atleast_1d(fig.subplots(nrows, ncols, squeeze=False).ravel())
+    axes = fig.subplots(*style.grid_shape(n), squeeze=False).ravel()
     norm = _page_norm(traces)
     lc = None
     for i, ax in enumerate(axes):
@@ -121,19 +119,18 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
         a0, a1, a2, a3 = axes[:, j]
         a0.plot(tt, t.position[s], color=style.MEASURED)
         a0.set_ylabel(style.POSITION)
-        a0.set_title(f"{t.label}\n{t.describe()} — model {t.model or '?'} ({t.role})")
+        a0.set_title(f"{t.label}\n{t.describe()}")
         a1.plot(tt, t.force[s], color=style.MEASURED, label="measured")
         a1.plot(tt, t.force_model[s], color=style.MODEL, lw=1.0, alpha=0.9, label="model")
         a1.set_ylabel(style.FORCE)
-        a1.legend(loc="upper right", ncols=2)
-        a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.7)
+        a1.legend(loc="best", ncols=2)
+        a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
         rms = float(np.sqrt(np.mean(t.error**2)))
-        a2.text(0.01, 0.95, f"RMSE {rms:.2f} N, fit {t.fit_percent:.1f} %",
-                transform=a2.transAxes, va="top", fontsize=8,
-                bbox={"fc": "white", "ec": "none", "alpha": 0.7})
-        a3.plot(tt, t.muscle_pressure[s], color="#8c564b", lw=0.8)
+        a2.set_title(f"residual: RMSE {rms:.2f} N, fit {t.fit_percent:.1f} %", loc="left",
+                     fontsize=8.5)
+        a3.plot(tt, t.muscle_pressure[s], color="#8c564b", lw=0.5)
         a3.set_ylabel("p (MPa)")
         a3.set_xlabel(style.TIME)
     return fig
@@ -164,8 +161,8 @@ def validation_figure(
         a1.plot(t.time[s], t.force_model[s], color=style.VALIDATION, alpha=0.9,
                 label="predicted")
         a1.set_ylabel(style.FORCE)
-        a1.legend(loc="upper right", ncols=2)
-        a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.7)
+        a1.legend(loc="best", ncols=2)
+        a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
         a2.set_xlabel(style.TIME)

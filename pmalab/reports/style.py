@@ -93,6 +93,15 @@ def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDS
     return fig
 
 
+def grid_shape(n: int) -> tuple[int, int]:
+    """Rows × columns for ``n`` panels on a landscape page (at most 2 × 3)."""
+    if n <= 2:
+        return 1, max(n, 1)
+    if n <= 4:
+        return 2, 2
+    return 2, 3
+
+
 def decimate(n: int, max_points: int) -> slice:
     """A stride that keeps at most ``max_points`` of ``n`` samples (for vector output)."""
     step = max(1, int(np.ceil(n / max_points))) if max_points > 0 else 1
