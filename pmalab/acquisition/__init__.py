@@ -1,0 +1,24 @@
+"""Acquisition: protocols, the 500 Hz runner, safety interlocks, crash-proof recording.
+
+Public API (the CLI verbs ``run``, ``import``, ``recover`` are thin wrappers)::
+
+    from pmalab.acquisition import load_protocol, run_protocol, RunnerOptions
+    proto = load_protocol("seed-bouc-wen")            # or a path; .select(roles=[...])
+    with rig:                                         # pmalab.rig.loader.load_rig("sim")
+        results = run_protocol(rig, proto, "x.h5", force=True,
+                               options=RunnerOptions(progress=False))
+
+Each run in the file carries the contract attrs plus ``role`` ("identification" |
+"validation"), ``steady_start_s``/``steady_end_s`` (the full-amplitude cycles, s from the
+run's time zero) and, via :func:`pmalab.runfile.read_runs`, ``status`` and ``timing``.
+Modules: :mod:`.protocol` (TOML), :mod:`.waveforms` (commands), :mod:`.safety`,
+:mod:`.recorder` (SWMR HDF5 writer), :mod:`.runner`, :mod:`.csv_import`, :mod:`.recover`.
+"""
+
+from __future__ import annotations
+
+from pmalab.acquisition.protocol import Protocol, RunSpec, load_protocol, parse_protocol
+from pmalab.acquisition.runner import RunnerOptions, RunResult, run_protocol
+
+__all__ = ["Protocol", "RunResult", "RunSpec", "RunnerOptions", "load_protocol",
+           "parse_protocol", "run_protocol"]

@@ -277,9 +277,12 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                         rec.close()
                     except Exception as wexc:  # the samples already flushed stay readable
                         print(f"pmalab: warning: closing {out} failed: {wexc}", file=sys.stderr)
+                    manual = ("" if rig.muscle_supply.automatic
+                              else "; close the muscle's manual regulator")
                     raise SafetyAbort(
                         f"{out}: run '{spec.name}' aborted: {reason}; "
-                        f"cylinder regulator vented; {w.n} samples kept (status 'aborted')"
+                        f"cylinder regulator vented{manual}; {w.n} samples kept "
+                        "(status 'aborted')"
                     ) from (exc if isinstance(exc, Exception) else None)
                 # end of a run: command zero before the next pressure level
                 rig.cylinder_regulator.set_pressure(0.0)

@@ -45,6 +45,12 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
     """
     lim = effective_limits(rig)
     where = protocol.path or protocol.name
+    sampler = rig.sampler
+    if sampler.hardware_timed and abs(sampler.sample_rate_Hz - protocol.sample_rate_Hz) > 1e-9:
+        raise ProtocolRefused(
+            f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz but the "
+            f"rig's hardware-timed sampler runs at {sampler.sample_rate_Hz:g} Hz"
+        )
     for r in protocol.runs:
         if r.muscle_pressure_MPa > lim.max_muscle_pressure_MPa + 1e-9:
             raise ProtocolRefused(
