@@ -12,6 +12,7 @@ up with a :class:`pmalab.errors.RigError`.
 
 from __future__ import annotations
 
+import os
 import socket
 import time
 from abc import ABC, abstractmethod
@@ -209,7 +210,10 @@ class SerialAdapter(Adapter):
                 exclusive=True,
             )
         except (serial.SerialException, ValueError) as exc:
-            raise OSError(f"{self.name}: cannot open port ({exc})") from exc
+            errno = getattr(exc, "errno", None)
+            if errno:
+                raise OSError(errno, os.strerror(errno)) from exc
+            raise OSError(f"cannot open port ({exc})") from exc
 
     def close(self) -> None:
         if self._ser is not None:

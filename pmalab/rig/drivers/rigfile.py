@@ -327,7 +327,7 @@ def build_modbus_rig(
     try:
         link.connect()
     except RigError as exc:
-        fail(RigError(f"{where}: {exc} (device off, wrong host/port, or no `pmalab emulate` running?)"))
+        fail(RigError(f"{where}: {exc} (device off or wrong address/port? for a try without hardware: pmalab emulate --rig {where})"))
     opened.append(link)
 
     indicator = None
