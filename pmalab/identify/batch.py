@@ -93,7 +93,7 @@ def _map_dask(fn: Callable[[T], R], tasks: list[T], address: str, bar: Any) -> l
     except ImportError:  # pragma: no cover - dask[distributed] is a dependency
         raise PmalabError("--scheduler needs dask[distributed] (pip install 'dask[distributed]')") from None
     try:
-        client = Client(address, timeout="10s", set_as_default=False)
+        client = Client(address, timeout="10s")
     except (OSError, TimeoutError) as exc:
         raise PmalabError(f"--scheduler {address}: cannot connect to the Dask scheduler ({exc})") from None
     try:
