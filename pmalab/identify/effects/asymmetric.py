@@ -70,7 +70,7 @@ class AsymmetricHysteresis(Effect):
         return {}
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
-        if "A" not in theta:  # Duhem: handled by the law's extras
+        if not {"A", "beta", "gamma", "n"} <= theta.keys():  # Duhem: handled by its extras
             return 0.0
         extras = {"psi_v": theta["asym_psi_v"], "psi_h": theta["asym_psi_h"]}
         h_asym = BoucWen().h(path_warp(sig.x, theta["asym_psi_a"]), theta, extras)
