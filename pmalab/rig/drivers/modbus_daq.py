@@ -114,6 +114,10 @@ class ModbusSampler(Sampler):
         self.last_probe: ProbeResult | None = None
         #: other devices to release with the sampler (serial indicator, ITV regulators)
         self.closers: list[Callable[[], None]] = []
+        #: what else a sample period costs on this link: the runner commands the cylinder
+        #: regulator once per sample, so the probe times read + that write (of 0 MPa: the
+        #: regulator is vented during the probe anyway)
+        self.probe_companion: Callable[[], None] | None = None
 
     # ----------------------------------------------------------------- reading
     def _convert(self, regs: list[int]) -> dict[str, float]:
@@ -159,13 +163,16 @@ class ModbusSampler(Sampler):
 
     # ----------------------------------------------------------------- timing honesty
     def probe_rate(self, n: int = 300, rate_Hz: float | None = None) -> ProbeResult:
-        """Time ``n`` back-to-back block reads on the real link (wall clock)."""
+        """Time ``n`` back-to-back sample cycles (block read + regulator write) on the link."""
+        extra = self.probe_companion
         for _ in range(min(PROBE_WARMUP, n)):
             self.read_values()
         lat = np.empty(n)
         for i in range(n):
             t0 = time.perf_counter()
             self.read_values()
+            if extra is not None:
+                extra()
             lat[i] = time.perf_counter() - t0
         ms = lat * 1e3
         p95 = float(np.percentile(ms, 95))

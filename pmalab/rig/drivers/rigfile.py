@@ -391,7 +391,14 @@ def build_modbus_rig(
                 fail(ConfigError(f"{where}: [rig.outputs.{oname}] address {o.address} rejected ({link.last_error}); wrong register map?"))
             fail(RigError(f"{where}: [rig.outputs.{oname}] {exc}"))
 
-    timing: dict[str, Any] = {"requested_rate_Hz": rs.sample_rate_Hz}
+    cyl = regulators["cylinder_regulator"]
+    if isinstance(cyl, ModbusAnalogOutput) and cyl.link is link:
+        zero = cyl.codec.encode(cyl.raw_for(0.0))
+        sampler.probe_companion = lambda: link.write_registers(cyl.address, zero)
+    timing: dict[str, Any] = {
+        "requested_rate_Hz": rs.sample_rate_Hz,
+        "probe": "block read + cylinder regulator write" if sampler.probe_companion else "block read",
+    }
     if probe and rs.probe_samples > 0:
         try:
             res = sampler.check_rate(rs.sample_rate_Hz, rs.probe_samples)
