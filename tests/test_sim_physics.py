@@ -184,3 +184,16 @@ def test_demo_cycle_numbers():
     assert 550 < r["force_range"] < 750, r["force_range"]
     assert 40 < r["hysteresis_width"] < 130, r["hysteresis_width"]
     assert 8 < r["position_max"] - r["position_min"] < 20
+
+
+def test_integrator_converges_default_step_within_sensor_noise():
+    from pmalab.rig.sim.truth import default_truth
+
+    t = default_truth()
+    fine = run_isobaric(t.with_changes(integrator={"max_step_ms": 0.02}), cycles=1)
+    dflt = run_isobaric(t, cycles=1)
+    coarse = run_isobaric(t.with_changes(integrator={"max_step_ms": 1.0}), cycles=1)
+    e_dflt = np.sqrt(np.mean((dflt["true_tension"] - fine["true_tension"]) ** 2))
+    e_coarse = np.sqrt(np.mean((coarse["true_tension"] - fine["true_tension"]) ** 2))
+    assert e_dflt < 0.15, e_dflt  # N, well below the 0.7 N load-cell noise
+    assert e_coarse > e_dflt  # and it is a real discretisation error that shrinks with h

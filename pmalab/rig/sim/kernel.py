@@ -116,6 +116,8 @@ R_HEAD = 0
 R_TAIL = 1
 R_HIDX = 2
 R_HCNT = 3
+R_NI = 4  # next row of the pre-drawn sensor-noise block
+N_PTR = 5
 PEND_SIZE = 1024
 HIST_SIZE = 8192
 
@@ -194,7 +196,7 @@ def forces(st, par):
 
 
 @njit(cache=True)
-def advance(st, par, pend_t, pend_v, ptr, hist, t_target):
+def _advance(st, par, pend, ptr, hist, t_target):
     """Integrate from ``st[S_T]`` to ``t_target`` in equal sub-steps ≤ ``P_HMAX``.
 
     Returns 0 on success, 1 if the state became non-finite (never expected).
@@ -235,8 +237,8 @@ def advance(st, par, pend_t, pend_v, ptr, hist, t_target):
     for j in range(n):
         t = t0 + j * dt
         # ITV command whose dead time has elapsed
-        while ptr[R_HEAD] < ptr[R_TAIL] and pend_t[ptr[R_HEAD] % PEND_SIZE] <= t + 1e-12:
-            st[S_CMD] = pend_v[ptr[R_HEAD] % PEND_SIZE]
+        while ptr[R_HEAD] < ptr[R_TAIL] and pend[ptr[R_HEAD] % PEND_SIZE, 0] <= t + 1e-12:
+            st[S_CMD] = pend[ptr[R_HEAD] % PEND_SIZE, 1]
             ptr[R_HEAD] += 1
         x = st[S_X]
         v = st[S_V]
@@ -344,7 +346,7 @@ def _delayed(st, hist, ptr, col, tq):
 
 
 @njit(cache=True)
-def measure(st, mpar, hist, ptr, noise, out):
+def _measure(st, mpar, hist, ptr, noise, out):
     """Fill ``out`` with (time, position, force, muscle_pressure, cylinder_pressure)."""
     t = st[S_T]
     out[0] = t
@@ -365,20 +367,52 @@ def measure(st, mpar, hist, ptr, noise, out):
         out[c + 1] = y
 
 
+# ----------------------------------------------------------------- packed entry points
+# One float workspace W = [state | physics params | measurement params | out] keeps the
+# number of arguments (and numba's per-call dispatch cost) small on the 500 Hz path.
+O_ST = 0
+O_PAR = N_STATE
+O_MPAR = O_PAR + N_PARAM
+O_OUT = O_MPAR + N_MPARAM
+N_W = O_OUT + 5
+
+
 @njit(cache=True)
-def advance_measure(st, par, pend_t, pend_v, ptr, hist, t_target, mpar, noise, out):
+def advance(w, pend, ptr, hist, t_target):
+    """Integrate the workspace's state to ``t_target``; 0 = ok, 1 = non-finite state."""
+    return _advance(w[O_ST:O_PAR], w[O_PAR:O_MPAR], pend, ptr, hist, t_target)
+
+
+@njit(cache=True)
+def measure(w, ptr, hist, noise):
+    """Write the five measured channels into ``w[O_OUT:]`` using the next noise row.
+
+    Returns 2 when the noise block is used up (the caller draws a new one), else 0.
+    """
+    i = ptr[R_NI]
+    _measure(w[O_ST:O_PAR], w[O_MPAR:O_OUT], hist, ptr, noise[i], w[O_OUT:N_W])
+    ptr[R_NI] = i + 1
+    return 2 if i + 1 >= noise.shape[0] else 0
+
+
+@njit(cache=True)
+def advance_measure(w, pend, ptr, hist, noise, t_target):
     """:func:`advance` then :func:`measure` in one compiled call (the sampler's fast path)."""
-    rc = advance(st, par, pend_t, pend_v, ptr, hist, t_target)
-    measure(st, mpar, hist, ptr, noise, out)
-    return rc
+    rc = advance(w, pend, ptr, hist, t_target)
+    return rc | measure(w, ptr, hist, noise)
 
 
-def new_buffers() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Fresh (state, pend_t, pend_v, ptr, hist) arrays."""
+@njit(cache=True)
+def forces_w(w):
+    """:func:`forces` on a workspace."""
+    return forces(w[O_ST:O_PAR], w[O_PAR:O_MPAR])
+
+
+def new_buffers() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Fresh (workspace, pending commands, pointers, history) arrays."""
     return (
-        np.zeros(N_STATE),
-        np.zeros(PEND_SIZE),
-        np.zeros(PEND_SIZE),
-        np.zeros(4, dtype=np.int64),
+        np.zeros(N_W),
+        np.zeros((PEND_SIZE, 2)),
+        np.zeros(N_PTR, dtype=np.int64),
         np.zeros((HIST_SIZE, 5)),
     )

@@ -132,8 +132,13 @@ class RigPhysics:
             truth = load_truth(truth)
         self.truth = truth
         self.seed = int(seed)
-        self._par, self._mpar = build_params(truth)
-        self._st, self._pend_t, self._pend_v, self._ptr, self._hist = K.new_buffers()
+        self._w, self._pend, self._ptr, self._hist = K.new_buffers()
+        # views into the packed workspace
+        self._st = self._w[K.O_ST : K.O_PAR]
+        self._par = self._w[K.O_PAR : K.O_MPAR]
+        self._mpar = self._w[K.O_MPAR : K.O_OUT]
+        self._out = self._w[K.O_OUT : K.N_W]
+        self._par[:], self._mpar[:] = build_params(truth)
         reg = truth.section("regulator")
         self.cylinder_max_MPa = float(reg["max_pressure_MPa"])
         levels = 2 ** int(reg["bits"]) - 1
@@ -144,8 +149,6 @@ class RigPhysics:
         self.muscle_max_MPa = float(truth.section("muscle")["max_pressure_MPa"])
         self._rng = np.random.default_rng(self.seed)
         self._noise = self._rng.standard_normal((_NOISE_BLOCK, 4))
-        self._ni = 0
-        self._out = np.zeros(5)
         self._cylinder_command = 0.0
         # the sled starts at rest at nominal length, every pressure at zero
         self._st[K.S_YX] = 0.0
@@ -162,9 +165,7 @@ class RigPhysics:
             return
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
-        rc = K.advance(
-            self._st, self._par, self._pend_t, self._pend_v, self._ptr, self._hist, float(t)
-        )
+        rc = K.advance(self._w, self._pend, self._ptr, self._hist, float(t))
         if rc:
             self._diverged()
 
@@ -193,8 +194,9 @@ class RigPhysics:
             # more commands in flight than the queue holds: drop the oldest
             ptr[K.R_HEAD] += 1
         i = tail % K.PEND_SIZE
-        self._pend_t[i] = self._st[K.S_T] + self._dead
-        self._pend_v[i] = q
+        pend = self._pend
+        pend[i, 0] = self._st[K.S_T] + self._dead
+        pend[i, 1] = q
         self._tail = tail + 1
         ptr[K.R_TAIL] = tail + 1
 
@@ -218,17 +220,14 @@ class RigPhysics:
         return float(self._st[K.S_PMSET])
 
     # ------------------------------------------------------------------ sensing
-    def _next_noise(self) -> np.ndarray:
-        if self._ni >= _NOISE_BLOCK:
-            self._noise = self._rng.standard_normal((_NOISE_BLOCK, 4))
-            self._ni = 0
-        n = self._noise[self._ni]
-        self._ni += 1
-        return n
+    def _refill_noise(self) -> None:
+        self._noise = self._rng.standard_normal((_NOISE_BLOCK, 4))
+        self._ptr[K.R_NI] = 0
 
     def sample(self) -> dict[str, float]:
         """The five channels as the sensors measure them now (s, mm, N, MPa, MPa)."""
-        K.measure(self._st, self._mpar, self._hist, self._ptr, self._next_noise(), self._out)
+        if K.measure(self._w, self._ptr, self._hist, self._noise):
+            self._refill_noise()
         o = self._out
         return {
             "time": float(o[0]),
@@ -245,12 +244,11 @@ class RigPhysics:
         """
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
-        rc = K.advance_measure(
-            self._st, self._par, self._pend_t, self._pend_v, self._ptr, self._hist,
-            float(t), self._mpar, self._next_noise(), self._out,
-        )  # fmt: skip
+        rc = K.advance_measure(self._w, self._pend, self._ptr, self._hist, self._noise, float(t))
         if rc:
-            self._diverged()
+            if rc & 1:
+                self._diverged()
+            self._refill_noise()
         return self._out
 
     def truth_state(self) -> dict[str, Any]:
@@ -261,7 +259,7 @@ class RigPhysics:
         between muscle and load cell); ``element_displacements`` the Maxwell-slip states (mm).
         """
         st = self._st
-        fs, ff, fv, tension = K.forces(st, self._par)
+        fs, ff, fv, tension = K.forces_w(self._w)
         ne = int(self._par[K.P_NE])
         return {
             "time": float(st[K.S_T]),

@@ -128,7 +128,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "pressure_time_constant_ms": F(5.0, 0.0, None, False, "first-order lag (ms)"),
     },
     "integrator": {
-        "max_step_ms": F(0.2, 0.0, 1.0, True, "largest sub-step of the mechanical integrator (ms)"),
+        "max_step_ms": F(
+            0.25, 0.0, 1.0, True, "largest sub-step of the mechanical integrator (ms)"
+        ),
     },
     "effects.viscous_friction": {
         "enabled": F(False, kind="bool"),
