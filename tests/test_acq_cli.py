@@ -62,7 +62,7 @@ def test_run_seed_bouc_wen_end_to_end(tmp_path, capsys):
             r.attrs["offset_MPa"] + r.attrs["amplitude_MPa"], abs=1e-3)
         gap, corr = _loop_direction(r)
         assert gap > 5.0, f"{r.name}: loop runs the unphysical way (gap {gap:.1f} N)"
-        assert corr < -0.8, f"{r.name}: tension does not fall with contraction ({corr:.2f})"
+        assert corr < -0.5, f"{r.name}: tension does not fall with contraction ({corr:.2f})"
     ident = runs[0]
     # a DMSP-20 at ~0.48 MPa: tens to hundreds of newtons, contraction within ~0..30 mm
     assert 200 < ident.force.max() < 1500 and -5 < ident.position.min() < ident.position.max() < 32

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from pmalab.acquisition.protocol import load_protocol, parse_protocol
-from pmalab.acquisition.waveforms import command, command_array, envelope, unit_wave
+from pmalab.acquisition.waveforms import (
+    command,
+    command_array,
+    command_samples,
+    envelope,
+    unit_wave,
+)
 from pmalab.errors import ConfigError
 from pmalab.paths import PROTOCOLS_DIR
 
@@ -175,3 +181,11 @@ def test_run_command_timeline(wf):
     env = np.array([envelope(r, x) for x in t])
     assert np.all(np.diff(env[t <= r.steady_start_s]) >= -1e-12)
     assert np.all(np.diff(env[t >= r.steady_end_s]) <= 1e-12)
+
+
+@pytest.mark.parametrize("wf", ["sine", "triangle", "square"])
+def test_precomputed_commands_equal_the_scalar_definition(wf):
+    (r,) = parse_protocol(GOOD_RUN + f'waveform = "{wf}"\n', "w.toml").runs
+    n = int(r.duration_s * 500) + 1
+    np.testing.assert_allclose(command_samples(r, 500.0, n),
+                               command_array(r, np.arange(n) / 500.0), atol=1e-12)

@@ -40,7 +40,7 @@ from pmalab import __version__
 from pmalab.acquisition.protocol import Protocol, RunSpec
 from pmalab.acquisition.recorder import Recorder, RunWriter
 from pmalab.acquisition.safety import SafetyMonitor, effective_limits, preflight
-from pmalab.acquisition.waveforms import command
+from pmalab.acquisition.waveforms import command_samples
 from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output
 from pmalab.rig.base import Rig
@@ -411,6 +411,7 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
         pbar.set_postfix_str(spec.name)
     progress_step = max(1, int(rate // 2))
     hw = sampler.hardware_timed
+    cmds = command_samples(spec, rate, n_total).tolist()
     t0 = clock.now()
     k = 0  # deadline index (software-polled) / sample index on the nominal grid (hw)
     since_update = 0  # samples since the progress bar moved
@@ -436,6 +437,8 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                     gap = int(round((t - last_t) * rate)) - 1
                     w.n_missed += gap
                     k += gap
+                    if k >= n_total:
+                        break
                 last_t = t
                 deadline = t0 + k * dt
             lateness = t - deadline
@@ -446,9 +449,9 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                 if math.isfinite(t + x + f + pm + pc):  # a NaN would break the contract
                     add(t - t0, x, f, pm, pc, 0.0, lateness)
                 raise _Trip(f"{reason} at t={t - t0:.3f} s")
-            # the waveform's value at this sample's nominal time; sent right after the
-            # sample and held by the regulator until the next one
-            cmd = command(spec, deadline - t0)
+            # the waveform's value at this sample's nominal time (precomputed per deadline);
+            # sent right after the sample and held by the regulator until the next one
+            cmd = cmds[k]
             if lateness > late_thr:
                 w.n_late += 1
             add(t - t0, x, f, pm, pc, cmd, lateness)
@@ -458,7 +461,7 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                 break
         # command for the next sample period (the regulator holds it until the next one)
         reg.set_pressure(cmd)
-        if flush_due():
+        if (hw or not k & 31) and flush_due():  # wall clock looked at every 32 samples
             w.commit()
         if pbar is not None and since_update >= progress_step:
             pbar.update(since_update * dt)

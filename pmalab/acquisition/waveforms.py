@@ -82,3 +82,45 @@ def command(spec: RunSpec, t: float) -> float:
 def command_array(spec: RunSpec, t: np.ndarray) -> np.ndarray:
     """:func:`command` over an array of times (s)."""
     return np.array([command(spec, float(x)) for x in np.asarray(t, dtype=float)])
+
+
+def unit_wave_array(waveform: str, phase: np.ndarray, square_edge: float = 0.05) -> np.ndarray:
+    """Vectorised :func:`unit_wave` (same values)."""
+    ph = phase - np.floor(phase)
+    if waveform == "sine":
+        return -np.cos(TWO_PI * ph)
+    if waveform == "triangle":
+        return np.where(ph < 0.5, 4.0 * ph - 1.0, 3.0 - 4.0 * ph)
+    if waveform == "square":
+        out = np.where((ph >= 0.25) & (ph < 0.75), 1.0, -1.0)
+        e = square_edge
+        if e > 0:
+            for centre, sign in ((0.25, 1.0), (0.75, -1.0)):
+                m = np.abs(ph - centre) < e / 2
+                u = (ph[m] - centre) / e + 0.5
+                out[m] = sign * -np.cos(np.pi * u)
+        return out
+    raise ValueError(f"unknown waveform {waveform!r}")
+
+
+def envelope_array(spec: RunSpec, t: np.ndarray) -> np.ndarray:
+    """Vectorised :func:`envelope` (same values)."""
+    t0, r, te = spec.settle_s, spec.ramp_s, spec.steady_end_s
+    env = np.where((t >= t0) & (t <= te), 1.0, 0.0)
+    if r > 0:
+        up = (t >= t0) & (t < t0 + r)
+        env[up] = 0.5 - 0.5 * np.cos(np.pi * (t[up] - t0) / r)
+        down = (t > te) & (t < te + r)
+        env[down] = 0.5 + 0.5 * np.cos(np.pi * (t[down] - te) / r)
+    return env
+
+
+def command_samples(spec: RunSpec, rate_Hz: float, n: int) -> np.ndarray:
+    """The command at the ``n`` sample deadlines ``k / rate_Hz`` (MPa): what the runner
+    sends after sample ``k``; equal to :func:`command` at those times."""
+    t = np.arange(n) / rate_Hz
+    env = envelope_array(spec, t)
+    phase = (t - spec.steady_start_s) * spec.frequency_Hz
+    val = spec.offset_MPa + spec.amplitude_MPa * unit_wave_array(spec.waveform, phase,
+                                                                 spec.square_edge)
+    return np.maximum(0.0, env * val)
