@@ -26,6 +26,8 @@ T = TypeVar("T")
 R = TypeVar("R")
 
 DEFAULT_JOBS = 2
+#: how long to try reaching a Dask scheduler before giving up (s)
+SCHEDULER_TIMEOUT_S = 10.0
 
 
 def _pin_blas() -> None:
@@ -93,7 +95,7 @@ def _map_dask(fn: Callable[[T], R], tasks: list[T], address: str, bar: Any) -> l
     except ImportError:  # pragma: no cover - dask[distributed] is a dependency
         raise PmalabError("--scheduler needs dask[distributed] (pip install 'dask[distributed]')") from None
     try:
-        client = Client(address, timeout="10s")
+        client = Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
     except (OSError, TimeoutError) as exc:
         raise PmalabError(f"--scheduler {address}: cannot connect to the Dask scheduler ({exc})") from None
     try:
