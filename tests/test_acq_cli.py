@@ -137,3 +137,15 @@ def test_manual_muscle_regulator_prompts_operator(tmp_path, capsys):
     assert "run 'quick-400kPa': Set the muscle regulator to 0.4 MPa" in err
     (r,) = read_runs(out)
     assert abs(r.muscle_pressure.mean() - 0.4) < 0.01  # recording waited for the operator
+
+
+def test_run_seed_duhem_triangles_have_the_physical_loop_direction(tmp_path):
+    out = tmp_path / "d.h5"
+    assert main(["run", "--rig", "sim", "--protocol", "seed-duhem", "--out", str(out),
+                 "--quiet", "--seed", "3"]) == 0
+    runs = read_runs(out)
+    assert len(runs) == 9
+    assert runs[0].attrs["waveform"] == "triangle" and runs[0].attrs["frequency_Hz"] == 0.1
+    for r in runs:
+        gap, corr = _loop_direction(r)
+        assert gap > 3.0 and corr < -0.5, (r.name, gap, corr)
