@@ -70,9 +70,13 @@ class RunResult:
         t = self.timing
         frange = (f"force {self.force_min:.0f}…{self.force_max:.0f} N" if self.n_samples
                   else "no samples")
+        lat = ""
+        if t.get("lateness_max_s", 0.0) > 0:  # real clock: how well the deadlines were kept
+            lat = (f" (lateness p99 {t.get('lateness_p99_s', 0.0) * 1e3:.3f} ms, "
+                   f"max {t['lateness_max_s'] * 1e3:.2f} ms)")
         return (f"{self.name}: {self.status}, {self.n_samples} samples, "
                 f"{self.duration_s:.1f} s, {frange}, late {int(t.get('late', 0))}, "
-                f"missed {int(t.get('missed', 0))}")
+                f"missed {int(t.get('missed', 0))}{lat}")
 
 
 @dataclass
