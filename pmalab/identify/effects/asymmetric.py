@@ -51,7 +51,7 @@ class AsymmetricHysteresis(Effect):
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         return [
-            Param("asym_psi_a", 0.0, -0.8, 0.8, "-",
+            Param("asym_psi_a", 0.0, -0.95, 0.95, "-",
                   doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; unused for Duhem"),
             Param("asym_psi_v", 0.0, -5.0, 5.0, "1/mm",
                   doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α"),

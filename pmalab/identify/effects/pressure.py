@@ -4,8 +4,8 @@ The muscle's volume changes with contraction and a slow manual regulator cannot 
 pressure, so the *measured* muscle pressure p(t) wanders around the nominal p₀ (rising as
 the muscle is stretched and its volume shrinks, recovering with the regulator's time
 constant).  Tension is nearly proportional to pressure (F ≈ p·S(x)), so the force gains
-(g₀ + g₁·ξ)·(p − p₀), ξ = x − x̄: the sensitivity ∂F/∂p (N/MPa) and its change along the
-stroke.  Uses the measured pressure channel, never the nominal value.
+(g₀ + g₁·x)·(p − p₀): the sensitivity ∂F/∂p (N/MPa) and its change along the
+stroke (x absolute, so runs of one pressure level share g₀, g₁).  Uses the measured pressure channel, never the nominal value.
 """
 
 from __future__ import annotations
@@ -39,15 +39,14 @@ class PressureVariation(Effect):
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # dF/dp of a DMSP-20 is of the order of F/p ≈ 2500 N/MPa; allow a wide margin
         lim = max(10.0 * force_scale / max(sig.p_nom, 0.05), 1e4)
-        half = max(0.5 * float(np.ptp(sig.x)), 1e-3)
+        half = max(float(np.max(np.abs(sig.x))), 1e-3)
         return [
             Param("pv_g0", 0.0, -lim, lim, "N/MPa",
-                  doc="tension change per MPa of pressure deviation at mid-stroke"),
+                  doc="tension change per MPa of pressure deviation at x = 0"),
             Param("pv_g1", 0.0, -lim / half, lim / half, "N/(MPa·mm)",
                   doc="change of that sensitivity per mm of contraction"),
         ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
         dp = sig.p - sig.p_nom
-        xi = sig.x - float(np.mean(sig.x))
-        return (theta["pv_g0"] + theta["pv_g1"] * xi) * dp
+        return (theta["pv_g0"] + theta["pv_g1"] * sig.x) * dp

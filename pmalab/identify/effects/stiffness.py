@@ -2,8 +2,9 @@
 
 The braid geometry (fibre angle approaching its locking angle) and the bladder's rubber
 elasticity bend the static characteristic: McKibben tension falls faster than linearly as
-the contraction nears its maximum.  Added as k₂·ξ² + k₃·ξ³ with ξ = x − x̄ (centred on
-the run's mean contraction so the terms do not trade with k and c0).
+the contraction nears its maximum.  Added as k₂·x² + k₃·x³ in the absolute contraction x
+(not centred per run: runs of one pressure level share k₂, k₃, so the term must be the
+same function of x in each of them).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ class NonlinearStiffness(Effect):
         "The braid's fibre angle changes with contraction and the rubber bladder stiffens "
         "as it is strained, so the static tension–contraction curve bends (steeper near "
         "full contraction); the base model's k·x is a straight line. Modelled as "
-        "k₂·ξ² + k₃·ξ³ with ξ the contraction about its mean."
+        "k₂·x² + k₃·x³."
     )
     signature = (
         "Residual against position is a U or S curve, the same on both branches (the loop's "
@@ -34,15 +35,15 @@ class NonlinearStiffness(Effect):
     )
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        half = max(0.5 * float(np.ptp(sig.x)), 1e-3)
-        # bounds: each term at most 3 force standard deviations at the stroke end
+        xm = max(float(np.max(np.abs(sig.x))), 1e-3)
+        # bounds: each term at most 10 force standard deviations at the largest contraction
         return [
-            Param("stiff_k2", 0.0, -3.0 * force_scale / half**2, 3.0 * force_scale / half**2,
-                  "N/mm²", doc="quadratic stiffness about the mean contraction"),
-            Param("stiff_k3", 0.0, -3.0 * force_scale / half**3, 3.0 * force_scale / half**3,
-                  "N/mm³", doc="cubic stiffness about the mean contraction"),
+            Param("stiff_k2", 0.0, -10.0 * force_scale / xm**2, 10.0 * force_scale / xm**2,
+                  "N/mm²", doc="quadratic stiffness"),
+            Param("stiff_k3", 0.0, -10.0 * force_scale / xm**3, 10.0 * force_scale / xm**3,
+                  "N/mm³", doc="cubic stiffness"),
         ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
-        xi = sig.x - float(np.mean(sig.x))
-        return theta["stiff_k2"] * xi**2 + theta["stiff_k3"] * xi**3
+        x = sig.x
+        return (theta["stiff_k2"] + theta["stiff_k3"] * x) * x * x
