@@ -196,3 +196,23 @@ def test_itv_and_indicator_on_ptys_with_faults():
         finally:
             rig.close()
         assert itv_emu.setpoint_counts == 0  # closing vented the ITV
+
+
+def test_device_watchdog_vents_when_the_host_goes_silent():
+    with start_emulators(RIGS_DIR / "labjack-t7.toml", tcp_port=0, make_links=False) as emus:
+        assert emus.modbus.watchdog_s == 1.0  # from [rig.emulator] watchdog_s
+        spec = emus.rig_spec()
+        spec.probe_samples = 0
+        rig = build_modbus_rig(spec)
+        try:
+            rig.cylinder_regulator.set_pressure(0.5)
+            assert emus.plant.physics.cylinder_command == pytest.approx(0.5, abs=1e-4)
+            time.sleep(0.6)  # still within the watchdog time: nothing happens
+            assert emus.modbus.model.watchdog_trips == 0
+            time.sleep(0.8)  # host silent > 1 s (crashed, cable pulled): the device vents
+            assert emus.modbus.model.watchdog_trips == 1
+            assert emus.plant.physics.cylinder_command == 0.0
+            regs = rig.sampler.link.read_registers(1000, 2)
+            assert rig.cylinder_regulator.codec.decode(regs) == 0.0  # DAC0 reads back 0 V
+        finally:
+            rig.close()

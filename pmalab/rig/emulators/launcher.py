@@ -3,7 +3,9 @@
 :func:`start_emulators` reads the rig file and starts:
 
 * the Modbus analog I/O module — TCP on the file's host/port, or RTU on a pty bridge
-  (paced at the baud rate unless ``[rig.emulator] baud_pacing = false``);
+  (paced at the baud rate unless ``[rig.emulator] baud_pacing = false``), with the
+  device's communication watchdog when ``[rig.emulator] watchdog_s`` is set (no request for
+  that long → every analog output vents, as a LabJack T7 configured for it does);
 * an SMC ITV for each ``type = "itv-serial"`` output, on a pty;
 * the load-cell indicator when a channel has ``source = "indicator"``, on a pty;
 
@@ -124,6 +126,9 @@ def start_emulators(
         seed = int(emu.get("seed", 0))
     if baud_pacing is None:
         baud_pacing = bool(emu.get("baud_pacing", True))
+    watchdog_s = emu.get("watchdog_s")
+    if watchdog_s is not None and (isinstance(watchdog_s, bool) or not isinstance(watchdog_s, (int, float)) or watchdog_s <= 0):
+        raise ConfigError(f"{where}: rig.emulator.watchdog_s: must be a number of seconds > 0")
     plant = EmulatedPlant(truth, seed=seed)
 
     started: list[object] = []
@@ -132,11 +137,14 @@ def start_emulators(
         bridge = None
         if spec.transport.type == "tcp":
             port = int(spec.transport.port) if tcp_port is None else (tcp_port or free_tcp_port(spec.transport.host))
-            modbus = ModbusEmulator(spec, plant, host=spec.transport.host, port=port)
+            modbus = ModbusEmulator(spec, plant, host=spec.transport.host, port=port, watchdog_s=watchdog_s)
         else:
             bridge = PtyBridge(spec.transport.baudrate if baud_pacing else None).start()
             started.append(bridge)
-            modbus = ModbusEmulator(spec, plant, serial_port=bridge.server_path, baudrate=spec.transport.baudrate)
+            modbus = ModbusEmulator(
+                spec, plant, serial_port=bridge.server_path, baudrate=spec.transport.baudrate,
+                watchdog_s=watchdog_s,
+            )  # fmt: skip
             if make_links:
                 links.append(link_path(bridge.client_path, str(spec.transport.port)))
         try:

@@ -25,6 +25,7 @@ The server runs on its own thread with its own asyncio loop (:class:`ModbusEmula
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 import time
 from collections.abc import Callable
@@ -78,6 +79,9 @@ class ModbusDeviceModel:
         self.in_hi = max(c.address + c.codec.width for c in self.inputs)
         self.reads = 0
         self.writes = 0
+        self.last_request = time.perf_counter()
+        self.outputs_live = False
+        self.watchdog_trips = 0
 
     def sim_device(self) -> SimDevice:
         """The pymodbus ``SimDevice`` (id 0 = answers any unit id, as a T7 does)."""
@@ -94,6 +98,7 @@ class ModbusDeviceModel:
         registers: list[int],
         set_values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
+        self.last_request = time.perf_counter()
         if self.faults.take("exception"):
             return ExcCodes(self.faults.exception_code)
         if function_code in (3, 4) and address < self.in_hi and address + count > self.in_lo:
@@ -128,6 +133,22 @@ class ModbusDeviceModel:
             raw = min(max(raw, o.raw_range[0]), o.raw_range[1])
             assert o.calibration is not None
             command(o.calibration(raw))
+            self.outputs_live = True
+
+    def watchdog(self, timeout_s: float, registers_zero: Callable[[], None]) -> bool:
+        """Vent every output after ``timeout_s`` without a request (the T7's comm watchdog).
+
+        A host that dies or loses the link mid-run cannot vent the regulator itself; the
+        device's watchdog does.  Returns True when it tripped now.
+        """
+        if not self.outputs_live or time.perf_counter() - self.last_request < timeout_s:
+            return False
+        for _, command in self.outputs:
+            command(0.0)
+        registers_zero()
+        self.outputs_live = False
+        self.watchdog_trips += 1
+        return True
 
     # ------------------------------------------------------------------ wire faults
     def make_trace_packet(self, framing: str, on_disconnect: Callable[[], None]) -> Callable[[bool, bytes], bytes]:
@@ -179,8 +200,11 @@ class ModbusEmulator:
         port: int | None = None,
         serial_port: str | None = None,
         baudrate: int | None = None,
+        watchdog_s: float | None = None,
     ) -> None:
         self.model = ModbusDeviceModel(spec, plant, faults)
+        #: s without a request after which the outputs vent (None: no watchdog)
+        self.watchdog_s = watchdog_s
         self.framing = spec.transport.type
         self.host = host
         self.port = int(port if port is not None else spec.transport.port) if self.framing == "tcp" else 0
@@ -225,7 +249,29 @@ class ModbusEmulator:
             )
         await self._server.serve_forever(background=True)
         self._ready.set()
+        watch = asyncio.ensure_future(self._watch(self.watchdog_s)) if self.watchdog_s else None
         await self._server.serving
+        if watch is not None:
+            watch.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watch
+
+    async def _watch(self, timeout_s: float) -> None:
+        core = self._server.context  # SimCore: its runtime holds the register block
+
+        def zero_output_registers() -> None:
+            for runtime in core.devices.values():
+                start, _, registers, _ = next(iter(runtime.block.values()))
+                for o, _ in self.model.outputs:
+                    assert o.calibration is not None
+                    raw0 = min(max(o.calibration.inverse(0.0, o.raw_range), o.raw_range[0]), o.raw_range[1])
+                    words = o.codec.encode(raw0)
+                    k = o.address - start
+                    registers[k : k + len(words)] = words
+
+        while not self._server.serving.done():
+            await asyncio.sleep(min(0.05, timeout_s / 4))
+            self.model.watchdog(timeout_s, zero_output_registers)
 
     def _run(self) -> None:
         loop = asyncio.new_event_loop()
