@@ -42,7 +42,7 @@ def test_tcp_rig_reads_physics_and_commands_regulators(t7):
     assert emus.plant.physics.cylinder_command == pytest.approx(0.3, abs=1e-4)
     # the timestamp is the rig clock at the request
     t = rig.clock.now()
-    assert t - 0.01 < b.time[0] <= t
+    assert t - 0.1 < b.time[0] <= t
     rig.cylinder_regulator.vent()
     assert emus.plant.physics.cylinder_command == 0.0
 
@@ -76,10 +76,10 @@ def test_tcp_faults_past_the_bound_raise_then_recover(t7):
     emus, rig = t7
     emus.faults.arm("drop", 10)
     t0 = time.perf_counter()
-    with pytest.raises(RigError, match=r"after 4 attempts \(last: .*no reply"):
+    with pytest.raises(RigError, match=r"after 4 attempts \(last: .*no reply; link so far: .*\d+ timeouts"):
         rig.sampler.read_values()
     # bounded: 4 attempts × 50 ms timeout, not forever
-    assert time.perf_counter() - t0 < 0.6
+    assert time.perf_counter() - t0 < 1.5
     emus.faults.clear()
     assert rig.sampler.read_values()["muscle_pressure"] > -0.05  # link recovers by itself
 

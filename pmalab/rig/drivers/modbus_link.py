@@ -74,6 +74,12 @@ class LinkStats:
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
 
+    def summary(self) -> str:
+        """The non-zero fault counters, e.g. ``"12 retries, 9 timeouts, 3 reconnects"``."""
+        d = self.as_dict()
+        parts = [f"{v} {k.replace('_', ' ')}" for k, v in d.items() if v and k != "requests"]
+        return f"{d['requests']} requests" + (", " + ", ".join(parts) if parts else "")
+
     def count(self, exc: TransportError) -> None:
         """Count one fault by its kind."""
         if isinstance(exc, TransportTimeout):
@@ -197,7 +203,7 @@ class ModbusLink:
         self.stats.failures += 1
         raise RigError(
             f"{self.name}: request failed after {self.retries + 1} attempts "
-            f"(last: {_reason(last)})"
+            f"(last: {_reason(last)}; link so far: {self.stats.summary()})"
         )
 
     def _next_tid(self) -> int:
