@@ -216,3 +216,30 @@ def test_device_watchdog_vents_when_the_host_goes_silent():
             assert rig.cylinder_regulator.codec.decode(regs) == 0.0  # DAC0 reads back 0 V
         finally:
             rig.close()
+
+
+def test_generic_int16_module_with_polynomial_lvdt_and_tare():
+    with start_emulators(RIGS_DIR / "generic-modbus.toml", tcp_port=0, make_links=False) as emus:
+        spec = emus.rig_spec()
+        spec.probe_samples = 0
+        rig = build_modbus_rig(spec)
+        try:
+            assert rig.info["input_block"] == {"address": 0, "count": 4, "function": 4}
+            # at rest the load cell carries no tension: tare on it
+            tare = rig.sampler.tare("force", n=20)
+            assert abs(tare) < 5.0
+            assert abs(rig.sampler.read_values()["force"]) < 5.0
+            rig.muscle_supply.request(0.3)
+            rig.cylinder_regulator.set_pressure(0.2)
+            time.sleep(0.8)
+            v = rig.sampler.read_values()
+            s = emus.plant.sample()
+            # 10 V / 32000 counts: 0.08 N, 0.3 µm, 0.08 kPa per count; sensor noise dominates
+            assert v["position"] == pytest.approx(s["position"], abs=0.05)
+            assert v["force"] == pytest.approx(s["force"] - tare, abs=3.0)
+            assert v["cylinder_pressure"] == pytest.approx(0.2, abs=0.005)
+            # the uint16 analog output: 0.2 MPa on 0–10 V = 2.222 V = 7111 counts
+            regs = rig.sampler.link.read_registers(100, 1)
+            assert regs == [round(0.2 / 0.9 * 10 / 0.0003125)]
+        finally:
+            rig.close()
