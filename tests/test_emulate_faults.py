@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import os
 import time
 
 import pytest
@@ -11,6 +12,19 @@ from pmalab.errors import ConfigError, RigError
 from pmalab.paths import RIGS_DIR
 from pmalab.rig.drivers.rigfile import build_modbus_rig, read_modbus_rig_file
 from pmalab.rig.emulators.launcher import start_emulators
+
+
+def _have_pty() -> bool:
+    try:
+        a, b = os.openpty()
+    except OSError:
+        return False
+    os.close(a)
+    os.close(b)
+    return True
+
+
+needs_pty = pytest.mark.skipif(not _have_pty(), reason="this machine cannot open a pseudo-terminal")
 
 
 @pytest.fixture(scope="module")
@@ -111,6 +125,7 @@ def test_missing_serial_port_is_one_line():
         build_modbus_rig(spec)
 
 
+@needs_pty
 def test_rtu_on_pty_faults_crc_drop_exception():
     with start_emulators(
         RIGS_DIR / "generic-modbus-rtu.toml", make_links=False, baud_pacing=False
@@ -131,6 +146,7 @@ def test_rtu_on_pty_faults_crc_drop_exception():
             rig.close()
 
 
+@needs_pty
 def test_rtu_at_115200_baud_cannot_do_500hz_refused_or_reduced():
     with start_emulators(RIGS_DIR / "generic-modbus-rtu.toml", make_links=False) as emus:
         spec = emus.rig_spec()
@@ -150,6 +166,7 @@ def test_rtu_at_115200_baud_cannot_do_500hz_refused_or_reduced():
             rig.close()
 
 
+@needs_pty
 def test_itv_and_indicator_on_ptys_with_faults():
     with start_emulators(RIGS_DIR / "itv-serial.toml", tcp_port=0, make_links=False) as emus:
         spec = emus.rig_spec()
