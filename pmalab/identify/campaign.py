@@ -37,6 +37,9 @@ from pmalab.identify.signals import Signals
 from pmalab.identify.validate import metrics
 from pmalab.runfile import Run
 
+#: identification runs fitted worse than this (fit %) are named in the campaign warnings
+POOR_FIT_PERCENT = 90.0
+
 
 # --------------------------------------------------------------------------- models
 def resolve_effects(ids: Sequence[str], files: Sequence[str] = ()) -> list:
@@ -230,6 +233,12 @@ def fit_campaign(
         p, f, w = _run_meta(run)
         rfs.append(RunFit(file=run.file, run=run.name, p_nom=p, frequency_Hz=f, waveform=w,
                           result=res))
+    for rf in rfs:
+        if rf.result.fit_percent < POOR_FIT_PERCENT:
+            warnings.append(
+                f"{rf.label}: fit only {rf.result.fit_percent:.1f} % — {fm.name} misses something "
+                "on this run (see `pmalab diagnose`); its parameters enter the quadratics "
+                "weighted by their (large) standard errors")
     pressure = pressure_fits(rfs)
     levels = sorted({round(r.p_nom, 4) for r in rfs})
     if len(levels) < 3:
