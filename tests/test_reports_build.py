@@ -51,7 +51,7 @@ def full_report(tmp_path_factory):
 
 FULL_PAGES = [
     "Title page",
-    "Datasets and provenance",
+    "Datasets, provenance and recorded timing",
     "Fit quality table",
     "Time histories — identification, bouc-wen",
     "Measured vs model loops per pressure level — identification, bouc-wen",
@@ -247,7 +247,7 @@ def test_cli_error_is_one_line(tmp_path, capsys):
 
 
 def test_many_runs_are_split_over_pages(tmp_path):
-    ps = [0.1, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6]
+    ps = [0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5, 0.6]
     d = rf.write_identification_dir(tmp_path / "many", pressures=ps, validation=rf.VAL_RUNS * 1)
     titles = [p.title for p in plan_pages(load_report_dir(d))]
     assert [t for t in titles if t.startswith("Time histories")] == [

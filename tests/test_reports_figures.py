@@ -14,6 +14,7 @@ from pmalab.reports import ReportError, save_figure
 from pmalab.reports import figures as F
 from pmalab.reports.build import plan_pages
 from pmalab.reports.data import Trace, load_report_dir
+from pmalab.reports.figures_text import summarize_provenance
 from pmalab.reports.style import MIN_FONT_PT
 
 
@@ -44,14 +45,16 @@ def test_error_loop_has_one_segment_per_sample_pair_coloured_by_abs_error():
     assert len(lc2.get_segments()) == len(range(0, 5000, 3)) - 1 == 1666
 
 
-def test_loops_figure_shares_one_error_scale():
+def test_loops_figure_gives_each_run_its_own_error_scale():
     ts = [_trace(80, p) for p in (0.3, 0.45, 0.6)]
-    ts[2].force_model = ts[2].force_model + 20.0  # a worse fit sets the scale
+    ts[2].force_model = ts[2].force_model + 20.0  # a bad run must not wash out the others
     fig = F.loops_figure(ts, fit_percent=[95.0, None, 80.0])
-    lcs = [c for ax in fig.axes[:3] for c in ax.collections]
+    lcs = [c for ax in fig.axes if ax.get_label() != "<colorbar>" for c in ax.collections]
     assert len(lcs) == 3
-    vmax = {lc.norm.vmax for lc in lcs}
-    assert len(vmax) == 1 and vmax.pop() == pytest.approx(np.max(np.abs(ts[2].error)))
+    for lc, t in zip(lcs, ts):
+        e = np.abs(t.error)
+        assert lc.norm.vmax == pytest.approx(np.percentile(0.5 * (e[:-1] + e[1:]), 98.0))
+    assert lcs[2].norm.vmax > 3 * lcs[0].norm.vmax
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
     assert "fit 95.0 %" in titles[0] and f"fit {ts[1].fit_percent:.1f} %" in titles[1]
 
@@ -153,10 +156,28 @@ def test_standalone_figures_return_figures():
         F.metrics_table_figure([{**r, "role": "identification"} for r in doc["runs"]]),
         F.parameter_table_figure(doc["parameter_names"], doc["runs"], doc["pressure_fits"]),
         F.title_page_figure(model="duhem"),
-        F.provenance_figure(doc["inputs"]),
+        F.provenance_figure(*summarize_provenance(doc["inputs"])),
     ]
     assert all(isinstance(f, Figure) for f in figs)
     table_fig = figs[4]
     cells = table_fig.axes[0].tables[0].get_celld()
     texts = {c.get_text().get_text() for c in cells.values()}
     assert "1 (fixed)" in texts and any(s.startswith("-38.45 ± 0.77") for s in texts)
+
+
+def test_provenance_summary_structured_and_free_form():
+    doc, _ = rf.identification_doc()
+    blocks, rows = summarize_provenance(doc["inputs"])
+    assert [b[0] for b in blocks] == ["ident.h5", "val.h5"]
+    lines = blocks[0][1]
+    assert lines[0].startswith("sha256 abababab") and lines[0].endswith("1.2 MB")
+    assert "rig: kind=sim, rig_file=sim, seed=0" in lines
+    assert "safety limits: max_force_N 2000.0" in lines  # JSON text attr parsed
+    assert not any("truth_values" in ln for ln in lines)
+    assert [r["run"] for r in rows] == ["ident.h5:p3102", "ident.h5:p4762", "ident.h5:p6000"]
+    assert rows[0]["p99_ms"] == pytest.approx(0.02) and rows[0]["samples"] == 6668.0
+    # an unstructured provenance mapping is shown as key: value lines, no run rows
+    blocks, rows = summarize_provenance([{"file": "x.csv", "provenance": {
+        "operator": "A. B.", "rig": "bench 2", "extra": {"a": 1}}}])
+    assert blocks == [("x.csv", ["rig: bench 2", "operator: A. B.", "extra.a: 1"])]
+    assert rows == []

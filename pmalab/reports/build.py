@@ -33,14 +33,20 @@ from pmalab.reports.figures_parameters import (
     parameters_vs_pressure_figure,
 )
 from pmalab.reports.figures_signals import loops_figure, time_history_figure, validation_figure
-from pmalab.reports.figures_text import provenance_figure, timing_stats, title_page_figure
+from pmalab.reports.figures_text import (
+    provenance_figure,
+    summarize_provenance,
+    timing_stats,
+    title_page_figure,
+)
 
 TIME_PER_PAGE = 3
 LOOPS_PER_PAGE = 6
 VALIDATION_PER_PAGE = 2
 PARAMS_PER_PAGE = 9
-TABLE_RUNS_PER_PAGE = 5
+TABLE_RUNS_PER_PAGE = 7
 CORR_PER_PAGE = 6
+PROVENANCE_ROWS_PER_PAGE = 16
 
 
 @dataclass
@@ -89,14 +95,20 @@ def plan_pages(data: ReportData) -> list[Page]:
     """The report's pages, in order, for what the directory holds."""
     ident, diag = data.identification, data.diagnosis
     pages: list[Page] = []
-    id_rows: list[dict] = list(ident["runs"]) if ident else []
+    # identification runs by pressure level (stable: equal pressures keep their order)
+    id_rows: list[dict] = (sorted(ident["runs"], key=lambda r: r["muscle_pressure_MPa"])
+                           if ident else [])
     val_rows: list[dict] = list(ident.get("validation") or []) if ident else []
 
     # datasets/provenance
     inputs = list(ident.get("inputs") or []) if ident else []
     if any(inp.get("provenance") for inp in inputs):
-        pages.append(Page("Datasets and provenance", "provenance",
-                          lambda: provenance_figure(inputs)))
+        blocks, prov_rows = summarize_provenance(inputs)
+        pc = _chunks(prov_rows, PROVENANCE_ROWS_PER_PAGE) or [[]]
+        for i, chunk in enumerate(pc):
+            title = "Datasets, provenance and recorded timing" + _part(i, len(pc))
+            pages.append(Page(title, f"provenance-{i + 1}", lambda b=blocks if i == 0 else [],
+                              c=chunk, t=title: provenance_figure(b, c, title=t)))
 
     # fit metrics (validation rows borrow waveform/frequency from their traces)
     tr_by_key = {_key(t.file, t.run): t for t in data.traces}
@@ -153,9 +165,10 @@ def plan_pages(data: ReportData) -> list[Page]:
                                   c, pressures, values, stderr, fits, r2, units=units,
                                   validation_pressures=vps, title=t)))
         warnings = list(ident.get("warnings") or [])
-        for r in id_rows:
+        for r in id_rows:  # run warnings not already repeated in the top-level list
             warnings += [f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): {w}"
-                         for w in r.get("warnings") or []]
+                         for w in r.get("warnings") or []
+                         if not any(g.endswith(w) for g in warnings)]
         tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
         for i, chunk in enumerate(tc):
             title = "Identified parameters (value ± standard error) and identifiability" + _part(

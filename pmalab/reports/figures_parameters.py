@@ -88,11 +88,24 @@ def plot_parameter_vs_pressure(
     ax.errorbar(p, v, yerr=se, fmt="o", color=style.MEASURED, ms=4, capsize=3,
                 label="identified ± s.e.", zorder=3)
     allp = np.concatenate([p, np.asarray(validation_pressures, dtype=float)])
-    if fit is not None and allp.size:
+    shown = list(v[np.isfinite(v)])
+    if fit is not None and allp.size and all(q is not None for q in fit):
         lo, hi = float(np.min(allp)), float(np.max(allp))
         pad = 0.05 * max(hi - lo, 0.05)
         pp = np.linspace(lo - pad, hi + pad, 100)
-        ax.plot(pp, quadratic(fit, pp), color=style.MODEL, label="quadratic fit", zorder=2)
+        curve = quadratic(fit, pp)
+        ax.plot(pp, curve, color=style.MODEL, label="quadratic fit", zorder=2)
+        shown += list(curve[np.isfinite(curve)])
+    if shown and se is not None and np.any(se > 0):
+        # y range from the values and the fit, not from huge error bars of a poorly
+        # identified level (those bars are clipped and marked in the title)
+        lo, hi = min(shown), max(shown)
+        span = max(hi - lo, 1e-9 * max(abs(lo), abs(hi), 1.0))
+        ylo, yhi = lo - 0.15 * span, hi + 0.15 * span
+        if np.any(v - se < ylo) or np.any(v + se > yhi):
+            ax.set_ylim(ylo, yhi)
+            ax.text(0.99, 0.02, "some error bars clipped", transform=ax.transAxes,
+                    ha="right", va="bottom", fontsize=8, color="0.35")
     for i, vp in enumerate(validation_pressures):
         ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
                    label="validation p" if i == 0 else None)
@@ -188,7 +201,7 @@ def parameter_table_figure(
     warnings: Sequence[str] = (),
     title: str = "Identified parameters (value ± standard error) and identifiability",
 ) -> Figure:
-    """Table of parameter values ± standard errors per run (≤ 5 runs per page), the
+    """Table of parameter values ± standard errors per run (≤ 7 runs per page), the
     quadratic coefficients with R², and the identifiability warnings.
 
     ``runs``: dicts with ``muscle_pressure_MPa``, ``parameters``, optional ``stderr``,
@@ -285,11 +298,11 @@ def _outline(c: int, r: int):
 
 
 METRIC_COLUMNS = [
-    ("rmse", "RMSE\n(N)", 3),
-    ("nrmse", "NRMSE", 3),
-    ("fit_percent", "fit\n(%)", 3),
-    ("max_error", "max |error|\n(N)", 3),
-    ("energy_error_percent", "loop energy\nerror (%)", 2),
+    ("rmse", "RMSE\n(N)", ".3g"),
+    ("nrmse", "NRMSE", ".3g"),
+    ("fit_percent", "fit\n(%)", ".1f"),
+    ("max_error", "max |error|\n(N)", ".3g"),
+    ("energy_error_percent", "loop energy\nerror (%)", "+.1f"),
 ]
 
 
@@ -314,8 +327,9 @@ def metrics_table_figure(
         f = r.get("frequency_Hz")
         row = [str(r.get("role", "")), f"{r.get('file', '')}:{r.get('run', '')}",
                f"{r['muscle_pressure_MPa']:.4g}", _fmt(f, 3), str(r.get("waveform") or "—")]
-        for k, _, d in METRIC_COLUMNS:
-            row.append(_fmt(r.get(k), d))
+        for k, _, spec in METRIC_COLUMNS:
+            v = r.get(k)
+            row.append("—" if v is None or not math.isfinite(v) else format(v, spec))
         br = r.get("branch_rmse") or {}
         row += [_fmt(br.get("stretch"), 3), _fmt(br.get("release"), 3)]
         cells.append(row)
@@ -333,7 +347,8 @@ def metrics_table_figure(
         ax.text(x, v, f"{v:.1f}", ha="center", va="bottom", fontsize=8)
     ax.set_xticks(xs, [f"{r.get('run', '')}\n{r['muscle_pressure_MPa']:.3f} MPa" for r in rows])
     lo = min([*fits, 100.0])
-    ax.set_ylim(max(0.0, lo - 0.25 * (100.0 - lo) - 2.0), 100.0)
+    bottom = max(0.0, lo - 0.25 * (100.0 - lo) - 2.0)
+    ax.set_ylim(bottom, 100.0 + 0.08 * (100.0 - bottom))  # headroom for the labels
     ax.set_ylabel("fit (%)")
     ax.set_title("Fit per run (blue: identification, red: validation)")
     ax.grid(axis="x", visible=False)

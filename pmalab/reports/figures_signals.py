@@ -21,6 +21,7 @@ from pmalab.reports import style
 from pmalab.reports.data import Trace
 
 LOOP_MAX_POINTS = 2000
+ERROR_PERCENTILE = 98.0
 TIME_MAX_POINTS = 3000
 
 
@@ -35,7 +36,8 @@ def error_loop(
     measured_label: str = "measured",
 ) -> LineCollection:
     """Draw a measured F–x loop (thin black) and the model loop as segments coloured by the
-    absolute error |F − F_model| (N) at each segment (mean of its two end samples).
+    absolute error |F − F_model| (N) at each segment (mean of its two end samples); the
+    colour scale runs from 0 to the 98th percentile of those errors unless ``norm`` is given.
 
     At most ``max_points`` samples are drawn (uniform stride), so a loop of n ≤ max_points
     samples has exactly n − 1 coloured segments.  Returns the LineCollection (its array
@@ -51,7 +53,10 @@ def error_loop(
     segs = np.stack([pts[:-1], pts[1:]], axis=1)
     seg_err = 0.5 * (err[:-1] + err[1:])
     if norm is None:
-        norm = Normalize(vmin=0.0, vmax=max(float(seg_err.max(initial=0.0)), 1e-12))
+        # the 98th percentile, not the maximum, tops the scale: one spike at a reversal
+        # would otherwise paint the rest of the loop in the lowest colour
+        top = float(np.percentile(seg_err, ERROR_PERCENTILE)) if seg_err.size else 0.0
+        norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
     ax.plot(x, f, color=style.MEASURED, lw=0.7, alpha=0.8, label=measured_label, zorder=1)
     lc = LineCollection(segs, cmap=style.ERROR_CMAP, norm=norm, linewidths=1.6, zorder=2)
     lc.set_array(seg_err)
@@ -70,9 +75,11 @@ def _fit_text(t: Trace, fit_percent: float | None) -> str:
     return f"fit {fp:.1f} %"
 
 
-def _page_norm(traces: Sequence[Trace]) -> Normalize:
-    vmax = max((float(np.max(np.abs(t.error))) for t in traces), default=1.0)
-    return Normalize(vmin=0.0, vmax=max(vmax, 1e-12))
+def _colorbar(fig: Figure, lc: LineCollection, ax: Axes) -> None:
+    arr = np.asarray(lc.get_array(), dtype=float)
+    over = bool(arr.size) and float(arr.max()) > lc.norm.vmax
+    fig.colorbar(lc, ax=ax, label=style.ABS_ERROR, shrink=0.85, pad=0.01, aspect=30,
+                 extend="max" if over else "neither")
 
 
 @style.styled
@@ -82,26 +89,24 @@ def loops_figure(
     title: str = "Measured vs model loops",
     fit_percent: Sequence[float | None] | None = None,
 ) -> Figure:
-    """Up to six F–x loops (2 × 3 grid), one per run/pressure level, on one |error| scale.
+    """Up to six F–x loops (2 × 3 grid), one per run/pressure level, each with its own
+    |error| colour scale (a failing run must not wash out the others).
 
     ``fit_percent`` (same order as ``traces``) overrides the fit % computed from the trace.
     """
     fig = style.new_figure(title)
     n = len(traces)
     axes = fig.subplots(*style.grid_shape(n), squeeze=False).ravel()
-    norm = _page_norm(traces)
-    lc = None
     for i, ax in enumerate(axes):
         if i >= n:
             ax.set_visible(False)
             continue
         t = traces[i]
-        lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
+        lc = error_loop(ax, t.position, t.force, t.force_model)
+        _colorbar(fig, lc, ax)
         fp = None if fit_percent is None else fit_percent[i]
         ax.set_title(f"{t.describe()} — {_fit_text(t, fp)}\n{t.label}")
         ax.legend(loc="best")
-    if lc is not None:
-        fig.colorbar(lc, ax=list(axes[:n]), label=style.ABS_ERROR, shrink=0.8)
     return fig
 
 
@@ -148,12 +153,11 @@ def validation_figure(
     fig = style.new_figure(title)
     n = len(traces)
     axes = fig.subplots(3, n, squeeze=False, gridspec_kw={"height_ratios": [2.2, 1.1, 0.8]})
-    norm = _page_norm(traces)
-    lc = None
     for j, t in enumerate(traces):
         fp = None if fit_percent is None else fit_percent[j]
         a0, a1, a2 = axes[:, j]
-        lc = error_loop(a0, t.position, t.force, t.force_model, norm=norm)
+        lc = error_loop(a0, t.position, t.force, t.force_model)
+        _colorbar(fig, lc, a0)
         a0.set_title(f"{t.label}\n{t.describe()} — {_fit_text(t, fp)}")
         a0.legend(loc="best")
         s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
@@ -167,6 +171,4 @@ def validation_figure(
         a2.set_ylabel(style.RESIDUAL)
         a2.set_xlabel(style.TIME)
         a1.sharex(a2)
-    if lc is not None:
-        fig.colorbar(lc, ax=list(axes[0, :]), label=style.ABS_ERROR, shrink=0.8)
     return fig

@@ -123,28 +123,145 @@ def title_page_figure(
     return fig
 
 
-@style.styled
-def provenance_figure(inputs: Sequence[Mapping[str, Any]],
-                      *, title: str = "Datasets and provenance") -> Figure:
-    """The provenance attributes (rig, protocol, timing) of each input file, as text."""
-    fig = style.new_figure(title)
-    ax = fig.add_subplot()
-    ax.axis("off")
-    lines: list[str] = []
+#: file-level provenance attributes worth a line, with their labels
+FILE_KEYS = (
+    ("created_utc", "recorded"),
+    ("protocol_name", "protocol"),
+    ("protocol_file", "protocol file"),
+    ("rig_spec", "rig spec"),
+    ("clock", "clock"),
+    ("scheduling", "scheduling"),
+    ("sample_rate_Hz", "sample rate (Hz)"),
+    ("software", "software"),
+    ("software_version", "version"),
+    ("seed", "seed"),
+    ("command_line", "command"),
+)
+
+
+def _maybe_json(v: Any) -> Any:
+    if isinstance(v, str) and v[:1] in "{[":
+        try:
+            return json.loads(v)
+        except json.JSONDecodeError:
+            return v
+    return v
+
+
+def _short(v: Any, n: int = 110) -> str:
+    s = v if isinstance(v, str) else json.dumps(v, default=str)
+    return s if len(s) <= n else s[: n - 1] + "…"
+
+
+def summarize_provenance(
+    inputs: Sequence[Mapping[str, Any]],
+) -> tuple[list[tuple[str, list[str]]], list[dict[str, Any]]]:
+    """Condense each input file's provenance into a few lines, and one row per run with its
+    recorded status and timing (duration, samples, late/missed deadlines, lateness).
+
+    Understands the layout ``{"sha256", "size_bytes", "file_attrs": {...}, "runs": {run:
+    {..., "timing": {...}}}}``; any other mapping is shown as its first key/value pairs.
+    """
+    blocks: list[tuple[str, list[str]]] = []
+    rows: list[dict[str, Any]] = []
     for inp in inputs:
-        lines.append(f"{inp.get('file', '?')}   runs: {', '.join(map(str, inp.get('runs') or []))}")
-        prov = flatten(inp.get("provenance") or {})
-        if not prov:
-            lines.append("    (no provenance recorded)")
-        width = max((len(k) for k, _ in prov), default=0)
-        lines += [f"    {k:<{width}}  {v}" for k, v in prov]
-        lines.append("")
-    max_lines = 56
-    col = [lines[i:i + max_lines] for i in range(0, min(len(lines), 2 * max_lines), max_lines)]
-    for j, chunk in enumerate(col):
-        ax.text(0.0 + 0.5 * j, 1.0, "\n".join(chunk), va="top", family="monospace",
-                fontsize=8, transform=ax.transAxes, linespacing=1.25)
-    if len(lines) > 2 * max_lines:
-        ax.text(0.0, -0.02, f"… {len(lines) - 2 * max_lines} more lines (see the JSON file)",
-                fontsize=8, transform=ax.transAxes)
+        prov = inp.get("provenance") or {}
+        if not isinstance(prov, Mapping):
+            continue
+        file = str(inp.get("file", "?"))
+        lines: list[str] = []
+        structured = "file_attrs" in prov or "runs" in prov
+        if prov.get("sha256"):
+            size = prov.get("size_bytes")
+            lines.append(f"sha256 {str(prov['sha256'])[:16]}…"
+                         + (f", {float(size) / 1e6:.1f} MB" if size is not None else ""))
+        fa = prov.get("file_attrs") if structured else prov
+        fa = fa if isinstance(fa, Mapping) else {}
+        for key, label in FILE_KEYS:
+            if key in fa and fa[key] not in (None, "", {}):
+                lines.append(f"{label}: {_short(fa[key])}")
+        rig = _maybe_json(fa.get("rig"))
+        if isinstance(rig, Mapping):
+            parts = [f"{k}={_short(rig[k], 40)}" for k in ("kind", "rig_file", "clock", "seed")
+                     if k in rig]
+            lines.append("rig: " + ", ".join(parts))
+        elif isinstance(rig, str) and rig:
+            lines.append(f"rig: {_short(rig)}")
+        lim = _maybe_json(fa.get("limits"))
+        if isinstance(lim, Mapping):
+            lines.append("safety limits: " + ", ".join(f"{k} {v}" for k, v in lim.items()))
+        if not structured:
+            known = {k for k, _ in FILE_KEYS} | {"rig", "limits"}
+            rest = [(k, v) for k, v in flatten({k: v for k, v in fa.items() if k not in known})]
+            lines += [f"{k}: {v}" for k, v in rest[:10]]
+            if len(rest) > 10:
+                lines.append(f"… {len(rest) - 10} more attributes")
+        blocks.append((file, lines))
+        runs = prov.get("runs") if isinstance(prov.get("runs"), Mapping) else {}
+        for name in inp.get("runs") or list(runs):
+            a = runs.get(name)
+            if not isinstance(a, Mapping):
+                continue
+            tm = a.get("timing") if isinstance(a.get("timing"), Mapping) else {}
+            rows.append({
+                "run": f"{file}:{name}", "role": a.get("role", ""), "status": a.get("status", ""),
+                "p": a.get("muscle_pressure_MPa"), "f": a.get("frequency_Hz"),
+                "waveform": a.get("waveform", ""), "cycles": a.get("cycles"),
+                "duration_s": tm.get("duration_s"), "samples": tm.get("n_samples"),
+                "late": tm.get("late"), "missed": tm.get("missed"),
+                "p99_ms": None if tm.get("lateness_p99_s") is None
+                else 1e3 * float(tm["lateness_p99_s"]),
+                "max_ms": None if tm.get("lateness_max_s") is None
+                else 1e3 * float(tm["lateness_max_s"]),
+            })
+    return blocks, rows
+
+
+def _cell(v: Any, spec: str = "g") -> str:
+    if v is None or v == "":
+        return "—"
+    if isinstance(v, int | float) and not isinstance(v, bool):
+        return format(v, spec)
+    return str(v)
+
+
+@style.styled
+def provenance_figure(
+    blocks: Sequence[tuple[str, Sequence[str]]],
+    rows: Sequence[Mapping[str, Any]] = (),
+    *,
+    title: str = "Datasets, provenance and recorded timing",
+) -> Figure:
+    """Provenance of each input file (a few lines each) and a table of its runs with the
+    recorded status and timing (see :func:`summarize_provenance`)."""
+    fig = style.new_figure(title, layout=False)
+    y = 0.92
+    lines_left = 22
+    for file, lines in blocks:
+        if lines_left <= 0:
+            fig.text(0.04, y, "… more files (see identification.json inputs)", fontsize=8.5)
+            y -= 0.03
+            break
+        fig.text(0.04, y, file, fontweight="bold", fontsize=10, va="top")
+        y -= 0.03
+        shown = list(lines[: max(lines_left, 1)])
+        wrapped = [w for ln in shown for w in textwrap.wrap(ln, 170, subsequent_indent="    ")]
+        if wrapped:
+            fig.text(0.05, y, "\n".join(wrapped), fontsize=8.5, va="top", linespacing=1.35)
+        y -= 0.0205 * len(wrapped) + 0.025
+        lines_left -= len(wrapped)
+    if rows:
+        head = ["run", "role", "status", "p\n(MPa)", "f\n(Hz)", "waveform", "cycles",
+                "duration\n(s)", "samples", "late", "missed", "lateness\np99 (ms)",
+                "lateness\nmax (ms)"]
+        cells = [[r["run"], _cell(r["role"]), _cell(r["status"]), _cell(r["p"], ".4g"),
+                  _cell(r["f"], "g"), _cell(r["waveform"]), _cell(r["cycles"], "g"),
+                  _cell(r["duration_s"], ".2f"), _cell(r["samples"], ".0f"),
+                  _cell(r["late"], ".0f"), _cell(r["missed"], ".0f"), _cell(r["p99_ms"], ".3f"),
+                  _cell(r["max_ms"], ".3f")] for r in rows]
+        h = min(0.027 * (len(rows) + 2), y - 0.06)
+        fig.text(0.04, y, "Runs as recorded", fontweight="bold", fontsize=10, va="top")
+        ax = fig.add_axes((0.04, y - 0.03 - h, 0.92, h))
+        _table(ax, cells, head, col_widths=[0.2, 0.09, 0.07, 0.05, 0.045, 0.07, 0.05, 0.06,
+                                            0.06, 0.04, 0.05, 0.07, 0.07], row_height=1.25)
     return fig
