@@ -33,7 +33,7 @@ from pmalab.rig.drivers.adapters import (
     TransportError,
     TransportTimeout,
 )
-from pmalab.rig.drivers.modbus_link import LinkStats, _reason
+from pmalab.rig.drivers.modbus_link import LinkStats, one_line
 
 FULL_SCALE = 1023
 ERROR_REPLIES = ("UNKNOWN COMMAND", "OUT OF RANGE", "ERROR")
@@ -96,7 +96,7 @@ class ItvSerialRegulator(PressureRegulator):
                     raise DeviceExceptionReply(f"{self.adapter.name}: {text!r} → {reply}")
                 return reply
             except OSError as exc:
-                last = TransportClosed(f"{self.adapter.name}: {_reason(exc)}")
+                last = TransportClosed(f"{self.adapter.name}: {one_line(exc)}")
                 self.stats.disconnects += 1
                 self.adapter.close()
             except TransportError as exc:
@@ -108,7 +108,7 @@ class ItvSerialRegulator(PressureRegulator):
                     time.sleep(0.005)  # let a late reply land, then drop it
                     self.adapter.discard_input()
         self.stats.failures += 1
-        raise RigError(f"{self.name} {self.adapter.name}: {text!r} failed after {self.retries + 1} attempts (last: {_reason(last)})")
+        raise RigError(f"{self.name} {self.adapter.name}: {text!r} failed after {self.retries + 1} attempts (last: {one_line(last)})")
 
     def set_counts(self, n: int) -> None:
         """Send ``SET n`` and wait for ``OK`` (synchronous)."""
@@ -148,7 +148,7 @@ class ItvSerialRegulator(PressureRegulator):
         try:
             self.adapter.open()
         except (OSError, TransportError) as exc:
-            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({_reason(exc)})") from exc
+            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})") from exc
         try:
             self.monitor_pressure()
         except RigError:

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 from pmalab.errors import RigError
 from pmalab.rig.drivers.adapters import Adapter, TransportClosed, TransportError, TransportTimeout
-from pmalab.rig.drivers.modbus_link import LinkStats, _reason
+from pmalab.rig.drivers.modbus_link import LinkStats, one_line
 
 G0 = 9.80665  # standard gravity, N per kgf
 LINE_RE = re.compile(r"^(ST|US|OL),(GS|NT),([+-]\s*[0-9]*\.?[0-9]+)\s*(kg|N)$")
@@ -80,7 +80,7 @@ class LoadCellIndicator:
         try:
             self.adapter.open()
         except (OSError, TransportError) as exc:
-            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({_reason(exc)})") from exc
+            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})") from exc
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="loadcell-reader", daemon=True)
         self._thread.start()
@@ -104,7 +104,7 @@ class LoadCellIndicator:
             except (TransportClosed, OSError) as exc:
                 self.stats.disconnects += 1
                 self.adapter.close()
-                self._error = _reason(exc)
+                self._error = one_line(exc)
                 time.sleep(0.05)
                 continue
             except TransportError as exc:

@@ -132,7 +132,7 @@ class ModbusLink:
         try:
             self.adapter.open()
         except (OSError, TransportError) as exc:
-            raise RigError(f"{self.adapter.name}: cannot connect ({_reason(exc)})") from exc
+            raise RigError(f"{self.adapter.name}: cannot connect ({one_line(exc)})") from exc
 
     def close(self) -> None:
         self.adapter.close()
@@ -166,10 +166,6 @@ class ModbusLink:
         )
         self._transact(pdu, lambda data: self._check_write(data, address, len(values)))
 
-    def request_once(self, pdu: ModbusPDU) -> bytes:
-        """Send one request and return its raw PDU bytes (no retry; used by checks/tests)."""
-        return self._exchange(pdu)
-
     # ------------------------------------------------------------------ machinery
     def _transact(self, pdu: ModbusPDU, check: Callable[[bytes], Any]) -> Any:
         self.stats.requests += 1
@@ -185,7 +181,7 @@ class ModbusLink:
                     self.stats.reconnects += 1
                 return check(self._exchange(pdu))
             except OSError as exc:  # refused/unreachable while reconnecting
-                last = self.last_error = TransportClosed(f"{self.adapter.name}: {_reason(exc)}")
+                last = self.last_error = TransportClosed(f"{self.adapter.name}: {one_line(exc)}")
                 self.stats.disconnects += 1
                 self.adapter.close()
             except TransportError as exc:
@@ -203,7 +199,7 @@ class ModbusLink:
         self.stats.failures += 1
         raise RigError(
             f"{self.name}: request failed after {self.retries + 1} attempts "
-            f"(last: {_reason(last)}; link so far: {self.stats.summary()})"
+            f"(last: {one_line(last)}; link so far: {self.stats.summary()})"
         )
 
     def _next_tid(self) -> int:
@@ -292,7 +288,7 @@ class ModbusLink:
             raise FrameError(f"{self.adapter.name}: write echo {reply.address}/{reply.count} mismatch")
 
 
-def _reason(exc: BaseException | None) -> str:
+def one_line(exc: BaseException | None) -> str:
     """The useful part of an exception's message, as one line."""
     if exc is None:
         return "unknown"

@@ -35,7 +35,6 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from pmalab.rig.drivers.calibration import Calibration, RegisterCodec
 from pmalab.rig.drivers.rigfile import ModbusRigSpec, OutputSpec
 from pmalab.rig.emulators.faults import FaultPlan
 from pmalab.rig.emulators.plant import EmulatedPlant
@@ -113,10 +112,12 @@ class ModbusDeviceModel:
         s = self.plant.sample()
         bad = self.faults.take("out_of_range")
         for i, c in enumerate(self.inputs):
-            raw = raw_for(c.calibration, s[c.name], c.raw_range)
+            # the sensor's electrical output for the simulated reading (inverse calibration);
+            # integer registers saturate in encode() like a real ADC
+            raw = c.calibration.inverse(s[c.name], c.raw_range)
             if bad and i == len(self.inputs) - 1:
                 raw = OUT_OF_RANGE_RAW
-            words = encode_clamped(c.codec, raw)
+            words = c.codec.encode(raw)
             k = c.address - start_address
             registers[k : k + len(words)] = words
 
@@ -175,16 +176,6 @@ class ModbusDeviceModel:
             return data
 
         return trace
-
-
-def raw_for(cal: Calibration, value: float, raw_range: tuple[float, float] | None) -> float:
-    """The raw electrical value a sensor with calibration ``cal`` outputs for ``value``."""
-    return cal.inverse(value, raw_range)
-
-
-def encode_clamped(codec: RegisterCodec, raw: float) -> list[int]:
-    """Encode ``raw``; integer registers saturate like a real ADC."""
-    return codec.encode(raw)
 
 
 class ModbusEmulator:
