@@ -105,6 +105,18 @@ class Identification:
         """Free-run force prediction (N) of any run from its position and pressure."""
         return self.campaign.predict(run, p_MPa, initial=self.initial)
 
+    def quadratic_predictions(self) -> list[tuple[np.ndarray, dict]]:
+        """(force N, metrics) of the pressure-quadratic model on each identification run."""
+        cache = getattr(self, "_quad_cache", None)
+        if cache is None:
+            cache = []
+            for run in self.runs:
+                sig = Signals.from_run(run)
+                fq = self.campaign.predict(sig, force=run.force, initial=self.initial)
+                cache.append((fq, metrics(run.force, fq, sig.x)))
+            self._quad_cache = cache
+        return cache
+
     def validate(self, runs: Iterable[Run]) -> list[Validation]:
         """Predict held-out runs and add them to :attr:`validation`."""
         new = []

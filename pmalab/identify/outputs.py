@@ -144,9 +144,8 @@ def identification_dict(res: Identification) -> dict:
     units = {p.name: p.unit for p in cf.runs[0].result.params} if cf.runs else {}
     docs = {p.name: p.doc for p in cf.runs[0].result.params} if cf.runs else {}
     runs_out = []
-    for rf, run in zip(cf.runs, res.runs):
+    for rf, (_, q) in zip(cf.runs, res.quadratic_predictions()):
         r = rf.result
-        q = cf.validate(run, initial=res.initial)
         runs_out.append({
             "file": rf.file, "run": rf.run, "role": "identification",
             "muscle_pressure_MPa": rf.p_nom, "frequency_Hz": rf.frequency_Hz,
@@ -224,9 +223,8 @@ def write_predictions(res: Identification, path: Path) -> None:
         f.attrs["model"] = cf.model.name
         grp = f.create_group("runs")
         items: list[tuple[Run, str, np.ndarray, np.ndarray | None]] = []
-        for rf, run in zip(cf.runs, res.runs):
-            items.append((run, "identification", rf.result.predict(run),
-                          cf.predict(run, initial=res.initial)))
+        for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions()):
+            items.append((run, "identification", rf.result.predict(run), fq))
         for v in res.validation:
             items.append((v.run, "validation", v.force_model, None))
         for run, role, fm, fq in items:
