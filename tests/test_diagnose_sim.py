@@ -25,7 +25,7 @@ import pytest
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.diagnose import diagnose
-from pmalab.paths import RIGS_DIR
+from pmalab.paths import TRUTH_DIR
 from pmalab.runfile import read_runs
 
 LEVELS = ((0.25, 0.1, 0.16), (0.4, 0.18, 0.27), (0.55, 0.27, 0.4))  # p, amplitude, offset (MPa)
@@ -57,7 +57,10 @@ def simulate(effect: str, out_dir: Path, seed: int, freqs: tuple[float, float] |
     proto = out_dir / f"protocol-{freqs[0]:g}-{freqs[1]:g}-{cycles}.toml"
     if not proto.exists():
         proto.write_text(campaign_protocol(freqs, cycles))
-    rig = RIGS_DIR / ("sim.toml" if effect == "clean" else f"sim-{effect}.toml")
+    # a rig file of our own: the shipped ones pin seed = 0, and the seed must vary here
+    truth = TRUTH_DIR / ("default.toml" if effect == "clean" else f"hidden-{effect}.toml")
+    rig = out_dir / f"rig-{effect}-{seed}.toml"
+    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = {seed}\n')
     out = out_dir / f"{effect}-s{seed}-{freqs[0]:g}-{freqs[1]:g}-{cycles}.h5"
     if not out.exists():
         rc = pmalab_main(["run", "--rig", str(rig), "--protocol", str(proto), "--out", str(out),

@@ -82,7 +82,10 @@ def test_inertia_is_minus_mass_times_acceleration() -> None:
     sig = _sig(f=2.0)
     m = ForceModel("bouc-wen", [get_effect("inertia")])
     c = m.components(sig, _theta(m, sig, inertia_m=10.0))["inertia"]
-    np.testing.assert_allclose(c, -10.0 * sig.a * 1e-3)
+    # noise-free sine: the smoothed acceleration is the true −ω²·(x − x̄) away from the ends
+    mid = slice(200, -200)
+    true_a = -(2 * np.pi * 2.0) ** 2 * (sig.x - 10.0)
+    np.testing.assert_allclose(c[mid], 10.0 * true_a[mid] * 1e-3, rtol=0.02, atol=0.3)
     assert np.max(np.abs(c)) > 10.0  # 10 kg at 2 Hz, 8 mm: ≈ 13 N
 
 

@@ -168,7 +168,7 @@ def _base_start(group: Sequence[PreparedRun], law: str) -> list[dict[str, float]
 
 def fit_group(model: ForceModel, group: Sequence[PreparedRun],
               start: Sequence[dict[str, float]] | None = None,
-              max_nfev: int = 60) -> tuple[list[dict[str, float]], int, list[float]]:
+              max_nfev: int = 200) -> tuple[list[dict[str, float]], int, list[float]]:
     """Joint least-squares fit of ``model`` on the fitting samples of a pressure group.
 
     Parameters are shared by the group's runs except :data:`PER_RUN`.  Bouc-Wen's n is held
@@ -220,7 +220,7 @@ def fit_group(model: ForceModel, group: Sequence[PreparedRun],
         return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e3)
 
     sol = least_squares(resid, z0_a, bounds=(lo_a, hi_a), x_scale="jac", method="trf",
-                        max_nfev=max_nfev, diff_step=1e-6, ftol=1e-6, xtol=1e-6)
+                        max_nfev=max_nfev, diff_step=1e-6, ftol=1e-8, xtol=1e-8)
     ths = thetas(sol.x)
     rss = []
     for pr, th in zip(group, ths):

@@ -5,6 +5,11 @@ the contraction; the load cell reads the muscle tension minus m·ẍ (ẍ: contr
 acceleration, mm/s², converted to m/s²).  m is allowed either sign because which side of
 the load cell the moving mass sits on depends on the rig.  Visible only at higher test
 frequencies (the term grows with ω²).
+
+Acceleration is the second derivative of a measured position: differentiating twice
+amplifies the sensor noise by ω_c², so the drive signals' acceleration (cut-off 15× the
+test frequency) is mostly noise at 500 Hz.  The inertia term therefore uses its own
+smoother acceleration, from the position low-passed (zero phase) at 6× the test frequency.
 """
 
 from __future__ import annotations
@@ -13,7 +18,14 @@ import numpy as np
 
 from pmalab.identify.effects.base import Effect
 from pmalab.identify.params import Param
-from pmalab.identify.signals import Signals
+from pmalab.identify.signals import Signals, zero_phase_lowpass
+
+
+def smooth_acceleration(sig: Signals) -> np.ndarray:
+    """ẍ (mm/s²) from the position low-passed at 6× the test frequency (≥ 2 Hz), zero phase."""
+    f = sig.frequency_Hz if sig.frequency_Hz and sig.frequency_Hz > 0 else sig.cutoff_Hz / 15.0
+    xs = zero_phase_lowpass(sig.t, sig.x, max(6.0 * f, 2.0))
+    return np.gradient(np.gradient(xs, sig.t), sig.t)
 
 
 class Inertia(Effect):
@@ -35,10 +47,10 @@ class Inertia(Effect):
     )
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        amax = float(np.max(np.abs(sig.a))) * 1e-3 or 1e-3
+        amax = float(np.max(np.abs(smooth_acceleration(sig)))) * 1e-3 or 1e-3
         lim = max(3.0 * force_scale / amax, 1.0)
         return [Param("inertia_m", 0.0, -lim, lim, "kg",
                       doc="moving mass between muscle and load cell")]
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
-        return -theta["inertia_m"] * sig.a * 1e-3
+        return -theta["inertia_m"] * smooth_acceleration(sig) * 1e-3
