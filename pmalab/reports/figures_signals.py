@@ -20,9 +20,9 @@ from matplotlib.lines import Line2D
 from pmalab.reports import style
 from pmalab.reports.data import Trace
 
-LOOP_MAX_POINTS = 2000
+LOOP_MAX_POINTS = 1200
 ERROR_PERCENTILE = 98.0
-TIME_MAX_POINTS = 3000
+TIME_MAX_POINTS = 2000
 
 
 def error_loop(
@@ -133,7 +133,7 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
         rms = float(np.sqrt(np.mean(t.error**2)))
-        a2.set_title(f"residual: RMSE {rms:.2f} N, fit {t.fit_percent:.1f} %", loc="left",
+        a2.set_title(f"residual: RMSE {rms:.3g} N, fit {t.fit_percent:.1f} %", loc="left",
                      fontsize=8.5)
         a3.plot(tt, t.muscle_pressure[s], color="#8c564b", lw=0.5)
         a3.set_ylabel("p (MPa)")
