@@ -33,6 +33,28 @@ File layout::
     name = "pressure"
     muscle_pressure_MPa = [0.1, 0.2, 0.3]
     waveform = ["sine", "triangle"]
+    [[campaign]]               # `pair`: these lists are zipped, not crossed
+    name = "levels"
+    pair = ["muscle_pressure_MPa", "magnitude_MPa"]
+    muscle_pressure_MPa = [0.1, 0.2, 0.4]
+    magnitude_MPa = [0.07, 0.20, 0.35]
+    waveform = ["sine", "triangle"]
+
+Campaigns.  Every list-valued field (``muscle_pressure_MPa``, ``waveform``,
+``frequency_Hz``, ``amplitude_MPa``, ``offset_MPa``, ``magnitude_MPa``) is one axis of a
+cartesian product.  ``pair = [field, field, ...]`` names lists of *equal length* that are
+zipped into a single axis instead (the i-th pressure runs with the i-th magnitude); every
+other list is still crossed with it.  The second campaign above gives 3 × 2 = 6 runs
+(``levels-100kPa-mag70kPa-sine``, ``levels-100kPa-mag70kPa-triangle``, ...), not
+3 × 3 × 2.  Lists of unequal length, or a paired field that is not a list, are a
+ConfigError.
+
+Campaign run names are ``<name>-<value>-<value>...`` with one value per varying field, in
+the order of the list above, a pair's fields together (muscle pressure as ``100kPa``, other pressures as
+``amp…kPa``/``off…kPa``/``mag…kPa``, frequency as ``0.15Hz``, waveform by name).  A
+``name`` holding ``{field}`` placeholders is a template instead, filled with the same
+formatted values and nothing appended: ``name = "pressure-{muscle_pressure_MPa}-tri"``
+gives ``pressure-100kPa-tri``, ... (a template must keep the names unique).
 
 Every mistake raises :class:`~pmalab.errors.ConfigError` with one line naming the file
 and the field (``file: run[2] 'ident': field 'frequency_Hz': must be > 0``).
@@ -43,6 +65,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -231,8 +254,11 @@ def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
             raise ConfigError(f"{ctx}: must be a table")
         if isinstance(t.get("name"), str):
             ctx += f" '{t['name']}'"
+        t = dict(t)
+        pair = _check_pair(t.pop("pair", None), t, ctx)
         _check_fields(t, ctx, allow_lists=True, allow_name=True)
-        runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate)))
+        runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate),
+                                     pair))
     if not runs:
         raise ConfigError(f"{where}: no [[run]] or [[campaign]] defined")
     seen: dict[str, str] = {}
@@ -251,6 +277,8 @@ def _check_fields(t: dict[str, Any], ctx: str, *, allow_lists: bool, allow_name:
             if not isinstance(v, str) or not v or "/" in v or v.strip() != v:
                 raise ConfigError(f"{ctx}: field 'name' must be a non-empty string without '/'")
             continue
+        if k == "pair":
+            raise ConfigError(f"{ctx}: field 'pair' is only allowed in a [[campaign]]")
         if k not in _FIELDS:
             raise ConfigError(f"{ctx}: unknown field '{k}' (known: name, "
                               f"{', '.join(_FIELDS)})")
@@ -347,21 +375,86 @@ def _fmt_val(k: str, v: Any) -> str:
     return str(v)
 
 
-def _expand_campaign(t: dict[str, Any], ctx: str, origin: str, rate: float) -> list[RunSpec]:
-    """Cartesian product over the listed fields; run names say what varies."""
+def _check_pair(pair: Any, t: dict[str, Any], ctx: str) -> tuple[str, ...]:
+    """Validate a campaign's ``pair`` (fields zipped together); () when absent."""
+    if pair is None:
+        return ()
+    if (not isinstance(pair, list) or len(pair) < 2
+            or not all(isinstance(k, str) for k in pair)):
+        raise ConfigError(f"{ctx}: field 'pair' must be a list of at least two field names, "
+                          f"got {pair!r}")
+    for k in pair:
+        if k not in _LISTABLE:
+            raise ConfigError(f"{ctx}: field 'pair': '{k}' cannot be a list (pairable: "
+                              f"{', '.join(_LISTABLE)})")
+    if len(set(pair)) != len(pair):
+        raise ConfigError(f"{ctx}: field 'pair' names a field twice: {pair!r}")
+    for k in pair:
+        if not isinstance(t.get(k), list):
+            raise ConfigError(f"{ctx}: field 'pair': '{k}' must be given as a list in this "
+                              "campaign")
+    lengths = {k: len(t[k]) for k in pair}
+    if len(set(lengths.values())) > 1:
+        desc = ", ".join(f"{k} has {n}" for k, n in lengths.items())
+        raise ConfigError(f"{ctx}: field 'pair': paired lists must have equal lengths ({desc} "
+                          "values)")
+    return tuple(pair)
+
+
+_PLACEHOLDER = re.compile(r"\{([^{}]*)\}")
+
+
+def _run_name(base: str, fields: list[str], values: list[Any], merged: dict[str, Any],
+              ctx: str) -> str:
+    """``base-v1-v2...`` over the varying fields, or ``base`` as a ``{field}`` template."""
+    if "{" not in base and "}" not in base:
+        suffix = "-".join(_fmt_val(k, v) for k, v in zip(fields, values))
+        return f"{base}-{suffix}" if suffix else base
+
+    def fill(m: re.Match[str]) -> str:
+        k = m.group(1)
+        if k not in _LISTABLE:
+            raise ConfigError(f"{ctx}: field 'name': unknown placeholder '{{{k}}}' (known: "
+                              f"{', '.join('{' + f + '}' for f in _LISTABLE)})")
+        if merged.get(k) is None:
+            raise ConfigError(f"{ctx}: field 'name': placeholder '{{{k}}}' but the campaign "
+                              f"has no '{k}'")
+        return _fmt_val(k, merged[k])
+
+    name = _PLACEHOLDER.sub(fill, base)
+    if "{" in name or "}" in name:
+        raise ConfigError(f"{ctx}: field 'name': unbalanced braces in {base!r}")
+    return name
+
+
+def _expand_campaign(t: dict[str, Any], ctx: str, origin: str, rate: float,
+                     pair: tuple[str, ...] = ()) -> list[RunSpec]:
+    """Cartesian product over the listed fields (``pair`` zipped into one axis).
+
+    Run names say what varies (see the module docstring).
+    """
     base = t.get("name")
     if not base:
         raise ConfigError(f"{ctx}: missing field 'name'")
     varying = [k for k in _LISTABLE if isinstance(t.get(k), list)]
-    lists = [t[k] for k in varying]
-    n = math.prod(len(v) for v in lists) if lists else 1
+    # axes: each unpaired list alone; the paired lists as one axis of tuples, placed
+    # where the first of them sits among the varying fields
+    axes: list[tuple[tuple[str, ...], list[tuple[Any, ...]]]] = []
+    for k in varying:
+        if k in pair:
+            if k == next(f for f in varying if f in pair):
+                axes.append((pair, list(zip(*(t[f] for f in pair), strict=True))))
+        else:
+            axes.append(((k,), [(v,) for v in t[k]]))
+    n = math.prod(len(vals) for _, vals in axes) if axes else 1
     if n > 500:
         raise ConfigError(f"{ctx}: expands to {n} runs (more than 500)")
+    fields = [k for keys, _ in axes for k in keys]
     out = []
-    for combo in itertools.product(*lists) if lists else [()]:
+    for combo in itertools.product(*(vals for _, vals in axes)):
+        values = [v for group in combo for v in group]
         merged = dict(t)
-        merged.update(zip(varying, combo))
-        suffix = "-".join(_fmt_val(k, v) for k, v in zip(varying, combo))
-        merged["name"] = f"{base}-{suffix}" if suffix else base
+        merged.update(zip(fields, values))
+        merged["name"] = _run_name(str(base), fields, values, merged, ctx)
         out.append(_make_run(merged, f"{ctx} run '{merged['name']}'", origin, rate))
     return out
