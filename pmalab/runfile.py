@@ -179,8 +179,10 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
 
     Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
     Runs recorded by :mod:`pmalab.acquisition` also carry ``attrs["status"]``
-    ("completed", "aborted: <reason>", or "running" for a file whose writer was killed)
-    and ``attrs["timing"]`` (lateness statistics); runs never started are skipped.
+    ("completed", "aborted: <reason>", or "running" for a file whose writer was killed),
+    ``attrs["timing"]`` (lateness statistics) and ``attrs["device_stats"]`` (the devices'
+    link/fault counters at the run's end, a dict; {} when the rig reports none); runs
+    never started are skipped.
     """
     path = Path(path)
     if not path.exists():
@@ -229,11 +231,12 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
             chans = validate_channels(path, name, raw)
             attrs = {k: _decode(v) for k, v in g.attrs.items()}
             attrs.update(extra)
-            if isinstance(attrs.get("protocol"), str):
-                try:
-                    attrs["protocol"] = json.loads(attrs["protocol"])
-                except json.JSONDecodeError:
-                    pass
+            for key in ("protocol", "device_stats"):
+                if isinstance(attrs.get(key), str):
+                    try:
+                        attrs[key] = json.loads(attrs[key])
+                    except json.JSONDecodeError:
+                        pass
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out:
             raise _fail(path, None, None, "no run holds recorded samples (statuses: "
@@ -275,6 +278,13 @@ def _recording_state(g: Any) -> dict[str, Any]:
             out["timing"] = {k: v for k, v in zip(fields, vals) if v == v}
         except (ValueError, TypeError):
             pass
+    if "device_stats" in g:
+        text = _decode(g["device_stats"][()]).rstrip("\x00 ")
+        try:
+            stats = json.loads(text) if text else {}
+        except json.JSONDecodeError:
+            stats = {"error": "unreadable device_stats"}
+        out["device_stats"] = stats if isinstance(stats, dict) else {"value": stats}
     return out
 
 

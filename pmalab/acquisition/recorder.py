@@ -6,8 +6,9 @@ Design (why it survives ``kill -9`` at any moment):
    is not sample data created up front**: root attrs, one group per run of the protocol
    with all its attrs (nominal pressure, waveform, protocol JSON, rig info, calibration,
    software version, ...), every channel dataset (chunked, extent 0, unlimited), a
-   fixed-length string dataset ``status`` ("pending") and a float dataset ``timing``
-   whose field names are an attr.  Then the file switches to SWMR write mode
+   fixed-length string dataset ``status`` ("pending"), a float dataset ``timing``
+   whose field names are an attr, and a fixed-length string dataset ``device_stats``
+   (empty; at the run's end the JSON of the sampler's fault counters, ``stats()``).  Then the file switches to SWMR write mode
    (single-writer/multiple-reader, ``libver="latest"``) and only then is it renamed to
    ``OUT.h5`` (an atomic ``os.replace`` of an open file).  So the output name never
    points at a file that is not already in SWMR mode with its metadata complete; a kill
@@ -17,7 +18,7 @@ Design (why it survives ``kill -9`` at any moment):
    ``kill -9`` freezes the file in one of those instants (the kernel keeps what the
    process had written).  No attribute is created or resized after the switch (HDF5
    forbids it in SWMR mode); the end-of-run facts (status, timing statistics) are
-   *values* written into the pre-created ``status``/``timing`` datasets.
+   *values* written into the pre-created ``status``/``timing``/``device_stats`` datasets.
 3. Samples are buffered in memory and appended (resize + write + ``flush``) at least
    every ``flush_interval_s`` = 0.25 s of wall time, so a kill loses at most the last
    0.25 s (+ one flush) of samples; a flush of ~125 samples × 7 channels costs ~0.1 ms.
@@ -51,6 +52,9 @@ RECORDED = ("time", "position", "force", "muscle_pressure", "cylinder_pressure",
 TIMING_FIELDS = ("start_unix_s", "n_samples", "duration_s", "late", "missed",
                  "lateness_p50_s", "lateness_p99_s", "lateness_max_s", "late_threshold_s")
 STATUS_LEN = 256
+#: bytes reserved for the per-run ``device_stats`` JSON (fixed length: no resize in SWMR
+#: mode); a Modbus link + ITV + indicator report ~1 kB
+DEVICE_STATS_LEN = 8192
 CHUNK = 4096
 
 
@@ -76,6 +80,7 @@ class RunWriter:
         self._late_ds = g["lateness"]
         self._status = g["status"]
         self._timing = g["timing"]
+        self._device_stats = g["device_stats"]
         self._buf: list[list[float]] = [[] for _ in RECORDED]
         self._late_buf: list[float] = []
         self.n = 0  # samples written to the file
@@ -112,6 +117,15 @@ class RunWriter:
     def set_status(self, status: str) -> None:
         raw = status.encode("utf-8")[: STATUS_LEN - 1]
         self._status[()] = np.bytes_(raw)
+
+    def set_device_stats(self, stats: dict[str, Any]) -> None:
+        """Store the devices' fault counters (JSON) in the run's ``device_stats`` dataset."""
+        text = json.dumps(stats, sort_keys=True, separators=(",", ":"), default=str)
+        raw = text.encode("utf-8")
+        if len(raw) >= DEVICE_STATS_LEN:  # never write a cut (unparsable) JSON text
+            raw = json.dumps({"error": f"device stats too long to record ({len(raw)} bytes > "
+                              f"{DEVICE_STATS_LEN - 1})"}).encode("utf-8")
+        self._device_stats[()] = np.bytes_(raw)
 
     def commit(self) -> None:
         """Append the buffered samples to the datasets and flush the file (SWMR-safe)."""
@@ -202,6 +216,10 @@ class Recorder:
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
                 t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)
+                d = g.create_dataset("device_stats", data=np.bytes_(b""),
+                                     dtype=f"S{DEVICE_STATS_LEN}")
+                d.attrs["description"] = ("JSON: the devices' link/fault counters at the "
+                                          "run's end, cumulative since the rig was opened")
             f.flush()
             f.swmr_mode = True  # from here on: no new attrs/objects, only data writes
             os.replace(tmp, self.path)

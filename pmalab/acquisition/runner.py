@@ -16,6 +16,17 @@ on a trip, Ctrl-C (``KeyboardInterrupt``), any exception or a device fault
 next deadline), the muscle supply is vented where it is automatic, the run is closed as
 ``aborted: <reason>`` with its samples, and :class:`~pmalab.errors.SafetyAbort` is raised.
 Every exit path — completed or not — ends with the regulator vented.
+
+Reduced rate.  A rig loaded with ``allow_reduced_rate = true`` whose link probe found the
+protocol's rate unsustainable has ``rig.info["timing"]["reduced"]`` set and a lower
+``rig.sampler.sample_rate_Hz``; the runner then keeps its deadlines at that rate, records
+it as each run's ``sample_rate_Hz`` (with ``requested_sample_rate_Hz`` = the protocol's)
+and prints one warning line.  A run whose waveform would get fewer than 20 samples per
+period at that rate is refused before anything moves.
+
+Device statistics.  When the sampler has ``stats()`` (the drivers' link/ITV/indicator
+fault counters: retries, timeouts, reconnects, bad frames, ...), its JSON is stored in
+each run's ``device_stats`` dataset at the run's end — completed or aborted.
 """
 
 from __future__ import annotations
@@ -39,7 +50,12 @@ from typing import Any
 from pmalab import __version__
 from pmalab.acquisition.protocol import Protocol, RunSpec
 from pmalab.acquisition.recorder import Recorder, RunWriter
-from pmalab.acquisition.safety import SafetyMonitor, effective_limits, preflight
+from pmalab.acquisition.safety import (
+    ProtocolRefused,
+    SafetyMonitor,
+    effective_limits,
+    preflight,
+)
 from pmalab.acquisition.waveforms import command_samples
 from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output
@@ -127,13 +143,18 @@ def info_json(info: dict[str, Any]) -> str:
     return json.dumps(clean, sort_keys=True)
 
 
-def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig) -> dict[str, Any]:
-    """The per-run attrs (contract fields first, then provenance)."""
+def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig,
+              rate_Hz: float | None = None) -> dict[str, Any]:
+    """The per-run attrs (contract fields first, then provenance).
+
+    ``rate_Hz`` is the rate actually recorded at (default: the protocol's).
+    """
     return {
         "muscle_pressure_MPa": spec.muscle_pressure_MPa,
         "waveform": spec.waveform,
         "frequency_Hz": spec.frequency_Hz,
-        "sample_rate_Hz": protocol.sample_rate_Hz,
+        "sample_rate_Hz": rate_Hz or protocol.sample_rate_Hz,
+        "requested_sample_rate_Hz": protocol.sample_rate_Hz,
         "protocol": spec.to_json(),
         "role": spec.role,
         "amplitude_MPa": spec.amplitude_MPa,
@@ -235,10 +256,60 @@ def _realtime_scheduling(rig: Rig, opts: RunnerOptions):
                 os.sched_setscheduler(0, old_policy, old_param)
 
 
+def recording_rate(rig: Rig, protocol: Protocol) -> tuple[float, str | None]:
+    """The rate to record at (Hz) and, when reduced, a one-line warning.
+
+    Reduced only when the rig says so (``rig.info["timing"]["reduced"]``: its loader
+    probed the link with ``allow_reduced_rate = true``) and the sampler's rate is below
+    the protocol's.  Raises :class:`ProtocolRefused` when a run's waveform would get fewer
+    than 20 samples per period at the reduced rate.
+    """
+    requested = float(protocol.sample_rate_Hz)
+    timing = rig.info.get("timing")
+    reduced = isinstance(timing, dict) and bool(timing.get("reduced"))
+    rate = float(getattr(rig.sampler, "sample_rate_Hz", requested) or requested)
+    if not reduced or rig.sampler.hardware_timed or not 0 < rate < requested:
+        return requested, None
+    where = protocol.path or protocol.name
+    for r in protocol.runs:
+        if r.frequency_Hz > rate / 20 + 1e-12:
+            raise ProtocolRefused(
+                f"{where}: run '{r.name}': refused: field 'frequency_Hz' = {r.frequency_Hz:g} "
+                f"Hz needs ≥ {20 * r.frequency_Hz:g} Hz sampling, but the rig's link sustains "
+                f"only {rate:g} Hz (reduced rate)"
+            )
+    name = rig.info.get("name") or rig.info.get("kind") or "rig"
+    sustain = timing.get("sustainable_Hz") if isinstance(timing, dict) else None
+    why = f" (its link sustains about {sustain:.0f} Hz)" if isinstance(sustain, int | float) else ""
+    return rate, (f"pmalab: warning: {name}: recording at a reduced {rate:g} Hz instead of "
+                  f"the protocol's {requested:g} Hz{why}; allow_reduced_rate = true")
+
+
+def _device_stats(rig: Rig) -> dict[str, Any] | None:
+    """The sampler's fault counters (``stats()``), or None when it has none."""
+    stats = getattr(rig.sampler, "stats", None)
+    if not callable(stats):
+        return None
+    try:
+        d = stats()
+    except Exception as exc:  # counters are provenance: never let them fail a run
+        return {"error": f"stats() failed: {type(exc).__name__}: {exc}"}
+    return d if isinstance(d, dict) else {"value": d}
+
+
+def _store_device_stats(rig: Rig, w: RunWriter) -> None:
+    d = _device_stats(rig)
+    if d is not None:
+        w.set_device_stats(d)
+
+
 def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                   opts: RunnerOptions) -> list[RunResult]:
     preflight(protocol, rig)
+    rate, warning = recording_rate(rig, protocol)
     out = check_output(out, force)
+    if warning:
+        print(warning, file=sys.stderr, flush=True)
     limits = effective_limits(rig)
     monitor = SafetyMonitor(limits)
     root = {
@@ -252,13 +323,14 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "limits": json.dumps(limits.__dict__, sort_keys=True),
         "clock": "virtual" if rig.clock.virtual else "real",
-        "sample_rate_Hz": protocol.sample_rate_Hz,
+        "sample_rate_Hz": rate,
+        "requested_sample_rate_Hz": protocol.sample_rate_Hz,
         **opts.extra_attrs,
     }
     results: list[RunResult] = []
     pbar = _progress(protocol, opts.progress)
     try:
-        rec = Recorder(out, [(r.name, run_attrs(r, protocol, rig)) for r in protocol.runs],
+        rec = Recorder(out, [(r.name, run_attrs(r, protocol, rig, rate)) for r in protocol.runs],
                        root, flush_interval_s=opts.flush_interval_s)
         try:
             rig.cylinder_regulator.set_pressure(0.0)
@@ -267,14 +339,14 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                 w = rec.writer(spec.name)
                 w.late_threshold_s = opts.late_threshold_s
                 try:
-                    _wait_for_muscle_pressure(rig, spec, protocol.sample_rate_Hz, monitor, opts,
-                                              pbar)
-                    _record(rig, spec, protocol.sample_rate_Hz, monitor, w, rec, opts, pbar)
+                    _wait_for_muscle_pressure(rig, spec, rate, monitor, opts, pbar)
+                    _record(rig, spec, rate, monitor, w, rec, opts, pbar)
                 except BaseException as exc:
                     # vent FIRST — before any file work — then close the run as aborted
                     _vent(rig)
                     reason = _reason(exc)
                     try:
+                        _store_device_stats(rig, w)
                         w.finish(f"aborted: {reason}")
                         for later in protocol.runs[i + 1:]:
                             rec.writer(later.name).set_status("not run: campaign aborted")
@@ -290,6 +362,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     ) from (exc if isinstance(exc, Exception) else None)
                 # end of a run: command zero before the next pressure level
                 rig.cylinder_regulator.set_pressure(0.0)
+                _store_device_stats(rig, w)
                 timing = w.finish("completed")
                 results.append(_result(spec.name, "completed", w, timing))
         finally:
