@@ -122,7 +122,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "position_time_constant_ms": F(1.0, 0.0, None, False, "first-order lag (ms)"),
         "force_noise_N": F(0.7, 0.0, None, False, "rms noise (N)"),
         "force_resolution_N": F(0.1, 0.0, None, False, "quantization step (N)"),
-        "force_time_constant_ms": F(2.0, 0.0, None, False, "first-order lag (ms)"),
+        "force_time_constant_ms": F(1.0, 0.0, None, False, "first-order lag (ms)"),
         "pressure_noise_MPa": F(0.001, 0.0, None, False, "rms noise of both pressure gauges (MPa)"),
         "pressure_resolution_MPa": F(0.001, 0.0, None, False, "quantization step (MPa)"),
         "pressure_time_constant_ms": F(5.0, 0.0, None, False, "first-order lag (ms)"),
