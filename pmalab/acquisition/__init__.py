@@ -10,7 +10,9 @@ Public API (the CLI verbs ``run``, ``import``, ``recover`` are thin wrappers)::
 
 Each run in the file carries the contract attrs plus ``role`` ("identification" |
 "validation"), ``steady_start_s``/``steady_end_s`` (the full-amplitude cycles, s from the
-run's time zero) and, via :func:`pmalab.runfile.read_runs`, ``status`` and ``timing``.
+run's time zero), ``sample_rate_Hz`` as recorded (lower than
+``requested_sample_rate_Hz`` on a reduced-rate rig) and, via
+:func:`pmalab.runfile.read_runs`, ``status``, ``timing`` and ``device_stats`` (dict).
 Modules: :mod:`.protocol` (TOML), :mod:`.waveforms` (commands), :mod:`.safety`,
 :mod:`.recorder` (SWMR HDF5 writer), :mod:`.runner`, :mod:`.csv_import`, :mod:`.recover`.
 """
