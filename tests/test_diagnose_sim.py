@@ -47,7 +47,7 @@ def campaign_protocol(freqs: tuple[float, float] = (0.25, 1.0), cycles: float = 
 
 
 #: effects that need another protocol: (frequencies, cycles)
-PROTOCOLS = {"inertia": ((0.5, 2.0), 3), "sensor-drift": ((0.25, 0.5), 6)}
+PROTOCOLS = {"inertia": ((1.0, 2.5), 6), "sensor-drift": ((0.25, 0.5), 6)}
 
 
 def simulate(effect: str, out_dir: Path, seed: int, freqs: tuple[float, float] | None = None) -> Path:

@@ -9,6 +9,12 @@ add a direction-dependent slope: the law is driven by the path coordinate
 x' = x + ψ_a·∫|dx| (dx' = (1 + ψ_a·σ)·dx, σ = sgn(ẋ)), which scales both A and the decay
 rate of one branch.  The effect returns h_asym − h, the change of the hysteretic force.
 
+Loops of a McKibben muscle are also not point-symmetric along the stroke: the braid
+presses harder on the bladder where the muscle is stretched, so the loop is wide at low
+contraction and narrow at high contraction.  Both laws therefore get a position-dependent
+loop width: h → h·(1 + g·x), x the absolute contraction (mm; shared by every run of a
+pressure level).
+
 Duhem (Coleman–Hodgdon): the memory rate α and the reversal slope b become direction
 dependent, α·(1 + ψ_α·σ), b·(1 + ψ_b·σ), through the law's own extras.
 """
@@ -57,6 +63,9 @@ class AsymmetricHysteresis(Effect):
                   doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α"),
             Param("asym_psi_h", 0.0, -5.0, 5.0, "1/mm",
                   doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b"),
+            # the width factor 1 + g·x stays positive over the stroke (x ≤ 30 mm)
+            Param("asym_g", 0.0, -0.03, 0.2, "1/mm",
+                  doc="loop width change per mm of contraction (h scaled by 1 + g·x)"),
         ]
 
     def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
@@ -70,8 +79,9 @@ class AsymmetricHysteresis(Effect):
         return {}
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
-        if not {"A", "beta", "gamma", "n"} <= theta.keys():  # Duhem: handled by its extras
-            return 0.0
+        width = 1.0 + theta["asym_g"] * sig.x
+        if not {"A", "beta", "gamma", "n"} <= theta.keys():  # Duhem: ψ's are in its extras
+            return h * (width - 1.0)
         extras = {"psi_v": theta["asym_psi_v"], "psi_h": theta["asym_psi_h"]}
         h_asym = BoucWen().h(path_warp(sig.x, theta["asym_psi_a"]), theta, extras)
-        return h_asym - h
+        return h_asym * width - h
