@@ -141,7 +141,7 @@ def diagnosis_doc() -> dict:
     acf = np.exp(-np.arange(40) / 8.0)
     ccf_lags = (np.arange(-39, 40) * 0.05).tolist()
     ccf = 0.5 * np.exp(-np.abs(np.arange(-39, 40)) / 8.0) * np.cos(np.arange(-39, 40) / 6)
-    return {
+    doc = {
         "model": "bouc-wen",
         "ranking": [
             {"effect": "viscous-friction", "nrmse_before": 0.12, "nrmse_after": 0.04,
@@ -176,6 +176,7 @@ def diagnosis_doc() -> dict:
                 "acf": {"lags_s": lags, "values": acf.tolist(), "bound95": 0.08},
                 "ccf_input": {"lags_s": ccf_lags, "values": ccf.tolist(), "bound95": 0.08,
                               "input": "position", "peak_lag_s": 0.0},
+                "nrmse": 0.12, "nrmse_final": 0.037,
                 "worst_region": "stretch, high contraction (x 14.7–20.0 mm): rms error 6.1 N "
                                 "(1.5× the run's 4.2 N), mean +3.9 N: model tension too low",
                 "regions": [
@@ -194,7 +195,20 @@ def diagnosis_doc() -> dict:
             }
         },
         "summary": "viscous-friction explains most of the residual (nrmse 0.12 → 0.04).",
+        "final_model": "bouc-wen+viscous-friction+asymmetric-hysteresis",
+        "campaign_diagnostics": {
+            "pressure_level": {"centers": [0.3102, 0.4762], "mean": [0.5, -0.2],
+                               "rms": [5.0, 4.2], "ci95_rms": [None, None], "unit": "MPa"},
+            "frequency": {"centers": [0.15], "mean": [0.1], "rms": [4.6], "ci95_rms": [1.0],
+                          "unit": "Hz"},
+        },
     }
+    # a second run with only an autocorrelation: worse, so its page comes first
+    doc["diagnostics"]["ident.h5:p3102"] = {
+        "nrmse": 0.2, "nrmse_final": 0.05,
+        "acf": {"lags_s": lags, "values": (0.8 * acf).tolist(), "bound95": 0.08},
+        "worst_region": "release branch, low contraction"}
+    return doc
 
 
 def write_identification_dir(d: Path, **kw) -> Path:
@@ -214,6 +228,8 @@ def write_diagnosis_dir(d: Path, *, with_predictions: bool = True) -> Path:
             name = f"p{int(round(p * 1e4)):04d}"
             entries.append((f"diag__{name}", "diagnosis", "ident.h5", name, p, 0.15,
                             synthetic_trace(p, 0.15, seed=20 + i, model_error=0.1)))
+            entries.append((f"diag__{name}-final", "diagnosis-final", "ident.h5", name, p, 0.15,
+                            synthetic_trace(p, 0.15, seed=20 + i, model_error=0.01)))
         write_predictions(d / "predictions.h5", entries, "bouc-wen")
     return d
 

@@ -59,6 +59,8 @@ FULL_PAGES = [
     "Identified parameters (value ± standard error) and identifiability",
     "Parameter correlation (identifiability); |ρ| > 0.95 outlined",
     "Validation: pressure-quadratic model, free-run prediction",
+    "Where the base model fails across the campaign",
+    "Residual diagnostics — ident.h5:p3102",
     "Residual diagnostics — ident.h5:p4762",
     "Effect ranking and ladder",
 ]
@@ -67,12 +69,12 @@ FULL_PAGES = [
 def test_full_report_pages_render_and_none_is_blank(full_report):
     _, out, lines = full_report
     imgs = render_pages(out)
-    assert len(imgs) == len(FULL_PAGES) == 11
+    assert len(imgs) == len(FULL_PAGES) == 13
     for i, img in enumerate(imgs):
         frac = ink_fraction(img)
         assert frac > 0.01, f"page {i + 1} ({FULL_PAGES[i]}) looks blank: {frac:.4f}"
     # one progress line per page, in order
-    assert lines == [f"page {i}/11: {t}" for i, t in enumerate(FULL_PAGES, 1)]
+    assert lines == [f"page {i}/13: {t}" for i, t in enumerate(FULL_PAGES, 1)]
 
 
 def test_page_plan_matches_contents(full_report):
@@ -100,12 +102,16 @@ def test_diagnosis_only_report(tmp_path):
     assert titles == ["Title page", "Time histories — base model bouc-wen (diagnosis)",
                       "Measured vs model loops per pressure level — base model bouc-wen "
                       "(diagnosis)",
-                      "Residual diagnostics — ident.h5:p4762", "Effect ranking and ladder"]
-    assert len(imgs) == 5
+                      "Where the base model fails across the campaign",
+                      "Residual diagnostics — ident.h5:p3102",
+                      "Residual diagnostics — ident.h5:p4762",
+                      "The error falling: base model vs final model",
+                      "Effect ranking and ladder"]
+    assert len(imgs) == 8
     assert min(ink_fraction(i) for i in imgs) > 0.01
     # without predictions.h5 the signal pages are skipped, not blank
     d2 = rf.write_diagnosis_dir(tmp_path / "diag2", with_predictions=False)
-    assert len(plan_pages(load_report_dir(d2))) == 3
+    assert len(plan_pages(load_report_dir(d2))) == 5
 
 
 def test_no_overwrite_without_force_and_atomic_replace(tmp_path, full_report):
@@ -130,11 +136,15 @@ def test_cli_report_with_png_export(tmp_path, capsys):
     out, png = tmp_path / "out" / "rep.pdf", tmp_path / "png"
     assert main(["report", str(d), "--out", str(out), "--png", str(png)]) == 0
     printed = capsys.readouterr().out.splitlines()
-    assert printed[:3] == ["page 1/3: Title page", "page 2/3: Residual diagnostics — "
-                           "ident.h5:p4762", "page 3/3: Effect ranking and ladder"]
+    assert printed[:5] == ["page 1/5: Title page",
+                           "page 2/5: Where the base model fails across the campaign",
+                           "page 3/5: Residual diagnostics — ident.h5:p3102",
+                           "page 4/5: Residual diagnostics — ident.h5:p4762",
+                           "page 5/5: Effect ranking and ladder"]
     assert printed[-1] == f"report written: {out}"
-    assert sorted(p.name for p in png.iterdir()) == ["01-title.png", "02-residuals-1.png",
-                                                     "03-effects.png"]
+    assert sorted(p.name for p in png.iterdir()) == [
+        "01-title.png", "02-campaign.png", "03-residuals-1.png", "04-residuals-2.png",
+        "05-effects.png"]
     # second time: refused (exit 2, one line), then --force works quietly
     assert main(["report", str(d), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -142,7 +152,7 @@ def test_cli_report_with_png_export(tmp_path, capsys):
     assert main(["report", str(d), "--out", str(out), "--force", "--quiet", "--svg",
                  str(tmp_path / "svg")]) == 0
     assert capsys.readouterr().out == ""
-    assert len(list((tmp_path / "svg").glob("*.svg"))) == 3
+    assert len(list((tmp_path / "svg").glob("*.svg"))) == 5
 
 
 # --------------------------------------------------------------------------- bad input
@@ -216,8 +226,8 @@ def test_missing_and_empty_directories(tmp_path):
      "predictions.h5: format: expected 'pmalab.predictions', got 'pmalab.run'"),
     (lambda f: f["runs/ident__p3102"].__delitem__("force_model"),
      "predictions.h5: /runs/ident__p3102/force_model: missing dataset"),
-    (lambda f: f["runs/val__p0304"].attrs.__setitem__("role", "test"),
-     "predictions.h5: /runs/val__p0304: attr 'role': expected one of"),
+    (lambda f: f["runs/val__p0304"].attrs.__delitem__("role"),
+     "predictions.h5: /runs/val__p0304: attr 'role': expected a string"),
 ])
 def test_bad_predictions(ident_dir, mutate, needle):
     with h5py.File(ident_dir / "predictions.h5", "a") as f:
@@ -256,3 +266,23 @@ def test_many_runs_are_split_over_pages(tmp_path):
     assert sum(t.startswith("Identified parameters") for t in titles) == 2
     assert sum(t.startswith("Parameter correlation") for t in titles) == 2
     assert sum(t.startswith("Parameters against") for t in titles) == 1
+
+
+def test_identify_and_diagnose_directories_merge_into_one_report(tmp_path):
+    di = rf.write_identification_dir(tmp_path / "ident")
+    dd = rf.write_diagnosis_dir(tmp_path / "diag")
+    with h5py.File(dd / "predictions.h5", "a") as f:  # a role the report does not draw
+        f["runs/diag__p3102"].attrs["role"] = "scratch"
+    data = load_report_dir([di, dd])
+    assert data.directories == [di, dd]
+    titles = [p.title for p in plan_pages(data)]
+    assert titles[:9] == FULL_PAGES[:9]
+    assert titles[9:] == ["Where the base model fails across the campaign",
+                           "Residual diagnostics — ident.h5:p3102",
+                           "Residual diagnostics — ident.h5:p4762",
+                           "The error falling: base model vs final model",
+                           "Effect ranking and ladder"]
+    # two directories holding the same document: one clear error
+    dd2 = rf.write_diagnosis_dir(tmp_path / "diag2", with_predictions=False)
+    with pytest.raises(ReportError, match=r"diag2/diagnosis\.json: a second diagnosis\.json"):
+        load_report_dir([dd, dd2])

@@ -181,3 +181,27 @@ def test_provenance_summary_structured_and_free_form():
         "operator": "A. B.", "rig": "bench 2", "extra": {"a": 1}}}])
     assert blocks == [("x.csv", ["rig: bench 2", "operator: A. B.", "extra.a: 1"])]
     assert rows == []
+
+
+def test_before_after_uses_the_base_error_scale_for_both_rows():
+    base = _trace(120, 0.4, "diagnosis")
+    final = _trace(120, 0.4, "diagnosis-final")
+    final.force_model = final.force + 0.1 * (base.force_model - base.force)
+    fig = F.before_after_figure([(base, final)], final_name="bouc-wen + viscous-friction")
+    data_axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    (lc_base,), (lc_final,) = (ax.collections for ax in data_axes)
+    assert lc_base.norm is lc_final.norm
+    np.testing.assert_allclose(lc_final.get_array(), 0.1 * lc_base.get_array(), rtol=1e-9)
+    assert "bouc-wen + viscous-friction" in data_axes[1].get_title()
+
+
+def test_campaign_figure_sorts_runs_worst_first():
+    fig = F.campaign_figure(
+        [{"label": "a", "nrmse": 0.1, "nrmse_final": 0.05},
+         {"label": "b", "nrmse": 0.3, "nrmse_final": 0.1}],
+        rf.diagnosis_doc()["campaign_diagnostics"], final_model="bw + visc")
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["b", "a"]
+    heights = [p.get_height() for p in ax.patches]
+    np.testing.assert_allclose(heights, [0.3, 0.1, 0.1, 0.05])
+    assert len(fig.axes) == 3  # NRMSE bars + pressure level + frequency

@@ -25,14 +25,23 @@ from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import ReportData, Trace, load_report_dir
 from pmalab.reports.errors import ReportError
-from pmalab.reports.figures_diagnosis import effects_figure, residual_diagnostics_figure
+from pmalab.reports.figures_diagnosis import (
+    campaign_figure,
+    effects_figure,
+    residual_diagnostics_figure,
+)
 from pmalab.reports.figures_parameters import (
     correlation_figure,
     metrics_table_figure,
     parameter_table_figure,
     parameters_vs_pressure_figure,
 )
-from pmalab.reports.figures_signals import loops_figure, time_history_figure, validation_figure
+from pmalab.reports.figures_signals import (
+    before_after_figure,
+    loops_figure,
+    time_history_figure,
+    validation_figure,
+)
 from pmalab.reports.figures_text import (
     provenance_figure,
     summarize_provenance,
@@ -46,6 +55,8 @@ VALIDATION_PER_PAGE = 2
 PARAMS_PER_PAGE = 9
 TABLE_RUNS_PER_PAGE = 7
 CORR_PER_PAGE = 6
+MAX_RESIDUAL_PAGES = 4
+BEFORE_AFTER_RUNS = 3
 PROVENANCE_ROWS_PER_PAGE = 16
 
 
@@ -197,11 +208,38 @@ def plan_pages(data: ReportData) -> list[Page]:
 
     # diagnosis
     if diag:
-        for i, (label, d) in enumerate((diag.get("diagnostics") or {}).items()):
-            if not (d.get("binned") or d.get("acf") or d.get("ccf_input")):
-                continue
-            pages.append(Page(f"Residual diagnostics — {label}", f"residuals-{i + 1}",
+        diags = diag.get("diagnostics") or {}
+        final_name = _final_model_name(diag)
+        per_run = [{"label": k, "nrmse": d.get("nrmse"), "nrmse_final": d.get("nrmse_final")}
+                   for k, d in diags.items()]
+        if any(r["nrmse"] is not None for r in per_run) or diag.get("campaign_diagnostics"):
+            pages.append(Page("Where the base model fails across the campaign", "campaign",
+                              lambda: campaign_figure(
+                                  [r for r in per_run if r["nrmse"] is not None],
+                                  diag.get("campaign_diagnostics"), final_model=final_name)))
+        # residual panels for the worst runs (by base-model NRMSE when known)
+        drawable = [(k, d) for k, d in diags.items()
+                    if d.get("binned") or d.get("acf") or d.get("ccf_input")]
+        drawable.sort(key=lambda kd: -(kd[1].get("nrmse") or 0.0))
+        shown = drawable[:MAX_RESIDUAL_PAGES]
+        for i, (label, d) in enumerate(shown):
+            title = f"Residual diagnostics — {label}"
+            if len(drawable) > len(shown):
+                title += f" (worst {i + 1} of {len(drawable)} runs)"
+            pages.append(Page(title, f"residuals-{i + 1}",
                               lambda lb=label, dd=d: residual_diagnostics_figure(lb, dd)))
+        # base vs final model, when the ladder added effects
+        if final_name is not None:
+            finals = {_key(t.file, t.run): t for t in data.traces_with_role("diagnosis-final")}
+            pairs = [(t, finals[_key(t.file, t.run)]) for t in data.traces_with_role("diagnosis")
+                     if _key(t.file, t.run) in finals]
+            pairs.sort(key=lambda p: -p[0].nrmse)
+            if pairs:
+                chosen = pairs[:BEFORE_AFTER_RUNS]
+                pages.append(Page("The error falling: base model vs final model", "before-after",
+                                  lambda c=chosen: before_after_figure(
+                                      c, base_name=f"base {diag['model']}",
+                                      final_name=final_name)))
         if diag["ranking"] or diag.get("ladder"):
             pages.append(Page("Effect ranking and ladder", "effects", lambda: effects_figure(
                 diag["ranking"], diag.get("ladder") or [], ambiguous=diag.get("ambiguous") or [],
@@ -213,11 +251,21 @@ def plan_pages(data: ReportData) -> list[Page]:
     return pages
 
 
+def _final_model_name(diag: dict) -> str | None:
+    """``bouc-wen + viscous-friction`` when the ladder added effects, else None."""
+    ladder = diag.get("ladder") or []
+    if len(ladder) < 2:
+        return None
+    effects = ladder[-1].get("effects") or [s.get("added") for s in ladder[1:]]
+    return f"{diag['model']} + {', '.join(str(e) for e in effects if e)}"
+
+
 def _title_page(data: ReportData, contents: list[str]) -> Figure:
     doc = data.identification or data.diagnosis or {}
     datasets = []
-    for t in sorted(data.traces, key=lambda t: (("identification", "diagnosis", "validation")
-                                                .index(t.role), t.muscle_pressure_MPa)):
+    order = ("identification", "diagnosis", "validation")
+    shown = [t for t in data.traces if t.role in order]  # (final-model copies left out)
+    for t in sorted(shown, key=lambda t: (order.index(t.role), t.muscle_pressure_MPa)):
         datasets.append({"role": t.role, "label": t.label, "p": t.muscle_pressure_MPa,
                          "f": t.frequency_Hz, "waveform": t.waveform, **timing_stats(t.time)})
     effects = list(doc.get("effects") or [])
@@ -229,7 +277,8 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
             seen.setdefault(Path(t.file).name or "?", []).append(t.run)
         inputs = [{"file": f, "runs": r} for f, r in seen.items()]
     return title_page_figure(
-        model=data.model, effects=effects, directory=str(data.directory),
+        model=data.model, effects=effects,
+        directory=", ".join(str(d) for d in data.directories or [data.directory]),
         created=str(doc.get("created", "")), version=str(doc.get("pmalab_version", "")),
         inputs=inputs, datasets=datasets, summary=summary, contents=contents)
 
@@ -238,14 +287,18 @@ def _slug(s: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", s.lower()).strip("-")
 
 
+def _names(data: ReportData) -> str:
+    return " + ".join(d.name for d in data.directories or [data.directory])
+
+
 def _footer(fig: Figure, data: ReportData, i: int, n: int) -> None:
     with mpl.rc_context(style.RC):
-        fig.text(0.99, 0.005, f"pmalab report · {data.model} · {data.directory.name} · "
+        fig.text(0.99, 0.005, f"pmalab report · {data.model} · {_names(data)} · "
                  f"page {i}/{n}", ha="right", va="bottom", fontsize=8, color="0.4")
 
 
 def build_report(
-    directory: str | Path,
+    directory: str | Path | Sequence[str | Path],
     out: str | Path,
     force: bool = False,
     *,
@@ -253,7 +306,8 @@ def build_report(
     svg_dir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> Path:
-    """Render the report of a result directory into the PDF ``out`` and return its path.
+    """Render the report of a result directory (or of several merged: e.g. an identify
+    output and a diagnose output) into the PDF ``out`` and return its path.
 
     ``png_dir``/``svg_dir`` also export every page as ``NN-<slug>.png``/``.svg``.
     ``progress`` receives one line per page written (the CLI passes ``print``).
@@ -280,7 +334,7 @@ def build_report(
     tmp = out.with_name(f".{out.name}.part")
     n = len(pages)
     try:
-        meta = {"Title": f"pmalab report: {data.model} ({data.directory.name})",
+        meta = {"Title": f"pmalab report: {data.model} ({_names(data)})",
                 "Creator": f"pmalab {__version__}", "Subject": "pneumatic muscle identification",
                 "CreationDate": datetime.now(UTC)}
         with PdfPages(tmp, metadata=meta) as pdf:

@@ -11,9 +11,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "report",
         help="multi-page PDF report of an identification and/or diagnosis directory",
         description="Render DIR (identification.json, diagnosis.json, predictions.h5 as "
-        "written by 'pmalab identify'/'pmalab diagnose') into a multi-page PDF.",
+        "written by 'pmalab identify'/'pmalab diagnose') into a multi-page PDF.  Pages for "
+        "parts a directory lacks are left out.",
     )
-    p.add_argument("directory", metavar="DIR", help="identification/diagnosis output directory")
+    p.add_argument("directories", nargs="+", metavar="DIR",
+                   help="identification and/or diagnosis output directory (several are merged "
+                   "into one report, e.g. an identify --out and a diagnose --out)")
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     exp = p.add_mutually_exclusive_group()
@@ -26,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_report(args: argparse.Namespace) -> int:
     from pmalab.reports.build import build_report
 
-    out = build_report(args.directory, args.out, args.force, png_dir=args.png,
+    out = build_report(args.directories, args.out, args.force, png_dir=args.png,
                        svg_dir=args.svg, progress=None if args.quiet else print)
     if not args.quiet:
         print(f"report written: {out}")

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,9 @@ DIAGNOSIS_JSON = "diagnosis.json"
 PREDICTIONS_H5 = "predictions.h5"
 PREDICTIONS_FORMAT = "pmalab.predictions"
 TRACE_CHANNELS = ("time", "position", "muscle_pressure", "force", "force_model")
-ROLES = ("identification", "validation", "diagnosis")
+#: roles the report draws; a trace with another (string) role is read but not drawn.
+#: ``diagnosis-final`` is the diagnosis's final model (base + the effects the ladder added).
+ROLES = ("identification", "validation", "diagnosis", "diagnosis-final")
 
 
 # --------------------------------------------------------------------------- traces
@@ -100,6 +103,8 @@ class ReportData:
     (and checked) JSON documents or None when absent."""
 
     directory: Path
+    #: every directory the data came from (several when identify and diagnose wrote apart)
+    directories: list[Path] = field(default_factory=list)
     identification: dict[str, Any] | None = None
     diagnosis: dict[str, Any] | None = None
     traces: list[Trace] = field(default_factory=list)
@@ -318,6 +323,8 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
                                f"has {len(vals)} values for {len(lags)} lags")
             doc.get(c, "bound95", f"{w}.{kind}", "number", required=False)
         doc.get(d, "worst_region", w, "str", required=False)
+        doc.get(d, "nrmse", w, "number", required=False, nullable=True)
+        doc.get(d, "nrmse_final", w, "number", required=False, nullable=True)
         for i, c in enumerate(doc.get(d, "regions", w, "list", required=False) or []):
             wr = f"{w}.regions[{i}]"
             doc.check(c, wr, "dict")
@@ -333,6 +340,17 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
                 v = doc.get(ph, k, wp, "list", required=False)
                 if v is not None and len(doc.numbers(v, f"{wp}.{k}", nullable=True)) != len(c):
                     raise doc.fail(f"{wp}.{k}", f"has {len(v)} values for {len(c)} centers")
+    camp = doc.get(obj, "campaign_diagnostics", "", "dict", required=False) or {}
+    for var, c in camp.items():
+        wc = f"campaign_diagnostics.{var}"
+        doc.check(c, wc, "dict")
+        centers = doc.numbers(doc.get(c, "centers", wc, "list"), f"{wc}.centers")
+        for k in ("rms", "mean", "ci95_rms"):
+            v = doc.get(c, k, wc, "list", required=False)
+            if v is not None and len(doc.numbers(v, f"{wc}.{k}", nullable=True)) != len(centers):
+                raise doc.fail(f"{wc}.{k}", f"has {len(v)} values for {len(centers)} centers")
+        doc.get(c, "unit", wc, "str", required=False)
+    doc.get(obj, "final_model", "", "str", required=False)
     return obj
 
 
@@ -379,9 +397,9 @@ def read_predictions(path: Path) -> list[Trace]:
                 raise ReportError(f"{where}/time: too few samples ({n['time']})")
             attrs = {k: _attr(v) for k, v in g.attrs.items()}
             role = attrs.get("role")
-            if role not in ROLES:
-                raise ReportError(f"{where}: attr 'role': expected one of {', '.join(ROLES)}, "
-                                  f"got {role!r}")
+            if not isinstance(role, str) or not role:
+                raise ReportError(f"{where}: attr 'role': expected a string such as "
+                                  f"{', '.join(ROLES)}, got {role!r}")
             freq = attrs.get("frequency_Hz")
             out.append(Trace(
                 key=key, role=str(role), file=str(attrs.get("file", "")),
@@ -395,25 +413,37 @@ def read_predictions(path: Path) -> list[Trace]:
         return out
 
 
-def load_report_dir(directory: str | Path) -> ReportData:
-    """Read and check a result directory; raise :class:`ReportError` on any problem."""
-    d = Path(directory)
-    if not d.exists():
-        raise ReportError(f"{d}: no such directory")
-    if not d.is_dir():
-        raise ReportError(f"{d}: not a directory")
-    data = ReportData(directory=d)
-    ident, diag = d / IDENTIFICATION_JSON, d / DIAGNOSIS_JSON
-    if not ident.exists() and not diag.exists():
-        raise ReportError(f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
-                          "(run 'pmalab identify' or 'pmalab diagnose' with --out there)")
-    if ident.exists():
-        obj, _ = _load_json(ident)
-        data.identification = check_identification(obj, ident)
-    if diag.exists():
-        obj, _ = _load_json(diag)
-        data.diagnosis = check_diagnosis(obj, diag)
-    pred = d / PREDICTIONS_H5
-    if pred.exists():
-        data.traces = read_predictions(pred)
+def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
+    """Read and check one result directory, or several (e.g. an identification directory
+    and a diagnosis directory) merged into one report; raise :class:`ReportError` on any
+    problem.  At most one of the directories may hold each JSON document."""
+    dirs = [Path(directory)] if isinstance(directory, str | Path) else [Path(d) for d in directory]
+    if not dirs:
+        raise ReportError("no result directory given")
+    data = ReportData(directory=dirs[0], directories=dirs)
+    seen: dict[str, Path] = {}
+    for d in dirs:
+        if not d.exists():
+            raise ReportError(f"{d}: no such directory")
+        if not d.is_dir():
+            raise ReportError(f"{d}: not a directory")
+        ident, diag = d / IDENTIFICATION_JSON, d / DIAGNOSIS_JSON
+        if not ident.exists() and not diag.exists():
+            raise ReportError(f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
+                              "(run 'pmalab identify' or 'pmalab diagnose' with --out there)")
+        for path in (ident, diag):
+            if path.exists() and path.name in seen:
+                raise ReportError(f"{path}: a second {path.name} (the first is in "
+                                  f"{seen[path.name]}); give one directory per document")
+            if path.exists():
+                seen[path.name] = d
+        if ident.exists():
+            obj, _ = _load_json(ident)
+            data.identification = check_identification(obj, ident)
+        if diag.exists():
+            obj, _ = _load_json(diag)
+            data.diagnosis = check_diagnosis(obj, diag)
+        pred = d / PREDICTIONS_H5
+        if pred.exists():
+            data.traces.extend(read_predictions(pred))
     return data

@@ -7,12 +7,15 @@ MPa; residuals are F − F_model in N (measured − model).
 """
 
 from pmalab.reports.figures_diagnosis import (
+    campaign_figure,
     effects_figure,
     ladder_figure,
     plot_binned,
     plot_correlation,
     plot_ladder,
+    plot_phase,
     plot_ranking,
+    plot_regions,
     ranking_figure,
     residual_diagnostics_figure,
 )
@@ -24,6 +27,7 @@ from pmalab.reports.figures_parameters import (
     plot_parameter_vs_pressure,
 )
 from pmalab.reports.figures_signals import (
+    before_after_figure,
     error_loop,
     loops_figure,
     time_history_figure,
@@ -33,6 +37,8 @@ from pmalab.reports.figures_text import provenance_figure, title_page_figure
 from pmalab.reports.style import save_figure
 
 __all__ = [
+    "before_after_figure",
+    "campaign_figure",
     "correlation_figure",
     "effects_figure",
     "error_loop",
@@ -45,7 +51,9 @@ __all__ = [
     "plot_correlation",
     "plot_ladder",
     "plot_parameter_vs_pressure",
+    "plot_phase",
     "plot_ranking",
+    "plot_regions",
     "provenance_figure",
     "ranking_figure",
     "residual_diagnostics_figure",

@@ -18,6 +18,7 @@ from matplotlib.container import BarContainer
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
+from matplotlib.transforms import blended_transform_factory
 
 from pmalab.reports import style
 
@@ -81,8 +82,11 @@ def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
     """Correlation values against lag (s) as stems, with the ±95 % white-noise bound."""
     lags = np.asarray(corr["lags_s"], dtype=float)
     vals = np.array([np.nan if v is None else float(v) for v in corr["values"]])
-    ax.vlines(lags, 0.0, vals, color=style.MODEL, lw=1.0)
-    ax.plot(lags, vals, "o", color=style.MODEL, ms=2.5)
+    if lags.size <= 50:
+        ax.vlines(lags, 0.0, vals, color=style.MODEL, lw=1.0)
+        ax.plot(lags, vals, "o", color=style.MODEL, ms=2.5)
+    else:  # dense lag grids read better as a line
+        ax.plot(lags, vals, "-", color=style.MODEL, lw=1.2)
     b = corr.get("bound95")
     if b is not None:
         ax.axhspan(-b, b, color="0.85", alpha=0.7, zorder=0, label=f"95 % bound ±{b:.3g}")
@@ -133,7 +137,9 @@ def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
         if phase.get(key) is not None:
             v = np.array([np.nan if x is None else float(x) for x in phase[key]])
             ax.plot(c, v, mk, color=colour, ms=3.5, label=key)
-    ax.axvspan(90.0, 270.0, color="0.9", zorder=0, label="stretch (x falling)")
+    ax.axvspan(90.0, 270.0, color="0.9", zorder=0)
+    ax.text(180.0, 0.98, "stretch (x falling)", transform=ax.get_xaxis_transform(),
+            ha="center", va="top", fontsize=8, color="0.35")
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlim(0.0, 360.0)
     ax.set_xticks([0, 90, 180, 270, 360])
@@ -141,8 +147,8 @@ def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
     ax.set_ylabel("F − F_model (N)")
     ax.set_title("Residual by loop phase")
     lo, hi = ax.get_ylim()
-    ax.set_ylim(lo, hi + 0.45 * (hi - lo))  # headroom for the legend
-    ax.legend(loc="upper center", ncols=2, fontsize=8)
+    ax.set_ylim(lo, hi + 0.35 * (hi - lo))  # headroom for the legend
+    ax.legend(loc="upper right", ncols=2, fontsize=8)
 
 
 @style.styled
@@ -185,7 +191,7 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
             plot_correlation(ax, diag["ccf_input"], title="Residual–input cross-correlation")
     worst = diag.get("worst_region")
     if worst:
-        wrapped = "\n".join(textwrap.wrap(f"worst region: {worst}", 140))
+        wrapped = "\n".join(textwrap.wrap(f"worst region: {worst}", 115))
         fig.suptitle(f"{title}\n{wrapped}", fontweight="bold", fontsize=11)
     return fig
 
@@ -287,20 +293,83 @@ def effects_figure(
         plot_ladder(fig.add_subplot(gs[0, 1] if ranking else gs[0, :]), ladder)
     tx = fig.add_subplot(gs[1, :])
     tx.axis("off")
+    width = 150
     lines: list[str] = []
     if summary:
-        lines += textwrap.wrap("Summary: " + summary, 160)
+        lines += textwrap.wrap("Summary: " + summary, width)
     if ambiguous:
         lines += textwrap.wrap("Ambiguous (explain the residual about equally well): "
-                               + ", ".join(ambiguous), 160)
+                               + ", ".join(ambiguous), width)
         if suggested_experiment:
-            lines += textwrap.wrap("Suggested experiment: " + suggested_experiment, 160)
-    for r in ranking[:5]:
+            lines += textwrap.wrap("Suggested experiment: " + suggested_experiment, width)
+    for r in ranking[:4]:
         if r.get("explanation"):
-            lines += textwrap.wrap(f"{r['effect']}: {r['explanation']}", 160,
-                                   subsequent_indent="    ")
-    if len(lines) > 10:
-        lines = [*lines[:9], f"… ({len(lines) - 9} more lines in diagnosis.json)"]
-    tx.text(0.0, 1.0, "\n".join(lines), va="top", transform=tx.transAxes, fontsize=9,
-            linespacing=1.4)
+            lines += textwrap.wrap(f"{r['effect']}: {_first_sentence(str(r['explanation']))}",
+                                   width, subsequent_indent="    ")
+    if len(lines) > 12:
+        lines = [*lines[:11], "… (more in diagnosis.json)"]
+    # x from the page's left margin (figure coordinates), y from the text panel: long
+    # lines stay on the page whatever width the ranking's labels take
+    tx.text(0.03, 1.0, "\n".join(lines), va="top", fontsize=9, linespacing=1.4,
+            transform=blended_transform_factory(fig.transFigure, tx.transAxes))
+    return fig
+
+
+def _first_sentence(s: str, limit: int = 240) -> str:
+    """The first sentence of an explanation (at most ``limit`` characters)."""
+    cut = s.find(". ")
+    out = s if cut < 0 else s[: cut + 1]
+    return out if len(out) <= limit else out[: limit - 1] + "…"
+
+
+CAMPAIGN_VARIABLES = {"pressure_level": "Muscle pressure level", "frequency": "Frequency"}
+
+
+@style.styled
+def campaign_figure(
+    per_run: Sequence[Mapping[str, Any]],
+    campaign: Mapping[str, Mapping[str, Any]] | None = None,
+    *,
+    final_model: str | None = None,
+    title: str = "Where the base model fails across the campaign",
+) -> Figure:
+    """Per-run NRMSE of the base model (and of the final model when given), then the r.m.s.
+    residual (N) by pressure level and by frequency.
+
+    ``per_run``: dicts with ``label``, ``nrmse`` and optional ``nrmse_final``, ``worst``;
+    ``campaign``: the ``campaign_diagnostics`` of diagnosis.json (``centers``, ``rms``,
+    optional ``ci95_rms``, ``unit``).
+    """
+    fig = style.new_figure(title)
+    camp = [(k, v) for k, v in (campaign or {}).items() if v.get("rms") is not None]
+    gs = fig.add_gridspec(2, max(len(camp), 1), height_ratios=[1.25, 1.0])
+    ax = fig.add_subplot(gs[0, :])
+    rows = sorted(per_run, key=lambda r: -(r.get("nrmse") or 0.0))
+    xs = np.arange(len(rows))
+    base = [np.nan if r.get("nrmse") is None else float(r["nrmse"]) for r in rows]
+    has_final = final_model is not None and any(r.get("nrmse_final") is not None for r in rows)
+    w = 0.38 if has_final else 0.6
+    ax.bar(xs - (w / 2 if has_final else 0.0), base, width=w, color=style.NOT_SIGNIFICANT,
+           label="base model")
+    if has_final:
+        fin = [np.nan if r.get("nrmse_final") is None else float(r["nrmse_final"]) for r in rows]
+        ax.bar(xs + w / 2, fin, width=w, color=style.SIGNIFICANT, label=f"final: {final_model}")
+    ax.set_xticks(xs, [str(r["label"]) for r in rows], rotation=20, ha="right")
+    ax.set_ylabel("NRMSE")
+    ax.set_title("NRMSE per run, worst first")
+    ax.grid(axis="x", visible=False)
+    ax.legend(loc="upper right")
+    for j, (var, c) in enumerate(camp):
+        a = fig.add_subplot(gs[1, j])
+        centers = np.asarray(c["centers"], dtype=float)
+        rms = np.array([np.nan if v is None else float(v) for v in c["rms"]])
+        ci = c.get("ci95_rms")
+        yerr = None if ci is None else np.array([0.0 if v is None else float(v) for v in ci])
+        a.errorbar(centers, rms, yerr=yerr, fmt="o-", color=style.VALIDATION, ms=4, capsize=3)
+        unit = str(c.get("unit") or "")
+        name = CAMPAIGN_VARIABLES.get(var, var.replace("_", " "))
+        a.set_xlabel(f"{name} ({unit})" if unit else name)
+        a.set_ylabel("r.m.s. residual (N)")
+        a.set_title(f"Residual by {name.lower()}")
+        a.set_ylim(bottom=0.0)
     return fig

@@ -172,3 +172,32 @@ def validation_figure(
         a2.set_xlabel(style.TIME)
         a1.sharex(a2)
     return fig
+
+
+@style.styled
+def before_after_figure(
+    pairs: Sequence[tuple[Trace, Trace]],
+    *,
+    base_name: str = "base model",
+    final_name: str = "final model",
+    title: str = "The error falling: base model vs final model",
+) -> Figure:
+    """For up to three runs (columns): the error-coloured loop of the base model (top) and
+    of the final model (bottom) on the same |error| scale, so the fall is visible."""
+    fig = style.new_figure(title)
+    n = len(pairs)
+    axes = fig.subplots(2, n, squeeze=False)
+    for j, (base, final) in enumerate(pairs):
+        e = np.abs(base.error)
+        top = float(np.percentile(0.5 * (e[:-1] + e[1:]), ERROR_PERCENTILE)) if e.size > 1 else 1.0
+        norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
+        for i, (t, name) in enumerate(((base, base_name), (final, final_name))):
+            ax = axes[i, j]
+            lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
+            ax.set_title(f"{t.label} — {name}\n{t.describe()}, fit {t.fit_percent:.1f} %")
+            ax.legend(loc="best")
+        fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,
+                     aspect=40, extend="max" if float(np.max(e)) > norm.vmax else "neither")
+        axes[1, j].sharex(axes[0, j])
+        axes[1, j].sharey(axes[0, j])
+    return fig
