@@ -5,7 +5,9 @@
   regulators, sensors) and the sub-stepped integrator;
 * :mod:`~pmalab.rig.sim.physics` — :class:`RigPhysics`, the whole rig's state;
 * :mod:`~pmalab.rig.sim.rig` — the :class:`~pmalab.rig.base.Rig` wrapper;
-* :mod:`~pmalab.rig.sim.demo` — :func:`demo_cycle`, one isobaric cycle with its numbers.
+* :mod:`~pmalab.rig.sim.demo` — :func:`demo_cycle`, one isobaric cycle with its numbers;
+* :mod:`~pmalab.rig.sim.reference` — the effects-off law restated in plain numpy, to
+  cross-check the compiled kernel in tests and benchmarks.
 
 The truth model imports nothing from :mod:`pmalab.identify` (no inverse crime).
 """

@@ -196,6 +196,9 @@ class Truth:
         self.values = values
         self.source = source
 
+    def __repr__(self) -> str:
+        return f"Truth({self.source!r}, effects={self.enabled_effects()})"
+
     def section(self, name: str) -> dict[str, Any]:
         return self.values[name]
 
