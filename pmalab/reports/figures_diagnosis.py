@@ -171,8 +171,9 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
     if diag.get("loop_phase"):
         panels.append(("phase", None))
     n = len(panels)
-    ncols = 4 if n > 9 else 3 if n > 4 else max(1, min(n, 2))
-    nrows = max(1, math.ceil(n / ncols))
+    # at least 2 × 3 cells, so a run with few diagnostics keeps readable panel sizes
+    ncols = 4 if n > 9 else 3
+    nrows = max(2, math.ceil(n / ncols))
     axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
     for i, ax in enumerate(axes):
         if i >= n:

@@ -194,7 +194,7 @@ def before_after_figure(
         for i, (t, name) in enumerate(((base, base_name), (final, final_name))):
             ax = axes[i, j]
             lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
-            ax.set_title(f"{t.label} — {name}\n{t.describe()}, fit {t.fit_percent:.1f} %")
+            ax.set_title(f"{name}\n{t.label}: {t.describe()}, fit {t.fit_percent:.1f} %")
             ax.legend(loc="best")
         fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,
                      aspect=40, extend="max" if float(np.max(e)) > norm.vmax else "neither")
