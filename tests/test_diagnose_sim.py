@@ -33,7 +33,7 @@ HIDDEN = ("viscous-friction", "asymmetric-hysteresis", "nonlinear-stiffness",
           "pressure-variation", "sensor-delay", "inertia", "sensor-drift")
 
 
-def campaign_protocol(freqs: tuple[float, float] = (0.25, 1.0), cycles: float = 3) -> str:
+def campaign_protocol(freqs: tuple[float, ...] = (0.25, 1.0), cycles: float = 3) -> str:
     """Protocol TOML: every pressure level at both frequencies (sine, cylinder kept in range)."""
     lines = ['[protocol]', 'name = "diagnose-test"', "",
              "[defaults]", 'waveform = "sine"', f"cycles = {cycles}", "ramp_s = 1.0",
@@ -50,18 +50,19 @@ def campaign_protocol(freqs: tuple[float, float] = (0.25, 1.0), cycles: float = 
 PROTOCOLS = {"inertia": ((1.0, 2.5), 6), "sensor-drift": ((0.25, 0.5), 6)}
 
 
-def simulate(effect: str, out_dir: Path, seed: int, freqs: tuple[float, float] | None = None) -> Path:
+def simulate(effect: str, out_dir: Path, seed: int, freqs: tuple[float, ...] | None = None) -> Path:
     """Run the protocol on data/rigs/sim-<effect>.toml (``clean``: data/rigs/sim.toml)."""
     f_default, cycles = PROTOCOLS.get(effect, ((0.25, 1.0), 3))
     freqs = freqs or f_default
-    proto = out_dir / f"protocol-{freqs[0]:g}-{freqs[1]:g}-{cycles}.toml"
+    tag = "-".join(f"{f:g}" for f in freqs) + f"-{cycles}"
+    proto = out_dir / f"protocol-{tag}.toml"
     if not proto.exists():
         proto.write_text(campaign_protocol(freqs, cycles))
     # a rig file of our own: the shipped ones pin seed = 0, and the seed must vary here
     truth = TRUTH_DIR / ("default.toml" if effect == "clean" else f"hidden-{effect}.toml")
     rig = out_dir / f"rig-{effect}-{seed}.toml"
     rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = {seed}\n')
-    out = out_dir / f"{effect}-s{seed}-{freqs[0]:g}-{freqs[1]:g}-{cycles}.h5"
+    out = out_dir / f"{effect}-s{seed}-{tag}.h5"
     if not out.exists():
         rc = pmalab_main(["run", "--rig", str(rig), "--protocol", str(proto), "--out", str(out),
                           "--seed", str(seed), "--quiet"])
@@ -106,13 +107,16 @@ def test_two_effects_ladder_finds_both(simdir: Path) -> None:
     assert all(b < a for a, b in itertools.pairwise(nr)), d.ladder_table()
 
 
-def test_single_frequency_delay_and_viscous_are_ambiguous(simdir: Path) -> None:
-    """On one frequency a channel delay looks like viscous friction: say so, suggest more."""
-    out = simulate("sensor-delay", simdir, seed=13, freqs=(0.5, 0.5))
-    runs = [r for r in read_runs(out)][::2]  # one run per pressure, one frequency
+def test_single_frequency_delay_is_still_told_from_viscous_friction(simdir: Path) -> None:
+    """One frequency only: a channel delay also shifts the hysteresis (its error follows the
+    loop slope, largest after reversals) while viscous force follows the velocity, so the
+    delay still wins clearly; the runner-up's partial explanation is not called ambiguous.
+    (True look-alikes are: see test_diagnose_cli's duplicate user effect.)"""
+    runs = read_runs(simulate("sensor-delay", simdir, seed=13, freqs=(0.5,)))
     d = diagnose(runs, model="bouc-wen", effects=["viscous-friction", "sensor-delay"], jobs=1)
-    assert set(d.ambiguous) == {"viscous-friction", "sensor-delay"}, d.ranking_table()
-    assert "frequenc" in d.suggested_experiment
+    assert d.ranking[0]["effect"] == "sensor-delay", d.ranking_table()
+    assert d.ranking[1]["nrmse_after"] > 1.5 * d.ranking[0]["nrmse_after"]
+    assert d.ambiguous == []
 
 
 def test_diagnosis_is_fast_enough(simdir: Path) -> None:
