@@ -263,9 +263,16 @@ def _final_model_name(diag: dict) -> str | None:
 def _title_page(data: ReportData, contents: list[str]) -> Figure:
     doc = data.identification or data.diagnosis or {}
     datasets = []
-    order = ("identification", "diagnosis", "validation")
-    shown = [t for t in data.traces if t.role in order]  # (final-model copies left out)
-    for t in sorted(shown, key=lambda t: (order.index(t.role), t.muscle_pressure_MPa)):
+    order = ("identification", "validation", "diagnosis")
+    # one row per run: final-model copies and runs already listed under another role
+    # (an identify and a diagnose directory merged) are left out
+    shown, seen = [], set()
+    for t in sorted((t for t in data.traces if t.role in order),
+                    key=lambda t: (order.index(t.role), t.muscle_pressure_MPa)):
+        if _key(t.file, t.run) not in seen:
+            seen.add(_key(t.file, t.run))
+            shown.append(t)
+    for t in shown:
         datasets.append({"role": t.role, "label": t.label, "p": t.muscle_pressure_MPa,
                          "f": t.frequency_Hz, "waveform": t.waveform, **timing_stats(t.time)})
     effects = list(doc.get("effects") or [])

@@ -42,6 +42,12 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
     return out
 
 
+#: vertical space of one text line, as a fraction of the A4-landscape page height
+_LINE = {8.5: 8.5 * 1.35 / 72 / 8.27, 9.0: 9.0 * 1.4 / 72 / 8.27}
+TITLE_MAX_RUNS = 8
+TITLE_MAX_SUMMARY_LINES = 3
+
+
 @style.styled
 def title_page_figure(
     *,
@@ -57,7 +63,7 @@ def title_page_figure(
 ) -> Figure:
     """Title page: model and effects, source files, a table of the runs with their timing
     statistics (duration, rate, jitter, largest interval), the diagnosis summary and the
-    report's contents.
+    report's contents.  Long lists are cut (with a note) so nothing overlaps.
 
     ``datasets``: dicts with role, label, p, f, waveform and the :func:`timing_stats` keys.
     """
@@ -73,22 +79,33 @@ def title_page_figure(
         meta.append(f"pmalab {version}")
     fig.text(0.5, 0.865, "    ".join(meta), ha="center", va="top", fontsize=9, color="0.3")
     y = 0.82
+
+    def heading(text: str) -> None:
+        nonlocal y
+        fig.text(0.05, y, text, fontweight="bold", va="top", fontsize=10)
+        y -= 0.032
+
+    def block(lines: Sequence[str], size: float = 9.0, gap: float = 0.022) -> None:
+        nonlocal y
+        fig.text(0.05, y, "\n".join(lines), va="top", fontsize=size,
+                 linespacing=1.4 if size == 9.0 else 1.35)
+        y -= _LINE[size] * len(lines) + gap
+
     if inputs:
         lines = []
         for inp in inputs:
-            runs = inp.get("runs") or []
-            lines.append(f"{inp.get('file', '?')}: {len(runs)} run(s) "
-                         f"{', '.join(map(str, runs[:8]))}{' …' if len(runs) > 8 else ''}")
-        if len(lines) > 6:
-            lines = [*lines[:5], f"… and {len(lines) - 5} more files"]
-        fig.text(0.05, y, "Data files", fontweight="bold", va="top", fontsize=10)
-        fig.text(0.05, y - 0.03, "\n".join(lines), va="top", fontsize=9, linespacing=1.4)
-        y -= 0.05 + 0.028 * len(lines)
+            runs = [str(r) for r in inp.get("runs") or []]
+            line = f"{inp.get('file', '?')}: {len(runs)} run(s) {', '.join(runs)}"
+            lines.append(line if len(line) <= 150 else line[:149] + "…")
+        if len(lines) > 3:
+            lines = [*lines[:2], f"… and {len(lines) - 2} more files"]
+        heading("Data files")
+        block(lines)
     if datasets:
-        rows = list(datasets)[:14]
+        rows = list(datasets)[:TITLE_MAX_RUNS]
         h = 0.027 * (len(rows) + 1)
-        fig.text(0.05, y, "Runs and sampling", fontweight="bold", va="top", fontsize=10)
-        ax = fig.add_axes((0.05, y - 0.02 - h, 0.9, h))
+        heading("Runs and sampling (from the prediction files)")
+        ax = fig.add_axes((0.05, y - h, 0.9, h))
         head = ["role", "run", "p (MPa)", "f (Hz)", "waveform", "duration (s)", "samples",
                 "rate (Hz)", "jitter σ(Δt) (ms)", "max Δt (ms)"]
         cells = []
@@ -101,29 +118,44 @@ def title_page_figure(
                           f"{r['max_dt_ms']:.2f}"])
         _table(ax, cells, head, col_widths=[0.1, 0.2, 0.07, 0.06, 0.08, 0.09, 0.08, 0.08,
                                             0.12, 0.09], row_height=1.3)
+        y -= h + 0.012
         extra = len(datasets) - len(rows)
-        y -= 0.07 + h
         if extra > 0:
-            fig.text(0.05, y + 0.02, f"… {extra} more runs", fontsize=8.5)
+            fig.text(0.05, y, f"… {extra} more run(s) (all in the fit quality table)",
+                     fontsize=8.5, va="top")
+            y -= _LINE[8.5]
+        y -= 0.02
     if summary:
-        fig.text(0.05, y, "Diagnosis", fontweight="bold", va="top", fontsize=10)
-        wrapped = textwrap.wrap(summary, 150)[:4]
-        fig.text(0.05, y - 0.03, "\n".join(wrapped), va="top", fontsize=9, linespacing=1.4)
-        y -= 0.06 + 0.028 * len(wrapped)
+        heading("Diagnosis")
+        wrapped = textwrap.wrap(summary, 150)
+        if len(wrapped) > TITLE_MAX_SUMMARY_LINES:
+            wrapped = wrapped[:TITLE_MAX_SUMMARY_LINES]
+            wrapped[-1] = wrapped[-1][:146] + " …"
+        block(wrapped)
     if contents:
-        fig.text(0.05, max(y, 0.2), "Contents", fontweight="bold", va="top", fontsize=10)
-        items = [f"{i + 2:>2}. {c}" for i, c in enumerate(contents)]
-        half = (len(items) + 1) // 2
-        for col, chunk in enumerate((items[:half], items[half:])):
-            fig.text(0.05 + 0.45 * col, max(y, 0.2) - 0.03, "\n".join(chunk), va="top",
-                     fontsize=8.5, linespacing=1.35)
+        heading("Contents")
+        room = max(int((y - 0.07) / _LINE[8.5]), 3)  # lines left above the footer notes
+        cols = 2 if len(contents) <= 2 * room else 3
+        width = 85 if cols == 2 else 55
+        items = []
+        for i, c in enumerate(contents):
+            t = f"{i + 2:>2}. {c}"
+            items.append(t if len(t) <= width else t[: width - 1] + "…")
+        per = -(-len(items) // cols)
+        if per > room:
+            per = room
+            items = [*items[: per * cols - 1], f"… {len(items) - per * cols + 1} more pages"]
+        for col in range(cols):
+            chunk = items[col * per:(col + 1) * per]
+            if chunk:
+                fig.text(0.05 + (0.9 / cols) * col, y, "\n".join(chunk), va="top",
+                         fontsize=8.5, linespacing=1.35)
     fig.text(0.5, 0.035, "Sign convention: x = contraction in mm (positive = shorter than "
              "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
              ha="center", fontsize=8, color="0.3")
     return fig
 
 
-#: file-level provenance attributes worth a line, with their labels
 FILE_KEYS = (
     ("created_utc", "recorded"),
     ("protocol_name", "protocol"),

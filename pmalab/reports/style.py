@@ -38,7 +38,7 @@ RC = {
     "axes.spines.top": False,
     "axes.spines.right": False,
     "svg.fonttype": "none",
-    "pdf.fonttype": 42,
+    "pdf.fonttype": 3,
 }
 
 # Colours: measured data is black, the model blue, errors on a dark-to-orange scale that
