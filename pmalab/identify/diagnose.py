@@ -142,7 +142,7 @@ class Diagnosis:
         a1.set_yticks(y, names)
         a1.set_xlabel("held-out nrmse")
         a1.set_title("Effect ranking")
-        a1.legend(loc="lower right")
+        a1.legend(loc="best", framealpha=0.9)
         steps = [s["step"] for s in self.ladder]
         a2.plot(steps, [s["nrmse"] for s in self.ladder], "o-")
         for s in self.ladder:
