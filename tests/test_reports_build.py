@@ -75,6 +75,9 @@ def test_full_report_pages_render_and_none_is_blank(full_report):
         assert frac > 0.01, f"page {i + 1} ({FULL_PAGES[i]}) looks blank: {frac:.4f}"
     # one progress line per page, in order
     assert lines == [f"page {i}/13: {t}" for i, t in enumerate(FULL_PAGES, 1)]
+    # Type 3 fonts: matplotlib 3.11 garbles ligatures ("fi") in Type 42 subsets across pages
+    raw = out.read_bytes()
+    assert b"/Type3" in raw and b"/FontFile2" not in raw
 
 
 def test_page_plan_matches_contents(full_report):
@@ -219,6 +222,13 @@ def test_missing_and_empty_directories(tmp_path):
         build_report(tmp_path / "empty", tmp_path / "r.pdf")
     with pytest.raises(ReportError, match=r"r.txt: the report must be a .pdf file"):
         build_report(tmp_path / "empty", tmp_path / "r.txt")
+    (tmp_path / "dir.pdf").mkdir()
+    with pytest.raises(ReportError, match=r"dir\.pdf: is a directory"):
+        build_report(tmp_path / "empty", tmp_path / "dir.pdf", force=True)
+    (tmp_path / "file").write_text("x")
+    good = rf.write_diagnosis_dir(tmp_path / "good", with_predictions=False)
+    with pytest.raises(ReportError, match=r"file/r\.pdf: cannot write"):
+        build_report(good, tmp_path / "file" / "r.pdf")
 
 
 @pytest.mark.parametrize("mutate, needle", [

@@ -324,6 +324,8 @@ def build_report(
     out = Path(out)
     if out.suffix.lower() != ".pdf":
         raise ReportError(f"{out}: the report must be a .pdf file")
+    if out.is_dir():
+        raise ReportError(f"{out}: is a directory")
     check_output(out, force)
     data = load_report_dir(directory)
     pages = plan_pages(data)
@@ -337,8 +339,12 @@ def build_report(
         for i, p in enumerate(pages, 1):
             check_output(d / f"{i:02d}-{_slug(p.slug)}.{ext}", force)
         exports.append((d, ext))
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.part")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.touch()
+    except OSError as exc:
+        raise ReportError(f"{out}: cannot write ({exc.strerror or exc})") from None
     n = len(pages)
     try:
         meta = {"Title": f"pmalab report: {data.model} ({_names(data)})",
