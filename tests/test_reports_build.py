@@ -296,3 +296,19 @@ def test_identify_and_diagnose_directories_merge_into_one_report(tmp_path):
     dd2 = rf.write_diagnosis_dir(tmp_path / "diag2", with_predictions=False)
     with pytest.raises(ReportError, match=r"diag2/diagnosis\.json: a second diagnosis\.json"):
         load_report_dir([dd, dd2])
+
+
+def test_long_warning_lists_get_their_own_pages(tmp_path):
+    d = rf.write_identification_dir(tmp_path / "w")
+    _mutate_json(d, "identification.json", lambda o: o.__setitem__(
+        "warnings", [f"warning number {i}: rho(beta,gamma) = 0.99" for i in range(150)]))
+    titles = [p.title for p in plan_pages(load_report_dir(d))]
+    warn = [t for t in titles if t.startswith("Identifiability and fit warnings")]
+    assert warn == ["Identifiability and fit warnings (all) (1/2)",
+                    "Identifiability and fit warnings (all) (2/2)"]
+    # right after the parameter table
+    i = titles.index(warn[0])
+    assert titles[i - 1].startswith("Identified parameters")
+    # a short list stays on the table page
+    _mutate_json(d, "identification.json", lambda o: o.__setitem__("warnings", ["one"]))
+    assert not any("warnings (all)" in p.title for p in plan_pages(load_report_dir(d)))

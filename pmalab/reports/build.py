@@ -31,10 +31,14 @@ from pmalab.reports.figures_diagnosis import (
     residual_diagnostics_figure,
 )
 from pmalab.reports.figures_parameters import (
+    WARNINGS_LINES_PER_COLUMN,
+    bullet_lines,
     correlation_figure,
     metrics_table_figure,
     parameter_table_figure,
     parameters_vs_pressure_figure,
+    table_page_warning_capacity,
+    warnings_figure,
 )
 from pmalab.reports.figures_signals import (
     before_after_figure,
@@ -187,6 +191,21 @@ def plan_pages(data: ReportData) -> list[Page]:
             pages.append(Page(title, f"parameter-table-{i + 1}", lambda c=chunk, t=title:
                               parameter_table_figure(names, c, fits, r2, units=units,
                                                      warnings=warnings, title=t)))
+        # warnings that do not fit under the tables get pages of their own
+        if len(bullet_lines(warnings)) > table_page_warning_capacity(len(names), bool(fits)):
+            per_page, groups, cur, n = 2 * WARNINGS_LINES_PER_COLUMN, [], [], 0
+            for w in warnings:
+                k = len(bullet_lines([w], 95))
+                if cur and n + k > per_page:
+                    groups.append(cur)
+                    cur, n = [], 0
+                cur.append(w)
+                n += k
+            groups.append(cur)
+            for i, g in enumerate(groups):
+                title = "Identifiability and fit warnings (all)" + _part(i, len(groups))
+                pages.append(Page(title, f"warnings-{i + 1}",
+                                  lambda g=g, t=title: warnings_figure(g, title=t)))
         corr = [{"title": f"{r['run']}  (p = {r['muscle_pressure_MPa']:.3f} MPa)",
                  "names": r["correlation"]["names"], "matrix": r["correlation"]["matrix"]}
                 for r in id_rows if r.get("correlation") and r["correlation"]["names"]]

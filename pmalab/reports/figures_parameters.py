@@ -175,15 +175,33 @@ def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
     return tab
 
 
-def _text_block(ax: Axes, heading: str, lines: Sequence[str], *, width: int = 150,
-                max_lines: int = 14) -> None:
-    ax.axis("off")
-    wrapped: list[str] = []
+def bullet_lines(lines: Sequence[str], width: int = 150) -> list[str]:
+    """Lines as wrapped bullet points."""
+    out: list[str] = []
     for ln in lines:
-        wrapped.extend(textwrap.wrap(ln, width, initial_indent="• ", subsequent_indent="  "))
+        out.extend(textwrap.wrap(ln, width, initial_indent="• ", subsequent_indent="  "))
+    return out
+
+
+#: how the parameter table page splits its height: tables by rows, warnings by a fixed share
+_TEXT_SHARE = 7.0
+
+
+def table_page_warning_capacity(n_params: int, has_fits: bool) -> int:
+    """How many warning lines (8.5 pt) fit under the tables of :func:`parameter_table_figure`."""
+    r1 = max(n_params, 1) + 1.5
+    r2 = (n_params + 1.5) if has_fits else 0.01
+    height_pt = 8.27 * 0.86 * 72 * _TEXT_SHARE / (r1 + r2 + _TEXT_SHARE)
+    return max(int(height_pt / (8.5 * 1.35)) - 2, 2)
+
+
+def _text_block(ax: Axes, heading: str, lines: Sequence[str], *, width: int = 150,
+                max_lines: int = 14, more: str = "more lines") -> None:
+    ax.axis("off")
+    wrapped = bullet_lines(lines, width)
     if len(wrapped) > max_lines:
         extra = len(wrapped) - max_lines + 1
-        wrapped = [*wrapped[: max_lines - 1], f"  … ({extra} more lines)"]
+        wrapped = [*wrapped[: max_lines - 1], f"  … ({extra} {more})"]
     ax.text(0.0, 1.0, heading, fontweight="bold", va="top", transform=ax.transAxes)
     ax.annotate("\n".join(wrapped) if wrapped else "none", (0.0, 1.0),
                 xycoords="axes fraction", xytext=(0, -17), textcoords="offset points",
@@ -210,7 +228,7 @@ def parameter_table_figure(
     fig = style.new_figure(title)
     has_fits = bool(pressure_fits)
     ratios = [max(len(parameter_names), 1) + 1.5, (len(parameter_names) + 1.5) if has_fits else 0.01,
-              7.0]
+              _TEXT_SHARE]
     axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": ratios})
     head = ["parameter", "unit"] + [f"p = {r['muscle_pressure_MPa']:.3f} MPa\n{r.get('run', '')}"
                                     for r in runs]
@@ -244,7 +262,9 @@ def parameter_table_figure(
         _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.16, 0.16, 0.16, 0.1])
     else:
         axes[1].axis("off")
-    _text_block(axes[2], "Identifiability and fit warnings", list(warnings))
+    _text_block(axes[2], "Identifiability and fit warnings", list(warnings),
+                max_lines=table_page_warning_capacity(len(parameter_names), has_fits),
+                more="more lines: all warnings are on the next page")
     return fig
 
 
@@ -359,4 +379,26 @@ def metrics_table_figure(
         "Stretch branch: x decreasing (muscle lengthening, higher tension); release: x increasing.",
         *notes,
     ], max_lines=8)
+    return fig
+
+
+WARNINGS_LINES_PER_COLUMN = 46
+
+
+@style.styled
+def warnings_figure(
+    warnings: Sequence[str],
+    *,
+    title: str = "Identifiability and fit warnings (all)",
+) -> Figure:
+    """Every warning as a bullet list in two columns (≤ 2 × 46 lines; callers split longer
+    lists over pages with :func:`bullet_lines`)."""
+    fig = style.new_figure(title)
+    axes = fig.subplots(1, 2)
+    lines = bullet_lines(warnings, 95)
+    for j, ax in enumerate(axes):
+        ax.axis("off")
+        chunk = lines[j * WARNINGS_LINES_PER_COLUMN:(j + 1) * WARNINGS_LINES_PER_COLUMN]
+        ax.text(0.0, 1.0, "\n".join(chunk), va="top", fontsize=8.5, linespacing=1.35,
+                transform=ax.transAxes)
     return fig
