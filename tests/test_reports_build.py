@@ -312,3 +312,10 @@ def test_long_warning_lists_get_their_own_pages(tmp_path):
     # a short list stays on the table page
     _mutate_json(d, "identification.json", lambda o: o.__setitem__("warnings", ["one"]))
     assert not any("warnings (all)" in p.title for p in plan_pages(load_report_dir(d)))
+
+
+def test_identification_without_predictions_skips_signal_pages(tmp_path):
+    d = rf.write_identification_dir(tmp_path / "np")
+    (d / "predictions.h5").unlink()
+    titles = [p.title for p in plan_pages(load_report_dir(d))]
+    assert titles == [FULL_PAGES[i] for i in (0, 1, 2, 5, 6, 7)]
