@@ -20,12 +20,26 @@ from pmalab.identify.effects.base import Effect
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals, zero_phase_lowpass
 
+#: recent results: a fit evaluates the same signals hundreds of times
+_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+_CACHE_SIZE = 64
+
 
 def smooth_acceleration(sig: Signals) -> np.ndarray:
     """ẍ (mm/s²) from the position low-passed at 6× the test frequency (≥ 2 Hz), zero phase."""
+    x = sig.x
+    n = x.shape[0]
+    key = (id(x), id(sig.t), n, sig.frequency_Hz)
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0] is x:  # the cache keeps x alive, so its id is not reused
+        return hit[1]
     f = sig.frequency_Hz if sig.frequency_Hz and sig.frequency_Hz > 0 else sig.cutoff_Hz / 15.0
-    xs = zero_phase_lowpass(sig.t, sig.x, max(6.0 * f, 2.0))
-    return np.gradient(np.gradient(xs, sig.t), sig.t)
+    xs = zero_phase_lowpass(sig.t, x, max(6.0 * f, 2.0))
+    a = np.gradient(np.gradient(xs, sig.t), sig.t)
+    if len(_CACHE) >= _CACHE_SIZE:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = (x, a)
+    return a
 
 
 class Inertia(Effect):
