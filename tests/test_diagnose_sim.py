@@ -119,6 +119,18 @@ def test_single_frequency_delay_is_still_told_from_viscous_friction(simdir: Path
     assert d.ambiguous == []
 
 
+def test_slow_single_frequency_delay_and_viscous_are_ambiguous(simdir: Path) -> None:
+    """At 0.25 Hz only, a 40 ms channel delay and viscous friction fit equally well: the
+    diagnosis says so and suggests runs at several frequencies."""
+    runs = read_runs(simulate("sensor-delay", simdir, seed=14, freqs=(0.25,)))
+    d = diagnose(runs, model="bouc-wen", effects=["viscous-friction", "sensor-delay",
+                                                  "nonlinear-stiffness"], jobs=1)
+    assert set(d.ambiguous) == {"viscous-friction", "sensor-delay"}, d.ranking_table()
+    assert "frequenc" in d.suggested_experiment
+    assert d.ranking[0]["effect"] in d.ambiguous and d.ranking[0]["significant"]
+    assert "Ambiguous" in d.summary
+
+
 def test_diagnosis_is_fast_enough(simdir: Path) -> None:
     runs = read_runs(simulate("viscous-friction", simdir, seed=11))
     t0 = time.perf_counter()
