@@ -30,7 +30,6 @@ from pmalab.identify.hysteresis import LAWS
 from pmalab.identify.ladder import LadderStep, Round, run_ladder
 from pmalab.identify.ranking import (
     FIT_FRACTION,
-    Candidate,
     PreparedRun,
     build_model,
     fit_group,
@@ -194,17 +193,28 @@ def suggest_experiment(ambiguous: Sequence[str]) -> str:
 
 def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
                   ambiguous: Sequence[str]) -> list[dict[str, Any]]:
-    """First-round ranking, re-marked: *significant* only where the ladder added the effect."""
+    """The ranking, best first, with *significant* only where the ladder added the effect.
+
+    An effect the ladder added at step k is scored at that step (nrmse without = the model
+    of step k − 1, with = step k); every other effect against the base model (round 1).
+    """
     if not rounds:
         return []
     added = [s.added for s in steps[1:]]
-    cands: list[Candidate] = list(rounds[0].candidates)
     out = []
-    for c in cands:
+    for c in rounds[0].candidates:
         d = c.as_json()
         d["significant_alone"] = d["significant"]
         d["significant"] = c.effect in added
         d["ladder_step"] = added.index(c.effect) + 1 if c.effect in added else None
+        if d["ladder_step"] and d["ladder_step"] > 1:
+            at = next(x for x in rounds[d["ladder_step"] - 1].candidates if x.effect == c.effect)
+            d.update({k: v for k, v in at.as_json().items()
+                      if k in ("nrmse_before", "nrmse_after", "fall_percent", "delta_aic",
+                               "n_params", "runs_improved")})
+            d["scored_against"] = "+".join(steps[d["ladder_step"] - 1].effects)
+        else:
+            d["scored_against"] = "base"
         out.append(d)
     # best first: ladder order, then the rest by held-out nrmse with the effect
     out.sort(key=lambda d: (d["ladder_step"] is None, d["ladder_step"] or 0, d["nrmse_after"]))
@@ -227,7 +237,12 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
         steps = " → ".join(f"+{s['added']} {s['nrmse']:.4f}" for s in ladder[1:])
         first = ladder[1]
         fall = 100.0 * (1.0 - first["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
-        parts.append(f"Missing effect: {first['added']} (held-out nrmse falls {fall:.0f} %).")
+        if len(ladder) == 2:
+            parts.append(f"Missing effect: {first['added']} (held-out nrmse falls {fall:.0f} %).")
+        else:
+            total = 100.0 * (1.0 - ladder[-1]["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
+            names = ", then ".join(s["added"] for s in ladder[1:])
+            parts.append(f"Missing effects: {names} (held-out nrmse falls {total:.0f} % in all).")
         parts.append(f"Ladder: {base['nrmse']:.4f} {steps}; nothing significant left.")
     if ambiguous:
         parts.append(f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
