@@ -107,6 +107,30 @@ class Run:
     def __len__(self) -> int:
         return int(self.time.shape[0])
 
+    def window(self, t_start: float, t_end: float) -> Run:
+        """A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (s)."""
+        rel = self.time - self.time[0]
+        keep = (rel >= t_start) & (rel <= t_end)
+        chans = {c: (None if getattr(self, c) is None else getattr(self, c)[keep])
+                 for c in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS)}
+        attrs = dict(self.attrs, window_s=[float(t_start), float(t_end)])
+        return Run(name=self.name, attrs=attrs, file=self.file, **chans)
+
+    def steady(self) -> Run:
+        """The full-amplitude cycles only, when the recording says where they are.
+
+        A recorded run starts with a settle time and a ramp in: there the muscle may still be
+        moving to its new pressure's equilibrium or hang slack (zero tension), which is not
+        the isobaric cycling the models describe.  The runner stores the window as attrs
+        ``steady_start_s``/``steady_end_s`` (s from the run's first sample); imported runs
+        without them are returned whole.
+        """
+        t0, t1 = self.attrs.get("steady_start_s"), self.attrs.get("steady_end_s")
+        if t0 is None or t1 is None:
+            return self
+        trimmed = self.window(float(t0), float(t1))
+        return trimmed if len(trimmed) >= 100 else self
+
 
 # --------------------------------------------------------------------------- reading
 def _fail(path: Path | str, run: str | None, channel: str | None, msg: str) -> RunFileError:

@@ -53,7 +53,19 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
                    help="start state of validation predictions (default: estimate from the "
                         "first 50 ms of force)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_window_option(p)
     p.set_defaults(func=run_identify)
+
+
+def _add_window_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--whole-run", action="store_true",
+                   help="use every sample, including the settle time and ramps (default: "
+                        "the full-amplitude cycles recorded in steady_start_s/steady_end_s)")
+
+
+def _steady(runs, whole_run: bool):
+    """Each run trimmed to its full-amplitude cycles unless ``--whole-run``."""
+    return list(runs) if whole_run else [r.steady() for r in runs]
 
 
 def _parse_fix(items: list[str]) -> dict[str, float]:
@@ -84,8 +96,8 @@ def run_identify(args: argparse.Namespace) -> int:
     # refuse early, before any work, if outputs exist
     check_output(out / "identification.json", args.force)
     check_output(out / "predictions.h5", args.force)
-    runs = load(args.files)
-    val = load(args.validate) if args.validate else []
+    runs = _steady(load(args.files), args.whole_run)
+    val = _steady(load(args.validate), args.whole_run) if args.validate else []
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
                    free=args.free, initial=args.initial, progress=not args.quiet)
@@ -140,6 +152,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="also save the ranking/ladder figure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_window_option(p)
     p.set_defaults(func=run_diagnose)
 
 
@@ -157,8 +170,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     out = Path(args.out)
     check_output(out / "diagnosis.json", args.force)
     check_output(out / "predictions.h5", args.force)
-    runs = read_many(args.files)
-    val = read_many(args.validate) if args.validate else []
+    runs = _steady(read_many(args.files), args.whole_run)
+    val = _steady(read_many(args.validate), args.whole_run) if args.validate else []
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
                  progress=not args.quiet and sys.stderr.isatty())
