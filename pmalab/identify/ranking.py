@@ -1,9 +1,15 @@
 """Ranking candidate effects: fit base + each effect, compare on held-out data.
 
-Validation scheme (per run, no extra files needed): every run is fitted on its first part
-(the first ⅔ of its duration, i.e. the first cycles) and its free-run prediction is scored
-on the last part.  With ``--validate`` files the training runs are fitted whole and the
-validation runs are predicted from the per-run parameters' pressure quadratics.
+Fit unit: a *pressure group* — all runs at one nominal muscle pressure are fitted jointly;
+they share every muscle parameter (k, the hysteresis law's, the effects') and keep only
+their own start state h0 and force zero c0.  Runs at two or more frequencies in a group are
+what separate rate-dependent effects from rate-independent hysteresis (viscous friction
+cannot hide in a wider loop, inertia ∝ ω²x cannot hide in k).
+
+Validation scheme (no extra files needed): every run is fitted on its first part (the
+first ⅔ of its duration, i.e. the first cycles) and its free-run prediction is scored on
+the last part.  With ``--validate`` files the training runs are fitted whole and the
+validation runs are predicted from the parameters' pressure quadratics.
 
 Significance.  Raw 500 Hz residuals are strongly autocorrelated (the model error is a
 smooth function of the loop), so a naive AIC with N = number of samples would claim every
@@ -14,7 +20,9 @@ integrated autocorrelation time of the base model's residual (sum to the first n
     ΔAIC = Σ_runs [ N_eff·ln(RSS_with / RSS_without) + 2·Δk ]
 
 on the fitting data.  An effect is *significant* only if ΔAIC < −10 AND the mean held-out
-nrmse falls by at least ``min_fall`` (relative) AND it falls on most runs.  Two significant
+nrmse falls by at least ``MIN_FALL`` = 25 % (relative; smaller gains are within what
+sensor lags and the law's own shape error give on clean data) AND it falls on ≥ 60 % of
+the scored runs.  Two significant
 effects are *ambiguous* when the runner-up achieves ≥ ``ambiguity_ratio`` of the winner's
 nrmse reduction.
 """
