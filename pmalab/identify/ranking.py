@@ -17,14 +17,13 @@ effect.  We use an *effective* sample size N_eff = N / τ_int, with τ_int = 1 +
 integrated autocorrelation time of the base model's residual (sum to the first negative
 ρ), and
 
-    ΔAIC = Σ_runs [ N_eff·ln(RSS_with / RSS_without) + 2·Δk ]
+    ΔAIC = Σ_groups [ N_eff·ln(RSS_with / RSS_without) + 2·Δk ]
 
-on the fitting data.  An effect is *significant* only if ΔAIC < −10 AND the mean held-out
+on the fitting data (N_eff summed over the group's runs).  An effect is *significant* only if ΔAIC < −10 AND the mean held-out
 nrmse falls by at least ``MIN_FALL`` = 25 % (relative; smaller gains are within what
 sensor lags and the law's own shape error give on clean data) AND it falls on ≥ 60 % of
-the scored runs.  Two significant
-effects are *ambiguous* when the runner-up achieves ≥ ``ambiguity_ratio`` of the winner's
-nrmse reduction.
+the scored runs.  Two significant effects are *ambiguous* when the runner-up achieves
+≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's nrmse reduction.
 """
 
 from __future__ import annotations
