@@ -77,3 +77,14 @@ def test_not_hdf5(tmp_path):
     p.write_text("hello")
     with pytest.raises(RunFileError, match="not a readable HDF5 file"):
         read_runs(p)
+
+
+def test_steady_window_trims_settle_and_ramps():
+    r = _run(1000)  # 2 s at 500 Hz
+    r.attrs.update(steady_start_s=0.5, steady_end_s=1.5)
+    s = r.steady()
+    assert abs(s.time[0] - 0.5) < 2e-3 and abs(s.time[-1] - 1.5) < 2e-3
+    assert len(s) == 501 and s.attrs["window_s"] == [0.5, 1.5]
+    np.testing.assert_array_equal(s.force, r.force[250:751])
+    del r.attrs["steady_start_s"]
+    assert r.steady() is r  # imported runs without the window stay whole
