@@ -36,7 +36,7 @@ def _err(text: str) -> str:
 @pytest.mark.parametrize(
     "text, needles",
     [
-        ("[[run]\nname=1", ["invalid TOML"]),
+        ("[[run]\nname=1", ["not valid TOML at line 1, column 6"]),
         ("", ["no [[run]] or [[campaign]]"]),
         ("[runs]\nx=1", ["unknown section 'runs'"]),
         (GOOD_RUN.replace("frequency_Hz = 0.5", "frequency_Hz = -1"),

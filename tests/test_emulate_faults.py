@@ -3,28 +3,15 @@
 from __future__ import annotations
 
 import copy
-import os
 import time
 
 import pytest
+from pty_support import needs_pty
 
 from pmalab.errors import ConfigError, RigError
 from pmalab.paths import RIGS_DIR
 from pmalab.rig.drivers.rigfile import build_modbus_rig, read_modbus_rig_file
 from pmalab.rig.emulators.launcher import start_emulators
-
-
-def _have_pty() -> bool:
-    try:
-        a, b = os.openpty()
-    except OSError:
-        return False
-    os.close(a)
-    os.close(b)
-    return True
-
-
-needs_pty = pytest.mark.skipif(not _have_pty(), reason="this machine cannot open a pseudo-terminal")
 
 
 @pytest.fixture(scope="module")

@@ -2,10 +2,9 @@
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import pytest
+from pty_support import needs_pty
 
 from pmalab.acquisition.protocol import parse_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
@@ -13,17 +12,6 @@ from pmalab.paths import RIGS_DIR
 from pmalab.rig.drivers.rigfile import build_modbus_rig
 from pmalab.rig.emulators.launcher import start_emulators
 from pmalab.runfile import read_runs
-
-
-def _have_pty() -> bool:
-    try:
-        a, b = os.openpty()
-    except OSError:
-        return False
-    os.close(a)
-    os.close(b)
-    return True
-
 
 PROTO = """
 [protocol]
@@ -43,7 +31,7 @@ pressure_timeout_s = 20
 """
 
 
-@pytest.mark.skipif(not _have_pty(), reason="this machine cannot open a pseudo-terminal")
+@needs_pty
 def test_rtu_records_at_the_reduced_rate_with_link_counters(tmp_path, capsys):
     out = tmp_path / "rtu.h5"
     with start_emulators(RIGS_DIR / "generic-modbus-rtu.toml", make_links=False) as emus:

@@ -66,11 +66,11 @@ import itertools
 import json
 import math
 import re
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pmalab.config import check_keys, parse_toml, read_text
 from pmalab.errors import ConfigError
 from pmalab.paths import PROTOCOLS_DIR
 
@@ -199,30 +199,20 @@ def resolve_protocol_path(spec: str | Path) -> Path:
 def load_protocol(path: str | Path) -> Protocol:
     """Read and validate a protocol TOML file (a path or a shipped protocol's name)."""
     p = resolve_protocol_path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: cannot read ({exc})") from None
+    text = read_text(p, "protocol file")
     return parse_protocol(text, str(p))
 
 
 def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
     """Validate protocol TOML text; ``where`` names the file in error messages."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: invalid TOML ({exc})") from None
-    known = {"protocol", "defaults", "run", "campaign"}
-    for k in doc:
-        if k not in known:
-            raise ConfigError(f"{where}: unknown section '{k}' (expected one of: "
-                              f"{', '.join(sorted(known))})")
+    doc = parse_toml(text, where)
+    check_keys(doc, {"protocol", "defaults", "run", "campaign"},
+               "{where}: unknown section '{key}' (expected one of: {known})", where=where)
     head = doc.get("protocol", {})
     if not isinstance(head, dict):
         raise ConfigError(f"{where}: [protocol] must be a table")
-    for k in head:
-        if k not in ("name", "description", "sample_rate_Hz"):
-            raise ConfigError(f"{where}: [protocol]: unknown field '{k}'")
+    check_keys(head, ("name", "description", "sample_rate_Hz"),
+               "{where}: [protocol]: unknown field '{key}'", where=where)
     name = head.get("name", Path(where).stem)
     if not isinstance(name, str) or not name:
         raise ConfigError(f"{where}: [protocol]: field 'name' must be a non-empty string")

@@ -20,7 +20,6 @@ their pages or cells are then skipped.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.config import load_json
 from pmalab.reports.errors import ReportError
 
 IDENTIFICATION_JSON = "identification.json"
@@ -180,14 +180,7 @@ class _Doc:
 
 def _load_json(path: Path) -> tuple[dict, _Doc]:
     doc = _Doc(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ReportError(f"{path}: unreadable ({exc.strerror or exc})") from None
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ReportError(f"{path}: malformed JSON at line {exc.lineno} ({exc.msg})") from None
+    obj = load_json(path, "result file", error=ReportError)
     if not isinstance(obj, dict):
         raise doc.fail("", "expected a JSON object at the top level")
     return obj, doc

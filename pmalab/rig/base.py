@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.runfile import CANONICAL_UNITS
+
 #: the five channels a sampler delivers, in this order, with their units
 CHANNELS: tuple[str, ...] = (
     "time",
@@ -37,14 +39,8 @@ CHANNELS: tuple[str, ...] = (
     "muscle_pressure",
     "cylinder_pressure",
 )
-CHANNEL_UNITS: dict[str, str] = {
-    "time": "s",
-    "position": "mm",
-    "force": "N",
-    "muscle_pressure": "MPa",
-    "cylinder_pressure": "MPa",
-    "cylinder_pressure_command": "MPa",
-}
+#: channel → unit; the run file's canonical units are the one source (pmalab.runfile)
+CHANNEL_UNITS: dict[str, str] = CANONICAL_UNITS
 
 
 # --------------------------------------------------------------------------- clocks

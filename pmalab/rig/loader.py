@@ -24,11 +24,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
 from pmalab.rig.base import Clock, Limits, Rig
 from pmalab.rig.drivers import make_modbus_rig
@@ -43,11 +43,13 @@ def _make_sim(
 
     where = str(rig_file) if rig_file is not None else "sim"
     allowed = {"truth", "seed", "manual_muscle_regulator"}
-    for key in section:
-        if key not in allowed:
-            raise ConfigError(
-                f"{where}: rig.{key}: unknown key for kind 'sim' (known: kind, {', '.join(sorted(allowed))})"
-            )
+    check_keys(
+        section,
+        allowed,
+        "{where}: rig.{key}: unknown key for kind 'sim' (known: {known})",
+        known=["kind", *sorted(allowed)],
+        where=where,
+    )
     truth = section.get("truth")
     truth_path: Path | None = None
     if truth is not None:
@@ -79,11 +81,8 @@ def _apply_limits(rig: Rig, table: Any, where: str) -> None:
         raise ConfigError(f"{where}: limits: must be a table")
     names = {f.name for f in dataclasses.fields(Limits)}
     values = dataclasses.asdict(rig.limits)
+    check_keys(table, names, "{where}: limits.{key}: unknown limit (known: {known})", where=where)
     for key, v in table.items():
-        if key not in names:
-            raise ConfigError(
-                f"{where}: limits.{key}: unknown limit (known: {', '.join(sorted(names))})"
-            )
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise ConfigError(f"{where}: limits.{key}: must be a number")
         values[key] = float(v)
@@ -106,19 +105,10 @@ def load_rig(spec: str | Path, *, seed: int = 0, clock: Clock | None = None) -> 
         return rig
     path = Path(spec)
     where = str(spec)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{where}: rig file not found (use 'sim' or a rig TOML file)") from None
-    except OSError as exc:
-        raise ConfigError(f"{where}: cannot read rig file ({exc.strerror})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{where}: not valid TOML ({exc})") from None
-    for key in doc:
-        if key not in ("rig", "limits"):
-            raise ConfigError(f"{where}: {key}: unknown section (known: rig, limits)")
+    doc, text = load_toml(path, "rig file", hint=" (use 'sim' or a rig TOML file)")
+    check_keys(
+        doc, ("rig", "limits"), "{where}: {key}: unknown section (known: rig, limits)", where=where
+    )
     section = doc.get("rig")
     if not isinstance(section, dict):
         raise ConfigError(f"{where}: rig: missing [rig] table with kind = ...")

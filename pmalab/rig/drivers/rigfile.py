@@ -29,12 +29,12 @@ vent, and probes the block-read rate (timing honesty).  Each failure is one line
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError, RigError
 from pmalab.rig.base import Clock, Limits, PressureRegulator, RealClock, Rig
 from pmalab.rig.drivers.adapters import Adapter, DeviceExceptionReply, SerialAdapter, SocketAdapter
@@ -135,14 +135,7 @@ SECTION_KEYS = {
 def read_modbus_rig_file(path: str | Path) -> ModbusRigSpec:
     """Read and validate a ``kind = "modbus"`` rig file (the emulator's entry point)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read rig file ({exc.strerror})") from exc
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from exc
+    doc, text = load_toml(path, "rig file")
     section = dict(doc.get("rig", {}))
     kind = section.pop("kind", None)
     if kind != "modbus":
@@ -163,9 +156,9 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
     text = ""
     where = str(path) if path else "rig"
     data = {"rig": section, **{k: section[k] for k in ("transport", "inputs", "outputs", "indicator") if k in section}}
-    for key in section:
-        if key not in SECTION_KEYS:
-            raise ConfigError(f"{where}: rig.{key}: unknown key for kind 'modbus' (known: {', '.join(sorted(SECTION_KEYS))})")
+    check_keys(
+        section, SECTION_KEYS, "{where}: rig.{key}: unknown key for kind 'modbus' (known: {known})", where=where
+    )
     rig = section
     tr = _table(data, "transport", where)
     ttype = str(tr.get("type", "tcp")).lower()

@@ -18,11 +18,11 @@ file and the field, in a single :class:`~pmalab.errors.ConfigError`.
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pmalab.config import load_toml, unknown_keys
 from pmalab.errors import ConfigError
 from pmalab.paths import TRUTH_DIR
 
@@ -327,9 +327,8 @@ def validate(doc: dict[str, Any], source: str) -> Truth:
     for sec, fields in SCHEMA.items():
         vals: dict[str, Any] = {}
         sec_given = given.get(sec, {})
-        for name in sec_given:
-            if name not in fields:
-                errors.append(f"{source}: {sec}.{name}: unknown key (known: {', '.join(fields)})")
+        for name in unknown_keys(sec_given, fields):
+            errors.append(f"{source}: {sec}.{name}: unknown key (known: {', '.join(fields)})")
         for name, f in fields.items():
             if name in sec_given:
                 v, err = _check(sec_given[name], f, f"{source}: {sec}.{name}")
@@ -379,16 +378,7 @@ def load_truth(path: str | Path | None = None) -> Truth:
     """
     p = DEFAULT_TRUTH if path is None else Path(path)
     source = str(path) if path is not None else str(p)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{source}: truth file not found") from None
-    except OSError as exc:
-        raise ConfigError(f"{source}: cannot read truth file ({exc.strerror})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+    doc, _ = load_toml(p, "truth file", where=source)
     return validate(doc, source)
 
 
