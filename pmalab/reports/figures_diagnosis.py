@@ -174,11 +174,8 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
     # at least 2 × 3 cells, so a run with few diagnostics keeps readable panel sizes
     ncols = 4 if n > 9 else 3
     nrows = max(2, math.ceil(n / ncols))
-    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    axes = style.panel_axes(fig, n, nrows, ncols)
     for i, ax in enumerate(axes):
-        if i >= n:
-            ax.set_visible(False)
-            continue
         kind, var = panels[i]
         if kind == "binned":
             plot_binned(ax, var, binned[var])

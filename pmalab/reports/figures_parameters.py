@@ -135,11 +135,8 @@ def parameters_vs_pressure_figure(
     n = len(parameter_names)
     ncols = min(3, max(n, 1))
     nrows = max(1, math.ceil(n / ncols))
-    axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+    axes = style.panel_axes(fig, n, nrows, ncols)
     for i, ax in enumerate(axes):
-        if i >= n:
-            ax.set_visible(False)
-            continue
         name = parameter_names[i]
         plot_parameter_vs_pressure(
             ax, name, pressures, values[name],
@@ -278,12 +275,9 @@ def correlation_figure(
     ``names`` and ``matrix`` (ρ in [−1, 1])."""
     fig = style.new_figure(title)
     n = len(entries)
-    axes = fig.subplots(*style.grid_shape(n), squeeze=False).ravel()
+    axes = style.panel_axes(fig, n, *style.grid_shape(n))
     im = None
     for i, ax in enumerate(axes):
-        if i >= n:
-            ax.set_visible(False)
-            continue
         e = entries[i]
         names = list(e["names"])
         m = np.array([[np.nan if v is None else float(v) for v in row] for row in e["matrix"]])

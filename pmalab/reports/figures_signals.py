@@ -96,11 +96,8 @@ def loops_figure(
     """
     fig = style.new_figure(title)
     n = len(traces)
-    axes = fig.subplots(*style.grid_shape(n), squeeze=False).ravel()
+    axes = style.panel_axes(fig, n, *style.grid_shape(n))
     for i, ax in enumerate(axes):
-        if i >= n:
-            ax.set_visible(False)
-            continue
         t = traces[i]
         lc = error_loop(ax, t.position, t.force, t.force_model)
         _colorbar(fig, lc, ax)

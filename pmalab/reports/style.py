@@ -14,6 +14,7 @@ from typing import ParamSpec, TypeVar
 
 import matplotlib as mpl
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
 
@@ -101,6 +102,14 @@ def grid_shape(n: int) -> tuple[int, int]:
         return 2, 2
     return 2, 3
 
+
+
+def panel_axes(fig: Figure, n: int, nrows: int, ncols: int) -> list[Axes]:
+    """An ``nrows × ncols`` grid on ``fig``; the first ``n`` axes, the unused cells hidden."""
+    axes = list(fig.subplots(nrows, ncols, squeeze=False).ravel())
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    return axes[:n]
 
 def decimate(n: int, max_points: int) -> slice:
     """A stride that keeps at most ``max_points`` of ``n`` samples (for vector output)."""

@@ -29,11 +29,15 @@ from pmalab.rig.drivers.adapters import (
     Adapter,
     DeviceExceptionReply,
     FrameError,
-    TransportClosed,
     TransportError,
     TransportTimeout,
 )
-from pmalab.rig.drivers.modbus_link import LinkStats, one_line
+from pmalab.rig.drivers.modbus_link import (
+    LinkStats,
+    RetriesExhausted,
+    exchange_with_retries,
+    one_line,
+)
 
 FULL_SCALE = 1023
 ERROR_REPLIES = ("UNKNOWN COMMAND", "OUT OF RANGE", "ERROR")
@@ -77,38 +81,30 @@ class ItvSerialRegulator(PressureRegulator):
             return self._command_locked(text)
 
     def _command_locked(self, text: str) -> str:
-        self.stats.requests += 1
-        last: TransportError | None = None
-        for attempt in range(self.retries + 1):
-            if attempt:
-                self.stats.retries += 1
+        def exchange() -> str:
+            self.adapter.write(text.encode("ascii") + b"\r\n")
+            raw = self.adapter.read_until(b"\r\n", self.timeout)
             try:
-                if not self.adapter.is_open:
-                    self.adapter.open()
-                    self.stats.reconnects += 1
-                self.adapter.write(text.encode("ascii") + b"\r\n")
-                raw = self.adapter.read_until(b"\r\n", self.timeout)
-                try:
-                    reply = raw.decode("ascii").strip()
-                except UnicodeDecodeError as exc:
-                    raise FrameError(f"{self.adapter.name}: garbled reply {raw!r}") from exc
-                if reply in ERROR_REPLIES:
-                    raise DeviceExceptionReply(f"{self.adapter.name}: {text!r} → {reply}")
-                return reply
-            except OSError as exc:
-                last = TransportClosed(f"{self.adapter.name}: {one_line(exc)}")
-                self.stats.disconnects += 1
-                self.adapter.close()
-            except TransportError as exc:
-                last = exc
-                self.stats.count(exc)
-                if isinstance(exc, TransportClosed):
-                    self.adapter.close()
-                else:
-                    time.sleep(0.005)  # let a late reply land, then drop it
-                    self.adapter.discard_input()
-        self.stats.failures += 1
-        raise RigError(f"{self.name} {self.adapter.name}: {text!r} failed after {self.retries + 1} attempts (last: {one_line(last)})")
+                reply = raw.decode("ascii").strip()
+            except UnicodeDecodeError as exc:
+                raise FrameError(f"{self.adapter.name}: garbled reply {raw!r}") from exc
+            if reply in ERROR_REPLIES:
+                raise DeviceExceptionReply(f"{self.adapter.name}: {text!r} → {reply}")
+            return reply
+
+        try:
+            return exchange_with_retries(
+                self.adapter, self.stats, self.retries, exchange, recover=self._recover
+            )
+        except RetriesExhausted as exc:
+            raise RigError(
+                f"{self.name} {self.adapter.name}: {text!r} failed after {self.retries + 1} "
+                f"attempts (last: {one_line(exc.last)})"
+            ) from None
+
+    def _recover(self, exc: TransportError) -> None:
+        time.sleep(0.005)  # let a late reply land, then drop it
+        self.adapter.discard_input()
 
     def set_counts(self, n: int) -> None:
         """Send ``SET n`` and wait for ``OK`` (synchronous)."""

@@ -94,6 +94,62 @@ class LinkStats:
             self.out_of_range += 1
 
 
+
+class RetriesExhausted(Exception):
+    """Every attempt of :func:`exchange_with_retries` failed; ``last`` is the last fault."""
+
+    def __init__(self, last: TransportError | None) -> None:
+        super().__init__(one_line(last))
+        self.last = last
+
+
+def exchange_with_retries(
+    adapter: Adapter,
+    stats: LinkStats,
+    retries: int,
+    exchange: Callable[[], Any],
+    *,
+    recover: Callable[[TransportError], None],
+    reconnect_delay: float = 0.0,
+    record: Callable[[TransportError], None] | None = None,
+) -> Any:
+    """Run one request/reply ``exchange()`` with bounded retry and reconnect; its result.
+
+    Every request counts in ``stats``; each failed attempt too (by kind).  A closed link
+    (or an ``OSError`` while re-opening it) is closed and re-opened on the next attempt,
+    after ``reconnect_delay`` s; any other transport fault is passed to ``recover`` (flush
+    the input, or drop a TCP stream that may be out of step).  ``record`` sees every fault.
+    After ``retries + 1`` failed attempts: :class:`RetriesExhausted`.
+    """
+    stats.requests += 1
+    last: TransportError | None = None
+    for attempt in range(retries + 1):
+        if attempt:
+            stats.retries += 1
+        try:
+            if not adapter.is_open:
+                if attempt and reconnect_delay:
+                    time.sleep(reconnect_delay)
+                adapter.open()
+                stats.reconnects += 1
+            return exchange()
+        except OSError as exc:  # refused/unreachable while reconnecting, or a broken port
+            last = TransportClosed(f"{adapter.name}: {one_line(exc)}")
+            stats.disconnects += 1
+            adapter.close()
+        except TransportError as exc:
+            last = exc
+            stats.count(exc)
+            if isinstance(exc, TransportClosed):
+                adapter.close()
+            else:
+                recover(exc)
+        if record is not None:
+            record(last)
+    stats.failures += 1
+    raise RetriesExhausted(last)
+
+
 class ModbusLink:
     """Modbus client over an adapter: ``framing`` is ``"tcp"`` (MBAP) or ``"rtu"`` (CRC)."""
 
@@ -168,39 +224,33 @@ class ModbusLink:
 
     # ------------------------------------------------------------------ machinery
     def _transact(self, pdu: ModbusPDU, check: Callable[[bytes], Any]) -> Any:
-        self.stats.requests += 1
-        last: TransportError | None = None
-        for attempt in range(self.retries + 1):
-            if attempt:
-                self.stats.retries += 1
-            try:
-                if not self.adapter.is_open:
-                    if attempt and self.reconnect_delay:
-                        time.sleep(self.reconnect_delay)
-                    self.adapter.open()
-                    self.stats.reconnects += 1
-                return check(self._exchange(pdu))
-            except OSError as exc:  # refused/unreachable while reconnecting
-                last = self.last_error = TransportClosed(f"{self.adapter.name}: {one_line(exc)}")
-                self.stats.disconnects += 1
+        try:
+            return exchange_with_retries(
+                self.adapter,
+                self.stats,
+                self.retries,
+                lambda: check(self._exchange(pdu)),
+                recover=self._recover,
+                reconnect_delay=self.reconnect_delay,
+                record=self._record,
+            )
+        except RetriesExhausted as exc:
+            raise RigError(
+                f"{self.name}: request failed after {self.retries + 1} attempts "
+                f"(last: {one_line(exc.last)}; link so far: {self.stats.summary()})"
+            ) from None
+
+    def _record(self, exc: TransportError) -> None:
+        self.last_error = exc
+
+    def _recover(self, exc: TransportError) -> None:
+        if isinstance(exc, (TransportTimeout, FrameError)):
+            if self.framing == "tcp":
+                # the stream may be out of step: a late reply would be read as
+                # the answer to the next request, so start a fresh connection
                 self.adapter.close()
-            except TransportError as exc:
-                last = self.last_error = exc
-                self.stats.count(exc)
-                if isinstance(exc, TransportClosed):
-                    self.adapter.close()
-                elif isinstance(exc, (TransportTimeout, FrameError)):
-                    if self.framing == "tcp":
-                        # the stream may be out of step: a late reply would be read as
-                        # the answer to the next request, so start a fresh connection
-                        self.adapter.close()
-                    else:
-                        self.adapter.discard_input()
-        self.stats.failures += 1
-        raise RigError(
-            f"{self.name}: request failed after {self.retries + 1} attempts "
-            f"(last: {one_line(last)}; link so far: {self.stats.summary()})"
-        )
+            else:
+                self.adapter.discard_input()
 
     def _next_tid(self) -> int:
         self._tid = self._tid % 65535 + 1
