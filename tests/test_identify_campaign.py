@@ -35,7 +35,9 @@ def test_quadratics_recover_truth(fitted) -> None:
                 assert th[name] == pytest.approx(truth[name], rel=0.02), (name, p)
     for name, pf in cf.pressure.items():
         if name != "h0":
-            assert pf.degree == 2 and pf.r2 > 0.95, (name, pf.r2)
+            # the seeds' per-run quadratic is kept; the refined law may use a lower order
+            # (the truth is linear in p) but must still pass through the per-run values
+            assert pf.per_run_degree == 2 and pf.degree <= 2 and pf.r2 > 0.95, (name, pf.r2)
 
 
 def test_validation_at_noise_floor(fitted) -> None:

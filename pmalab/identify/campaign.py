@@ -3,11 +3,17 @@
 ``fit_campaign(runs, model)`` fits every identification run (in parallel, see
 :mod:`pmalab.identify.batch`), makes the fixes consistent across runs (a parameter the fits
 had to fix for collinearity on most runs is fixed on all, so the quadratics are not fed a
-mix), and fits θ(p) = q0 + q1·p + q2·p² for every parameter.
+mix), and fits θ(p) = q0 + q1·p + q2·p² for every parameter through the per-run values
+(weighted by their standard errors).  Those quadratics are only the start: the pressure
+laws are then refined *jointly* on the free-run error of all runs at once, each
+parameter's order (0, 1 or 2 in p) chosen so that collinear, poorly determined parameters
+become constants instead of noisy quadratics (:mod:`pmalab.identify.joint`;
+``pressure_model = "joint"``).
 
 The pressure-parametrised model predicts *any* run from its measured position and muscle
 pressure (:func:`predict_run`): the parameters are evaluated at the run's nominal pressure
-(θ(p_nom)); effects that use the measured pressure trace get it through the signals; the
+(θ(p_nom)) and clipped into the law's bounds; a pressure outside the identified range is
+extrapolation and is flagged (:meth:`CampaignFit.extrapolates`); effects that use the measured pressure trace get it through the signals; the
 start state h0 comes from a one-cycle burn-in (h0 is the start state of one run, not a
 property of the muscle, so its quadratic is reported but never used).
 """
@@ -31,14 +37,20 @@ from pmalab.identify.fit import (
     fit_run,
     predict_free,
 )
+from pmalab.identify.joint import JointFit, evaluate, prepare, refine, start_laws
 from pmalab.identify.model import ForceModel
-from pmalab.identify.pressure import PressureFit, fit_quadratic
+from pmalab.identify.pressure import PressureFit, fit_quadratic, weighted_r2
 from pmalab.identify.signals import Signals
 from pmalab.identify.validate import metrics
 from pmalab.runfile import Run
 
 #: identification runs fitted worse than this (fit %) are named in the campaign warnings
 POOR_FIT_PERCENT = 90.0
+#: how far (MPa) outside the identified pressure range a prediction may go before it counts
+#: as extrapolation
+EXTRAPOLATION_TOLERANCE_MPa = 0.005
+#: pressure-law methods: "joint" (refined, the default) or "per-run" (the seeds' quadratics)
+PRESSURE_MODELS = ("joint", "per-run")
 
 
 # --------------------------------------------------------------------------- models
@@ -103,14 +115,47 @@ class CampaignFit:
     runs: list[RunFit]
     pressure: dict[str, PressureFit]
     warnings: list[str] = field(default_factory=list)
+    #: "joint" (pressure laws refined on all runs at once) or "per-run" quadratics
+    pressure_model: str = "per-run"
+    #: the joint refinement (None when not done)
+    joint: JointFit | None = None
+    #: the per-run weighted quadratics (the seeds' method; the joint fit's start)
+    per_run_pressure: dict[str, PressureFit] = field(default_factory=dict)
+    #: the per-run-quadratic model's mean nrmse on the (subsampled) identification runs
+    per_run_nrmse: list[float] = field(default_factory=list)
 
     @property
     def parameter_names(self) -> list[str]:
         return self.runs[0].result.params.names() if self.runs else []
 
+    @property
+    def pressure_range(self) -> tuple[float, float]:
+        """(lowest, highest) identified nominal pressure, MPa."""
+        ps = [r.p_nom for r in self.runs]
+        return (min(ps), max(ps)) if ps else (float("nan"), float("nan"))
+
+    def extrapolates(self, p: float) -> bool:
+        """True when ``p`` (MPa) lies outside the identified pressure range."""
+        lo, hi = self.pressure_range
+        return bool(p < lo - EXTRAPOLATION_TOLERANCE_MPa or p > hi + EXTRAPOLATION_TOLERANCE_MPa)
+
+    @property
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        """Each parameter's (lo, hi): the widest of the per-run fits' bounds."""
+        return parameter_bounds(self.runs)
+
     def theta(self, p: float) -> dict[str, float]:
-        """Parameters at nominal pressure ``p`` (MPa) from the quadratics (h0 = 0)."""
-        th = {name: float(pf(p)) for name, pf in self.pressure.items()}
+        """Parameters at nominal pressure ``p`` (MPa) from the pressure laws (h0 = 0).
+
+        Every value is clipped into the law's bounds: a quadratic evaluated away from the
+        levels it was fitted on (extrapolation) can leave them.
+        """
+        bounds = self.bounds
+        th = {}
+        for name, pf in self.pressure.items():
+            v = float(pf(p))
+            lo, hi = bounds.get(name, (-np.inf, np.inf))
+            th[name] = float(min(max(v, lo), hi)) if np.isfinite(v) else v
         for s in STATE_PARAMS:
             if s in th:
                 th[s] = 0.0
@@ -143,6 +188,16 @@ def predict_run(campaign_fit: CampaignFit, run: Run) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- fitting
+def parameter_bounds(rfs: Sequence[RunFit]) -> dict[str, tuple[float, float]]:
+    """Each parameter's (lo, hi) over the runs' fits (data-sized bounds differ per run)."""
+    out: dict[str, tuple[float, float]] = {}
+    for rf in rfs:
+        for p in rf.result.params:
+            lo, hi = out.get(p.name, (np.inf, -np.inf))
+            out[p.name] = (min(lo, p.lo), max(hi, p.hi))
+    return out
+
+
 def _fit_task(args: tuple) -> FitResult:
     run, model, kwargs = args
     m = _as_model(model)
@@ -193,8 +248,17 @@ def fit_campaign(
     jobs: int = 1,
     scheduler: str | None = None,
     progress: bool = False,
+    pressure_model: str = "joint",
 ) -> CampaignFit:
-    """Fit every run, make the fixes consistent, fit the pressure quadratics."""
+    """Fit every run, make the fixes consistent, fit the pressure laws.
+
+    ``pressure_model``: ``"joint"`` (default) refines the per-run quadratics jointly on all
+    runs with chosen orders (:mod:`pmalab.identify.joint`); ``"per-run"`` keeps the seeds'
+    stderr-weighted quadratics through the per-run values.
+    """
+    if pressure_model not in PRESSURE_MODELS:
+        raise PmalabError(f"pressure_model must be one of {', '.join(PRESSURE_MODELS)}, "
+                          f"not {pressure_model!r}")
     if not runs:
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
@@ -245,7 +309,102 @@ def fit_campaign(
         warnings.append(f"only {len(levels)} pressure level(s) ({', '.join(f'{p:g}' for p in levels)} "
                         "MPa): quadratics reduced to degree "
                         f"{max(len(levels) - 1, 0)}; extrapolating in pressure is unreliable")
-    return CampaignFit(model=fm, runs=rfs, pressure=pressure, warnings=warnings)
+    cf = CampaignFit(model=fm, runs=rfs, pressure=pressure, warnings=warnings,
+                     per_run_pressure=pressure)
+    if pressure_model == "joint" and len(rfs) > 1:
+        refine_pressure_laws(cf, runs)
+    return cf
+
+
+def _undetermined(res: FitResult, name: str) -> bool:
+    """Was ``name`` poorly determined on this run (collinear, at a bound, no stderr)?"""
+    p = res.params[name]
+    if not p.vary or p.stderr is None or not np.isfinite(p.stderr):
+        return True
+    span = p.hi - p.lo
+    if np.isfinite(span) and min(p.value - p.lo, p.hi - p.value) <= 1e-6 * span:
+        return True
+    if name in res.names:
+        i = res.names.index(name)
+        for j, other in enumerate(res.names):
+            if j == i or {name, other} == {"k", "c0"}:
+                continue  # k–c0: an artefact of c0 being extrapolated to x = 0 (see fit.py)
+            if abs(float(res.correlation[i, j])) > RHO_LIMIT_JOINT:
+                return True
+    return False
+
+
+#: a parameter collinear beyond this with another on a run is "undetermined" there
+RHO_LIMIT_JOINT = 0.95
+
+
+def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
+    """Replace ``cf.pressure`` by the jointly refined laws (in place; see module doc).
+
+    Parameters fixed on every run stay constants; each free parameter's order comes from
+    :func:`pmalab.identify.joint.choose_degrees`, then the joint fit (with per-run h0)
+    refines the coefficients and prunes unsupported orders.  Every choice is recorded in
+    ``cf.warnings``.
+    """
+    rfs = cf.runs
+    names = cf.parameter_names
+    results = [rf.result for rf in rfs]
+    constants = {n: float(results[0].params[n].value) for n in names
+                 if n not in STATE_PARAMS and all(not r.params[n].vary for r in results)}
+    free = [n for n in names if n not in constants and n not in STATE_PARAMS]
+    if not free:
+        return
+    has_h0 = "h0" in names and any(r.params["h0"].vary for r in results)
+    bounds = parameter_bounds(rfs)
+    pressures = [rf.p_nom for rf in rfs]
+    levels = len({round(p, 4) for p in pressures})
+    values = {n: [r.params[n].value for r in results] for n in free}
+    stderr = {n: [r.params[n].stderr for r in results] for n in free}
+    und = {n: [_undetermined(r, n) for r in results] for n in free}
+    start, degrees, notes = start_laws(free, pressures, values, stderr, und,
+                                       max_degree=min(2, levels - 1))
+    jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, rfs)]
+    h0 = [float(r.params["h0"].value) for r in results] if has_h0 else None
+    try:
+        joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0)
+    except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
+        cf.warnings.append(f"joint refinement of the pressure laws failed ({exc}); "
+                           "using the per-run quadratics")
+        return
+    per_run = evaluate(cf.model, jruns, {n: cf.pressure[n].coef for n in free}, constants,
+                       bounds, h0)
+    cf.per_run_nrmse = per_run
+    if not np.isfinite(joint.mean_nrmse) or joint.mean_nrmse > float(np.mean(per_run)):
+        cf.warnings.append(
+            f"joint refinement did not improve on the per-run quadratics (mean nrmse "
+            f"{joint.mean_nrmse:.4f} vs {float(np.mean(per_run)):.4f}); using the per-run quadratics")
+        return
+    new: dict[str, PressureFit] = {}
+    for n, pf in cf.pressure.items():
+        if n in joint.coef:
+            q = joint.coef[n]
+            fitted = [q[0] + q[1] * p + q[2] * p * p for p in pf.pressures]
+            r2, resid = weighted_r2(pf.values, fitted, pf.stderr)
+            new[n] = PressureFit(name=n, coef=q, degree=joint.degree[n], r2=r2,
+                                 pressures=pf.pressures, values=pf.values, stderr=pf.stderr,
+                                 residuals=resid, method="joint", per_run_coef=pf.coef,
+                                 per_run_r2=pf.r2, per_run_degree=pf.degree)
+        elif n in constants:
+            new[n] = replace(pf, coef=(constants[n], 0.0, 0.0), degree=0, method="joint",
+                             per_run_coef=pf.coef, per_run_r2=pf.r2, per_run_degree=pf.degree)
+        else:
+            new[n] = pf  # the state h0: per-run, never used for prediction
+    cf.pressure = new
+    cf.joint = joint
+    cf.pressure_model = "joint"
+    orders = ", ".join(f"{n} {joint.degree[n]}" for n in free)
+    cf.warnings.append(
+        f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run h0): "
+        f"mean nrmse {float(np.mean(per_run)):.4f} with the per-run quadratics -> "
+        f"{joint.mean_nrmse:.4f}; orders in p: {orders}")
+    cf.warnings += notes + jnotes
+    if not joint.success:
+        cf.warnings.append(f"joint refinement stopped early: {joint.message}")
 
 
 def pressure_fits(rfs: Sequence[RunFit]) -> dict[str, PressureFit]:

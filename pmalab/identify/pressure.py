@@ -7,6 +7,12 @@ determined value does not drag the curve; a parameter that was held fixed has no
 and gets equal weights.  With fewer than three distinct pressure levels the degree drops
 (two levels: a line; one level: a constant) and the unused coefficients are 0 — the fit
 records the degree used.  R² is the weighted coefficient of determination.
+
+These per-run quadratics are the *start* of the campaign's pressure laws: the campaign then
+refines the coefficients jointly on the free-run error of all runs, with each parameter's
+order chosen (0, 1 or 2) — :mod:`pmalab.identify.joint`.  A refined fit keeps the per-run
+quadratic in ``per_run_coef`` and reports R²/residuals of the per-run values about the
+refined law (``method = "joint"``).
 """
 
 from __future__ import annotations
@@ -29,6 +35,12 @@ class PressureFit:
     values: list[float]
     stderr: list[float | None]
     residuals: list[float]
+    #: "per-run" (the weighted quadratic through the per-run values) or "joint" (refined)
+    method: str = "per-run"
+    #: the per-run weighted quadratic and its R² (kept when ``method == "joint"``)
+    per_run_coef: tuple[float, float, float] | None = None
+    per_run_r2: float | None = None
+    per_run_degree: int | None = None
 
     def __call__(self, p: float | np.ndarray) -> float | np.ndarray:
         q0, q1, q2 = self.coef
@@ -36,8 +48,14 @@ class PressureFit:
 
     def stats(self) -> dict:
         """The JSON block (``pressure_fit_stats[name]``)."""
-        return {"r2": self.r2, "degree": self.degree, "residuals": self.residuals,
-                "pressures": self.pressures, "values": self.values, "stderr": self.stderr}
+        out = {"r2": self.r2, "degree": self.degree, "residuals": self.residuals,
+               "pressures": self.pressures, "values": self.values, "stderr": self.stderr,
+               "method": self.method}
+        if self.per_run_coef is not None:
+            out["per_run_quadratic"] = list(self.per_run_coef)
+            out["per_run_r2"] = self.per_run_r2
+            out["per_run_degree"] = self.per_run_degree
+        return out
 
 
 def fit_quadratic(
@@ -78,3 +96,24 @@ def fit_quadratic(
                        pressures=[float(v) for v in p], values=[float(v) for v in y],
                        stderr=[None if s is None else float(s) for s in se_in],
                        residuals=[float(v) for v in res])
+
+
+def weighted_r2(values: Sequence[float], fitted: Sequence[float],
+                stderr: Sequence[float | None] | None = None) -> tuple[float, list[float]]:
+    """(weighted R², residuals) of per-run ``values`` about a given law's ``fitted`` values."""
+    y = np.asarray(values, dtype=np.float64)
+    f = np.asarray(fitted, dtype=np.float64)
+    se_in = list(stderr) if stderr is not None else [None] * len(y)
+    se = np.array([np.nan if s is None else float(s) for s in se_in])
+    good = np.isfinite(se) & (se > 0)
+    w = 1.0 / np.where(good, se, float(np.median(se[good]))) if good.any() else np.ones_like(y)
+    res = y - f
+    yw = float(np.sum(w * w * y) / np.sum(w * w))
+    ss_tot = float(np.sum((w * (y - yw)) ** 2))
+    ss_res = float(np.sum((w * res) ** 2))
+    tiny = 1e-24 * max(1.0, float(np.sum((w * y) ** 2)))
+    if ss_tot > tiny:
+        r2 = 1.0 - ss_res / ss_tot
+    else:
+        r2 = 1.0 if ss_res <= tiny else 0.0
+    return float(r2), [float(v) for v in res]
