@@ -63,18 +63,65 @@ def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None =
     return out
 
 
+#: a prediction counts as diverged when it leaves the measured force band by more than this
+#: many times the measured range (or is not finite)
+DIVERGED_RANGE_FACTOR = 2.0
+#: validation statuses: "ok", "extrapolated" (pressure outside the identified range),
+#: "diverged" (metrics withheld: see :func:`check_prediction`)
+VALIDATION_STATUSES = ("ok", "extrapolated", "diverged")
+
+
+def check_prediction(measured: np.ndarray, predicted: np.ndarray) -> str | None:
+    """Why a prediction is unusable (non-finite, or far outside the measured force band), or None.
+
+    Band: [min F − 2·range, max F + 2·range] of the measured force (N).  A model whose
+    hysteretic state runs away produces forces of thousands of N on a 700 N record; its
+    "fit %" would be a meaningless large negative number, so it is reported as diverged.
+    """
+    y = np.asarray(measured, dtype=np.float64)
+    yh = np.asarray(predicted, dtype=np.float64)
+    if not np.all(np.isfinite(yh)):
+        return f"prediction is not finite on {int(np.sum(~np.isfinite(yh)))} sample(s)"
+    lo, hi = float(np.min(y)), float(np.max(y))
+    rng = max(hi - lo, 1e-9)
+    worst = float(np.max(np.maximum(yh - hi, lo - yh)))
+    if worst > DIVERGED_RANGE_FACTOR * rng:
+        return (f"prediction leaves the measured force band [{lo:.4g}, {hi:.4g}] N by up to "
+                f"{worst:.4g} N (> {DIVERGED_RANGE_FACTOR:g}× its range)")
+    return None
+
+
 @dataclass
 class Validation:
-    """One held-out run predicted by the pressure-quadratic model."""
+    """One held-out run predicted by the pressure-law model.
+
+    ``status``: ``"ok"``, ``"extrapolated"`` (the run's pressure lies outside the identified
+    range: θ(p) is extrapolated and clipped into the law's bounds) or ``"diverged"`` (the
+    prediction ran away; ``metrics`` then hold NaN, not absurd numbers, and ``message``
+    says why).
+    """
 
     run: Run
     force_model: np.ndarray
     metrics: dict
     x_drive: np.ndarray
+    status: str = "ok"
+    message: str = ""
 
     @property
     def fit_percent(self) -> float:
         return float(self.metrics["fit_percent"])
+
+    @property
+    def diverged(self) -> bool:
+        return self.status == "diverged"
+
+
+def _withheld(m: dict) -> dict:
+    """Metrics with every number replaced by NaN (a diverged prediction)."""
+    out = {k: (float("nan") if isinstance(v, float) else v) for k, v in m.items()}
+    out["branch_rmse"] = {k: float("nan") for k in m.get("branch_rmse", {})}
+    return out
 
 
 @dataclass
@@ -87,6 +134,8 @@ class Identification:
     spec: ModelSpec | None = None
     initial: str = "estimate"
     notes: list[str] = field(default_factory=list)
+    #: warnings raised while validating (extrapolation, divergence)
+    validation_warnings: list[str] = field(default_factory=list)
 
     # ---- model
     @property
@@ -95,7 +144,7 @@ class Identification:
 
     @property
     def warnings(self) -> list[str]:
-        return list(self.campaign.warnings)
+        return list(self.campaign.warnings) + list(self.validation_warnings)
 
     def theta(self, p_MPa: float) -> dict[str, float]:
         """Parameters at nominal pressure ``p_MPa`` from the quadratics."""
@@ -120,11 +169,30 @@ class Identification:
     def validate(self, runs: Iterable[Run]) -> list[Validation]:
         """Predict held-out runs and add them to :attr:`validation`."""
         new = []
+        cf = self.campaign
         for r in runs:
             sig = Signals.from_run(r)
-            fm = self.campaign.predict(sig, force=r.force, initial=self.initial)
-            new.append(Validation(run=r, force_model=fm, metrics=metrics(r.force, fm, sig.x),
-                                  x_drive=sig.x))
+            with np.errstate(all="ignore"):
+                fm = cf.predict(sig, force=r.force, initial=self.initial)
+            status, msg = "ok", ""
+            p = float(r.nominal_pressure)
+            if cf.extrapolates(p):
+                lo, hi = cf.pressure_range
+                status = "extrapolated"
+                msg = (f"{p:g} MPa is outside the identified range [{lo:g}, {hi:g}] MPa: "
+                       "θ(p) extrapolated and clipped into the law's bounds")
+                self.validation_warnings.append(f"{r.label}: {msg}")
+            why = check_prediction(r.force, fm)
+            if why is None:
+                m = metrics(r.force, fm, sig.x)
+            else:
+                status, msg = "diverged", why + (f"; {msg}" if msg else "")
+                m = _withheld(metrics(r.force, np.nan_to_num(fm), sig.x))
+                self.validation_warnings.append(
+                    f"{r.label}: the {cf.pressure_model} pressure-law model diverged on this "
+                    f"validation run ({why}); no metrics reported")
+            new.append(Validation(run=r, force_model=fm, metrics=m, x_drive=sig.x,
+                                  status=status, message=msg))
         self.validation.extend(new)
         return new
 
@@ -146,12 +214,15 @@ class Identification:
 
     @property
     def pressure_table(self):
-        """DataFrame: q0, q1, q2 and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in MPa)."""
+        """DataFrame: q0, q1, q2, order and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in
+        MPa; ``method`` "joint" = refined on all runs at once, see
+        :mod:`pmalab.identify.joint`)."""
         import pandas as pd
 
         return pd.DataFrame(
             [{"parameter": n, "q0": pf.coef[0], "q1": pf.coef[1], "q2": pf.coef[2],
-              "degree": pf.degree, "r2": pf.r2} for n, pf in self.campaign.pressure.items()]
+              "degree": pf.degree, "r2": pf.r2, "method": pf.method}
+             for n, pf in self.campaign.pressure.items()]
         ).set_index("parameter")
 
     @property
@@ -163,7 +234,8 @@ class Identification:
         for v in self.validation:
             m = v.metrics
             rows.append({"run": v.run.label, "p_MPa": v.run.nominal_pressure,
-                         "f_Hz": v.run.frequency, "fit_percent": m["fit_percent"],
+                         "f_Hz": v.run.frequency, "status": v.status,
+                         "fit_percent": m["fit_percent"],
                          "nrmse": m["nrmse"], "rmse_N": m["rmse"], "max_error_N": m["max_error"],
                          "energy_error_percent": m["energy_error_percent"],
                          "stretch_rmse_N": m["branch_rmse"]["stretch"],
@@ -240,7 +312,8 @@ class Identification:
             lines.append(f"  identify  {rf.label:40s} p={rf.p_nom:.4g} MPa  fit {rf.result.fit_percent:6.2f} %")
         for v in self.validation:
             lines.append(f"  validate  {v.run.label:40s} p={v.run.nominal_pressure:.4g} MPa  "
-                         f"fit {v.fit_percent:6.2f} %")
+                         + ("DIVERGED" if v.diverged else f"fit {v.fit_percent:6.2f} %")
+                         + ("" if v.status == "ok" else f"  ({v.status})"))
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -265,13 +338,17 @@ def identify(
     free: Sequence[str] = (),
     initial: str = "estimate",
     progress: bool = False,
+    pressure_model: str = "joint",
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
     Runs whose ``role`` attr is ``"validation"`` are held out automatically (and added to
     ``validate``); nothing else is dropped.  ``effects``: effect ids to add (``--add``);
     ``effects_files``: Python files defining user effects.  ``initial``: how a validation
-    run's start state is set (``estimate`` | ``burn-in`` | ``zero``).
+    run's start state is set (``estimate`` | ``burn-in`` | ``zero``).  ``pressure_model``:
+    ``"joint"`` (default: the pressure laws refined on all runs at once,
+    :mod:`pmalab.identify.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
+    values).
     """
     runs_l = [runs] if isinstance(runs, Run) else list(runs)
     ident, held = split_roles(runs_l)
@@ -289,7 +366,7 @@ def identify(
         spec.build()  # fail early (unknown model/effect) before any work
         fm = spec
     cf = fit_campaign(ident, fm, fixed=fixed, free=free, jobs=jobs, scheduler=scheduler,
-                      progress=progress)
+                      progress=progress, pressure_model=pressure_model)
     res = Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes)
     res.validate([*held, *(validate or [])])
     return res

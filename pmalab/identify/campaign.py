@@ -301,8 +301,8 @@ def fit_campaign(
         if rf.result.fit_percent < POOR_FIT_PERCENT:
             warnings.append(
                 f"{rf.label}: fit only {rf.result.fit_percent:.1f} % — {fm.name} misses something "
-                "on this run (see `pmalab diagnose`); its parameters enter the quadratics "
-                "weighted by their (large) standard errors")
+                "on this run (see `pmalab diagnose`); it enters the pressure laws with a "
+                "weight reduced accordingly (its own rmse)")
     pressure = pressure_fits(rfs)
     levels = sorted({round(r.p_nom, 4) for r in rfs})
     if len(levels) < 3:

@@ -114,9 +114,13 @@ def run_identify(args: argparse.Namespace) -> int:
               f"rmse {r.rmse:7.3g} N" + (f"  ({len(r.warnings)} warning(s))" if r.warnings else ""))
     for v in res.validation:
         m = v.metrics
-        print(f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
-              f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
-              f"energy {m['energy_error_percent']:+.1f} %")
+        head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
+        if getattr(v, "diverged", False):
+            print(head + f"prediction DIVERGED ({v.message})")
+            continue
+        print(head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
+              f"energy {m['energy_error_percent']:+.1f} %"
+              + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else ""))
     for wmsg in res.warnings:
         print(f"warning: {wmsg}", file=sys.stderr)
     print(f"wrote {jpath} and {hpath}")

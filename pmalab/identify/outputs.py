@@ -10,10 +10,18 @@
                "correlation": {"names": [...], "matrix": [[...]]}, "fixed": [...],
                "warnings": [...], "rmse", "nrmse", "fit_percent", "max_error",
                "energy_error_percent", "branch_rmse": {"stretch", "release"}}],
-     "pressure_fits": {name: [q0, q1, q2]},
-     "pressure_fit_stats": {name: {"r2", "residuals", "pressures", "values", "stderr"}},
-     "validation": [{"file", "run", "muscle_pressure_MPa", "frequency_Hz", "rmse", "nrmse",
-                     "fit_percent", "max_error", "energy_error_percent", "branch_rmse"}],
+     "pressure_model": "joint" | "per-run",
+     "pressure_fits": {name: [q0, q1, q2]},            # the model's laws (refined if joint)
+     "pressure_fits_per_run": {name: [q0, q1, q2]},    # the seeds' per-run quadratics
+     "pressure_fit_stats": {name: {"r2", "degree", "residuals", "pressures", "values",
+                                   "stderr", "method", "per_run_quadratic", "per_run_r2"}},
+     "pressure_range_MPa": [lo, hi],
+     "joint_fit": {"nrmse", "mean_nrmse", "mean_nrmse_per_run_quadratics", "orders",
+                   "h0", ...} | null,
+     "validation": [{"file", "run", "muscle_pressure_MPa", "frequency_Hz", "status"
+                     ("ok" | "extrapolated" | "diverged"), "message", "extrapolated",
+                     "rmse", "nrmse", "fit_percent", "max_error", "energy_error_percent",
+                     "branch_rmse"}],       # metrics null when the prediction diverged
      "warnings": [...]}
 
 NaN/inf values are written as ``null`` (strict JSON).
@@ -169,9 +177,11 @@ def identification_dict(res: Identification) -> dict:
             "file": run.file, "run": run.name, "role": "validation",
             "muscle_pressure_MPa": run.nominal_pressure, "frequency_Hz": run.frequency,
             "waveform": str(run.attrs.get("waveform", "")),
+            "status": v.status, "message": v.message,
+            "extrapolated": cf.extrapolates(float(run.nominal_pressure)),
             **_metric_block(v.metrics),
         })
-    warnings = list(cf.warnings)
+    warnings = list(res.warnings)
     for rf in cf.runs:
         warnings += [f"{rf.label}: {w}" for w in rf.result.warnings]
     all_runs = [(r, "identification") for r in res.runs] + [(v.run, "validation") for v in res.validation]
@@ -187,8 +197,12 @@ def identification_dict(res: Identification) -> dict:
         "parameter_docs": docs,
         "state_parameters": ["h0"],
         "runs": runs_out,
+        "pressure_model": cf.pressure_model,
         "pressure_fits": {n: list(pf.coef) for n, pf in cf.pressure.items()},
+        "pressure_fits_per_run": {n: list(pf.coef) for n, pf in cf.per_run_pressure.items()},
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
+        "pressure_range_MPa": list(cf.pressure_range),
+        "joint_fit": _joint_block(cf),
         "validation": val_out,
         "warnings": warnings,
         "notes": list(res.notes),
@@ -198,10 +212,38 @@ def identification_dict(res: Identification) -> dict:
             "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
             "stderr": STDERR_METHOD,
             "initial_state_validation": res.initial,
-            "pressure_fits": "theta(p) = q0 + q1 p + q2 p^2 (p in MPa), weighted by 1/stderr",
+            "pressure_fits": (
+                "theta(p) = q0 + q1 p + q2 p^2 (p in MPa); start: per-run values weighted by "
+                "1/stderr; joint: coefficients refined by least squares of the free-run error "
+                "of all identification runs at once (per-run h0, each run's residual / (its "
+                "per-run rmse * sqrt(N))), order 0-2 per parameter from the per-run fits and "
+                "a Wald/BIC test on the joint fit; theta clipped into the law's bounds"
+                if cf.pressure_model == "joint" else
+                "theta(p) = q0 + q1 p + q2 p^2 (p in MPa), weighted by 1/stderr"),
         },
     }
     return _clean(out)
+
+
+def _joint_block(cf) -> dict | None:
+    """The ``joint_fit`` JSON block (None when the pressure laws were not refined jointly)."""
+    j = cf.joint
+    if j is None:
+        return None
+    return {
+        "runs": [rf.label for rf in cf.runs],
+        "nrmse": list(j.nrmse), "mean_nrmse": j.mean_nrmse,
+        "nrmse_per_run_quadratics": list(cf.per_run_nrmse),
+        "mean_nrmse_per_run_quadratics": (float(np.mean(cf.per_run_nrmse))
+                                          if cf.per_run_nrmse else None),
+        "nrmse_start": list(j.nrmse_start), "mean_nrmse_start": j.mean_nrmse_start,
+        "orders": dict(j.degree), "constants": dict(j.constants), "h0": list(j.h0),
+        "legendre": {n: np.asarray(c).tolist() for n, c in j.legendre.items()},
+        "legendre_stderr": {n: np.asarray(c).tolist() for n, c in j.legendre_stderr.items()},
+        "n_eff": j.n_eff, "bic": j.bic, "nfev": j.nfev, "success": j.success,
+        "message": j.message,
+        "note": "nrmse of the free-run prediction on the subsampled identification runs",
+    }
 
 
 def _unique_key(grp, base: str) -> str:
