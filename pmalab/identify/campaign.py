@@ -334,6 +334,9 @@ def _undetermined(res: FitResult, name: str) -> bool:
     return False
 
 
+#: the joint laws are kept unless their mean training nrmse exceeds the per-run quadratics'
+#: by this factor
+JOINT_TOLERANCE = 1.02
 #: a parameter collinear beyond this with another on a run is "undetermined" there
 RHO_LIMIT_JOINT = 0.95
 
@@ -366,7 +369,12 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, rfs)]
     h0 = [float(r.params["h0"].value) for r in results] if has_h0 else None
     try:
-        joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0)
+        # the plain per-run quadratics are a second start (the brief's order: they may be
+        # the better start when the per-run values are well determined)
+        plain = ({n: cf.pressure[n].coef for n in free},
+                 {n: cf.pressure[n].degree for n in free})
+        joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0,
+                               alternatives=[plain])
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(f"joint refinement of the pressure laws failed ({exc}); "
                            "using the per-run quadratics")
@@ -374,7 +382,9 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     per_run = evaluate(cf.model, jruns, {n: cf.pressure[n].coef for n in free}, constants,
                        bounds, h0)
     cf.per_run_nrmse = per_run
-    if not np.isfinite(joint.mean_nrmse) or joint.mean_nrmse > float(np.mean(per_run)):
+    # a sanity check: the joint fit starts from (among others) the per-run quadratics, so it
+    # only ends above them by the BIC-accepted order pruning (a small, deliberate loss)
+    if not np.isfinite(joint.mean_nrmse) or joint.mean_nrmse > JOINT_TOLERANCE * float(np.mean(per_run)):
         cf.warnings.append(
             f"joint refinement did not improve on the per-run quadratics (mean nrmse "
             f"{joint.mean_nrmse:.4f} vs {float(np.mean(per_run)):.4f}); using the per-run quadratics")

@@ -381,12 +381,15 @@ def refine(
     prune: bool = True,
     max_prune_rounds: int = 2,
     max_nfev: int = MAX_NFEV,
+    alternatives: Sequence[tuple[dict[str, tuple[float, float, float]], dict[str, int]]] = (),
 ) -> tuple[JointFit, list[str]]:
     """Jointly refine the pressure laws (see the module docstring); returns (fit, notes).
 
     ``start``: monomial q per free parameter (the per-run quadratics); ``degree``: the
     order of each; ``constants``: parameters held fixed; ``bounds``: (lo, hi) per parameter
     (θ is clipped into them); ``h0_start``: per-run start states (None: the law has no h0).
+    ``alternatives``: further (start, degree) pairs; the fit starts from the one with the
+    lowest cost (h0 fitted for each) and tries the next while it has not beaten it.
     """
     levels = [r.p_nom for r in runs]
     basis = PressureBasis(min(levels), max(levels))
@@ -413,16 +416,32 @@ def refine(
             z[prob.n_coef:] = list(h0)
         return z
 
-    deg = {n: int(degree.get(n, 2)) for n in free}
-    start_c = {n: basis.from_monomial(start[n], deg[n]) for n in free}
-    prob, lo, hi = build(deg)
-    z0 = z_from(prob, start_c, h0_start or [])
-    with threadpool_limits(limits=1, user_api="blas"):
-        z0 = prob.fit_h0(z0, lo, hi)  # the start laws' own start states
-    nr_start = prob.per_run_nrmse(z0)
-    sol = _solve(prob, z0, lo, hi, max_nfev)
+    # the starts: the chosen orders and start laws, then any alternatives (e.g. the plain
+    # per-run quadratics); each with its own fitted h0, best (lowest cost) first
+    cands = []
+    for st, dg in [(start, degree), *(alternatives or [])]:
+        deg_c = {n: int(dg.get(n, 2)) for n in free}
+        pr, lo_c, hi_c = build(deg_c)
+        z = z_from(pr, {n: basis.from_monomial(st[n], deg_c[n]) for n in free}, h0_start or [])
+        with threadpool_limits(limits=1, user_api="blas"):
+            z = pr.fit_h0(z, lo_c, hi_c)  # the start laws' own start states
+        e = pr.residual(z)
+        cands.append((float(e @ e), deg_c, pr, lo_c, hi_c, z))
+    nr_start = cands[0][2].per_run_nrmse(cands[0][5])
+    order = sorted(range(len(cands)), key=lambda i: cands[i][0])
+    best = None
+    nfev = 0
+    for i in order:
+        sse0, deg_c, pr, lo_c, hi_c, z = cands[i]
+        if best is not None and float(best[1].cost) * 2.0 <= sse0:
+            break  # already below this start's cost: no need to try it
+        sol_c = _solve(pr, z, lo_c, hi_c, max_nfev)
+        nfev += int(sol_c.nfev)
+        if best is None or sol_c.cost < best[1].cost:
+            best = (pr, sol_c, deg_c)
+    assert best is not None
+    prob, sol, deg = best
     se, n_eff, bic = _stats(prob, sol)
-    nfev = int(sol.nfev)
 
     for _ in range(max_prune_rounds if prune else 0):
         # drop top coefficients that the joint data do not support (Wald ≈ BIC test: the
