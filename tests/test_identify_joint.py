@@ -8,7 +8,6 @@ developed on seed 7 (and checked on seeds 3 and 5); these tests use seed 23.
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -104,11 +103,34 @@ def test_diverged_prediction_reported_not_scored() -> None:
     res.campaign.predict = lambda *a, **k: 40.0 * run.force  # type: ignore[method-assign]
     (v,) = res.validate([run])
     assert v.diverged and "force band" in v.message
-    assert math.isnan(v.metrics["nrmse"]) and math.isnan(v.fit_percent)
+    assert v.metrics["nrmse"] > 10.0  # still computed, for readers of the JSON
+    assert "DIVERGED" in repr(res)
     doc = identification_dict(res)
     entry = doc["validation"][-1]
-    assert entry["status"] == "diverged" and entry["rmse"] is None and entry["fit_percent"] is None
+    assert entry["status"] == "diverged" and "force band" in entry["message"]
     assert any("runaway" in w and "diverged" in w for w in doc["warnings"])
+
+
+def test_cli_prints_diverged_not_numbers(tmp_path, monkeypatch, capsys) -> None:
+    from pmalab.identify import campaign
+    from pmalab.runfile import write_runs
+
+    runs = _synth("bouc-wen", (0.3, 0.4, 0.5))
+    val, _ = make_run("bouc-wen", 0.4, seed=97, n=7000, name="runaway")
+    val.attrs["role"] = "validation"
+    f = write_runs(tmp_path / "c.h5", [*runs, val])
+    real = campaign.CampaignFit.predict
+
+    def runaway(self, run, *a, **k):
+        out = real(self, run, *a, **k)
+        return out * 40.0 if len(out) == 7000 else out  # only the validation run runs away
+
+    monkeypatch.setattr(campaign.CampaignFit, "predict", runaway)
+    rc = pmalab_main(["identify", str(f), "--model", "bouc-wen", "--out", str(tmp_path / "o"), "--quiet", "--jobs", "1",
+                      "--whole-run"])
+    assert rc in (0, None)
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "validate" in ln)
+    assert "DIVERGED" in line and "fit" not in line
 
 
 # --------------------------------------------------------------------------- simulated rig

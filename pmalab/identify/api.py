@@ -97,8 +97,10 @@ class Validation:
 
     ``status``: ``"ok"``, ``"extrapolated"`` (the run's pressure lies outside the identified
     range: θ(p) is extrapolated and clipped into the law's bounds) or ``"diverged"`` (the
-    prediction ran away; ``metrics`` then hold NaN, not absurd numbers, and ``message``
-    says why).
+    prediction ran away; ``message`` says why).  A diverged run's ``metrics`` are still
+    computed (NaN where the prediction is not finite) so tools reading
+    ``identification.json`` keep working, but the CLI, ``repr`` and tables say DIVERGED
+    instead of printing its meaningless fit %.
     """
 
     run: Run
@@ -116,12 +118,6 @@ class Validation:
     def diverged(self) -> bool:
         return self.status == "diverged"
 
-
-def _withheld(m: dict) -> dict:
-    """Metrics with every number replaced by NaN (a diverged prediction)."""
-    out = {k: (float("nan") if isinstance(v, float) else v) for k, v in m.items()}
-    out["branch_rmse"] = {k: float("nan") for k in m.get("branch_rmse", {})}
-    return out
 
 
 @dataclass
@@ -182,15 +178,14 @@ class Identification:
                 msg = (f"{p:g} MPa is outside the identified range [{lo:g}, {hi:g}] MPa: "
                        "θ(p) extrapolated and clipped into the law's bounds")
                 self.validation_warnings.append(f"{r.label}: {msg}")
-            why = check_prediction(r.force, fm)
-            if why is None:
+            with np.errstate(all="ignore"):
                 m = metrics(r.force, fm, sig.x)
-            else:
+            why = check_prediction(r.force, fm)
+            if why is not None:
                 status, msg = "diverged", why + (f"; {msg}" if msg else "")
-                m = _withheld(metrics(r.force, np.nan_to_num(fm), sig.x))
                 self.validation_warnings.append(
                     f"{r.label}: the {cf.pressure_model} pressure-law model diverged on this "
-                    f"validation run ({why}); no metrics reported")
+                    f"validation run ({why}); its fit % is meaningless")
             new.append(Validation(run=r, force_model=fm, metrics=m, x_drive=sig.x,
                                   status=status, message=msg))
         self.validation.extend(new)
