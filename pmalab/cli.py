@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from pmalab import __version__
@@ -48,6 +49,22 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"pmalab {args.verb}: interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        # the file system refused (no permission, disk full, a file where a directory
+        # should be): the user's to fix, so one line too; verbs name their files where
+        # they can, this is the net for the places that do not
+        print(f"pmalab {args.verb}: error: {os_error_line(exc)}", file=sys.stderr)
+        return PmalabError.exit_code
+
+
+def os_error_line(exc: OSError) -> str:
+    """``FILE: reason`` for an ``OSError`` (``errno`` text, else its first line)."""
+    if exc.errno:
+        reason = os.strerror(exc.errno)
+    else:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    names = [str(n) for n in (exc.filename, exc.filename2) if n is not None]
+    return f"{' → '.join(names)}: {reason}" if names else reason
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -34,5 +34,10 @@ class SafetyAbort(PmalabError):
     exit_code = 4
 
 
-class OutputExistsError(PmalabError):
+class OutputError(PmalabError):
+    """An output cannot be written there (a directory or file in the way, no permission,
+    disk full)."""
+
+
+class OutputExistsError(OutputError):
     """An output exists and ``--force`` was not given."""

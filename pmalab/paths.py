@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-from pmalab.errors import OutputExistsError
+from pmalab.errors import OutputError, OutputExistsError
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = REPO_ROOT / "data"
@@ -14,8 +15,26 @@ TRUTH_DIR = DATA_DIR / "truth"
 
 
 def check_output(path: str | Path, force: bool) -> Path:
-    """Refuse to overwrite ``path`` unless ``force``; return it as a Path."""
+    """Refuse to overwrite ``path`` unless ``force``; return it as a Path.
+
+    Also refuses, before any work is done, an output file that could never be written: a
+    directory of that name (even with ``force``), or a path below an existing file.
+    """
     p = Path(path)
+    if p.is_dir():
+        raise OutputError(f"{p}: is a directory (give a file name)")
     if p.exists() and not force:
         raise OutputExistsError(f"{p}: already exists (use --force to overwrite)")
+    parent = next((a for a in p.parents if a.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise OutputError(f"{p}: cannot write ({parent} is a file, not a directory)")
     return p
+
+
+def output_failure(path: str | Path, exc: OSError, what: str = "write") -> OutputError:
+    """A one-line :class:`OutputError` for an ``OSError`` while writing ``path``."""
+    if exc.errno:
+        reason = os.strerror(exc.errno)
+    else:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return OutputError(f"{path}: cannot {what} ({reason})")

@@ -211,7 +211,9 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
     path = Path(path)
     if not path.exists():
         raise _fail(path, None, None, "no such file")
-    f = _open_h5(path)
+    if path.is_dir():
+        raise _fail(path, None, None, "is a directory, not a run file")
+    f = open_h5(path)
     try:
         fmt = _decode(f.attrs.get("format"))
         if fmt != FORMAT:
@@ -273,7 +275,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
         f.close()
 
 
-def _open_h5(path: Path):
+def open_h5(path: Path):
     """Open read-only; a file whose SWMR writer died (``kill -9``) still carries the
     "open for write" flag, which HDF5 accepts only in SWMR-read mode, so retry that way."""
     import h5py
@@ -333,23 +335,39 @@ def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Pa
     """
     import h5py
 
-    from pmalab.paths import check_output
+    from pmalab.paths import check_output, output_failure
 
     path = check_output(path, force)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with h5py.File(path, "w") as f:
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
-        grp = f.create_group("runs")
-        for run in runs:
-            g = grp.create_group(run.name)
-            for k, v in run.attrs.items():
-                if isinstance(v, dict | list):
-                    v = json.dumps(v)
-                if v is None:
-                    continue
-                g.attrs[k] = v
-            for ch, values in run.channels().items():
-                ds = g.create_dataset(ch, data=np.asarray(values, dtype=np.float64))
-                ds.attrs["units"] = CANONICAL_UNITS[ch]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        f = h5py.File(path, "w")
+    except OSError as exc:
+        raise output_failure(path, exc) from None
+    try:
+        _write_groups(f, runs)
+        f.close()  # flushes: a full disk may only show here
+    except BaseException as exc:
+        f.close()
+        path.unlink(missing_ok=True)  # no half-written file left behind
+        if isinstance(exc, OSError):
+            raise output_failure(path, exc) from None
+        raise
     return path
+
+
+def _write_groups(f: Any, runs: Sequence[Run]) -> None:
+    """The contract's root attrs, one group per run and its channels (canonical units)."""
+    f.attrs["format"] = FORMAT
+    f.attrs["format_version"] = FORMAT_VERSION
+    grp = f.create_group("runs")
+    for run in runs:
+        g = grp.create_group(run.name)
+        for k, v in run.attrs.items():
+            if isinstance(v, dict | list):
+                v = json.dumps(v)
+            if v is None:
+                continue
+            g.attrs[k] = v
+        for ch, values in run.channels().items():
+            ds = g.create_dataset(ch, data=np.asarray(values, dtype=np.float64))
+            ds.attrs["units"] = CANONICAL_UNITS[ch]

@@ -99,6 +99,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from pmalab.acquisition.runner import RunnerOptions, Terminated, run_protocol
     from pmalab.paths import check_output
 
+    if args.seed < 0:
+        raise ConfigError(f"--seed: must be an integer ≥ 0, got {args.seed}")
     protocol = load_protocol(args.protocol)
     if args.only:
         roles = [o for o in args.only if o in ("identification", "validation", "other")]

@@ -14,6 +14,7 @@ tension.  A DAQ that records elongation can be flipped with ``--negate position`
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -88,8 +89,16 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     run = opts.run or path.stem
     if not path.exists():
         raise RunFileError(f"{path}: no such file")
+    if path.is_dir():
+        raise RunFileError(f"{path}: is a directory, not a CSV file")
+    if opts.pressure_MPa is not None and not (
+        math.isfinite(opts.pressure_MPa) and opts.pressure_MPa > 0
+    ):
+        raise RunFileError(f"--pressure: must be a muscle pressure > 0 MPa, got {opts.pressure_MPa:g}")
     try:
         df = pd.read_csv(path, sep=opts.delimiter, comment="#", skipinitialspace=True)
+    except OSError as exc:
+        raise RunFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise RunFileError(f"{path}: not a readable CSV file ({first[:120]})") from None

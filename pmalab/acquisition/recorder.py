@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.paths import output_failure
 from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION
 
 #: recorded channels, in the order :meth:`RunWriter.add` takes them
@@ -192,9 +193,12 @@ class Recorder:
 
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(self.path.name + ".partial")
-        f = h5py.File(tmp, "w", libver="latest")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            f = h5py.File(tmp, "w", libver="latest")
+        except OSError as exc:
+            raise output_failure(self.path, exc, "create the run file") from None
         try:
             f.attrs["format"] = FORMAT
             f.attrs["format_version"] = FORMAT_VERSION
@@ -223,9 +227,11 @@ class Recorder:
             f.flush()
             f.swmr_mode = True  # from here on: no new attrs/objects, only data writes
             os.replace(tmp, self.path)
-        except BaseException:
+        except BaseException as exc:
             f.close()
             tmp.unlink(missing_ok=True)
+            if isinstance(exc, OSError):  # disk full, a directory in the way, ...
+                raise output_failure(self.path, exc, "create the run file") from None
             raise
         self.file = f
         self._last_flush = time.perf_counter()

@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from pmalab.errors import RunFileError
-from pmalab.runfile import FORMAT
+from pmalab.paths import output_failure
+from pmalab.runfile import FORMAT, open_h5
 
 
 def recover(path: str | Path, out: str | Path | None = None, *, force: bool = False) -> list[str]:
@@ -28,17 +29,14 @@ def recover(path: str | Path, out: str | Path | None = None, *, force: bool = Fa
     src_path = Path(path)
     if not src_path.exists():
         raise RunFileError(f"{src_path}: no such file")
+    if src_path.is_dir():
+        raise RunFileError(f"{src_path}: is a directory, not a run file")
     dst_path = Path(out) if out is not None else src_path
     if out is not None:
         check_output(dst_path, force)
-    try:
-        src = h5py.File(src_path, "r", swmr=True)
-    except OSError:
-        try:
-            src = h5py.File(src_path, "r")
-        except OSError as exc:
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise RunFileError(f"{src_path}: not a readable HDF5 file ({first})") from None
+    # plain read first; SWMR-read only for the "already open for write" flag a killed
+    # writer leaves (a damaged file opened in SWMR mode makes HDF5 retry its reads forever)
+    src = open_h5(src_path)
     tmp = dst_path.with_name(dst_path.name + ".recovering")
     fixed: list[str] = []
     try:
@@ -69,8 +67,13 @@ def recover(path: str | Path, out: str | Path | None = None, *, force: bool = Fa
                         fixed.append(name)
         src.close()
         os.replace(tmp, dst_path)
-    except BaseException:
+    except BaseException as exc:
         src.close()
         tmp.unlink(missing_ok=True)
+        if isinstance(exc, KeyError):
+            raise RunFileError(f"{src_path}: damaged run file (missing {exc})") from None
+        if isinstance(exc, OSError):  # unwritable destination, full disk, damaged source
+            what = "be recovered" if out is None else f"be written from {src_path}"
+            raise output_failure(dst_path, exc, what) from None
         raise
     return fixed

@@ -21,6 +21,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 
 from pmalab import __version__
+from pmalab.errors import OutputError, OutputExistsError
 from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import ReportData, Trace, load_report_dir
@@ -345,7 +346,12 @@ def build_report(
         raise ReportError(f"{out}: the report must be a .pdf file")
     if out.is_dir():
         raise ReportError(f"{out}: is a directory")
-    check_output(out, force)
+    try:
+        check_output(out, force)
+    except OutputExistsError:
+        raise
+    except OutputError as exc:  # e.g. below a file: the reports area's own error class
+        raise ReportError(str(exc)) from None
     data = load_report_dir(directory)
     pages = plan_pages(data)
     exports: list[tuple[Path, str]] = []

@@ -21,6 +21,8 @@ Implementations: :mod:`pmalab.rig.sim` (simulated physics), :mod:`pmalab.rig.dri
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time as _time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
@@ -29,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.config import check_keys
+from pmalab.errors import ConfigError
 from pmalab.runfile import CANONICAL_UNITS
 
 #: the five channels a sampler delivers, in this order, with their units
@@ -134,6 +138,25 @@ class Limits:
     max_force_N: float = 2000.0
     min_position_mm: float = -5.0
     max_position_mm: float = 35.0
+
+    def updated(self, table: Any, where: str) -> Limits:
+        """A copy with the fields of a rig file's ``[limits]`` table; one-line
+        :class:`~pmalab.errors.ConfigError` naming ``where`` and the field."""
+        if not isinstance(table, dict):
+            raise ConfigError(f"{where}: limits: must be a table")
+        names = {f.name for f in dataclasses.fields(Limits)}
+        values = dataclasses.asdict(self)
+        check_keys(table, names, "{where}: limits.{key}: unknown limit (known: {known})", where=where)
+        for key, v in table.items():
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ConfigError(f"{where}: limits.{key}: must be a number")
+            values[key] = float(v)
+        if values["min_position_mm"] >= values["max_position_mm"]:
+            raise ConfigError(f"{where}: limits.min_position_mm: must be < limits.max_position_mm")
+        for key in ("max_muscle_pressure_MPa", "max_cylinder_pressure_MPa", "max_force_N"):
+            if values[key] <= 0:
+                raise ConfigError(f"{where}: limits.{key}: must be > 0")
+        return Limits(**values)
 
 
 # --------------------------------------------------------------------------- devices

@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run_emulate(args: argparse.Namespace) -> int:
     from pmalab.rig.emulators.launcher import start_emulators
 
+    if args.seed is not None and args.seed < 0:
+        raise ConfigError(f"--seed: must be an integer ≥ 0, got {args.seed}")
+    if args.port is not None and not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port: must be a TCP port 0…65535, got {args.port}")
     try:
         emus = start_emulators(
             args.rig,

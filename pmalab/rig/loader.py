@@ -22,15 +22,13 @@ and field.  :func:`load_rig` then applies ``[limits]`` and records the file's te
 
 from __future__ import annotations
 
-import dataclasses
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
-from pmalab.rig.base import Clock, Limits, Rig
+from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig
 
 RigFactory = Callable[..., Rig]
@@ -76,24 +74,6 @@ RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
 RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
 
 
-def _apply_limits(rig: Rig, table: Any, where: str) -> None:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{where}: limits: must be a table")
-    names = {f.name for f in dataclasses.fields(Limits)}
-    values = dataclasses.asdict(rig.limits)
-    check_keys(table, names, "{where}: limits.{key}: unknown limit (known: {known})", where=where)
-    for key, v in table.items():
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise ConfigError(f"{where}: limits.{key}: must be a number")
-        values[key] = float(v)
-    if values["min_position_mm"] >= values["max_position_mm"]:
-        raise ConfigError(f"{where}: limits.min_position_mm: must be < limits.max_position_mm")
-    for key in ("max_muscle_pressure_MPa", "max_cylinder_pressure_MPa", "max_force_N"):
-        if values[key] <= 0:
-            raise ConfigError(f"{where}: limits.{key}: must be > 0")
-    rig.limits = Limits(**values)
-
-
 def load_rig(spec: str | Path, *, seed: int = 0, clock: Clock | None = None) -> Rig:
     """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
 
@@ -122,7 +102,7 @@ def load_rig(spec: str | Path, *, seed: int = 0, clock: Clock | None = None) -> 
         )
     rig = RIG_KINDS[kind](section, path, seed=seed, clock=clock)
     if "limits" in doc:
-        _apply_limits(rig, doc["limits"], where)
+        rig.limits = rig.limits.updated(doc["limits"], where)
     rig.info["rig_file"] = str(path)
     rig.info["rig_file_text"] = text
     return rig

@@ -136,17 +136,16 @@ def read_modbus_rig_file(path: str | Path) -> ModbusRigSpec:
     """Read and validate a ``kind = "modbus"`` rig file (the emulator's entry point)."""
     path = Path(path)
     doc, text = load_toml(path, "rig file")
-    section = dict(doc.get("rig", {}))
+    section = doc.get("rig", {})
+    if not isinstance(section, dict):
+        raise ConfigError(f"{path}: rig: must be a [rig] table")
+    section = dict(section)
     kind = section.pop("kind", None)
     if kind != "modbus":
         raise ConfigError(f"{path}: rig.kind: {kind!r} is not 'modbus' (nothing to emulate)")
     rs = parse_modbus_rig(section, path)
     rs.text = text
-    lim = doc.get("limits", {})
-    try:
-        rs.limits = Limits(**{k: float(v) for k, v in lim.items()})
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: limits: {exc}") from exc
+    rs.limits = Limits().updated(doc.get("limits", {}), str(path))
     return rs
 
 
