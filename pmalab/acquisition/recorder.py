@@ -33,6 +33,7 @@ extra dataset the reader ignores.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -129,24 +130,36 @@ class RunWriter:
         self._device_stats[()] = np.bytes_(raw)
 
     def commit(self) -> None:
-        """Append the buffered samples to the datasets and flush the file (SWMR-safe)."""
+        """Append the buffered samples to the datasets and flush the file (SWMR-safe).
+
+        All or nothing: when a write fails (a full disk), every channel is cut back to the
+        samples written before, so the run's channels keep equal lengths, and the buffer
+        is kept; the error is raised.
+        """
         k = len(self._late_buf)
         if k:
             n0, n1 = self.n, self.n + k
+            lat = np.asarray(self._late_buf, dtype=np.float64)
+            try:
+                for ds, buf in zip(self._ds, self._buf):
+                    ds.resize((n1,))
+                    ds[n0:n1] = np.asarray(buf, dtype=np.float64)
+                self._late_ds.resize((n1,))
+                self._late_ds[n0:n1] = lat.astype(np.float32)
+            except BaseException:
+                for ds in (*self._ds, self._late_ds):
+                    with contextlib.suppress(Exception):
+                        ds.resize((n0,))
+                raise
             if not self.n:
                 self._t_first = self._buf[0][0]
             self._t_last = self._buf[0][-1]
             fb = self._buf[2]
             self._fmin = min(self._fmin, min(fb))
             self._fmax = max(self._fmax, max(fb))
-            for ds, buf in zip(self._ds, self._buf):
-                ds.resize((n1,))
-                ds[n0:n1] = np.asarray(buf, dtype=np.float64)
+            for buf in self._buf:
                 buf.clear()
-            lat = np.asarray(self._late_buf, dtype=np.float64)
             self._late_buf.clear()
-            self._late_ds.resize((n1,))
-            self._late_ds[n0:n1] = lat.astype(np.float32)
             self._lateness_all.append(lat)
             self.n = n1
             self.max_lateness = max(self.max_lateness, float(lat.max()))
@@ -248,10 +261,13 @@ class Recorder:
         return False
 
     def close(self) -> None:
+        """Flush and close; the file is closed even when the flush fails (then raised)."""
         f = getattr(self, "file", None)
         if f is not None and f.id.valid:
-            f.flush()
-            f.close()
+            try:
+                f.flush()
+            finally:
+                f.close()
 
     def __enter__(self) -> Recorder:
         return self

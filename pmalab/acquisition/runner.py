@@ -58,7 +58,7 @@ from pmalab.acquisition.safety import (
 )
 from pmalab.acquisition.waveforms import command_samples
 from pmalab.errors import RigError, SafetyAbort
-from pmalab.paths import check_output
+from pmalab.paths import check_output, output_failure
 from pmalab.rig.base import Rig
 
 
@@ -333,26 +333,24 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
         rec = Recorder(out, [(r.name, run_attrs(r, protocol, rig, rate)) for r in protocol.runs],
                        root, flush_interval_s=opts.flush_interval_s)
         try:
-            rig.cylinder_regulator.set_pressure(0.0)
-            rig.sampler.start()
             for i, spec in enumerate(protocol.runs):
                 w = rec.writer(spec.name)
                 w.late_threshold_s = opts.late_threshold_s
                 try:
+                    if i == 0:
+                        rig.cylinder_regulator.set_pressure(0.0)
+                        rig.sampler.start()
                     _wait_for_muscle_pressure(rig, spec, rate, monitor, opts, pbar)
                     _record(rig, spec, rate, monitor, w, rec, opts, pbar)
+                    # end of a run: command zero before the next pressure level
+                    rig.cylinder_regulator.set_pressure(0.0)
+                    _store_device_stats(rig, w)
+                    timing = w.finish("completed")
                 except BaseException as exc:
                     # vent FIRST — before any file work — then close the run as aborted
                     _vent(rig)
                     reason = _reason(exc)
-                    try:
-                        _store_device_stats(rig, w)
-                        w.finish(f"aborted: {reason}")
-                        for later in protocol.runs[i + 1:]:
-                            rec.writer(later.name).set_status("not run: campaign aborted")
-                        rec.close()
-                    except Exception as wexc:  # the samples already flushed stay readable
-                        print(f"pmalab: warning: closing {out} failed: {wexc}", file=sys.stderr)
+                    _close_aborted(rig, rec, w, protocol.runs[i + 1:], f"aborted: {reason}", out)
                     manual = ("" if rig.muscle_supply.automatic
                               else "; close the muscle's manual regulator")
                     raise SafetyAbort(
@@ -360,13 +358,15 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                         f"cylinder regulator vented{manual}; {w.n} samples kept "
                         "(status 'aborted')"
                     ) from (exc if isinstance(exc, Exception) else None)
-                # end of a run: command zero before the next pressure level
-                rig.cylinder_regulator.set_pressure(0.0)
-                _store_device_stats(rig, w)
-                timing = w.finish("completed")
                 results.append(_result(spec.name, "completed", w, timing))
-        finally:
+        except BaseException:
+            with contextlib.suppress(Exception):  # never hide the reason of the abort
+                rec.close()
+            raise
+        try:
             rec.close()
+        except OSError as exc:  # e.g. the disk filled up at the very end
+            raise output_failure(out, exc, "close the run file") from None
     finally:
         _vent(rig)
         try:
@@ -376,6 +376,37 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
         if pbar is not None:
             pbar.close()
     return results
+
+
+def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec], status: str,
+                   out: Path) -> None:
+    """Close an aborted run's file: status first, then samples, statistics and the rest.
+
+    The status goes first because it is written in place (no new file space), so it
+    lands even when the abort is a full disk; each later step may fail on its own (the
+    samples already flushed stay readable) and only prints a warning.
+    """
+    try:
+        w.set_status(status)
+        rec.file.flush()
+    except Exception as exc:
+        print(f"pmalab: warning: marking {out} aborted failed: {exc}", file=sys.stderr)
+    try:
+        _store_device_stats(rig, w)
+        w.finish(status)
+    except Exception as exc:
+        print(f"pmalab: warning: writing the last samples to {out} failed: {exc}",
+              file=sys.stderr)
+    try:
+        for spec in later:
+            rec.writer(spec.name).set_status("not run: campaign aborted")
+    except Exception as exc:
+        print(f"pmalab: warning: marking the later runs of {out} failed: {exc}",
+              file=sys.stderr)
+    try:
+        rec.close()
+    except Exception as exc:
+        print(f"pmalab: warning: closing {out} failed: {exc}", file=sys.stderr)
 
 
 def _reason(exc: BaseException) -> str:

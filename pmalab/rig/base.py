@@ -226,13 +226,21 @@ class Rig:
     info: dict[str, Any] = field(default_factory=dict)
 
     def close(self) -> None:
-        """Vent everything and release devices.  Safe to call more than once."""
-        self.cylinder_regulator.vent()
-        self.muscle_supply.vent()
-        self.sampler.stop()
+        """Vent everything and release devices.  Safe to call more than once.
+
+        Each step runs even when an earlier one fails (a faulted cylinder regulator must
+        not keep the muscle pressurised); the first failure is raised at the end.
+        """
+        first: Exception | None = None
         closer = getattr(self.sampler, "close", None)
-        if callable(closer):
-            closer()
+        steps = [self.cylinder_regulator.vent, self.muscle_supply.vent, self.sampler.stop]
+        for step in steps + ([closer] if callable(closer) else []):
+            try:
+                step()
+            except Exception as exc:
+                first = first or exc
+        if first is not None:
+            raise first
 
     def __enter__(self) -> Rig:
         return self

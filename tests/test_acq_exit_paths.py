@@ -1,0 +1,239 @@
+"""Exit paths of the runner not covered by test_acq_safety: a full disk mid-run, failures
+while starting, at a run's end, in the operator prompt or the automatic muscle supply, in
+preflight and while venting.  Each must vent the cylinder regulator (and the muscle
+supply), and leave a file the reader opens with the run marked aborted.
+"""
+
+from __future__ import annotations
+
+import errno
+
+import h5py
+import numpy as np
+import pytest
+from test_acq_fakes import make_fake_rig
+
+import pmalab.acquisition.runner as runner_mod
+from pmalab.acquisition.protocol import parse_protocol
+from pmalab.acquisition.recorder import RunWriter
+from pmalab.acquisition.runner import RunnerOptions, run_protocol
+from pmalab.errors import OutputError, RigError, SafetyAbort
+from pmalab.runfile import read_runs
+
+DT = 1 / 500
+
+PROTO = """
+[[run]]
+name = "first"
+muscle_pressure_MPa = 0.4
+frequency_Hz = 0.5
+magnitude_MPa = 0.3
+cycles = 2
+ramp_s = 0.5
+settle_s = 0.5
+[[run]]
+name = "second"
+muscle_pressure_MPa = 0.5
+frequency_Hz = 0.5
+magnitude_MPa = 0.3
+cycles = 1
+"""
+
+
+def _run(rig, out, **opts):
+    return run_protocol(rig, parse_protocol(PROTO, "paths.toml"), out,
+                        options=RunnerOptions(progress=False, **opts))
+
+
+def _statuses(out):
+    with h5py.File(out, "r") as f:  # a plain open: the file was closed cleanly
+        return {k: f[f"runs/{k}/status"][()].decode().rstrip("\x00") for k in f["runs"]}
+
+
+def _assert_vented_last(rig):
+    calls = rig.cylinder_regulator.calls
+    first_vent = next(i for i, c in enumerate(calls) if c[1] == "vent")
+    assert all(v == 0.0 for _, _, v in calls[first_vent:])
+    assert calls[-1][1] == "vent" and rig.muscle_supply.vents >= 1
+
+
+class _FullDisk:
+    """An h5py dataset whose writes fail as on a full disk (resizing still works)."""
+
+    def __init__(self, ds):
+        self._ds = ds
+
+    def resize(self, shape):
+        self._ds.resize(shape)
+
+    def __setitem__(self, key, value):
+        raise OSError(errno.ENOSPC, "Can't write data (No space left on device)")
+
+
+def test_disk_full_mid_run_vents_and_keeps_equal_length_channels(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real_commit = RunWriter.commit
+
+    def commit(self):
+        calls["n"] += 1
+        if calls["n"] == 3 and self.name == "first":  # the disk fills on the 3rd flush
+            self._ds[3] = _FullDisk(self._ds[3])  # channels 0..2 written, 3 fails
+        return real_commit(self)
+
+    monkeypatch.setattr(RunWriter, "commit", commit)
+    rig = make_fake_rig()
+    out = tmp_path / "full.h5"
+    with pytest.raises(SafetyAbort) as ei:
+        _run(rig, out, flush_interval_s=0.0)
+    msg = str(ei.value)
+    assert "\n" not in msg and "run 'first' aborted" in msg and "No space left" in msg
+    _assert_vented_last(rig)
+    (r,) = read_runs(out)  # every channel cut back to the same length
+    assert r.attrs["status"].startswith("aborted: exception: OSError")
+    assert 0 < len(r) == len(r.force) == len(r.cylinder_pressure_command)
+    np.testing.assert_allclose(np.diff(r.time), DT, atol=1e-9)
+    assert _statuses(out)["second"].startswith("not run")
+
+
+def test_sampler_start_failure_marks_the_first_run_aborted(tmp_path, monkeypatch):
+    rig = make_fake_rig()
+
+    def start():
+        raise RigError("DAQ: stream did not start")
+
+    monkeypatch.setattr(rig.sampler, "start", start)
+    out = tmp_path / "start.h5"
+    with pytest.raises(SafetyAbort, match="run 'first' aborted: device fault: DAQ"):
+        _run(rig, out)
+    _assert_vented_last(rig)
+    st = _statuses(out)
+    assert st["first"].startswith("aborted: device fault") and st["second"].startswith("not run")
+
+
+def test_failure_at_the_end_of_a_run_is_an_abort_not_a_completed_run(tmp_path, monkeypatch):
+    rig = make_fake_rig()
+    reg = rig.cylinder_regulator
+    real_set = reg.set_pressure
+
+    def set_pressure(mpa):
+        real_set(mpa)
+        if mpa == 0.0 and reg.clock.now() > 3.0:  # the end-of-run zero command
+            raise RigError("regulator: no reply")
+
+    monkeypatch.setattr(reg, "set_pressure", set_pressure)
+    out = tmp_path / "end.h5"
+    with pytest.raises(SafetyAbort, match="device fault: regulator: no reply"):
+        _run(rig, out)
+    _assert_vented_last(rig)
+    st = _statuses(out)
+    assert st["first"].startswith("aborted: device fault") and st["second"].startswith("not run")
+    (r,) = read_runs(out)
+    assert len(r) > 1000
+
+
+def test_exception_in_the_operator_prompt_vents(tmp_path):
+    rig = make_fake_rig(automatic=False)
+
+    def prompt(text):
+        raise EOFError("no terminal")
+
+    out = tmp_path / "prompt.h5"
+    with pytest.raises(SafetyAbort) as ei:
+        _run(rig, out, prompt=prompt)
+    assert "exception: EOFError: no terminal" in str(ei.value)
+    assert "close the muscle's manual regulator" in str(ei.value)
+    _assert_vented_last(rig)
+    assert rig.cylinder_regulator.max_commanded == 0.0
+    assert _statuses(out)["first"].startswith("aborted: exception: EOFError")
+
+
+def test_failing_automatic_muscle_supply_vents(tmp_path, monkeypatch):
+    rig = make_fake_rig()
+
+    def request(mpa, prompt=None):
+        raise RigError("muscle regulator: timeout")
+
+    monkeypatch.setattr(rig.muscle_supply, "request", request)
+    out = tmp_path / "supply.h5"
+    with pytest.raises(SafetyAbort, match="device fault: muscle regulator: timeout"):
+        _run(rig, out)
+    _assert_vented_last(rig)
+    assert _statuses(out)["first"].startswith("aborted: device fault")
+
+
+def test_muscle_is_vented_even_when_venting_the_cylinder_fails(tmp_path, monkeypatch, capsys):
+    rig = make_fake_rig()
+    reg = rig.cylinder_regulator
+    real_set = reg.set_pressure
+
+    def set_pressure(mpa):
+        if reg.clock.now() > 2.0:
+            raise RigError("regulator: link down")
+        real_set(mpa)
+
+    def vent():
+        raise RigError("regulator: link down")
+
+    monkeypatch.setattr(reg, "set_pressure", set_pressure)
+    monkeypatch.setattr(reg, "vent", vent)
+    out = tmp_path / "novent.h5"
+    with pytest.raises(SafetyAbort, match="device fault: regulator: link down"):
+        _run(rig, out)
+    assert rig.muscle_supply.vents >= 1
+    assert "venting the cylinder regulator failed" in capsys.readouterr().err
+    assert _statuses(out)["first"].startswith("aborted: device fault")
+    # the rig's own close also goes on to the muscle and the sampler
+    with pytest.raises(RigError):
+        rig.close()
+    assert rig.muscle_supply.vents >= 2
+
+
+def test_exception_in_preflight_vents_and_writes_nothing(tmp_path, monkeypatch):
+    def preflight(protocol, rig):
+        raise ZeroDivisionError("bad limit arithmetic")
+
+    monkeypatch.setattr(runner_mod, "preflight", preflight)
+    rig = make_fake_rig()
+    out = tmp_path / "pre.h5"
+    with pytest.raises(ZeroDivisionError):
+        _run(rig, out)
+    assert rig.cylinder_regulator.vent_times() and rig.muscle_supply.vents >= 1
+    assert rig.cylinder_regulator.max_commanded == 0.0
+    assert not list(tmp_path.iterdir())
+
+
+def test_full_disk_when_creating_the_file_vents_and_leaves_nothing(tmp_path, monkeypatch):
+    def no_space(*a, **k):
+        raise OSError(errno.ENOSPC, "Unable to create file")
+
+    monkeypatch.setattr(h5py, "File", no_space)
+    rig = make_fake_rig()
+    with pytest.raises(OutputError, match=r"x\.h5: cannot create the run file \(No space left"):
+        _run(rig, tmp_path / "x.h5")
+    assert rig.cylinder_regulator.vent_times() and rig.cylinder_regulator.max_commanded == 0.0
+    assert not list(tmp_path.iterdir())
+
+
+def test_commit_rolls_back_a_partial_write(tmp_path):
+    """RunWriter.commit is all-or-nothing: a failed write leaves equal-length channels and
+    keeps the buffer, so a later commit writes it once the disk has room again."""
+    from pmalab.acquisition.recorder import Recorder
+
+    rec = Recorder(tmp_path / "c.h5", [("a", {})], {})
+    w = rec.writer("a")
+    for i in range(10):
+        w.add(i * DT, 1.0, 2.0, 0.4, 0.1, 0.1, 0.0)
+    w.commit()
+    for i in range(10, 15):
+        w.add(i * DT, 1.0, 2.0, 0.4, 0.1, 0.1, 0.0)
+    real = w._ds[4]
+    w._ds[4] = _FullDisk(real)
+    with pytest.raises(OSError):
+        w.commit()
+    assert {d.shape[0] for d in (*w._ds[:4], real, w._late_ds)} == {10} and w.n == 10
+    w._ds[4] = real
+    w.finish("completed")
+    rec.close()
+    (r,) = read_runs(tmp_path / "c.h5")
+    assert len(r) == 15
+    np.testing.assert_allclose(r.time, np.arange(15) * DT)
