@@ -123,6 +123,25 @@ def make_fake_rig(fault=None, *, automatic: bool = True, clock: Clock | None = N
                limits=limits or Limits(), info={"kind": "fake", "calibration": {"gain": 1.0}})
 
 
+#: two isobaric runs for the safety tests ("first" has settle and ramps; "second" does not)
+TWO_RUNS = """
+[[run]]
+name = "first"
+muscle_pressure_MPa = 0.4
+frequency_Hz = 0.5
+magnitude_MPa = 0.3
+cycles = 2
+ramp_s = 0.5
+settle_s = 0.5
+[[run]]
+name = "second"
+muscle_pressure_MPa = 0.5
+frequency_Hz = 0.5
+magnitude_MPa = 0.3
+cycles = 2
+"""
+
+
 def raise_at(t_fault: float, exc: BaseException) -> Callable[[float, int], dict | None]:
     def fault(t: float, n: int) -> dict | None:
         if t >= t_fault:
@@ -139,7 +158,7 @@ def override_at(t_fault: float, **values: float) -> Callable[[float, int], dict 
     return fault
 
 
-__all__ = ["RigError", "make_fake_rig", "override_at", "raise_at"]
+__all__ = ["TWO_RUNS", "RigError", "make_fake_rig", "override_at", "raise_at"]
 
 
 def test_fake_rig_direction():

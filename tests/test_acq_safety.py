@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_acq_fakes import make_fake_rig, override_at, raise_at
+from test_acq_fakes import TWO_RUNS, make_fake_rig, override_at, raise_at
 
 from pmalab.acquisition.protocol import parse_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
@@ -19,22 +19,7 @@ from pmalab.runfile import read_runs
 
 DT = 1 / 500
 
-PROTO = """
-[[run]]
-name = "first"
-muscle_pressure_MPa = 0.4
-frequency_Hz = 0.5
-magnitude_MPa = 0.3
-cycles = 2
-ramp_s = 0.5
-settle_s = 0.5
-[[run]]
-name = "second"
-muscle_pressure_MPa = 0.5
-frequency_Hz = 0.5
-magnitude_MPa = 0.3
-cycles = 2
-"""
+PROTO = TWO_RUNS
 
 
 def _proto(text: str = PROTO):

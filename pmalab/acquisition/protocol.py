@@ -225,30 +225,26 @@ def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
     _check_fields(defaults, f"{where}: [defaults]", allow_lists=False, allow_name=False)
 
     runs: list[RunSpec] = []
-    run_tables = doc.get("run", [])
-    camp_tables = doc.get("campaign", [])
-    for sec, tables in (("run", run_tables), ("campaign", camp_tables)):
-        if not isinstance(tables, list):
+    tables = {sec: doc.get(sec, []) for sec in ("run", "campaign")}
+    for sec, ts in tables.items():
+        if not isinstance(ts, list):
             raise ConfigError(f"{where}: '{sec}' must be an array of tables ([[{sec}]])")
-    for i, t in enumerate(run_tables):
-        ctx = f"{where}: run[{i}]"
-        if not isinstance(t, dict):
-            raise ConfigError(f"{ctx}: must be a table")
-        if isinstance(t.get("name"), str):
-            ctx += f" '{t['name']}'"
-        _check_fields(t, ctx, allow_lists=False, allow_name=True)
-        runs.append(_make_run({**defaults, **t}, ctx, f"run[{i}]", float(rate)))
-    for i, t in enumerate(camp_tables):
-        ctx = f"{where}: campaign[{i}]"
-        if not isinstance(t, dict):
-            raise ConfigError(f"{ctx}: must be a table")
-        if isinstance(t.get("name"), str):
-            ctx += f" '{t['name']}'"
-        t = dict(t)
-        pair = _check_pair(t.pop("pair", None), t, ctx)
-        _check_fields(t, ctx, allow_lists=True, allow_name=True)
-        runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate),
-                                     pair))
+    for sec, ts in tables.items():
+        for i, t in enumerate(ts):
+            ctx = f"{where}: {sec}[{i}]"
+            if not isinstance(t, dict):
+                raise ConfigError(f"{ctx}: must be a table")
+            if isinstance(t.get("name"), str):
+                ctx += f" '{t['name']}'"
+            if sec == "run":
+                _check_fields(t, ctx, allow_lists=False, allow_name=True)
+                runs.append(_make_run({**defaults, **t}, ctx, f"run[{i}]", float(rate)))
+                continue
+            t = dict(t)
+            pair = _check_pair(t.pop("pair", None), t, ctx)
+            _check_fields(t, ctx, allow_lists=True, allow_name=True)
+            runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate),
+                                         pair))
     if not runs:
         raise ConfigError(f"{where}: no [[run]] or [[campaign]] defined")
     seen: dict[str, str] = {}
