@@ -11,7 +11,7 @@ import errno
 import h5py
 import numpy as np
 import pytest
-from test_acq_fakes import make_fake_rig
+from test_acq_fakes import TWO_RUNS, make_fake_rig
 
 import pmalab.acquisition.runner as runner_mod
 from pmalab.acquisition.protocol import parse_protocol
@@ -22,26 +22,8 @@ from pmalab.runfile import read_runs
 
 DT = 1 / 500
 
-PROTO = """
-[[run]]
-name = "first"
-muscle_pressure_MPa = 0.4
-frequency_Hz = 0.5
-magnitude_MPa = 0.3
-cycles = 2
-ramp_s = 0.5
-settle_s = 0.5
-[[run]]
-name = "second"
-muscle_pressure_MPa = 0.5
-frequency_Hz = 0.5
-magnitude_MPa = 0.3
-cycles = 1
-"""
-
-
 def _run(rig, out, **opts):
-    return run_protocol(rig, parse_protocol(PROTO, "paths.toml"), out,
+    return run_protocol(rig, parse_protocol(TWO_RUNS, "paths.toml"), out,
                         options=RunnerOptions(progress=False, **opts))
 
 
@@ -111,24 +93,19 @@ def test_sampler_start_failure_marks_the_first_run_aborted(tmp_path, monkeypatch
 
 
 def test_failure_at_the_end_of_a_run_is_an_abort_not_a_completed_run(tmp_path, monkeypatch):
+    def stats(rig, w):  # after every sample of the run was recorded
+        raise RigError("DAQ: counters unreadable")
+
+    monkeypatch.setattr(runner_mod, "_store_device_stats", stats)
     rig = make_fake_rig()
-    reg = rig.cylinder_regulator
-    real_set = reg.set_pressure
-
-    def set_pressure(mpa):
-        real_set(mpa)
-        if mpa == 0.0 and reg.clock.now() > 3.0:  # the end-of-run zero command
-            raise RigError("regulator: no reply")
-
-    monkeypatch.setattr(reg, "set_pressure", set_pressure)
     out = tmp_path / "end.h5"
-    with pytest.raises(SafetyAbort, match="device fault: regulator: no reply"):
+    with pytest.raises(SafetyAbort, match="run 'first' aborted: device fault: DAQ"):
         _run(rig, out)
     _assert_vented_last(rig)
     st = _statuses(out)
     assert st["first"].startswith("aborted: device fault") and st["second"].startswith("not run")
     (r,) = read_runs(out)
-    assert len(r) > 1000
+    assert len(r) == int(round(r.attrs["steady_end_s"] * 500 + 0.5 * 500)) + 1  # all of it
 
 
 def test_exception_in_the_operator_prompt_vents(tmp_path):

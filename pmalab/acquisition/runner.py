@@ -383,8 +383,9 @@ def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec], 
     """Close an aborted run's file: status first, then samples, statistics and the rest.
 
     The status goes first because it is written in place (no new file space), so it
-    lands even when the abort is a full disk; each later step may fail on its own (the
-    samples already flushed stay readable) and only prints a warning.
+    lands even when the abort is a full disk; then the buffered samples, then the device
+    counters.  Each step may fail on its own (what was flushed stays readable) and only
+    prints a warning.
     """
     try:
         w.set_status(status)
@@ -392,10 +393,15 @@ def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec], 
     except Exception as exc:
         print(f"pmalab: warning: marking {out} aborted failed: {exc}", file=sys.stderr)
     try:
-        _store_device_stats(rig, w)
         w.finish(status)
     except Exception as exc:
         print(f"pmalab: warning: writing the last samples to {out} failed: {exc}",
+              file=sys.stderr)
+    try:  # a faulted device may fail to report its counters: the samples come first
+        _store_device_stats(rig, w)
+        rec.file.flush()
+    except Exception as exc:
+        print(f"pmalab: warning: storing the device statistics in {out} failed: {exc}",
               file=sys.stderr)
     try:
         for spec in later:
