@@ -186,3 +186,21 @@ def test_joint_no_worse_than_per_run_quadratics_on_clean_data(simdir) -> None:
                       _mean_val_nrmse(joint, ident, held))
     assert n_joint <= 1.05 * n_per, (n_per, n_joint)
     assert n_joint < 0.03  # and the clean model is good in absolute terms
+
+
+def test_cli_pressure_model_option(tmp_path) -> None:
+    import json
+
+    from pmalab.runfile import write_runs
+
+    f = write_runs(tmp_path / "c.h5", _synth("duhem", (0.2, 0.4, 0.6)))
+    for pm in ("per-run", "joint"):
+        out = tmp_path / pm
+        rc = pmalab_main(["identify", str(f), "--model", "duhem", "--out", str(out), "--quiet",
+                          "--jobs", "1", "--whole-run", "--pressure-model", pm])
+        assert rc in (0, None)
+        doc = json.loads((out / "identification.json").read_text())
+        assert doc["pressure_model"] == pm
+        assert (doc["joint_fit"] is None) == (pm == "per-run")
+        assert doc["pressure_fits_per_run"]["k"] == pytest.approx(
+            doc["pressure_fit_stats"]["k"].get("per_run_quadratic", doc["pressure_fits"]["k"]))

@@ -52,6 +52,9 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--initial", default="estimate", choices=("estimate", "burn-in", "zero"),
                    help="start state of validation predictions (default: estimate from the "
                         "first 50 ms of force)")
+    p.add_argument("--pressure-model", default="joint", choices=("joint", "per-run"),
+                   help="pressure laws: refined jointly on all runs with chosen orders "
+                        "(default) or the seeds' per-run quadratics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_window_option(p)
     p.set_defaults(func=run_identify)
@@ -100,7 +103,8 @@ def run_identify(args: argparse.Namespace) -> int:
     val = _steady(load(args.validate), args.whole_run) if args.validate else []
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
-                   free=args.free, initial=args.initial, progress=not args.quiet)
+                   free=args.free, initial=args.initial, progress=not args.quiet,
+                   pressure_model=args.pressure_model)
     jpath, hpath = res.save(out, force=args.force)
 
     for n in res.notes:

@@ -56,8 +56,9 @@ SAMPLES_PER_CYCLE = 200
 MAX_SAMPLES = 2500
 #: limit on function evaluations of one joint least-squares
 MAX_NFEV = 60
+#: cap of one weighted residual (≈ 1e3 × the run's own rmse·√N: a runaway prediction)
+RESID_CAP = 1e3
 #: a run's |ρ| above this with another parameter (or a bound hit) counts as "not determined"
-RHO_LIMIT = 0.95
 
 
 # --------------------------------------------------------------------------- data
@@ -71,6 +72,7 @@ class JointRun:
     force: np.ndarray  # N, on the subsampled grid
     sd: float  # std of the measured force, N
     weight: float  # 1 / (σ·√N), σ the run's own error scale (see :func:`prepare`)
+    sigma: float = 1.0  # σ (N): the run's own error scale (the weight's denominator)
 
     @property
     def n(self) -> int:
@@ -109,7 +111,7 @@ def prepare(run: Run, error_scale: float | None = None) -> JointRun:
     sigma = max(float(sigma), 1e-3 * sd)
     w = 1.0 / (sigma * math.sqrt(force.shape[0]))
     return JointRun(label=run.label, p_nom=float(run.nominal_pressure), sig=s, force=force,
-                    sd=sd, weight=w)
+                    sd=sd, weight=w, sigma=sigma)
 
 
 # --------------------------------------------------------------------------- pressure basis
@@ -239,8 +241,10 @@ class _Problem:
         r = self.runs[i]
         with np.errstate(all="ignore"):
             e = (self.model.predict(r.sig, th) - r.force) * r.weight
-        if not np.all(np.isfinite(e)):
-            e = np.nan_to_num(e, nan=1e3, posinf=1e3, neginf=-1e3)
+        if not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > RESID_CAP:
+            # a runaway state: cap it so the optimizer sees a large, finite cost
+            e = np.clip(np.nan_to_num(e, nan=RESID_CAP, posinf=RESID_CAP, neginf=-RESID_CAP),
+                        -RESID_CAP, RESID_CAP)
         return e
 
     def residual(self, z: np.ndarray) -> np.ndarray:
@@ -441,6 +445,7 @@ def refine(
             best = (pr, sol_c, deg_c)
     assert best is not None
     prob, sol, deg = best
+
     se, n_eff, bic = _stats(prob, sol)
 
     for _ in range(max_prune_rounds if prune else 0):
