@@ -45,6 +45,10 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except PmalabError as exc:
         print(f"pmalab {args.verb}: error: {exc}", file=sys.stderr)
+        if exc.hard_exit:  # HDF5 holds a file it could not close: skip its crash at exit
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(exc.exit_code)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"pmalab {args.verb}: interrupted", file=sys.stderr)

@@ -12,6 +12,9 @@ class PmalabError(Exception):
     """An error the user can fix; its message is one line naming the file/run/channel/field."""
 
     exit_code = 2
+    #: the process cannot shut down normally (an HDF5 file could not be closed, e.g. on a
+    #: full disk, and the library would crash at exit): the CLI ends it with ``os._exit``
+    hard_exit: bool = False
 
 
 class RunFileError(PmalabError):

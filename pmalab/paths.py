@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 from pmalab.errors import OutputError, OutputExistsError
@@ -31,10 +32,16 @@ def check_output(path: str | Path, force: bool) -> Path:
     return p
 
 
-def output_failure(path: str | Path, exc: OSError, what: str = "write") -> OutputError:
-    """A one-line :class:`OutputError` for an ``OSError`` while writing ``path``."""
-    if exc.errno:
-        reason = os.strerror(exc.errno)
+def output_failure(path: str | Path, exc: Exception, what: str = "write") -> OutputError:
+    """A one-line :class:`OutputError` for an ``OSError`` while writing ``path`` (or the
+    ``RuntimeError`` HDF5 raises when it cannot flush, e.g. on a full disk)."""
+    code = getattr(exc, "errno", None)
+    text = str(exc)
+    m = re.search(r"error message = '([^']*)'", text)  # HDF5: the OS's reason inside
+    if code:
+        reason = os.strerror(code)
+    elif m:
+        reason = m.group(1)
     else:
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        reason = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     return OutputError(f"{path}: cannot {what} ({reason})")

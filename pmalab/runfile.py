@@ -342,6 +342,8 @@ def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Pa
         path.parent.mkdir(parents=True, exist_ok=True)
         f = h5py.File(path, "w")
     except OSError as exc:
+        if not path.is_dir():
+            path.unlink(missing_ok=True)  # an empty file a full disk let h5py create
         raise output_failure(path, exc) from None
     try:
         _write_groups(f, runs)
@@ -349,7 +351,7 @@ def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Pa
     except BaseException as exc:
         f.close()
         path.unlink(missing_ok=True)  # no half-written file left behind
-        if isinstance(exc, OSError):
+        if isinstance(exc, OSError | RuntimeError):  # HDF5: RuntimeError when it cannot flush
             raise output_failure(path, exc) from None
         raise
     return path

@@ -214,3 +214,59 @@ def test_commit_rolls_back_a_partial_write(tmp_path):
     (r,) = read_runs(tmp_path / "c.h5")
     assert len(r) == 15
     np.testing.assert_allclose(r.time, np.arange(15) * DT)
+
+
+def test_too_little_free_space_is_refused_before_anything_moves(tmp_path, monkeypatch):
+    import shutil
+
+    import pmalab.acquisition.recorder as recorder
+
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(recorder.shutil, "disk_usage",
+                        lambda p: usage._replace(free=300_000))
+    rig = make_fake_rig()
+    with pytest.raises(OutputError, match=r"x\.h5: refused: the recording needs about 1\.0 MB, "
+                                          r"only 0\.3 MB free"):
+        _run(rig, tmp_path / "x.h5")
+    assert rig.cylinder_regulator.max_commanded == 0.0 and not list(tmp_path.iterdir())
+
+
+def test_a_file_hdf5_cannot_close_ends_the_cli_with_os_exit(tmp_path, monkeypatch, capsys):
+    """On a real full disk HDF5 can flush neither the file nor its status, and crashes
+    the interpreter at exit (h5py #914): the abort says so in its one line and the CLI
+    leaves with os._exit and the abort's exit code."""
+    from pmalab.acquisition.recorder import Recorder
+
+    def flush_fails(self):
+        raise RuntimeError("Unable to synchronously flush file (file write failed: "
+                           "time = now\n, errno = 28, error message = 'No space left on device')")
+
+    real_commit = RunWriter.commit
+
+    def commit(self):
+        if self.n + self.buffered > 600:
+            flush_fails(self)
+        return real_commit(self)
+
+    monkeypatch.setattr(RunWriter, "commit", commit)
+    real_close = Recorder.close
+
+    def close(self):
+        self.unclosed = True
+        real_close(self)
+
+    monkeypatch.setattr(Recorder, "close", close)
+    import pmalab.cli as cli
+
+    def fake_exit(code):
+        raise SystemExit(code)
+
+    monkeypatch.setattr(cli.os, "_exit", fake_exit)
+    (tmp_path / "p.toml").write_text(TWO_RUNS)
+    with pytest.raises(SystemExit) as ei:
+        cli.main(["run", "--rig", "sim", "--protocol", str(tmp_path / "p.toml"), "--out",
+                  str(tmp_path / "o.h5"), "--quiet"])
+    assert ei.value.code == 4
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "exception: RuntimeError: No space left on device" in err

@@ -37,6 +37,7 @@ import contextlib
 import json
 import math
 import os
+import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -44,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.errors import OutputError
 from pmalab.paths import output_failure
 from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION
 
@@ -70,6 +72,31 @@ def _attr(v: Any) -> Any:
         return str(v)
     return v
 
+
+
+def estimated_file_size(samples_per_run: Sequence[int]) -> int:
+    """Bytes a recording of runs with these sample counts needs on disk (an upper bound:
+    chunks are allocated whole, plus the pre-created metadata)."""
+    per_sample = 8 * len(RECORDED) + 4  # float64 channels + float32 lateness
+    total = 256 * 1024  # root attrs: protocol and rig file text, provenance
+    for n in samples_per_run:
+        chunks = max(1, math.ceil(n / CHUNK))
+        total += chunks * CHUNK * per_sample + DEVICE_STATS_LEN + 16 * 1024
+    return total
+
+
+def check_free_space(path: str | Path, need_bytes: int) -> None:
+    """Refuse (one line) to record into ``path`` when its file system has less room than
+    ``need_bytes`` + 10 %: a full disk mid-run loses the run's last samples and its
+    status (HDF5 cannot flush), so it is caught before anything moves."""
+    p = Path(path)
+    where = next((a for a in (p.parent, *p.parents) if a.exists()), Path("."))
+    free = shutil.disk_usage(where).free
+    if free < need_bytes * 1.1:
+        raise OutputError(
+            f"{p}: refused: the recording needs about {need_bytes / 1e6:.1f} MB, only "
+            f"{free / 1e6:.1f} MB free on {where}"
+        )
 
 class RunWriter:
     """Appends one run's samples; :meth:`commit` writes and flushes what is buffered."""
@@ -260,14 +287,26 @@ class Recorder:
             return True
         return False
 
+    #: True when closing failed (HDF5 could not flush, e.g. a full disk): the library
+    #: then holds a file it cannot release and crashes the interpreter at exit
+    #: (h5py issues #914, #2160), so the CLI ends such a process with ``os._exit``
+    unclosed: bool = False
+
     def close(self) -> None:
         """Flush and close; the file is closed even when the flush fails (then raised)."""
         f = getattr(self, "file", None)
         if f is not None and f.id.valid:
             try:
                 f.flush()
+            except BaseException:
+                self.unclosed = True
+                raise
             finally:
-                f.close()
+                try:
+                    f.close()
+                except BaseException:
+                    self.unclosed = True
+                    raise
 
     def __enter__(self) -> Recorder:
         return self

@@ -36,6 +36,7 @@ import gc
 import json
 import math
 import os
+import re
 import signal
 import sys
 import threading
@@ -49,7 +50,12 @@ from typing import Any
 
 from pmalab import __version__
 from pmalab.acquisition.protocol import Protocol, RunSpec
-from pmalab.acquisition.recorder import Recorder, RunWriter
+from pmalab.acquisition.recorder import (
+    Recorder,
+    RunWriter,
+    check_free_space,
+    estimated_file_size,
+)
 from pmalab.acquisition.safety import (
     ProtocolRefused,
     SafetyMonitor,
@@ -308,6 +314,8 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
     preflight(protocol, rig)
     rate, warning = recording_rate(rig, protocol)
     out = check_output(out, force)
+    check_free_space(out, estimated_file_size(
+        [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs]))
     if warning:
         print(warning, file=sys.stderr, flush=True)
     limits = effective_limits(rig)
@@ -350,14 +358,19 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     # vent FIRST — before any file work — then close the run as aborted
                     _vent(rig)
                     reason = _reason(exc)
-                    _close_aborted(rig, rec, w, protocol.runs[i + 1:], f"aborted: {reason}", out)
+                    failed = _close_aborted(rig, rec, w, protocol.runs[i + 1:],
+                                            f"aborted: {reason}")
                     manual = ("" if rig.muscle_supply.automatic
                               else "; close the muscle's manual regulator")
-                    raise SafetyAbort(
+                    kept = (f"{w.n} samples kept (status 'aborted')" if failed is None else
+                            f"the file could not be finished ({failed}): what was flushed "
+                            "before stays readable")
+                    abort = SafetyAbort(
                         f"{out}: run '{spec.name}' aborted: {reason}; "
-                        f"cylinder regulator vented{manual}; {w.n} samples kept "
-                        "(status 'aborted')"
-                    ) from (exc if isinstance(exc, Exception) else None)
+                        f"cylinder regulator vented{manual}; {kept}"
+                    )
+                    abort.hard_exit = rec.unclosed
+                    raise abort from (exc if isinstance(exc, Exception) else None)
                 results.append(_result(spec.name, "completed", w, timing))
         except BaseException:
             with contextlib.suppress(Exception):  # never hide the reason of the abort
@@ -365,8 +378,10 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
             raise
         try:
             rec.close()
-        except OSError as exc:  # e.g. the disk filled up at the very end
-            raise output_failure(out, exc, "close the run file") from None
+        except (OSError, RuntimeError) as exc:  # e.g. the disk filled up at the very end
+            err = output_failure(out, exc, "close the run file")
+            err.hard_exit = rec.unclosed
+            raise err from None
     finally:
         _vent(rig)
         try:
@@ -378,41 +393,43 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
     return results
 
 
-def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec], status: str,
-                   out: Path) -> None:
+def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec],
+                   status: str) -> str | None:
     """Close an aborted run's file: status first, then samples, statistics and the rest.
 
-    The status goes first because it is written in place (no new file space), so it
-    lands even when the abort is a full disk; then the buffered samples, then the device
-    counters.  Each step may fail on its own (what was flushed stays readable) and only
-    prints a warning.
+    The status goes first because it is written in place (no new file space); then the
+    buffered samples, then the device counters.  Each step runs even when an earlier one
+    failed (what was flushed stays readable); returns why the file could not be finished
+    (the first failure, one line), or None.
     """
-    try:
-        w.set_status(status)
-        rec.file.flush()
-    except Exception as exc:
-        print(f"pmalab: warning: marking {out} aborted failed: {exc}", file=sys.stderr)
-    try:
-        w.finish(status)
-    except Exception as exc:
-        print(f"pmalab: warning: writing the last samples to {out} failed: {exc}",
-              file=sys.stderr)
-    try:  # a faulted device may fail to report its counters: the samples come first
-        _store_device_stats(rig, w)
-        rec.file.flush()
-    except Exception as exc:
-        print(f"pmalab: warning: storing the device statistics in {out} failed: {exc}",
-              file=sys.stderr)
-    try:
-        for spec in later:
-            rec.writer(spec.name).set_status("not run: campaign aborted")
-    except Exception as exc:
-        print(f"pmalab: warning: marking the later runs of {out} failed: {exc}",
-              file=sys.stderr)
-    try:
-        rec.close()
-    except Exception as exc:
-        print(f"pmalab: warning: closing {out} failed: {exc}", file=sys.stderr)
+    steps: list[Callable[[], object]] = [
+        lambda: (w.set_status(status), rec.file.flush()),
+        lambda: w.finish(status),
+        # a faulted device may fail to report its counters: the samples come first
+        lambda: (_store_device_stats(rig, w), rec.file.flush()),
+        lambda: [rec.writer(spec.name).set_status("not run: campaign aborted") for spec in later],
+        rec.close,
+    ]
+    first: str | None = None
+    for step in steps:
+        try:
+            step()
+        except Exception as exc:
+            if first is None:
+                first = _hdf5_reason(exc)
+    return first
+
+
+def _hdf5_reason(exc: BaseException) -> str:
+    """Why a file operation failed, in a few words (HDF5 nests the OS's reason)."""
+    m = re.search(r"error message = '([^']*)'", str(exc))
+    return m.group(1) if m else _first_line(exc)
+
+
+def _first_line(exc: BaseException) -> str:
+    """An exception's message on one line (HDF5's messages span several)."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def _reason(exc: BaseException) -> str:
@@ -424,7 +441,7 @@ def _reason(exc: BaseException) -> str:
         return "interrupted (Ctrl-C)"
     if isinstance(exc, RigError):
         return f"device fault: {exc}"
-    msg = str(exc).splitlines()[0] if str(exc) else ""
+    msg = _hdf5_reason(exc) if str(exc).strip() else ""
     return f"exception: {type(exc).__name__}" + (f": {msg}" if msg else "")
 
 
