@@ -77,35 +77,37 @@ def test_disk_full_mid_run_vents_and_keeps_equal_length_channels(tmp_path, monke
     assert _statuses(out)["second"].startswith("not run")
 
 
-def test_sampler_start_failure_marks_the_first_run_aborted(tmp_path, monkeypatch):
+def _raise(exc):
+    def fail(*args, **kwargs):
+        raise exc
+
+    return fail
+
+
+@pytest.mark.parametrize(
+    "where, needle, samples",
+    [
+        # the sampler's stream does not start: before the first sample
+        (lambda rig: (rig.sampler, "start"), "device fault: DAQ", 0),
+        # the automatic muscle regulator does not answer: before the first sample
+        (lambda rig: (rig.muscle_supply, "request"), "device fault: DAQ", 0),
+        # after every sample of the run (end-of-run counters): all samples kept
+        (lambda rig: (runner_mod, "_store_device_stats"), "device fault: DAQ", 2751),
+    ],
+    ids=["sampler-start", "muscle-supply", "end-of-run"],
+)
+def test_a_failing_step_outside_the_sample_loop_aborts_the_run(tmp_path, monkeypatch, where,
+                                                                needle, samples):
     rig = make_fake_rig()
-
-    def start():
-        raise RigError("DAQ: stream did not start")
-
-    monkeypatch.setattr(rig.sampler, "start", start)
-    out = tmp_path / "start.h5"
-    with pytest.raises(SafetyAbort, match="run 'first' aborted: device fault: DAQ"):
+    monkeypatch.setattr(*where(rig), _raise(RigError("DAQ: no reply")))
+    out = tmp_path / "step.h5"
+    with pytest.raises(SafetyAbort, match=f"run 'first' aborted: {needle}"):
         _run(rig, out)
     _assert_vented_last(rig)
     st = _statuses(out)
     assert st["first"].startswith("aborted: device fault") and st["second"].startswith("not run")
-
-
-def test_failure_at_the_end_of_a_run_is_an_abort_not_a_completed_run(tmp_path, monkeypatch):
-    def stats(rig, w):  # after every sample of the run was recorded
-        raise RigError("DAQ: counters unreadable")
-
-    monkeypatch.setattr(runner_mod, "_store_device_stats", stats)
-    rig = make_fake_rig()
-    out = tmp_path / "end.h5"
-    with pytest.raises(SafetyAbort, match="run 'first' aborted: device fault: DAQ"):
-        _run(rig, out)
-    _assert_vented_last(rig)
-    st = _statuses(out)
-    assert st["first"].startswith("aborted: device fault") and st["second"].startswith("not run")
-    (r,) = read_runs(out)
-    assert len(r) == int(round(r.attrs["steady_end_s"] * 500 + 0.5 * 500)) + 1  # all of it
+    with h5py.File(out, "r") as f:
+        assert f["runs/first/force"].shape == (samples,)
 
 
 def test_exception_in_the_operator_prompt_vents(tmp_path):
@@ -122,20 +124,6 @@ def test_exception_in_the_operator_prompt_vents(tmp_path):
     _assert_vented_last(rig)
     assert rig.cylinder_regulator.max_commanded == 0.0
     assert _statuses(out)["first"].startswith("aborted: exception: EOFError")
-
-
-def test_failing_automatic_muscle_supply_vents(tmp_path, monkeypatch):
-    rig = make_fake_rig()
-
-    def request(mpa, prompt=None):
-        raise RigError("muscle regulator: timeout")
-
-    monkeypatch.setattr(rig.muscle_supply, "request", request)
-    out = tmp_path / "supply.h5"
-    with pytest.raises(SafetyAbort, match="device fault: muscle regulator: timeout"):
-        _run(rig, out)
-    _assert_vented_last(rig)
-    assert _statuses(out)["first"].startswith("aborted: device fault")
 
 
 def test_muscle_is_vented_even_when_venting_the_cylinder_fails(tmp_path, monkeypatch, capsys):
