@@ -125,6 +125,9 @@ def run_demo(args: argparse.Namespace) -> int:
     print(f"  effects diagnosis added (ladder)      : {', '.join(found) or 'none'}")
     print(f"  mean validation fit, base model       : {before:6.2f} %")
     print(f"  mean validation fit, with the effects : {after:6.2f} %")
+    if before < 100.0:
+        fall = 100.0 * (1.0 - (100.0 - after) / (100.0 - before))
+        print(f"  validation error (nrmse) falls by     : {fall:6.1f} %")
     verdict = "found it" if args.hidden in found else "did NOT find it"
     print(f"  diagnosis {verdict}; total {time.perf_counter() - t0:.0f} s")
     print(f"\nReport: {report.resolve()}")

@@ -334,6 +334,7 @@ def identify(
     initial: str = "estimate",
     progress: bool = False,
     pressure_model: str = "joint",
+    whole_run: bool = False,
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
@@ -343,9 +344,13 @@ def identify(
     run's start state is set (``estimate`` | ``burn-in`` | ``zero``).  ``pressure_model``:
     ``"joint"`` (default: the pressure laws refined on all runs at once,
     :mod:`pmalab.identify.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
-    values).
+    values).  ``whole_run``: use every sample instead of each recorded run's full-amplitude
+    cycles (:meth:`~pmalab.runfile.Run.steady`).
     """
     runs_l = [runs] if isinstance(runs, Run) else list(runs)
+    if not whole_run:
+        runs_l = [r.steady() for r in runs_l]
+        validate = None if validate is None else [r.steady() for r in validate]
     ident, held = split_roles(runs_l)
     notes = [f"{r.label}: role 'validation' in the run file, held out for validation"
              for r in held]

@@ -66,11 +66,6 @@ def _add_window_option(p: argparse.ArgumentParser) -> None:
                         "the full-amplitude cycles recorded in steady_start_s/steady_end_s)")
 
 
-def _steady(runs, whole_run: bool):
-    """Each run trimmed to its full-amplitude cycles unless ``--whole-run``."""
-    return list(runs) if whole_run else [r.steady() for r in runs]
-
-
 def _parse_fix(items: list[str]) -> dict[str, float]:
     out = {}
     for it in items:
@@ -99,12 +94,12 @@ def run_identify(args: argparse.Namespace) -> int:
     # refuse early, before any work, if outputs exist
     check_output(out / "identification.json", args.force)
     check_output(out / "predictions.h5", args.force)
-    runs = _steady(load(args.files), args.whole_run)
-    val = _steady(load(args.validate), args.whole_run) if args.validate else []
+    runs = load(args.files)
+    val = load(args.validate) if args.validate else []
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
                    free=args.free, initial=args.initial, progress=not args.quiet,
-                   pressure_model=args.pressure_model)
+                   pressure_model=args.pressure_model, whole_run=args.whole_run)
     jpath, hpath = res.save(out, force=args.force)
 
     for n in res.notes:
@@ -178,11 +173,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
     out = Path(args.out)
     check_output(out / "diagnosis.json", args.force)
     check_output(out / "predictions.h5", args.force)
-    runs = _steady(read_many(args.files), args.whole_run)
-    val = _steady(read_many(args.validate), args.whole_run) if args.validate else []
+    runs = read_many(args.files)
+    val = read_many(args.validate) if args.validate else []
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
-                 progress=not args.quiet and sys.stderr.isatty())
+                 progress=not args.quiet and sys.stderr.isatty(), whole_run=args.whole_run)
     jpath, hpath = write_outputs(d, out, force=args.force)
     print(f"Effect ranking ({args.model}; held-out nrmse without → with each effect):")
     print(d.ranking_table())

@@ -269,15 +269,19 @@ def diagnose(
     max_steps: int = 3,
     jobs: int = 1,
     progress: bool = False,
+    whole_run: bool = False,
 ) -> Diagnosis:
     """Diagnose ``model`` on ``runs``: rank the effects, climb the ladder, localise the error.
 
     ``effects``: candidate ids (default: the whole catalogue, plus any user effects loaded
     from ``effects_files``).  ``validate``: held-out runs (default: each run's last third).
+    ``whole_run``: use every sample instead of each recorded run's full-amplitude cycles
+    (:meth:`~pmalab.runfile.Run.steady`).
     """
     if model not in LAWS:
         raise DiagnoseError(f"unknown model '{model}' (choose from {', '.join(LAWS)})")
-    runs = list(runs)
+    runs = list(runs) if whole_run else [r.steady() for r in runs]
+    validate = list(validate) if whole_run else [r.steady() for r in validate]
     if not runs:
         raise DiagnoseError("no runs to diagnose")
     user: list[str] = []
