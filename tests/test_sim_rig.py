@@ -103,3 +103,14 @@ def test_real_clock_runs_in_real_time():
     assert np.all(np.diff(stamps) > 0)
     assert stamps[-1] - t0 == pytest.approx(0.2, abs=0.02)
     assert abs(rig.info["physics"].time - clock.now()) < 0.05
+
+
+def test_explicit_seed_overrides_the_rig_files_seed(tmp_path):
+    from pmalab.paths import TRUTH_DIR
+    from pmalab.rig.loader import load_rig
+
+    rig_file = tmp_path / "rig.toml"
+    rig_file.write_text(f'[rig]\nkind = "sim"\ntruth = "{TRUTH_DIR / "default.toml"}"\nseed = 5\n')
+    assert load_rig(rig_file).info["seed"] == 5  # the file's seed by default
+    assert load_rig(rig_file, seed=9).info["seed"] == 9  # pmalab run --seed 9 wins
+    assert load_rig("sim").info["seed"] == 0

@@ -11,9 +11,8 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
-from pathlib import Path
 
-from pmalab.errors import ConfigError, RigError
+from pmalab.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,7 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)")
     p.add_argument("--out", required=True, help="output HDF5 run file")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the simulated rig")
+    p.add_argument("--seed", type=int, default=None,
+                   help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)")
     p.add_argument("--realtime", action="store_true",
                    help="simulated rig: run on the real clock instead of the virtual one")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -72,26 +72,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=cmd_recover)
 
 
-def load_rig_spec(spec: str, *, seed: int = 0, realtime: bool = False):
-    """``sim`` or a rig TOML path → a Rig (the rig area's loader when available)."""
+def load_rig_spec(spec: str, *, seed: int | None = None, realtime: bool = False):
+    """``sim`` or a rig TOML path → a Rig; ``--realtime`` puts a simulated rig on the wall clock."""
     from pmalab.rig.base import RealClock
+    from pmalab.rig.loader import load_rig
 
-    clock = RealClock() if realtime else None
-    try:
-        from pmalab.rig.loader import load_rig
-    except ImportError:
-        load_rig = None
-    if load_rig is not None:
-        return load_rig(spec, seed=seed, clock=clock)
-    if spec == "sim":
-        try:
-            from pmalab.rig.sim import make_sim_rig
-        except ImportError as exc:
-            raise RigError(f"--rig sim: the simulated rig is not available ({exc})") from None
-        return make_sim_rig(seed=seed, clock=clock)
-    if not Path(spec).exists():
-        raise ConfigError(f"{spec}: no such rig file")
-    raise RigError(f"{spec}: rig files need pmalab.rig.loader, which is not installed")
+    return load_rig(spec, seed=seed, clock=RealClock() if realtime else None)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -99,7 +85,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from pmalab.acquisition.runner import RunnerOptions, Terminated, run_protocol
     from pmalab.paths import check_output
 
-    if args.seed < 0:
+    if args.seed is not None and args.seed < 0:
         raise ConfigError(f"--seed: must be an integer ≥ 0, got {args.seed}")
     protocol = load_protocol(args.protocol)
     if args.only:
@@ -115,7 +101,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, on_term)
     opts = RunnerOptions(
         progress=not args.quiet,
-        extra_attrs={"command_line": " ".join(sys.argv), "seed": args.seed,
+        extra_attrs={"command_line": " ".join(sys.argv), "seed": rig.info.get("seed", args.seed),
                      "rig_spec": args.rig},
     )
     try:

@@ -35,7 +35,11 @@ RigFactory = Callable[..., Rig]
 
 
 def _make_sim(
-    section: dict[str, Any], rig_file: Path | None, *, seed: int = 0, clock: Clock | None = None
+    section: dict[str, Any],
+    rig_file: Path | None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
 ) -> Rig:
     from pmalab.rig.sim import make_sim_rig
 
@@ -62,7 +66,9 @@ def _make_sim(
         s = section["seed"]
         if isinstance(s, bool) or not isinstance(s, int) or s < 0:
             raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
-        seed = s
+        if seed is None:  # an explicit seed (pmalab run --seed) beats the file's default
+            seed = s
+    seed = 0 if seed is None else seed
     manual = section.get("manual_muscle_regulator", False)
     if not isinstance(manual, bool):
         raise ConfigError(f"{where}: rig.manual_muscle_regulator: must be true or false")
@@ -74,8 +80,11 @@ RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
 RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
 
 
-def load_rig(spec: str | Path, *, seed: int = 0, clock: Clock | None = None) -> Rig:
+def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None = None) -> Rig:
     """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
+
+    ``seed`` (simulated rigs: the sensor-noise seed) overrides the rig file's ``seed``;
+    ``None`` keeps the file's (default 0).
 
     Unknown kinds and bad fields raise a one-line :class:`ConfigError` naming file and field.
     """

@@ -279,7 +279,7 @@ def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
 
 # --------------------------------------------------------------------------- building
 def make_modbus_rig(
-    section: Mapping[str, Any], rig_file: Path | None = None, *, seed: int = 0, clock: Clock | None = None
+    section: Mapping[str, Any], rig_file: Path | None = None, *, seed: int | None = None, clock: Clock | None = None
 ) -> Rig:
     """The ``RIG_KINDS["modbus"]`` factory: parse the ``[rig]`` table, connect, check."""
     return build_modbus_rig(parse_modbus_rig(section, rig_file), seed=seed, clock=clock)
