@@ -45,3 +45,20 @@ def output_failure(path: str | Path, exc: Exception, what: str = "write") -> Out
     else:
         reason = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     return OutputError(f"{path}: cannot {what} ({reason})")
+
+
+def prepare_output_dir(directory: str | Path, names: tuple[str, ...], force: bool) -> Path:
+    """Check, before any work, that ``directory/<name>`` can all be written; create it.
+
+    Refuses existing outputs without ``force`` and unwritable places with one line.
+    """
+    d = Path(directory)
+    for n in names:
+        check_output(d / n, force)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise output_failure(d, exc, "create the output directory") from None
+    if not os.access(d, os.W_OK | os.X_OK):
+        raise OutputError(f"{d}: cannot write into this directory (permission denied)")
+    return d

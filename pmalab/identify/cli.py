@@ -7,6 +7,7 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from pmalab.errors import PmalabError
@@ -83,22 +84,20 @@ def run_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from pmalab.identify.api import identify, load
-    from pmalab.paths import check_output
+    from pmalab.paths import prepare_output_dir
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
-    out = Path(args.out)
-    # refuse early, before any work, if outputs exist
-    check_output(out / "identification.json", args.force)
-    check_output(out / "predictions.h5", args.force)
+    # refuse early, before any work, if outputs exist or cannot be written
+    out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     runs = load(args.files)
     val = load(args.validate) if args.validate else []
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
-                   free=args.free, initial=args.initial, progress=not args.quiet,
+                   free=args.free, initial=args.initial, progress=not args.quiet and sys.stderr.isatty(),
                    pressure_model=args.pressure_model, whole_run=args.whole_run)
     jpath, hpath = res.save(out, force=args.force)
 
@@ -163,16 +162,19 @@ def run_diagnose(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from pmalab.identify.diagnose import diagnose, write_outputs
-    from pmalab.paths import check_output
+    from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import read_many
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
     if args.max_steps < 0:
         raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
-    out = Path(args.out)
-    check_output(out / "diagnosis.json", args.force)
-    check_output(out / "predictions.h5", args.force)
+    out = prepare_output_dir(args.out, ("diagnosis.json", "predictions.h5"), args.force)
+    if args.plot:
+        check_output(args.plot, args.force)
+        plot_dir = Path(args.plot).resolve().parent
+        if not plot_dir.is_dir() or not os.access(plot_dir, os.W_OK):
+            raise PmalabError(f"--plot {args.plot}: cannot write there")
     runs = read_many(args.files)
     val = read_many(args.validate) if args.validate else []
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
