@@ -87,6 +87,20 @@ def _neutral_rig(folder: Path, hidden: str) -> Path:
     return rig
 
 
+def _verdict(hidden: str, found: list[str], diag: dict) -> str:
+    """One honest sentence on what diagnosis concluded about the hidden effect."""
+    ambiguous = diag.get("ambiguous") or []
+    if hidden in found:
+        return "found it"
+    if hidden in ambiguous:
+        return (f"found it among look-alikes ({', '.join(ambiguous)}); to separate them: "
+                f"{diag.get('suggested_experiment', '')}")
+    if not found:
+        return ("claimed no effect: on this campaign the hidden effect is too small to "
+                "matter (inertia, for one, needs tests at ≥ 1–2 Hz)")
+    return f"did NOT find it (named {', '.join(found)} instead)"
+
+
 def run_demo(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists():
@@ -128,7 +142,7 @@ def run_demo(args: argparse.Namespace) -> int:
     if before < 100.0:
         fall = 100.0 * (1.0 - (100.0 - after) / (100.0 - before))
         print(f"  validation error (nrmse) falls by     : {fall:6.1f} %")
-    verdict = "found it" if args.hidden in found else "did NOT find it"
-    print(f"  diagnosis {verdict}; total {time.perf_counter() - t0:.0f} s")
+    print(f"  diagnosis: {_verdict(args.hidden, found, diag)}")
+    print(f"  total {time.perf_counter() - t0:.0f} s")
     print(f"\nReport: {report.resolve()}")
     return 0

@@ -14,7 +14,7 @@ def test_demo_finds_the_hidden_effect_and_writes_the_report(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "diagnosis found it" in text
+    assert "diagnosis: found it" in text
     diag = json.loads((out / "diagnose" / "diagnosis.json").read_text())
     assert diag["ranking"][0]["effect"] == "asymmetric-hysteresis"
     assert diag["ranking"][0]["significant"] is True
