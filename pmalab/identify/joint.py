@@ -79,15 +79,6 @@ class JointRun:
         return int(self.force.shape[0])
 
 
-def subsample(sig: Signals, stride: int) -> Signals:
-    """Every ``stride``-th sample of already-filtered signals (derivatives kept from full rate)."""
-    if stride <= 1:
-        return sig
-    s = slice(None, None, stride)
-    return Signals(t=sig.t[s], x=sig.x[s], v=sig.v[s], a=sig.a[s], p=sig.p[s], p_nom=sig.p_nom,
-                   x_raw=sig.x_raw[s], frequency_Hz=sig.frequency_Hz, cutoff_Hz=sig.cutoff_Hz)
-
-
 def prepare(run: Run, error_scale: float | None = None) -> JointRun:
     """Filter (as every fit does) and subsample one run.
 
@@ -104,7 +95,7 @@ def prepare(run: Run, error_scale: float | None = None) -> JointRun:
     f = run.frequency if run.frequency and run.frequency > 0 else None
     stride = int(fs // (SAMPLES_PER_CYCLE * f)) if f else 1
     stride = max(1, stride, int(math.ceil(n / MAX_SAMPLES)))
-    s = subsample(sig, stride)
+    s = sig.every(stride)
     force = np.asarray(run.force, dtype=np.float64)[::stride]
     sd = max(float(np.std(force)), 1e-9)
     sigma = sd if error_scale is None or not np.isfinite(error_scale) else error_scale

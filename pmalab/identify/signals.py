@@ -94,3 +94,16 @@ class Signals:
         """A copy driven by another (already filtered) position, derivatives recomputed."""
         v = np.gradient(x, self.t)
         return replace(self, x=x, v=v, a=np.gradient(v, self.t))
+
+    def every(self, stride: int) -> Signals:
+        """Every ``stride``-th sample (filtering and derivatives kept from the full rate).
+
+        For cost functions on long runs.  The position-domain laws integrate the decimated
+        path as piecewise linear, which stays accurate while each step is a small part of the
+        stroke (keep ≥ ~100 samples per excitation cycle).
+        """
+        if stride <= 1:
+            return self
+        s = slice(None, None, stride)
+        return replace(self, t=self.t[s], x=self.x[s], v=self.v[s], a=self.a[s], p=self.p[s],
+                       x_raw=self.x_raw[s])
