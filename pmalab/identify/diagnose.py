@@ -216,8 +216,8 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
         else:
             d["scored_against"] = "base"
         out.append(d)
-    # best first: ladder order, then the rest by held-out nrmse with the effect
-    out.sort(key=lambda d: (d["ladder_step"] is None, d["ladder_step"] or 0, d["nrmse_after"]))
+    # best first: ladder order, then the rest by their held-out fall (ranking.Candidate.fall)
+    out.sort(key=lambda d: (d["ladder_step"] is None, d["ladder_step"] or 0, -d["fall_percent"]))
     return out
 
 
@@ -252,11 +252,16 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
 
 def _full_fit(law: str, effects: Sequence[str], group: Sequence[PreparedRun],
               start: Sequence[dict[str, float]]) -> list[dict[str, float]]:
-    """Refit a group on whole runs (warm start) — the fit the diagnostics are made on."""
+    """Refit a group on whole runs (warm start) — the fit the diagnostics are made on.
+
+    Campaign-wide parameters (an effect's ``campaign_shared``, e.g. a channel delay) stay
+    at the ladder's pooled value."""
     full = [PreparedRun(key=p.key, run=p.run, sig=p.sig, dsig=p.dsig, dforce=p.dforce,
                         fit_mask=np.ones_like(p.fit_mask), val_mask=np.zeros_like(p.val_mask))
             for p in group]
-    ths, _, _ = fit_group(build_model(law, effects), full, start)
+    fixed = {nm: start[0][nm] for e in effects
+             for nm in getattr(EFFECTS[e], "campaign_shared", ()) if nm in start[0]}
+    ths, _, _ = fit_group(build_model(law, effects), full, start, fixed=fixed or None)
     return ths
 
 

@@ -15,11 +15,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pmalab.identify.effects import get_effect
 from pmalab.identify.ranking import (
     Candidate,
     FitOutcome,
     PreparedRun,
     build_model,
+    campaign_value,
     effective_n,
     group_by_pressure,
     judge,
@@ -129,6 +131,8 @@ def run_ladder(
     steps = [LadderStep(0, [], None, float(np.mean(base_scores)), base, base_scores)]
     rounds: list[Round] = []
     current: tuple[str, ...] = ()
+    #: campaign-wide parameters of the effects already in the model (held in every fit)
+    fixed: dict[str, float] = {}
     while len(current) < max_steps:
         remaining = [e for e in effect_ids if e not in current]
         if not remaining:
@@ -136,19 +140,42 @@ def run_ladder(
         cur = steps[-1].fits
         n_eff = [[effective_n((pred - pr.dforce)[pr.fit_mask]) for pred, pr in zip(f.preds, g)]
                  for f, g in zip(cur, groups)]
-        tasks = [(g, law, (*current, e), f.thetas) for e in remaining for g, f in zip(groups, cur)]
+        tasks = [(g, law, (*current, e), f.thetas, fixed)
+                 for e in remaining for g, f in zip(groups, cur)]
         outs = run_tasks(tasks, jobs, progress, f"step {len(steps)}: {len(remaining)} effects")
-        cands = []
         n = len(groups)
+        # effects with a rig property (e.g. a channel delay): one value for the whole
+        # campaign, from the groups' estimates, then every group refitted with it held
+        camp: dict[str, dict[str, float]] = {}
+        refits = []
+        for i, e in enumerate(remaining):
+            names = tuple(getattr(get_effect(e), "campaign_shared", ()))
+            if names and n > 1:
+                fits = outs[i * n:(i + 1) * n]
+                camp[e] = {nm: campaign_value(nm, fits) for nm in names}
+                refits += [(g, law, (*current, e), f.thetas, {**fixed, **camp[e]})
+                           for g, f in zip(groups, fits)]
+        if refits:
+            routs = run_tasks(refits, jobs, progress, "campaign-wide refits")
+            j = 0
+            for i, e in enumerate(remaining):
+                if e in camp:
+                    outs[i * n:(i + 1) * n] = routs[j:j + n]
+                    j += n
+        cands = []
         for i, e in enumerate(remaining):
             fits = outs[i * n:(i + 1) * n]
             scores = heldout_nrmse(law, (*current, e), fits, groups, lval)
-            cands.append(score_candidate(e, cur, fits, n_eff, steps[-1].scores, scores))
+            c = score_candidate(e, cur, fits, n_eff, steps[-1].scores, scores,
+                                campaign_params=len(camp.get(e, {})))
+            c.campaign = dict(camp.get(e, {}))
+            cands.append(c)
         cands, amb = judge(cands)
         rounds.append(Round(len(steps), cands, amb))
         best = cands[0]
         if not best.significant:
             break
+        fixed = {**fixed, **best.campaign}
         current = (*current, best.effect)
         steps.append(LadderStep(len(steps), list(current), best.effect, best.nrmse_after,
                                 best.fits, best.scores))

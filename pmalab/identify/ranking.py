@@ -19,11 +19,12 @@ integrated autocorrelation time of the base model's residual (sum to the first n
 
     ΔAIC = Σ_groups [ N_eff·ln(RSS_with / RSS_without) + 2·Δk ]
 
-on the fitting data (N_eff summed over the group's runs).  An effect is *significant* only if ΔAIC < −10 AND the mean held-out
-nrmse falls by at least ``MIN_FALL`` = 25 % (relative; smaller gains are within what
-sensor lags and the law's own shape error give on clean data) AND it falls on ≥ 60 % of
-the scored runs.  Two significant effects are *ambiguous* when the runner-up achieves
-≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's nrmse reduction.
+on the fitting data (N_eff summed over the group's runs).  An effect is *significant* only if ΔAIC < −10 AND the held-out
+nrmse falls by at least ``MIN_FALL`` = 25 % (relative, the geometric mean of the per-run
+ratios, so every run counts alike; smaller gains are within what sensor lags and the law's
+own shape error give on clean data) AND it falls on ≥ 60 % of the scored runs.  Candidates
+rank by that fall.  Two significant effects are *ambiguous* when the runner-up achieves
+≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall.
 """
 
 from __future__ import annotations
@@ -177,11 +178,15 @@ def _base_start(group: Sequence[PreparedRun], law: str) -> list[dict[str, float]
 
 def fit_group(model: ForceModel, group: Sequence[PreparedRun],
               start: Sequence[dict[str, float]] | None = None,
-              max_nfev: int = 80) -> tuple[list[dict[str, float]], int, list[float]]:
+              max_nfev: int = 80, fixed: dict[str, float] | None = None,
+              info: dict[str, Any] | None = None) -> tuple[list[dict[str, float]], int, list[float]]:
     """Joint least-squares fit of ``model`` on the fitting samples of a pressure group.
 
     Parameters are shared by the group's runs except :data:`PER_RUN`.  Bouc-Wen's n is held
     at 1 and Duhem's a at 0 (collinear with β/γ resp. k; DESIGN.md and :mod:`fit`).
+    ``fixed``: parameters held at given values (a campaign-wide value, e.g. a channel delay).
+    ``info`` (optional, filled in): ``stderr`` of each shared free parameter (from the
+    Jacobian, inflated by the residual's autocorrelation time).
     Returns (per-run parameter sets, number of free parameters, per-run RSS in N²).
     """
     law = model.law.name
@@ -194,6 +199,9 @@ def fit_group(model: ForceModel, group: Sequence[PreparedRun],
     for e in model.effects:
         for name in e.fixed_for_law(law):
             params[name].vary = False
+    for name, val in (fixed or {}).items():
+        if name in params:
+            params[name].value, params[name].vary = float(val), False
     starts = _base_start(group, law)
     if start:
         for st, given in zip(starts, start):
@@ -228,11 +236,27 @@ def fit_group(model: ForceModel, group: Sequence[PreparedRun],
         r = np.concatenate(parts)
         return r if np.all(np.isfinite(r)) else np.full(r.shape, 1e3)
 
+    def solve(z: np.ndarray, nfev: int):
+        return least_squares(resid, z, bounds=(lo_a, hi_a), x_scale="jac", method="trf",
+                             max_nfev=nfev, diff_step=1e-6, ftol=1e-6, xtol=1e-6)
+
     # one BLAS thread: the SVDs of a tall-skinny Jacobian are slower threaded (and runs are
     # parallelised across processes instead)
     with threadpool_limits(limits=1, user_api="blas"):
-        sol = least_squares(resid, z0_a, bounds=(lo_a, hi_a), x_scale="jac", method="trf",
-                            max_nfev=max_nfev, diff_step=1e-6, ftol=1e-6, xtol=1e-6)
+        sol = solve(z0_a, max_nfev)
+        # multi-start for parameters whose cost is multi-modal (an effect's ``multistart``,
+        # e.g. a channel delay: the error of a time-shifted loop has a minimum near every
+        # shift that lines up some feature of the loop, and a descent from τ = 0 stops in
+        # the nearest one).  Short fits from every start; the best is polished.
+        alts = _multistart_points(model, names, sol.x, z0_a, lo_a, hi_a)
+        if alts:
+            tries = [solve(z, max(10, max_nfev // 4)) for z in alts]
+            best = min(tries, key=lambda s: s.cost)
+            if best.cost < sol.cost:
+                polished = solve(best.x, max_nfev)
+                sol = polished if polished.cost <= best.cost else best
+    if info is not None:
+        info["stderr"] = _stderr(sol, names)
     ths = thetas(sol.x)
     rss = []
     for pr, th in zip(group, ths):
@@ -241,22 +265,78 @@ def fit_group(model: ForceModel, group: Sequence[PreparedRun],
     return ths, len(sol.x), rss
 
 
+def _stderr(sol: Any, names: Sequence[str]) -> dict[str, float]:
+    """Standard errors of the shared parameters: s²·(JᵀJ)⁻¹, times the residual's integrated
+    autocorrelation time (correlated 500 Hz-derived residuals carry fewer independent
+    samples than their count)."""
+    J = np.asarray(sol.jac, dtype=float)
+    m, n = J.shape
+    s2 = 2.0 * float(sol.cost) / max(m - n, 1) * integrated_act(np.asarray(sol.fun))
+    cov = np.linalg.pinv(J.T @ J) * s2
+    return {nm: float(np.sqrt(max(cov[j, j], 0.0))) for j, nm in enumerate(names)}
+
+
+def _multistart_points(model: ForceModel, names: Sequence[str], z_fit: np.ndarray,
+                       z0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """Start vectors for a multi-start: the fitted solution with one multi-modal shared
+    parameter (an effect's optional ``multistart = {name: (values...)}``) moved to each of
+    its grid values (clipped into the bounds); the other parameters keep the first fit's
+    values, or the warm start when that is better conditioned (both are tried)."""
+    out: list[np.ndarray] = []
+    for e in model.effects:
+        grid = getattr(e, "multistart", None) or {}
+        for name, values in grid.items():
+            if name not in names:
+                continue
+            j = list(names).index(name)
+            for v in values:
+                for base in (z_fit, z0):
+                    z = base.copy()
+                    span = hi[j] - lo[j]
+                    z[j] = min(max(float(v), lo[j] + 1e-9 * span), hi[j] - 1e-9 * span)
+                    if not any(np.allclose(z, o) for o in out) and not np.allclose(z, z_fit):
+                        out.append(z)
+    return out
+
+
 def _nrmse(pred: np.ndarray, meas: np.ndarray) -> float:
     sd = float(np.std(meas))
     return float(np.sqrt(np.mean((pred - meas) ** 2)) / sd) if sd > 0 else float("nan")
 
 
 def fit_prepared(group: Sequence[PreparedRun], law: str, effect_ids: Sequence[str],
-                 start: Sequence[dict[str, float]] | None = None) -> FitOutcome:
+                 start: Sequence[dict[str, float]] | None = None,
+                 fixed: dict[str, float] | None = None) -> FitOutcome:
     """Fit ``law`` + effects on a group's fitting parts; score each run's held-out part."""
     model = build_model(law, effect_ids)
-    ths, n_free, rss = fit_group(model, group, start)
+    info: dict[str, Any] = {}
+    ths, n_free, rss = fit_group(model, group, start, fixed=fixed, info=info)
     preds = [model.predict(pr.dsig, th) for pr, th in zip(group, ths)]
     nv = [_nrmse(p[pr.val_mask], pr.dforce[pr.val_mask]) if pr.val_mask.any() else None
           for p, pr in zip(preds, group)]
     return FitOutcome(keys=[pr.key for pr in group], effects=tuple(effect_ids), thetas=ths,
                       n_free=n_free, rss_fit=rss, n_fit=[int(pr.fit_mask.sum()) for pr in group],
-                      preds=preds, nrmse_val=nv)
+                      preds=preds, nrmse_val=nv, extra=info)
+
+
+def campaign_value(name: str, fits: Sequence[FitOutcome]) -> float:
+    """One campaign-wide value of a parameter fitted per group: the inverse-variance
+    weighted mean of the groups' estimates (a rig property such as a channel delay is the
+    same for every run; a group whose fit is poor or barely informative weighs little)."""
+    vals, ws = [], []
+    for f in fits:
+        v = f.theta.get(name)
+        se = (f.extra.get("stderr") or {}).get(name)
+        if v is None or not np.isfinite(v):
+            continue
+        vals.append(float(v))
+        ws.append(1.0 / se**2 if se and np.isfinite(se) and se > 0 else 0.0)
+    if not vals:
+        return 0.0
+    w = np.asarray(ws)
+    if not np.any(w > 0):
+        return float(np.median(vals))
+    return float(np.sum(w * np.asarray(vals)) / np.sum(w))
 
 
 # --------------------------------------------------------------------------- statistics
@@ -298,10 +378,23 @@ class Candidate:
     significant: bool = False
     fits: list[FitOutcome] = field(default_factory=list)
     scores: list[float] = field(default_factory=list)
+    #: campaign-wide parameter values (held in every group fit), e.g. a channel delay
+    campaign: dict[str, float] = field(default_factory=dict)
+
+    #: held-out nrmse per scored run without the effect (``scores`` are with it)
+    befores: list[float] = field(default_factory=list)
 
     @property
     def fall(self) -> float:
-        """Relative fall of the mean held-out nrmse (0.5 = halved)."""
+        """Relative fall of the held-out nrmse (0.5 = halved): 1 − the geometric mean of the
+        per-run ratios with/without, so that every scored run counts alike.  (The ratio of
+        the mean nrmse would let one run the base law cannot fit — e.g. one where the muscle
+        goes slack, 10× the others' error — decide alone, through whatever its misfit
+        happens to do when any parameter is added.)  Falls back to the means' ratio."""
+        b = np.asarray(self.befores, dtype=float)
+        a = np.asarray(self.scores, dtype=float)
+        if b.size and b.size == a.size and np.all(b > 0) and np.all(a > 0):
+            return float(1.0 - np.exp(np.mean(np.log(a / b))))
         if not self.nrmse_before > 0:
             return 0.0
         return 1.0 - self.nrmse_after / self.nrmse_before
@@ -325,11 +418,13 @@ class Candidate:
 
 def score_candidate(effect: str, base: Sequence[FitOutcome], fits: Sequence[FitOutcome],
                     n_eff: Sequence[Sequence[float]], before: Sequence[float],
-                    after: Sequence[float]) -> Candidate:
+                    after: Sequence[float], campaign_params: int = 0) -> Candidate:
     """Compare group fits with the effect against the current model's group fits.
 
     ``before``/``after``: held-out nrmse per scored run without/with the effect; ΔAIC is
     summed over groups on the fitting data, each with N_eff = Σ of its runs' N_eff.
+    ``campaign_params``: parameters fitted once for the whole campaign (held fixed in the
+    group fits, so not in their ``n_free``), penalised once.
     """
     before_a = np.asarray(before, dtype=float)
     after_a = np.asarray(after, dtype=float)
@@ -338,11 +433,12 @@ def score_candidate(effect: str, base: Sequence[FitOutcome], fits: Sequence[FitO
         ratio = max(sum(f.rss_fit), 1e-300) / max(sum(b.rss_fit), 1e-300)
         daic += float(sum(ne)) * np.log(ratio) + 2.0 * (f.n_free - b.n_free)
     improved = float(np.mean(after_a < before_a * (1.0 - 0.5 * MIN_FALL)))
-    n_params = int(max(f.n_free - b.n_free for b, f in zip(base, fits)))
+    daic += 2.0 * campaign_params
+    n_params = int(max(f.n_free - b.n_free for b, f in zip(base, fits))) + campaign_params
     return Candidate(effect=effect, nrmse_before=float(np.mean(before_a)),
                      nrmse_after=float(np.mean(after_a)), delta_aic=float(daic),
                      n_params=n_params, runs_improved=improved, fits=list(fits),
-                     scores=[float(a) for a in after_a])
+                     scores=[float(a) for a in after_a], befores=[float(b) for b in before_a])
 
 
 def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
@@ -350,13 +446,12 @@ def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
     for c in cands:
         c.significant = bool(c.delta_aic < DELTA_AIC_MAX and c.fall >= MIN_FALL
                              and c.runs_improved >= MIN_RUN_FRACTION)
-    cands.sort(key=lambda c: (not c.significant, c.nrmse_after))
+    cands.sort(key=lambda c: (not c.significant, -c.fall))
     ambiguous: list[str] = []
     if cands and cands[0].significant:
         best = cands[0]
-        gain = best.nrmse_before - best.nrmse_after
         close = [c.effect for c in cands[1:]
-                 if c.significant and (c.nrmse_before - c.nrmse_after) >= AMBIGUITY_RATIO * gain]
+                 if c.significant and c.fall >= AMBIGUITY_RATIO * best.fall]
         if close:
             ambiguous = [best.effect, *close]
     return cands, ambiguous
@@ -364,13 +459,13 @@ def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
 
 # --------------------------------------------------------------------------- parallel map
 def _fit_task(args: tuple) -> FitOutcome:
-    group, law, effects, start = args
-    return fit_prepared(group, law, effects, start)
+    group, law, effects, start, *rest = args
+    return fit_prepared(group, law, effects, start, rest[0] if rest else None)
 
 
 def run_tasks(tasks: list[tuple], jobs: int = 1, progress: bool = False,
               desc: str = "fits") -> list[FitOutcome]:
-    """Fit every (group, law, effects, start) task, in order, on ``jobs`` processes."""
+    """Fit every (group, law, effects, start[, fixed]) task, in order, on ``jobs`` processes."""
     from pmalab.identify.batch import map_tasks
 
     return map_tasks(_fit_task, tasks, jobs=jobs, progress=progress, desc=desc)

@@ -9,6 +9,8 @@ are recomputed from the shifted position.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -42,6 +44,17 @@ class SensorDelay(Effect):
     experiment = (
         "repeat at two or more frequencies: a delay's phase error grows with frequency (ωτ) while viscous force grows with velocity amplitude; or time-stamp a sharp force step on both channels"
     )
+
+    #: multi-start grid for τ (s) used by the diagnosis fitter: the least-squares cost of a
+    #: time-shifted loop is multi-modal in τ (a local minimum wherever a shift lines up one
+    #: feature of the loop, e.g. a reversal or a slack stretch), so a single descent from
+    #: τ = 0 can stop short of the real lag.
+    multistart: ClassVar[dict[str, tuple[float, ...]]] = {"delay_tau": (-0.08, -0.04, 0.04, 0.08)}
+    #: τ is a property of the rig's sensor paths, not of the muscle: one value for every run
+    #: of a campaign (diagnosis fits it per pressure group, pools the estimates and refits
+    #: every group with the pooled τ).  This is what separates a delay from viscous
+    #: friction, whose coefficient is free to change with pressure.
+    campaign_shared: ClassVar[tuple[str, ...]] = ("delay_tau",)
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         return [Param("delay_tau", 0.0, -0.1, 0.1, "s",
