@@ -410,6 +410,7 @@ class Candidate:
             "delta_aic": float(self.delta_aic),
             "n_params": int(self.n_params),
             "runs_improved": float(self.runs_improved),
+            "campaign_params": {k: float(v) for k, v in self.campaign.items()},
             "title": cls.title if cls else "",
             "explanation": cls.explanation if cls else "",
             "signature": cls.signature if cls else "",
