@@ -189,3 +189,24 @@ def test_precomputed_commands_equal_the_scalar_definition(wf):
     n = int(r.duration_s * 500) + 1
     np.testing.assert_allclose(command_samples(r, 500.0, n),
                                command_array(r, np.arange(n) / 500.0), atol=1e-12)
+
+
+def test_preload_is_held_while_settling_and_blended_by_the_ramp():
+    import numpy as np
+
+    from pmalab.acquisition.protocol import parse_protocol
+    from pmalab.acquisition.waveforms import command, command_array, command_samples
+
+    spec = parse_protocol(
+        '[[run]]\nname = "r"\nmuscle_pressure_MPa = 0.3\nfrequency_Hz = 0.5\n'
+        'magnitude_MPa = 0.2\npreload_MPa = 0.03\nsettle_s = 1.0\nramp_s = 2.0\n'
+    ).runs[0]
+    assert command(spec, 0.5) == 0.03  # settle: preload
+    t = np.arange(0, spec.steady_start_s + 0.2, 0.002)
+    c = command_array(spec, t)
+    assert np.max(np.abs(np.diff(c))) < 0.002  # continuous into and through the ramp
+    assert abs(command(spec, spec.steady_start_s)) < 1e-9  # cycles start at the minimum
+    np.testing.assert_allclose(command_samples(spec, 500.0, t.size), c, atol=1e-12)
+    with pytest.raises(ConfigError, match="preload_MPa"):
+        parse_protocol('[[run]]\nname = "r"\nmuscle_pressure_MPa = 0.3\nfrequency_Hz = 0.5\n'
+                       'magnitude_MPa = 0.2\npreload_MPa = 0.5\n')

@@ -10,8 +10,11 @@ with ``w`` the unit waveform (sine | triangle | square) phased to start at its m
 (−1), so a run with ``offset == amplitude`` starts and ends at zero cylinder pressure.
 More cylinder pressure stretches the muscle: the contraction x falls and the tension rises.
 ``envelope`` is a raised-cosine ramp in (0→1 over ``ramp_s``) and out (1→0); the steady
-part holds ``cycles`` full periods.  Each run is preceded by ``settle_s`` seconds at zero
-command with the muscle already at its pressure (recorded).
+part holds ``cycles`` full periods.  Each run is preceded by ``settle_s`` seconds at the
+``preload_MPa`` command (default 0) with the muscle already at its pressure (recorded); the
+ramp blends the preload into the waveform.  A preload pulls a muscle taut that the previous
+run left slack (after a drop in muscle pressure its free contraction is shorter than where
+the sled stands, and nothing moves the sled back until the cylinder pushes).
 
 ``magnitude_MPa = M`` is the seeds' shorthand for a command from 0 to M
 (``offset = amplitude = M/2``).
@@ -90,6 +93,7 @@ _FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
     "cycles": ((int, float), 3),
     "ramp_s": ((int, float), 2.0),
     "settle_s": ((int, float), 1.0),
+    "preload_MPa": ((int, float), 0.0),
     "square_edge": ((int, float), 0.05),
     "pressure_tolerance_MPa": ((int, float), 0.01),
     "pressure_stable_s": ((int, float), 0.5),
@@ -114,6 +118,8 @@ class RunSpec:
     cycles: float = 3.0
     ramp_s: float = 2.0
     settle_s: float = 1.0
+    #: cylinder command held during the settle time, blended into the waveform by the ramp
+    preload_MPa: float = 0.0
     role: str = "identification"
     #: square waves: fraction of the period spent on each (raised-cosine) edge
     square_edge: float = 0.05
@@ -322,6 +328,8 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         ("cycles", float(get["cycles"]) > 0, "must be > 0"),
         ("ramp_s", float(get["ramp_s"]) >= 0, "must be ≥ 0"),
         ("settle_s", float(get["settle_s"]) >= 0, "must be ≥ 0"),
+        ("preload_MPa", 0 <= float(get["preload_MPa"]) <= off + amp,
+         "must be within [0, offset + amplitude]"),
         ("square_edge", 0 <= float(get["square_edge"]) <= 0.25, "must be within [0, 0.25]"),
         ("pressure_tolerance_MPa", float(get["pressure_tolerance_MPa"]) > 0, "must be > 0"),
         ("pressure_stable_s", float(get["pressure_stable_s"]) > 0, "must be > 0"),
@@ -341,6 +349,7 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         cycles=float(get["cycles"]),
         ramp_s=float(get["ramp_s"]),
         settle_s=float(get["settle_s"]),
+        preload_MPa=float(get["preload_MPa"]),
         role=str(get["role"]),
         square_edge=float(get["square_edge"]),
         pressure_tolerance_MPa=float(get["pressure_tolerance_MPa"]),

@@ -1,7 +1,7 @@
 """Cylinder-pressure commands of a run (MPa), as functions of time since the run's zero.
 
-Timeline of a run (``RunSpec``): ``settle_s`` at zero command (muscle already at its
-pressure), ``ramp_s`` raised-cosine ramp in, ``cycles`` full periods, ``ramp_s`` ramp out,
+Timeline of a run (``RunSpec``): ``settle_s`` at the preload command (default 0; muscle
+already at its pressure), ``ramp_s`` raised-cosine ramp in (blending preload → waveform), ``cycles`` full periods, ``ramp_s`` ramp out,
 ending at zero command.  The unit waveform is phased to start at −1 so the command starts
 at ``offset − amplitude`` (0 for the seeds' ``magnitude`` runs) when the steady cycles
 begin — a stretched muscle is a high cylinder pressure, so each cycle begins with the
@@ -71,11 +71,13 @@ def command(spec: RunSpec, t: float) -> float:
     """
     env = envelope(spec, t)
     if env == 0.0:
-        return 0.0
+        return spec.preload_MPa if t < spec.steady_start_s else 0.0
     phase = (t - spec.steady_start_s) * spec.frequency_Hz
     # full-amplitude part is periodic in the steady window; in the ramps the envelope
     # scales offset and amplitude together, so the command stays within [0, max]
     val = spec.offset_MPa + spec.amplitude_MPa * unit_wave(spec.waveform, phase, spec.square_edge)
+    if t < spec.steady_start_s:  # ramp in: from the preload to the waveform
+        return max(0.0, (1.0 - env) * spec.preload_MPa + env * val)
     return max(0.0, env * val)
 
 
@@ -123,4 +125,6 @@ def command_samples(spec: RunSpec, rate_Hz: float, n: int) -> np.ndarray:
     phase = (t - spec.steady_start_s) * spec.frequency_Hz
     val = spec.offset_MPa + spec.amplitude_MPa * unit_wave_array(spec.waveform, phase,
                                                                  spec.square_edge)
-    return np.maximum(0.0, env * val)
+    before = t < spec.steady_start_s  # settle and ramp in: from the preload to the waveform
+    out = np.where(before, (1.0 - env) * spec.preload_MPa + env * val, env * val)
+    return np.maximum(0.0, out)
