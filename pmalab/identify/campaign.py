@@ -15,7 +15,11 @@ pressure (:func:`predict_run`): the parameters are evaluated at the run's nomina
 (θ(p_nom)) and clipped into the law's bounds; a pressure outside the identified range is
 extrapolation and is flagged (:meth:`CampaignFit.extrapolates`); effects that use the measured pressure trace get it through the signals; the
 start state h0 comes from a one-cycle burn-in (h0 is the start state of one run, not a
-property of the muscle, so its quadratic is reported but never used).
+property of the muscle, so its quadratic is reported but never used).  The same holds
+for the effects' record nuisance parameters (``Effect.nuisance_params``, e.g. a load cell's
+drift rate): one value per run in the joint fit, 0 when another run is predicted; a model
+with a drifting-zero effect (``Effect.tare``) also tares each predicted run's force on its
+first ~50 ms (:func:`pmalab.identify.fit.predict_free`).
 """
 
 from __future__ import annotations
@@ -32,10 +36,13 @@ from pmalab.identify.fit import (
     COLLINEAR_FIXES,
     DEFAULT_FIXED,
     STATE_PARAMS,
+    TARE_NOTE,
     FitResult,
     default_fixed_notes,
     fit_run,
     predict_free,
+    record_params,
+    tares,
 )
 from pmalab.identify.joint import JointFit, evaluate, prepare, refine, start_laws
 from pmalab.identify.model import ForceModel
@@ -156,9 +163,9 @@ class CampaignFit:
             v = float(pf(p))
             lo, hi = bounds.get(name, (-np.inf, np.inf))
             th[name] = float(min(max(v, lo), hi)) if np.isfinite(v) else v
-        for s in STATE_PARAMS:
-            if s in th:
-                th[s] = 0.0
+        for s in record_params(self.model):
+            if s in th or s not in STATE_PARAMS:
+                th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
         return th
 
     def predict(self, run: Run | Signals, p_nom: float | None = None, *,
@@ -166,7 +173,9 @@ class CampaignFit:
         """Free-run force (N) of ``run`` from its position and pressure (see module doc).
 
         The start state h0 is estimated from the first 50 ms of the measured force when it
-        is available (``initial``: see :func:`pmalab.identify.fit.predict_free`).
+        is available (``initial``: see :func:`pmalab.identify.fit.predict_free`); with a
+        drifting-zero effect in the model the force offset (tare) is estimated from that
+        window instead.
         """
         if isinstance(run, Run):
             force = run.force if force is None else force
@@ -265,6 +274,8 @@ def fit_campaign(
     kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings = list(default_fixed_notes(fm, free))
+    if tares(fm):
+        warnings.append(TARE_NOTE)
 
     # consistency: a collinear parameter fixed on most runs is fixed on all
     defaults = set(DEFAULT_FIXED.get(fm.law.name, {})) - set(free)
@@ -352,9 +363,22 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     rfs = cf.runs
     names = cf.parameter_names
     results = [rf.result for rf in rfs]
+    # record nuisance parameters (e.g. a drift rate): one value per run, like h0
+    nuis_names = [n for n in record_params(cf.model) if n not in STATE_PARAMS and n in names
+                  and any(r.params[n].vary for r in results)]
+    if tares(cf.model) and "c0" in names and any(r.params["c0"].vary for r in results):
+        # a drifting zero: each record's force offset differs by the drift accumulated
+        # before it, which c0's pressure law would absorb (the runs of a campaign are
+        # recorded in pressure order, so time trends look like pressure trends).  c0 is then
+        # a per-run parameter of the joint fit; its per-run quadratic is kept for prediction
+        # and every predicted run is tared (predict_free).
+        nuis_names.append("c0")
+    nuisance = {n: [float(r.params[n].value) for r in results] for n in nuis_names}
     constants = {n: float(results[0].params[n].value) for n in names
-                 if n not in STATE_PARAMS and all(not r.params[n].vary for r in results)}
-    free = [n for n in names if n not in constants and n not in STATE_PARAMS]
+                 if n not in STATE_PARAMS and n not in nuisance
+                 and all(not r.params[n].vary for r in results)}
+    free = [n for n in names if n not in constants and n not in STATE_PARAMS
+            and n not in nuisance]
     if not free:
         return
     has_h0 = "h0" in names and any(r.params["h0"].vary for r in results)
@@ -374,13 +398,13 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
         plain = ({n: cf.pressure[n].coef for n in free},
                  {n: cf.pressure[n].degree for n in free})
         joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0,
-                               alternatives=[plain])
+                               alternatives=[plain], nuisance_start=nuisance or None)
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(f"joint refinement of the pressure laws failed ({exc}); "
                            "using the per-run quadratics")
         return
     per_run = evaluate(cf.model, jruns, {n: cf.pressure[n].coef for n in free}, constants,
-                       bounds, h0)
+                       bounds, h0, nuisance or None)
     cf.per_run_nrmse = per_run
     # a sanity check: the joint fit starts from (among others) the per-run quadratics, so it
     # only ends above them by the BIC-accepted order pruning (a small, deliberate loss)
@@ -403,13 +427,14 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
             new[n] = replace(pf, coef=(constants[n], 0.0, 0.0), degree=0, method="joint",
                              per_run_coef=pf.coef, per_run_r2=pf.r2, per_run_degree=pf.degree)
         else:
-            new[n] = pf  # the state h0: per-run, never used for prediction
+            new[n] = pf  # h0 / record nuisance: per-run, never used for prediction
     cf.pressure = new
     cf.joint = joint
     cf.pressure_model = "joint"
     orders = ", ".join(f"{n} {joint.degree[n]}" for n in free)
+    per = ", ".join(["h0"] * bool(h0 is not None) + nuis_names) or "none"
     cf.warnings.append(
-        f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run h0): "
+        f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run {per}): "
         f"mean nrmse {float(np.mean(per_run)):.4f} with the per-run quadratics -> "
         f"{joint.mean_nrmse:.4f}; orders in p: {orders}")
     cf.warnings += notes + jnotes

@@ -191,6 +191,30 @@ INITIAL_STATES = ("estimate", "burn-in", "zero")
 INITIAL_WINDOW_S = 0.05
 
 
+def record_params(model: ForceModel) -> tuple[str, ...]:
+    """Parameters that belong to one record, not to the muscle: the start state h0 and the
+    effects' ``nuisance_params`` (e.g. a sensor's drift rate).  A prediction of another run
+    sets them to 0 (h0 then by ``initial``, see :func:`predict_free`)."""
+    out = list(STATE_PARAMS)
+    for e in model.effects:
+        out += [n for n in getattr(e, "nuisance_params", ()) if n not in out]
+    return tuple(out)
+
+
+def tares(model: ForceModel) -> bool:
+    """True when an effect of ``model`` says the record's force zero is unknown (``tare``)."""
+    return any(bool(getattr(e, "tare", False)) for e in model.effects)
+
+
+#: the note every prediction that tares the force carries (JSON warnings)
+TARE_NOTE = ("force tared on each predicted run: the model has a drifting-zero effect "
+             "(sensor-drift), so the record's force offset is unknown; a prediction of another "
+             "run (initial='estimate') takes it from the run's first ~50 ms of MEASURED force "
+             "(median error after a one-period burn-in of the hysteretic state), as the h0 "
+             "estimate does; the drift rate is a per-run nuisance set to 0, and c0 is fitted per "
+             "run in the joint fit (its per-run quadratic only sets the level before the tare)")
+
+
 def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
                  force: np.ndarray | None = None, initial: str = "estimate") -> np.ndarray:
     """Free-run force (N) of ``model`` on ``sig``; the start state h0 is set by ``initial``:
@@ -202,10 +226,20 @@ def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
     * ``"burn-in"``: the first excitation period is replayed before the run, putting h on
       its periodic orbit (for records that start mid-cycle on a cycled muscle);
     * ``"zero"``: h0 = 0, a virgin state (a record that starts from rest).
+
+    Record nuisance parameters of the effects (:func:`record_params`, e.g. a drift rate)
+    are set to 0: they belong to the record they were fitted on.
+
+    Tare: when the model has an effect with ``tare = True`` (sensor drift: the record's
+    force zero is unknown) and ``initial="estimate"``, the run's force offset is estimated
+    instead of h0 — it uses the first ~50 ms of *measured force* (``INITIAL_WINDOW_S``):
+    the hysteretic state is put on its periodic orbit by the burn-in, and the offset is
+    median(F − F_model) over that window, added to the whole prediction.  An offset and
+    h0 cannot be told apart on so short a window; the offset persists, h0 fades.
     """
     th = dict(theta)
-    for s in STATE_PARAMS:
-        if s in th:
+    for s in record_params(model):
+        if s in th or s not in STATE_PARAMS:
             th[s] = 0.0
     if initial == "estimate" and force is None:
         initial = "burn-in"
@@ -216,11 +250,18 @@ def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
         return model.predict(aug, th)[P:]
     if initial != "estimate":
         raise ValueError(f"initial must be one of {INITIAL_STATES}, not {initial!r}")
+    dt = float(np.median(np.diff(sig.t)))
+    m = max(1, min(sig.t.shape[0], int(round(INITIAL_WINDOW_S / dt))))
+    if tares(model):
+        # a drifting zero: the record's offset is unknown.  h goes on its periodic orbit
+        # (burn-in) and the offset is the median error over the first window; the window
+        # cannot tell an offset from a start state, but an offset persists while h0 fades.
+        aug, P = burn_in_signals(sig)
+        pred = model.predict(aug, th)[P:]
+        return pred + float(np.median(np.asarray(force)[:m] - pred[:m]))
     pred0 = model.predict(sig, th)
     if "h0" not in th:
         return pred0
-    dt = float(np.median(np.diff(sig.t)))
-    m = max(1, min(sig.t.shape[0], int(round(INITIAL_WINDOW_S / dt))))
     th["h0"] = float(np.median(np.asarray(force)[:m] - pred0[:m]))
     return model.predict(sig, th)
 

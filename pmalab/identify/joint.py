@@ -11,7 +11,10 @@ What.  After the per-run fits and their stderr-weighted quadratics (the start), 
 coefficients of every θ_j(p) are refined *jointly*: one ``scipy.optimize.least_squares``
 on the free-run prediction error of all identification runs together.  Each run keeps its
 own initial hysteretic state h0 (a nuisance parameter: the start state of one record, not
-a property of the muscle).  Each run's residual is divided by std(F_run)·√N_run, so the
+a property of the muscle), and so does every record nuisance parameter of the model's
+effects (``Effect.nuisance_params``, e.g. a load cell's drift rate: a property of the
+sensor during that record, so it gets one value per run, never a pressure law).  Each
+run's residual is divided by std(F_run)·√N_run, so the
 cost is ½·Σ nrmse² and every run counts equally whatever its force level or length.
 
 Parametrisation.  θ_j(p) = Σ_d c_jd·P_d(u), P_d the Legendre polynomials of
@@ -32,7 +35,7 @@ Speed.  Runs are subsampled to ≤ ``SAMPLES_PER_CYCLE`` samples per excitation 
 the effects use the full-rate derivatives, so the loss is small.  The Jacobian is computed
 per *parameter* (one perturbation of θ_j on every run at once, chained to its Legendre
 coefficients) and all h0 are perturbed together (each affects one run only): (P + 1)·R
-model evaluations per Jacobian.
+model evaluations per Jacobian (one more R per nuisance parameter).
 """
 
 from __future__ import annotations
@@ -168,6 +171,8 @@ class JointFit:
     message: str
     legendre: dict[str, np.ndarray] = field(default_factory=dict)
     legendre_stderr: dict[str, np.ndarray] = field(default_factory=dict)
+    #: record nuisance parameters: one fitted value per run (never a pressure law)
+    nuisance: dict[str, list[float]] = field(default_factory=dict)
 
     @property
     def mean_nrmse(self) -> float:
@@ -178,6 +183,8 @@ class JointFit:
         return float(np.mean(self.nrmse_start)) if self.nrmse_start else float("nan")
 
     def theta(self, p: float) -> dict[str, float]:
+        """Laws at ``p`` (MPa); the per-run parameters (h0, :attr:`nuisance`) are not
+        included: they belong to the fitted records."""
         out = dict(self.constants)
         for name, q in self.coef.items():
             lo, hi = self.bounds[name]
@@ -191,13 +198,16 @@ class _Problem:
 
     def __init__(self, model: ForceModel, runs: Sequence[JointRun], basis: PressureBasis,
                  free: Sequence[str], degree: dict[str, int], constants: dict[str, float],
-                 bounds: dict[str, tuple[float, float]], has_h0: bool) -> None:
+                 bounds: dict[str, tuple[float, float]], has_h0: bool,
+                 nuisance: Sequence[str] = ()) -> None:
         self.model, self.runs, self.basis = model, list(runs), basis
         self.free = list(free)
         self.degree = dict(degree)
         self.constants = dict(constants)
         self.bounds = bounds
         self.has_h0 = has_h0
+        #: per-run parameters, one block of len(runs) values each after the coefficients
+        self.run_names = (["h0"] if has_h0 else []) + list(nuisance)
         self.B = {n: basis.matrix([r.p_nom for r in runs], degree[n]) for n in self.free}
         self.slices: dict[str, slice] = {}
         i = 0
@@ -205,11 +215,16 @@ class _Problem:
             self.slices[n] = slice(i, i + degree[n] + 1)
             i += degree[n] + 1
         self.n_coef = i
-        self.n_var = i + (len(runs) if has_h0 else 0)
+        self.n_var = i + len(runs) * len(self.run_names)
         offs = np.cumsum([0] + [r.n for r in runs])
         self.rows = [slice(int(a), int(b)) for a, b in itertools.pairwise(offs)]
         self.n_rows = int(offs[-1])
         self._cache: tuple[bytes, np.ndarray] | None = None
+
+    def block(self, j: int) -> slice:
+        """z indices of the j-th per-run parameter (``run_names[j]``), one per run."""
+        R = len(self.runs)
+        return slice(self.n_coef + j * R, self.n_coef + (j + 1) * R)
 
     # raw (unclipped) θ_j at every run's pressure
     def raw(self, z: np.ndarray) -> dict[str, np.ndarray]:
@@ -223,8 +238,8 @@ class _Problem:
             for n in self.free:
                 lo, hi = self.bounds[n]
                 th[n] = float(min(max(raw[n][i], lo), hi))
-            if self.has_h0:
-                th["h0"] = float(z[self.n_coef + i])
+            for j, rn in enumerate(self.run_names):
+                th[rn] = float(z[self.block(j).start + i])
             out.append(th)
         return out
 
@@ -249,7 +264,7 @@ class _Problem:
     def jac(self, z: np.ndarray, h0_only: bool = False) -> np.ndarray:
         """Forward differences, per parameter (chained to its coefficients) and h0 batched.
 
-        ``h0_only``: only the h0 columns (the others are left zero).
+        ``h0_only``: only the per-run columns (h0 and nuisance; the others are left zero).
         """
         z = np.asarray(z, dtype=float)
         r0 = self.residual(z)
@@ -271,37 +286,40 @@ class _Problem:
                 th2[n] = v + h
                 d = (self._run_resid(i, th2) - r0[self.rows[i]]) / h
                 J[self.rows[i], sl] = np.outer(d, self.B[n][i])
-        if self.has_h0:
-            lo, hi = self.bounds.get("h0", (-np.inf, np.inf))
+        for j, rn in enumerate(self.run_names):
+            lo, hi = self.bounds.get(rn, (-np.inf, np.inf))
+            col0 = self.block(j).start
             for i, th in enumerate(ths):
-                v = th["h0"]
+                v = th[rn]
                 h = eps * max(1.0, abs(v))
                 if v + h > hi:
                     h = -h
                 th2 = dict(th)
-                th2["h0"] = v + h
-                J[self.rows[i], self.n_coef + i] = (self._run_resid(i, th2) - r0[self.rows[i]]) / h
+                th2[rn] = v + h
+                J[self.rows[i], col0 + i] = (self._run_resid(i, th2) - r0[self.rows[i]]) / h
         return J
 
     def fit_h0(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """z with every run's h0 fitted for the given laws (the other entries unchanged).
+        """z with every run's h0 (and nuisance parameters) fitted for the given laws.
 
         First the initial-condition estimate (median force error over the first 50 ms with
-        h0 = 0, as validation does), then a few least-squares steps on h0 alone.
+        h0 = 0, as validation does; nuisance parameters keep their values in ``z``), then a
+        few least-squares steps on the per-run parameters alone.
         """
         z = np.array(z, dtype=float)
-        if not self.has_h0:
+        if not self.run_names:
             return z
         k = self.n_coef
-        z[k:] = 0.0
-        for i, th in enumerate(self.thetas(z)):
-            r = self.runs[i]
-            with np.errstate(all="ignore"):
-                pred = self.model.predict(r.sig, th)
-            dt = float(np.median(np.diff(r.sig.t)))
-            m = max(1, min(r.n, int(round(0.05 / dt))))
-            est = float(np.median(r.force[:m] - pred[:m]))
-            z[k + i] = est if np.isfinite(est) else 0.0
+        if self.has_h0:
+            z[self.block(0)] = 0.0
+            for i, th in enumerate(self.thetas(z)):
+                r = self.runs[i]
+                with np.errstate(all="ignore"):
+                    pred = self.model.predict(r.sig, th)
+                dt = float(np.median(np.diff(r.sig.t)))
+                m = max(1, min(r.n, int(round(0.05 / dt))))
+                est = float(np.median(r.force[:m] - pred[:m]))
+                z[k + i] = est if np.isfinite(est) else 0.0
         span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
         z[k:] = np.clip(z[k:], (lo + 1e-9 * span)[k:], (hi - 1e-9 * span)[k:])
 
@@ -377,6 +395,7 @@ def refine(
     max_prune_rounds: int = 2,
     max_nfev: int = MAX_NFEV,
     alternatives: Sequence[tuple[dict[str, tuple[float, float, float]], dict[str, int]]] = (),
+    nuisance_start: dict[str, Sequence[float]] | None = None,
 ) -> tuple[JointFit, list[str]]:
     """Jointly refine the pressure laws (see the module docstring); returns (fit, notes).
 
@@ -385,30 +404,33 @@ def refine(
     (θ is clipped into them); ``h0_start``: per-run start states (None: the law has no h0).
     ``alternatives``: further (start, degree) pairs; the fit starts from the one with the
     lowest cost (h0 fitted for each) and tries the next while it has not beaten it.
+    ``nuisance_start``: per-run start values of the record nuisance parameters (one value
+    per run each, fitted like h0; see the module docstring).
     """
     levels = [r.p_nom for r in runs]
     basis = PressureBasis(min(levels), max(levels))
-    free = [n for n in start if n not in constants and n != "h0"]
+    nuis = dict(nuisance_start or {})
+    free = [n for n in start if n not in constants and n != "h0" and n not in nuis]
     has_h0 = h0_start is not None
     notes: list[str] = []
+    # the per-run tail of z: h0 block, then one block per nuisance parameter
+    tail0 = list(h0_start or []) + [float(v) for n in nuis for v in nuis[n]]
 
     def build(deg: dict[str, int]) -> tuple[_Problem, np.ndarray, np.ndarray]:
-        prob = _Problem(model, runs, basis, free, deg, constants, bounds, has_h0)
+        prob = _Problem(model, runs, basis, free, deg, constants, bounds, has_h0, list(nuis))
         lo = np.full(prob.n_var, -np.inf)
         hi = np.full(prob.n_var, np.inf)
-        if has_h0:
-            hlo, hhi = bounds.get("h0", (-np.inf, np.inf))
-            lo[prob.n_coef:], hi[prob.n_coef:] = hlo, hhi
+        for j, rn in enumerate(prob.run_names):
+            lo[prob.block(j)], hi[prob.block(j)] = bounds.get(rn, (-np.inf, np.inf))
         return prob, lo, hi
 
-    def z_from(prob: _Problem, coefs: dict[str, np.ndarray], h0: Sequence[float]) -> np.ndarray:
+    def z_from(prob: _Problem, coefs: dict[str, np.ndarray], tail: Sequence[float]) -> np.ndarray:
         z = np.zeros(prob.n_var)
         for n in free:
             c = np.asarray(coefs[n], dtype=float)
             k = prob.degree[n] + 1
             z[prob.slices[n]] = np.concatenate([c, np.zeros(max(0, k - c.size))])[:k]
-        if has_h0:
-            z[prob.n_coef:] = list(h0)
+        z[prob.n_coef:] = list(tail)
         return z
 
     # the starts: the chosen orders and start laws, then any alternatives (e.g. the plain
@@ -417,7 +439,7 @@ def refine(
     for st, dg in [(start, degree), *(alternatives or [])]:
         deg_c = {n: int(dg.get(n, 2)) for n in free}
         pr, lo_c, hi_c = build(deg_c)
-        z = z_from(pr, {n: basis.from_monomial(st[n], deg_c[n]) for n in free}, h0_start or [])
+        z = z_from(pr, {n: basis.from_monomial(st[n], deg_c[n]) for n in free}, tail0)
         with threadpool_limits(limits=1, user_api="blas"):
             z = pr.fit_h0(z, lo_c, hi_c)  # the start laws' own start states
         e = pr.residual(z)
@@ -455,8 +477,7 @@ def refine(
             break
         prob2, lo2, hi2 = build(deg2)
         coefs = {n: sol.x[prob.slices[n]][: deg2[n] + 1] for n in free}
-        h0 = sol.x[prob.n_coef:] if has_h0 else []
-        sol2 = _solve(prob2, z_from(prob2, coefs, h0), lo2, hi2, max_nfev)
+        sol2 = _solve(prob2, z_from(prob2, coefs, sol.x[prob.n_coef:]), lo2, hi2, max_nfev)
         se2, n_eff2, bic2 = _stats(prob2, sol2)
         nfev += int(sol2.nfev)
         dropped = [f"{n} {deg[n]}->{deg2[n]}" for n in free if deg2[n] != deg[n]]
@@ -475,35 +496,44 @@ def refine(
     coef = {n: basis.to_monomial(sol.x[prob.slices[n]]) for n in free}
     leg = {n: np.array(sol.x[prob.slices[n]]) for n in free}
     leg_se = {n: np.array(se[prob.slices[n]]) for n in free}
-    h0 = [float(v) for v in sol.x[prob.n_coef:]] if has_h0 else []
+    h0 = [float(v) for v in sol.x[prob.block(0)]] if has_h0 else []
+    jn = 1 if has_h0 else 0
+    nuis_fit = {n: [float(v) for v in sol.x[prob.block(jn + j)]] for j, n in enumerate(nuis)}
     fit = JointFit(coef=coef, degree=deg, constants=dict(constants), h0=h0,
                    nrmse=prob.per_run_nrmse(sol.x), nrmse_start=nr_start, bounds=dict(bounds),
                    basis=basis, n_eff=n_eff, bic=bic, nfev=nfev, success=bool(sol.success),
-                   message=str(sol.message), legendre=leg, legendre_stderr=leg_se)
+                   message=str(sol.message), legendre=leg, legendre_stderr=leg_se,
+                   nuisance=nuis_fit)
     return fit, notes
 
 
 def evaluate(model: ForceModel, runs: Sequence[JointRun], coef: dict[str, Sequence[float]],
              constants: dict[str, float], bounds: dict[str, tuple[float, float]],
-             h0: Sequence[float] | None) -> list[float]:
+             h0: Sequence[float] | None,
+             nuisance: dict[str, Sequence[float]] | None = None) -> list[float]:
     """Per-run nrmse (subsampled free run) of the monomial pressure laws ``coef``.
 
-    Each run's h0 is fitted for these laws (as in the joint fit), so the comparison with the
-    joint fit is fair.  ``h0`` only says whether the law has a state (None: no h0).
+    Each run's h0 (and record nuisance parameters, starting from ``nuisance``) is fitted
+    for these laws (as in the joint fit), so the comparison with the joint fit is fair.
+    ``h0`` only says whether the law has a state (None: no h0).
     """
     levels = [r.p_nom for r in runs]
     basis = PressureBasis(min(levels), max(levels))
-    free = [n for n in coef if n not in constants and n != "h0"]
+    nuis = dict(nuisance or {})
+    free = [n for n in coef if n not in constants and n != "h0" and n not in nuis]
     prob = _Problem(model, runs, basis, free, dict.fromkeys(free, 2), constants, bounds,
-                    h0 is not None)
+                    h0 is not None, list(nuis))
     z = np.zeros(prob.n_var)
     for n in free:
         z[prob.slices[n]] = basis.from_monomial(coef[n], 2)
-    if h0 is not None:
-        lo, hi = bounds.get("h0", (-np.inf, np.inf))
+    jn = 1 if h0 is not None else 0
+    for j, n in enumerate(nuis):
+        z[prob.block(jn + j)] = [float(v) for v in nuis[n]]
+    if prob.run_names:
         lo_a = np.full(prob.n_var, -np.inf)
         hi_a = np.full(prob.n_var, np.inf)
-        lo_a[prob.n_coef:], hi_a[prob.n_coef:] = lo, hi
+        for j, rn in enumerate(prob.run_names):
+            lo_a[prob.block(j)], hi_a[prob.block(j)] = bounds.get(rn, (-np.inf, np.inf))
         with threadpool_limits(limits=1, user_api="blas"):
             z = prob.fit_h0(z, lo_a, hi_a)  # each run's best start state for these laws
     return prob.per_run_nrmse(z)

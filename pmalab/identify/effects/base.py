@@ -12,6 +12,16 @@ An effect can do any of three things to the base law F = k·x + c0 + h:
 Each effect states its physics (``explanation``) and the residual pattern that points to it
 (``signature``), which diagnosis shows to the user next to the ranking.
 
+Record nuisance parameters.  Some effects describe the *record* (the sensor, the start of
+one run), not the muscle: a load-cell zero that drifts over a campaign differs from run to
+run by the drift accumulated since switch-on, whatever the pressure.  Such an effect lists
+those parameters in ``nuisance_params``: the campaign fit then gives them one value per run
+in the joint refinement of the pressure laws (like the start state h0, never a pressure law
+θ(p)), and a prediction of *another* run sets them to 0.  ``tare = True`` says the record's
+force zero is unknown: a validation prediction with ``initial="estimate"`` then also
+estimates the run's force offset from its first ~50 ms of measured force
+(:func:`pmalab.identify.fit.predict_free`).
+
 User effects: put subclasses in a Python file and pass ``--effects my_effects.py``; every
 ``Effect`` subclass with an ``id`` found there is registered.
 """
@@ -40,6 +50,13 @@ class Effect:
     #: the experiment that would tell this effect apart from look-alikes (diagnosis shows it
     #: when the ranking is ambiguous)
     experiment: ClassVar[str] = ""
+
+    #: parameters of this effect that belong to one record (one value per run in the joint
+    #: pressure-law fit; 0 when another run is predicted) — see the module docstring
+    nuisance_params: ClassVar[tuple[str, ...]] = ()
+    #: True when the record's force zero is unknown (a drifting sensor): predicting another
+    #: run with ``initial="estimate"`` tares the force on its first ~50 ms
+    tare: ClassVar[bool] = False
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         """Parameters with start values and bounds sized from the data.

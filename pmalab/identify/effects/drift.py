@@ -2,10 +2,15 @@
 
 Strain-gauge load cells drift with temperature (the muscle and the air warm up while it
 cycles), position sensors creep.  Over a run the force reading gains d·(t − t̄), with d in
-N/s and t̄ the run's mid time (centred so d does not trade with c0).
+N/s and t̄ the run's mid time (centred so d does not trade with c0).  Between runs the zero
+differs by the drift accumulated since the rig was switched on: that offset is not a
+property of the muscle, so the rate is a per-run nuisance parameter in the campaign fit
+and predictions of other runs tare the force (see :mod:`pmalab.identify.effects.base`).
 """
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,6 +35,14 @@ class SensorDrift(Effect):
     experiment = (
         "repeat the same run twice in a row, or record a long run: drift grows with elapsed time while loop-shape effects repeat every cycle"
     )
+
+    #: the drift rate belongs to the record (the sensor's warm-up during that run), not to
+    #: the muscle: one value per run in the joint fit, never a pressure law; 0 when another
+    #: run is predicted
+    nuisance_params: ClassVar[tuple[str, ...]] = ("drift_d",)
+    #: the zero accumulated before the run (since switch-on) differs from run to run: a
+    #: prediction of another run tares the force on its first ~50 ms
+    tare: ClassVar[bool] = True
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         dur = max(float(sig.t[-1] - sig.t[0]), 1e-3)
