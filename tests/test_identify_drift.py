@@ -77,7 +77,7 @@ def test_drift_rate_is_per_run_nuisance(fits) -> None:
     assert {"k", "A"} <= set(cf.joint.coef)
     # predicting another run: the drift rate is 0, not a pressure law
     for p in (0.2, 0.35, 0.5):
-        assert cf.theta(p)["drift_d"] == 0.0
+        assert cf.theta(p)["drift_d"] == 0.0 and cf.theta(p)["h0"] == 0.0
     assert any("force tared" in w and "50 ms" in w for w in drift.warnings)
     assert not any("force tared" in w for w in fits[0].warnings)
 
@@ -99,6 +99,6 @@ def test_tare_uses_only_the_first_window(drift_runs) -> None:
     g = f.copy()
     g[n_win + 5:] += 1e3
     np.testing.assert_allclose(predict_free(m, sig, th, force=g), p1, atol=1e-9)
-    # the fitted h0 and drift rate of another record are not used
-    np.testing.assert_allclose(predict_free(m, sig, {**th, "h0": -50.0, "drift_d": -3.0},
-                                            force=f), p1, atol=1e-9)
+    # the fitted h0 of another record is not used
+    np.testing.assert_allclose(predict_free(m, sig, {**th, "h0": -50.0}, force=f), p1,
+                               atol=1e-9)

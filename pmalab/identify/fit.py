@@ -228,7 +228,8 @@ def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
     * ``"zero"``: h0 = 0, a virgin state (a record that starts from rest).
 
     Record nuisance parameters of the effects (:func:`record_params`, e.g. a drift rate)
-    are set to 0: they belong to the record they were fitted on.
+    are used as given in ``theta``: the campaign's pressure laws set them to 0
+    (:meth:`pmalab.identify.campaign.CampaignFit.theta`).
 
     Tare: when the model has an effect with ``tare = True`` (sensor drift: the record's
     force zero is unknown) and ``initial="estimate"``, the run's force offset is estimated
@@ -238,8 +239,8 @@ def predict_free(model: ForceModel, sig: Signals, theta: dict[str, float],
     h0 cannot be told apart on so short a window; the offset persists, h0 fades.
     """
     th = dict(theta)
-    for s in record_params(model):
-        if s in th or s not in STATE_PARAMS:
+    for s in STATE_PARAMS:
+        if s in th:
             th[s] = 0.0
     if initial == "estimate" and force is None:
         initial = "burn-in"
