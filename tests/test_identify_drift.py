@@ -82,6 +82,16 @@ def test_drift_rate_is_per_run_nuisance(fits) -> None:
     assert not any("force tared" in w for w in fits[0].warnings)
 
 
+def test_per_run_nuisances_are_written_to_the_json(fits, tmp_path) -> None:
+    import json
+
+    _, drift = fits
+    jpath, _ = drift.save(tmp_path / "out")
+    block = json.loads(jpath.read_text())["joint_fit"]
+    assert block["per_run"]["drift_d"] == pytest.approx(drift.campaign.joint.nuisance["drift_d"])
+    assert len(block["per_run"]["c0"]) == len(block["runs"])
+
+
 def test_tare_uses_only_the_first_window(drift_runs) -> None:
     run = next(r for r in drift_runs if r.attrs.get("role") == "validation").steady()
     sig = Signals.from_run(run)

@@ -17,7 +17,7 @@
                                    "stderr", "method", "per_run_quadratic", "per_run_r2"}},
      "pressure_range_MPa": [lo, hi],
      "joint_fit": {"nrmse", "mean_nrmse", "mean_nrmse_per_run_quadratics", "orders",
-                   "h0", ...} | null,
+                   "h0", "per_run": {nuisance name: [value per run]}, ...} | null,
      "validation": [{"file", "run", "muscle_pressure_MPa", "frequency_Hz", "status"
                      ("ok" | "extrapolated" | "diverged"), "message", "extrapolated",
                      "rmse", "nrmse", "fit_percent", "max_error", "energy_error_percent",
@@ -238,6 +238,8 @@ def _joint_block(cf) -> dict | None:
                                           if cf.per_run_nrmse else None),
         "nrmse_start": list(j.nrmse_start), "mean_nrmse_start": j.mean_nrmse_start,
         "orders": dict(j.degree), "constants": dict(j.constants), "h0": list(j.h0),
+        # record nuisances (e.g. a load cell's drift rate): one value per run, in "runs" order
+        "per_run": {n: [float(v) for v in vals] for n, vals in j.nuisance.items()},
         "legendre": {n: np.asarray(c).tolist() for n, c in j.legendre.items()},
         "legendre_stderr": {n: np.asarray(c).tolist() for n, c in j.legendre_stderr.items()},
         "n_eff": j.n_eff, "bic": j.bic, "nfev": j.nfev, "success": j.success,
