@@ -99,3 +99,13 @@ def test_seed_pressure_campaigns_expand_to_the_former_runs(name, fmt, waveform, 
         assert (r.cycles, r.ramp_s, r.settle_s) == (3.0, 2.0, 1.0)
     # the campaign comes after the three single runs, as the [[run]] tables did
     assert len(p.runs) == 9 and p.runs[3] is camp[0]
+
+
+def test_shipped_two_frequency_campaign_pairs_levels_and_crosses_frequencies():
+    from pmalab.acquisition.protocol import load_protocol
+
+    runs = load_protocol("two-frequency-campaign").runs
+    assert len(runs) == 14 and runs[0].name == "p200kPa-0.25Hz" and runs[-1].name == "p500kPa-1Hz"
+    assert {r.frequency_Hz for r in runs} == {0.25, 1.0}
+    by_p = {r.muscle_pressure_MPa: (r.amplitude_MPa, r.offset_MPa) for r in runs}
+    assert by_p[0.2] == (0.08, 0.13) and by_p[0.5] == (0.24, 0.36)
