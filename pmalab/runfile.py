@@ -142,14 +142,24 @@ def _fail(path: Path | str, run: str | None, channel: str | None, msg: str) -> R
     return RunFileError(f"{where}: {msg}")
 
 
-def _decode(v: Any) -> Any:
+def decode_attr(v: Any, *, parse_json: bool = False) -> Any:
+    """An HDF5 attribute value as plain Python (bytes → str, numpy → scalar/list).
+
+    ``parse_json``: also turn JSON object/array text (how dicts are stored) into Python.
+    """
     if isinstance(v, bytes):
-        return v.decode("utf-8", "replace")
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, np.ndarray):
-        return v.tolist()
+        v = v.decode("utf-8", "replace")
+    elif isinstance(v, np.generic):
+        v = v.item()
+    elif isinstance(v, np.ndarray):
+        v = v.tolist()
+    if parse_json and isinstance(v, str) and v[:1] in "{[":
+        try:
+            return json.loads(v)
+        except json.JSONDecodeError:
+            return v
     return v
+
 
 
 def validate_channels(
@@ -215,10 +225,10 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
         raise _fail(path, None, None, "is a directory, not a run file")
     f = open_h5(path)
     try:
-        fmt = _decode(f.attrs.get("format"))
+        fmt = decode_attr(f.attrs.get("format"))
         if fmt != FORMAT:
             raise _fail(path, None, None, f"not a pmalab run file (format attr is {fmt!r})")
-        ver = _decode(f.attrs.get("format_version"))
+        ver = decode_attr(f.attrs.get("format_version"))
         if ver != FORMAT_VERSION:
             raise _fail(path, None, None, f"unsupported format_version {ver!r}")
         if "runs" not in f:
@@ -243,7 +253,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
                         values = ds[()]
                     except OSError as exc:
                         raise _fail(path, name, ch, f"unreadable ({_short(exc)})") from None
-                    raw[ch] = (values, _decode(ds.attrs.get("units")))
+                    raw[ch] = (values, decode_attr(ds.attrs.get("units")))
             extra = _recording_state(g)
             if extra:
                 # written by the acquisition recorder: a run never started (or aborted
@@ -255,7 +265,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
                 if extra.get("status") == "running":
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
             chans = validate_channels(path, name, raw)
-            attrs = {k: _decode(v) for k, v in g.attrs.items()}
+            attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             attrs.update(extra)
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
@@ -296,16 +306,16 @@ def _recording_state(g: Any) -> dict[str, Any]:
     """``status`` and ``timing`` of a run made by the acquisition recorder (else {})."""
     out: dict[str, Any] = {}
     if "status" in g:
-        out["status"] = _decode(g["status"][()]).rstrip("\x00 ")
+        out["status"] = decode_attr(g["status"][()]).rstrip("\x00 ")
     if "timing" in g:
         try:
-            fields = json.loads(_decode(g["timing"].attrs.get("fields", "[]")))
+            fields = json.loads(decode_attr(g["timing"].attrs.get("fields", "[]")))
             vals = [float(v) for v in g["timing"][()]]
             out["timing"] = {k: v for k, v in zip(fields, vals) if v == v}
         except (ValueError, TypeError):
             pass
     if "device_stats" in g:
-        text = _decode(g["device_stats"][()]).rstrip("\x00 ")
+        text = decode_attr(g["device_stats"][()]).rstrip("\x00 ")
         try:
             stats = json.loads(text) if text else {}
         except json.JSONDecodeError:

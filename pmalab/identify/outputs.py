@@ -50,7 +50,7 @@ from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.fit import STDERR_METHOD
 from pmalab.paths import check_output
-from pmalab.runfile import Run
+from pmalab.runfile import Run, decode_attr
 
 if TYPE_CHECKING:
     from pmalab.identify.api import Identification
@@ -90,30 +90,15 @@ def _file_attrs(path: Path) -> dict:
         import h5py
 
         with h5py.File(path, "r") as f:
-            return {k: _decode(v) for k, v in f.attrs.items()}
+            return {k: decode_attr(v, parse_json=True) for k, v in f.attrs.items()}
     except (OSError, ImportError):
         return {}
-
-
-def _decode(v: Any) -> Any:
-    if isinstance(v, bytes):
-        v = v.decode("utf-8", "replace")
-    if isinstance(v, np.generic):
-        v = v.item()
-    if isinstance(v, np.ndarray):
-        v = v.tolist()
-    if isinstance(v, str) and v[:1] in "{[":
-        try:
-            return json.loads(v)
-        except json.JSONDecodeError:
-            return v
-    return v
 
 
 def _run_provenance(run: Run) -> dict:
     keep = {}
     for k, v in run.attrs.items():
-        keep[k] = _decode(v)
+        keep[k] = decode_attr(v, parse_json=True)
     return keep
 
 

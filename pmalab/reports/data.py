@@ -30,6 +30,7 @@ import numpy as np
 
 from pmalab.config import load_json
 from pmalab.reports.errors import ReportError
+from pmalab.runfile import decode_attr
 
 IDENTIFICATION_JSON = "identification.json"
 DIAGNOSIS_JSON = "diagnosis.json"
@@ -348,14 +349,6 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
 
 
 # --------------------------------------------------------------------------- predictions
-def _attr(v: Any) -> Any:
-    if isinstance(v, bytes):
-        return v.decode("utf-8", "replace")
-    if isinstance(v, np.generic):
-        return v.item()
-    return v
-
-
 def read_predictions(path: Path) -> list[Trace]:
     """Read ``predictions.h5``; one :class:`Trace` per ``/runs/<key>`` group, in file order."""
     import h5py
@@ -365,7 +358,7 @@ def read_predictions(path: Path) -> list[Trace]:
     except OSError:
         raise ReportError(f"{path}: not a readable HDF5 file") from None
     with f:
-        fmt = _attr(f.attrs.get("format"))
+        fmt = decode_attr(f.attrs.get("format"))
         if fmt != PREDICTIONS_FORMAT:
             raise ReportError(f"{path}: format: expected {PREDICTIONS_FORMAT!r}, got {fmt!r}")
         if "runs" not in f:
@@ -388,7 +381,7 @@ def read_predictions(path: Path) -> list[Trace]:
                 raise ReportError(f"{where}: datasets have unequal lengths ({desc})")
             if n["time"] < 2:
                 raise ReportError(f"{where}/time: too few samples ({n['time']})")
-            attrs = {k: _attr(v) for k, v in g.attrs.items()}
+            attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             role = attrs.get("role")
             if not isinstance(role, str) or not role:
                 raise ReportError(f"{where}: attr 'role': expected a string such as "

@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 
 from pmalab.reports import style
 from pmalab.reports.figures_parameters import _table
+from pmalab.runfile import decode_attr
 
 
 def timing_stats(time: np.ndarray) -> dict[str, float]:
@@ -171,15 +172,6 @@ FILE_KEYS = (
 )
 
 
-def _maybe_json(v: Any) -> Any:
-    if isinstance(v, str) and v[:1] in "{[":
-        try:
-            return json.loads(v)
-        except json.JSONDecodeError:
-            return v
-    return v
-
-
 def _short(v: Any, n: int = 110) -> str:
     s = v if isinstance(v, str) else json.dumps(v, default=str)
     return s if len(s) <= n else s[: n - 1] + "…"
@@ -212,14 +204,14 @@ def summarize_provenance(
         for key, label in FILE_KEYS:
             if key in fa and fa[key] not in (None, "", {}):
                 lines.append(f"{label}: {_short(fa[key])}")
-        rig = _maybe_json(fa.get("rig"))
+        rig = decode_attr(fa.get("rig"), parse_json=True)
         if isinstance(rig, Mapping):
             parts = [f"{k}={_short(rig[k], 40)}" for k in ("kind", "rig_file", "clock", "seed")
                      if k in rig]
             lines.append("rig: " + ", ".join(parts))
         elif isinstance(rig, str) and rig:
             lines.append(f"rig: {_short(rig)}")
-        lim = _maybe_json(fa.get("limits"))
+        lim = decode_attr(fa.get("limits"), parse_json=True)
         if isinstance(lim, Mapping):
             lines.append("safety limits: " + ", ".join(f"{k} {v}" for k, v in lim.items()))
         if not structured:
