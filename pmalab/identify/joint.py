@@ -271,33 +271,32 @@ class _Problem:
         ths = self.thetas(z)
         raw = self.raw(z)
         J = np.zeros((self.n_rows, self.n_var))
-        eps = math.sqrt(np.finfo(float).eps)
         for n in ([] if h0_only else self.free):
             lo, hi = self.bounds[n]
             sl = self.slices[n]
             for i, th in enumerate(ths):
                 if not (lo < raw[n][i] < hi) and raw[n][i] != th[n]:
                     continue  # clipped: θ does not move with the coefficients here
-                v = th[n]
-                h = eps * max(1.0, abs(v))
-                if v + h > hi:
-                    h = -h
-                th2 = dict(th)
-                th2[n] = v + h
-                d = (self._run_resid(i, th2) - r0[self.rows[i]]) / h
+                d = self._dresid_dparam(i, th, n, hi, r0)
                 J[self.rows[i], sl] = np.outer(d, self.B[n][i])
         for j, rn in enumerate(self.run_names):
             lo, hi = self.bounds.get(rn, (-np.inf, np.inf))
             col0 = self.block(j).start
             for i, th in enumerate(ths):
-                v = th[rn]
-                h = eps * max(1.0, abs(v))
-                if v + h > hi:
-                    h = -h
-                th2 = dict(th)
-                th2[rn] = v + h
-                J[self.rows[i], col0 + i] = (self._run_resid(i, th2) - r0[self.rows[i]]) / h
+                J[self.rows[i], col0 + i] = self._dresid_dparam(i, th, rn, hi, r0)
         return J
+
+    def _dresid_dparam(self, i: int, th: dict[str, float], name: str, hi: float,
+                       r0: np.ndarray) -> np.ndarray:
+        """Forward difference of run ``i``'s residual in one parameter (stepping back at
+        the upper bound)."""
+        v = th[name]
+        h = math.sqrt(np.finfo(float).eps) * max(1.0, abs(v))
+        if v + h > hi:
+            h = -h
+        th2 = dict(th)
+        th2[name] = v + h
+        return (self._run_resid(i, th2) - r0[self.rows[i]]) / h
 
     def fit_h0(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """z with every run's h0 (and nuisance parameters) fitted for the given laws.
