@@ -29,7 +29,8 @@ import numpy as np
 from bench.table import print_table
 from pmalab.identify.api import identify
 from pmalab.identify.fit import fit_run
-from pmalab.identify.hysteresis import bouc_wen_h, bouc_wen_h1, duhem_h
+from pmalab.identify.laws.bouc_wen import bouc_wen_h, bouc_wen_h1
+from pmalab.identify.laws.duhem import duhem_h
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run

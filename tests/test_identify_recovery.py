@@ -120,7 +120,7 @@ def test_effect_model_fits_on_top_of_base() -> None:
 
 def test_integrators_agree() -> None:
     """The exact n = 1 kernel matches the RK4 kernel on sampled data."""
-    from pmalab.identify.hysteresis import bouc_wen_h, bouc_wen_h1
+    from pmalab.identify.laws.bouc_wen import bouc_wen_h, bouc_wen_h1
 
     t = np.arange(5000) / 500
     x = 12 + 9 * np.sin(2 * np.pi * 0.3 * t)

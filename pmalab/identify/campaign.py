@@ -33,8 +33,6 @@ import numpy as np
 from pmalab.errors import PmalabError
 from pmalab.identify.batch import map_tasks
 from pmalab.identify.fit import (
-    COLLINEAR_FIXES,
-    DEFAULT_FIXED,
     STATE_PARAMS,
     TARE_NOTE,
     FitResult,
@@ -278,9 +276,9 @@ def fit_campaign(
         warnings.append(TARE_NOTE)
 
     # consistency: a collinear parameter fixed on most runs is fixed on all
-    defaults = set(DEFAULT_FIXED.get(fm.law.name, {})) - set(free)
+    defaults = set(fm.law.default_fixed) - set(free)
     user_fixed = set(fixed or {})
-    for name, value in COLLINEAR_FIXES.get(fm.law.name, []):
+    for name, value in fm.law.collinear_fixes:
         auto = [i for i, r in enumerate(results) if name in r.fixed and name not in defaults
                 and name not in user_fixed]
         if not auto:

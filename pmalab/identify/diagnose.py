@@ -26,8 +26,8 @@ import numpy as np
 from pmalab.errors import PmalabError
 from pmalab.identify.diagnostics import campaign_diagnostics, run_diagnostics
 from pmalab.identify.effects import EFFECTS, load_user_effects
-from pmalab.identify.hysteresis import LAWS
 from pmalab.identify.ladder import LadderStep, Round, run_ladder
+from pmalab.identify.laws import LAWS
 from pmalab.identify.ranking import (
     FIT_FRACTION,
     PreparedRun,

@@ -54,14 +54,6 @@ from pmalab.identify.signals import Signals
 from pmalab.identify.validate import loop_direction, metrics
 from pmalab.runfile import Run
 
-#: parameters fixed by default (value), per law, and why
-DEFAULT_FIXED: dict[str, dict[str, float]] = {"bouc-wen": {"n": 1.0}, "duhem": {"a": 0.0}}
-DEFAULT_FIXED_WHY: dict[str, str] = {
-    "n": "n fixed at 1 (default): n trades off against beta/gamma; free it with free=['n']",
-    "a": "a fixed at 0 (default): F depends on k + a only, so k and a are not separately identifiable",
-}
-#: parameters a fit may fix when they are collinear with another (value to fix at)
-COLLINEAR_FIXES: dict[str, list[tuple[str, float]]] = {"bouc-wen": [("gamma", 0.0)], "duhem": []}
 #: parameters that describe the run's start state, not the muscle (no pressure quadratic use)
 STATE_PARAMS = ("h0",)
 
@@ -274,55 +266,42 @@ def _lstsq(cols: Sequence[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, float
     return coef, float(r @ r)
 
 
-def _shape_grid(law: str, stroke: float) -> list[dict[str, float]]:
-    """Shape parameters of the start grid, sized from the stroke (mm)."""
-    R = max(stroke, 1e-3)
-    if law == "bouc-wen":
-        out = []
-        for lam_a in np.geomspace(0.5, 64.0, 8) / R:  # approach rate to saturation, 1/mm
-            for ratio in (0.25, 1.0, 3.0):  # decay rate after a reversal / lam_a
-                lam_o = ratio * lam_a
-                out.append({"beta": 0.5 * (lam_o + lam_a), "gamma": 0.5 * (lam_o - lam_a), "n": 1.0})
-        return out
-    if law == "duhem":
-        return [{"alpha": float(a)} for a in np.geomspace(0.25, 128.0, 10) / R]
-    return [{}]
-
-
-_SCALE_PARAM = {"bouc-wen": "A", "duhem": "b"}
-
-
 def _grid_starts(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
                  fixed: dict[str, float]) -> list[dict[str, float]]:
     """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
     law = model.law
     base = {p.name: p.value for p in ps}
+    base.update({k: v for k, v in law.guess(sig.x, force, sig.v).items() if k in base})
     (k, c0), _ = _lstsq([sig.x, np.ones_like(sig.x)], force)  # stage 1: centreline
     base.update(k=float(k), c0=float(c0))
-    scale = _SCALE_PARAM.get(law.name)
+    scale = law.scale_param
     if scale is None or scale in fixed:
         return [base]
     scored = []
-    for shape in _shape_grid(law.name, float(np.ptp(sig.x))):
+    for shape in law.shape_grid(float(np.ptp(sig.x))):
         th = dict(base)
         th.update({kk: v for kk, v in shape.items() if kk not in fixed})
         th.update({kk: v for kk, v in fixed.items()})
-        if law.name == "bouc-wen" and th.get("n", 1.0) != 1.0:
-            th["n"] = 1.0  # the scale property needs n = 1; n is refined in stage 3
-        th[scale] = 1.0
-        th["h0"] = 0.0
-        if law.name == "duhem":
-            th["a"] = fixed.get("a", 0.0)
-        hu = law.h(sig.x, th, {})
-        if not np.all(np.isfinite(hu)) or np.ptp(hu) == 0:
+        for s in law.state_params:
+            th[s] = 0.0
+        if not law.scale_valid(th):
             continue
-        if law.name == "duhem" and th["a"] != 0.0:
-            # h = a·x-part + b·(unit-b part): solve with a fixed
-            hb = hu - law.h(sig.x, {**th, "b": 0.0}, {})
-            coef, sse = _lstsq([sig.x, np.ones_like(sig.x), hb], force - (hu - hb))
-        else:
-            coef, sse = _lstsq([sig.x, np.ones_like(sig.x), hu], force)
-        th.update(k=float(coef[0]), c0=float(coef[1]), **{scale: float(coef[2])})
+        # with the state at zero, h is positively homogeneous in the scale parameter:
+        # h(c·s0) = h(0) + c·(h(s0) − h(0)) for c ≥ 0 (a negative factor would flip sgn(h)
+        # against the direction terms), so each sign s0 = ±1 is solved separately
+        h_off = law.h(sig.x, {**th, scale: 0.0})
+        best = None
+        for s0 in (1.0, -1.0):
+            h_unit = law.h(sig.x, {**th, scale: s0}) - h_off
+            if not np.all(np.isfinite(h_unit)) or np.ptp(h_unit) == 0:
+                continue
+            coef, sse = _lstsq([sig.x, np.ones_like(sig.x), h_unit], force - h_off)
+            if coef[2] >= 0 and (best is None or sse < best[0]):
+                best = (sse, coef, s0)
+        if best is None:
+            continue
+        sse, coef, s0 = best
+        th.update(k=float(coef[0]), c0=float(coef[1]), **{scale: float(coef[2] * s0)})
         scored.append((sse, th))
     scored.sort(key=lambda s: s[0])
     return [th for _, th in scored[:2]] or [base]
@@ -520,9 +499,9 @@ def fit_run(
 
     ``data`` is a :class:`~pmalab.runfile.Run` (canonical units) or ``(Signals, force_N)``.
     ``fixed`` maps parameter names to values held constant (``None``: hold at the start
-    value); the law's defaults (:data:`DEFAULT_FIXED`) apply unless named in ``free``.
+    value); the law's ``default_fixed`` apply unless named in ``free``.
     ``init`` gives start values (skips the start grid when every base-law parameter is
-    given).  ``auto_fix`` lets the fit fix a collinear parameter (:data:`COLLINEAR_FIXES`)
+    given).  ``auto_fix`` lets the fit fix a collinear parameter (the law's ``collinear_fixes``)
     when that costs < 1 % of nrmse; the warning records it.
 
     BLAS runs single-threaded inside (tall-skinny 20 000 × 6 products are slower threaded,
@@ -544,7 +523,7 @@ def _fit_run(
     model = ForceModel(model) if isinstance(model, str) else model
     sig, force, label = as_signals_and_force(data)
     init = dict(init or {})
-    defaults = {k: v for k, v in DEFAULT_FIXED.get(model.law.name, {}).items() if k not in free}
+    defaults = {k: v for k, v in model.law.default_fixed.items() if k not in free}
     fix: dict[str, float] = dict(defaults)
     warnings: list[str] = []
     ps0 = model.params(sig, force)
@@ -562,7 +541,7 @@ def _fit_run(
     if auto_fix:
         pairs = _flag_pairs(prob.free, _centred_corr(corr, prob.free, se, float(np.mean(sig.x))))
         flagged = {a for a, b, _ in pairs} | {b for a, b, _ in pairs}
-        for name, value in COLLINEAR_FIXES.get(model.law.name, []):
+        for name, value in model.law.collinear_fixes:
             if name not in flagged or name in fix:
                 continue
             partners = ", ".join(f"rho({a},{b})={r:+.3f}" for a, b, r in pairs if name in (a, b))
@@ -644,7 +623,7 @@ def _centred_corr(corr: np.ndarray, names: list[str], se: np.ndarray, xm: float)
 
 def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[str]:
     """Human-readable notes on the law's default fixes (for campaign-level warnings)."""
-    return [DEFAULT_FIXED_WHY[k] for k in DEFAULT_FIXED.get(model.law.name, {}) if k not in free]
+    return [why for k, why in model.law.default_fixed_why.items() if k not in free]
 
 
 def fit_campaign(runs, model, **kwargs):

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
-from pmalab.identify.hysteresis import HysteresisLaw, get_law
+from pmalab.identify.laws import HysteresisLaw, get_law
 from pmalab.identify.params import Param, Params
 from pmalab.identify.signals import Signals
 

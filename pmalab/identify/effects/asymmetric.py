@@ -2,7 +2,7 @@
 
 Bouc-Wen: Song & Der Kiureghian's generalized law (2006) lets the shape term depend on the
 direction of motion, β·sgn(ẋh) + γ + ψ_v·sgn(ẋ) + ψ_h·sgn(h) (see
-:mod:`pmalab.identify.hysteresis`), which changes each branch's decay rate — and with it
+:mod:`pmalab.identify.laws`), which changes each branch's decay rate — and with it
 its saturation level, since the initial slope A is common to both.  Braid friction also
 has a different *initial* stiffness on each branch (different pre-sliding lengths), so we
 add a direction-dependent slope: the law is driven by the path coordinate
@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
-from pmalab.identify.hysteresis import BoucWen
+from pmalab.identify.laws import BoucWen
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals
 

@@ -6,7 +6,7 @@ An effect can do any of three things to the base law F = k·x + c0 + h:
 * ``transform`` the signals before the law sees them (e.g. a sensor delay shifts the
   position channel in time);
 * supply ``law_extras`` that change the hysteresis law itself (e.g. asymmetric Bouc-Wen
-  coefficients; see :mod:`pmalab.identify.hysteresis` for the extras each law accepts);
+  coefficients; see :mod:`pmalab.identify.laws` for the extras each law accepts);
 * add a ``force`` term in N (e.g. viscous friction −c·ẋ, inertia, drift).
 
 Each effect states its physics (``explanation``) and the residual pattern that points to it

@@ -1,0 +1,107 @@
+"""The hysteresis-law contract: everything the estimation engine and the controllers need.
+
+A law is the h in F = k·x + c0 + h (+ effect terms).  Each law is one small class (one
+file in this folder) that owns all knowledge about itself, in the spirit of lmfit's
+``Model.guess()`` and PySINDy's feature-library base class:
+
+* ``params``: its parameters with start values, bounds, units and meaning;
+* ``default_fixed`` / ``default_fixed_why``: parameters held by default (a known
+  degeneracy), and why — the user frees them with ``--free NAME``;
+* ``collinear_fixes``: parameters the fitter may fix when they are collinear with another
+  on a run (value to fix at), accepted only when that costs < 1 % of nrmse;
+* ``scale_param`` and :meth:`shape_grid`: the start search.  With the state at zero and
+  the shape fixed, h is affine and positively homogeneous in one scale parameter
+  (h(c·s) − h(0) = c·(h(s) − h(0)) for c ≥ 0), so the fitter scans the shape on a small
+  grid sized from the stroke and solves (k, c0, scale) by linear least squares at every
+  point, one sign of the scale at a time (variable projection); :meth:`scale_valid` says
+  when that holds;
+* :meth:`guess`: start values from the measured loop (lmfit's ``guess``);
+* ``state_params``: the internal state at the first sample (h0) — a property of the
+  record, never of the muscle;
+* :meth:`h` (a whole trajectory) and :meth:`step` (one sample, for controllers that run
+  the law forward): the SAME integrator, one segment of position at a time.
+
+Units: x contraction in mm (positive = shorter), h in N.  A physical loop (tension higher
+while the muscle is stretched, x falling) needs h > 0 while dx < 0.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class LawParam:
+    """Default start value and bounds of a law parameter (units in ``unit``)."""
+
+    name: str
+    init: float
+    lo: float
+    hi: float
+    unit: str
+    doc: str
+
+
+class HysteresisLaw:
+    """Base class of a hysteresis law (subclass, set the class attributes, write the hooks)."""
+
+    #: the id users type (``--model bouc-wen``)
+    name: ClassVar[str] = ""
+    #: parameters, in the order they are reported
+    params: ClassVar[tuple[LawParam, ...]] = ()
+    #: optional extra inputs effects may supply (e.g. asymmetric-hysteresis coefficients)
+    extras: ClassVar[tuple[str, ...]] = ()
+    #: parameters describing the record's start state (never a pressure law)
+    state_params: ClassVar[tuple[str, ...]] = ("h0",)
+    #: parameters held by default (a structural degeneracy) and their values
+    default_fixed: ClassVar[dict[str, float]] = {}
+    #: why each default fix is there (shown to the user once per identification)
+    default_fixed_why: ClassVar[dict[str, str]] = {}
+    #: (name, value) a fit may fix when the name is collinear with another parameter
+    collinear_fixes: ClassVar[tuple[tuple[str, float], ...]] = ()
+    #: the parameter h is linear in (state at zero, shape fixed); None: no such parameter
+    scale_param: ClassVar[str | None] = None
+
+    # ------------------------------------------------------------------ start values
+    def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
+        """Shape parameters of the start grid, sized from the stroke (mm)."""
+        return [{}]
+
+    def scale_valid(self, theta: Mapping[str, float]) -> bool:
+        """True when h is positively homogeneous in :attr:`scale_param` at these shape parameters."""
+        return self.scale_param is not None
+
+    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+        """Start values of the law's parameters from a measured loop (x mm, force N, v mm/s).
+
+        Default: the parameters' ``init`` values.  Laws override this with data-sized
+        values (loop half-width from the branch offsets, memory length from the stroke).
+        """
+        return {p.name: p.init for p in self.params}
+
+    # ------------------------------------------------------------------ evaluation
+    def h(self, x: np.ndarray, theta: Mapping[str, float],
+          extras: Mapping[str, float] | None = None) -> np.ndarray:
+        """h (N) at every sample of the position path ``x`` (mm); h[0] = theta['h0']."""
+        raise NotImplementedError
+
+    def stepper(self, theta: Mapping[str, float],
+                extras: Mapping[str, float] | None = None) -> Callable[[float, float, float], float]:
+        """A fast ``step(h, x_prev, x) -> h`` with the parameters bound (for 500 Hz loops)."""
+        raise NotImplementedError
+
+    def step(self, h: float, x_prev: float, x: float, theta: Mapping[str, float],
+             extras: Mapping[str, float] | None = None) -> float:
+        """Advance the state h (N) along one position segment x_prev → x (mm).
+
+        Exactly one segment of the integrator :meth:`h` uses, so running the law forward
+        sample by sample reproduces the batch trajectory to round-off.
+        """
+        return self.stepper(theta, extras)(h, x_prev, x)
+
+    def __repr__(self) -> str:
+        return f"<law {self.name}>"
