@@ -7,6 +7,8 @@ Anything a user can cause (a bad file, a bad option, a tripped limit) raises a s
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class PmalabError(Exception):
     """An error the user can fix; its message is one line naming the file/run/channel/field."""
@@ -32,9 +34,14 @@ class RigError(PmalabError):
 
 
 class SafetyAbort(PmalabError):
-    """A run was aborted by a limit trip, Ctrl-C or a device fault (the regulator was vented)."""
+    """A run was aborted by a limit trip, Ctrl-C or a device fault, or a regulator's vent
+    was not confirmed; the message states each regulator's vent outcome."""
 
     exit_code = 4
+    #: the vent report the message states (``pmalab.rig.base.VentReport``), if any
+    vent: Any = None
+    #: the message with a placeholder for the vent report (re-rendered on a later vent)
+    template: str | None = None
 
 
 class OutputError(PmalabError):

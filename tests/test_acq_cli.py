@@ -38,7 +38,10 @@ def test_run_seed_bouc_wen_end_to_end(tmp_path, capsys):
                "--out", str(out), "--quiet"])
     assert rc == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert len(lines) == 10 and "ident-476kPa: completed" in lines[0] and "force" in lines[0]
+    assert len(lines) == 11 and "ident-476kPa: completed" in lines[0] and "force" in lines[0]
+    assert lines[-1] == ("regulators: cylinder regulator vented (confirmed: simulated regulator "
+                         "commanded to 0 MPa); muscle regulator vented (confirmed: simulated "
+                         "regulator commanded to 0 MPa)")
     runs = read_runs(out)
     assert len(runs) == 9
     with h5py.File(out, "r") as f:  # closed cleanly: plain open works; provenance present
@@ -89,7 +92,8 @@ def test_limit_trip_via_rig_file_exits_nonzero_with_one_line(tmp_path, capsys):
     rc = main(["run", "--rig", str(rig), "--protocol", "quick", "--out", str(out), "--quiet"])
     err = capsys.readouterr().err.strip()
     assert rc == SafetyAbort.exit_code
-    assert err.count("\n") == 0 and "aborted: force" in err and "vented" in err
+    assert err.count("\n") == 0 and "aborted: force" in err
+    assert "cylinder regulator vented (confirmed" in err and "muscle regulator vented (confirmed" in err
     (r,) = read_runs(out)
     assert r.attrs["status"].startswith("aborted: force")
     assert abs(r.force[-1]) > 300 and np.all(np.abs(r.force[:-1]) <= 300)

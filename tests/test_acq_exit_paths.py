@@ -120,7 +120,8 @@ def test_exception_in_the_operator_prompt_vents(tmp_path):
     with pytest.raises(SafetyAbort) as ei:
         _run(rig, out, prompt=prompt)
     assert "exception: EOFError: no terminal" in str(ei.value)
-    assert "close the muscle's manual regulator" in str(ei.value)
+    assert ("muscle regulator is manual and NOT vented by software: turn it to 0 MPa and "
+            "exhaust the muscle") in str(ei.value)
     _assert_vented_last(rig)
     assert rig.cylinder_regulator.max_commanded == 0.0
     assert _statuses(out)["first"].startswith("aborted: exception: EOFError")
@@ -136,21 +137,58 @@ def test_muscle_is_vented_even_when_venting_the_cylinder_fails(tmp_path, monkeyp
             raise RigError("regulator: link down")
         real_set(mpa)
 
-    def vent():
+    def vent():  # a driver breaking the never-raise rule
         raise RigError("regulator: link down")
 
     monkeypatch.setattr(reg, "set_pressure", set_pressure)
     monkeypatch.setattr(reg, "vent", vent)
     out = tmp_path / "novent.h5"
-    with pytest.raises(SafetyAbort, match="device fault: regulator: link down"):
+    with pytest.raises(SafetyAbort, match="device fault: regulator: link down") as ei:
         _run(rig, out)
+    msg = str(ei.value)
     assert rig.muscle_supply.vents >= 1
-    assert "venting the cylinder regulator failed" in capsys.readouterr().err
+    assert ("cylinder regulator vent FAILED (cylinder regulator vent() raised RigError: "
+            "regulator: link down): close the cylinder's supply valve") in msg
+    assert "cylinder regulator vented" not in msg
+    assert "muscle regulator vented (confirmed" in msg
+    assert ei.value.vent.failed == ["cylinder regulator"]
     assert _statuses(out)["first"].startswith("aborted: device fault")
-    # the rig's own close also goes on to the muscle and the sampler
-    with pytest.raises(RigError):
-        rig.close()
-    assert rig.muscle_supply.vents >= 2
+    # the rig's own close also goes on to the muscle and reports (not raises) the failure
+    rig.close()
+    assert rig.muscle_supply.vents >= 2 and rig.last_vent.failed == ["cylinder regulator"]
+
+
+class _NoReport:
+    """A third-party regulator that returns nothing from vent(): never taken as vented."""
+
+    max_pressure_MPa = 0.9
+
+    def set_pressure(self, mpa):
+        pass
+
+    def vent(self):
+        return None
+
+
+def test_a_vent_without_an_outcome_is_reported_failed(tmp_path):
+    rig = make_fake_rig()
+    rig.cylinder_regulator = _NoReport()
+    report = rig.vent()
+    assert report.cylinder.outcome.value == "failed"
+    assert report.line().startswith("cylinder regulator vent FAILED (cylinder regulator "
+                                    "vent() reported no outcome)")
+
+
+def test_a_later_confirmed_vent_replaces_a_failed_one_in_the_abort_line():
+    from pmalab.acquisition.runner import VENT_SLOT, abort_error, update_abort_vent
+    from pmalab.rig.base import VentReport, VentResult
+
+    first = VentReport(VentResult.failed("no reply"), VentResult.confirmed("ack"))
+    err = abort_error(f"x.h5: run 'a' aborted: boom; {VENT_SLOT}; 3 samples kept", first)
+    assert "cylinder regulator vent FAILED (no reply)" in str(err)
+    update_abort_vent(err, VentReport(VentResult.confirmed("ack 2"), VentResult.failed("gone")))
+    assert str(err) == ("x.h5: run 'a' aborted: boom; cylinder regulator vented (confirmed: "
+                        "ack 2); muscle regulator vented (confirmed: ack); 3 samples kept")
 
 
 def test_exception_in_preflight_vents_and_writes_nothing(tmp_path, monkeypatch):

@@ -22,6 +22,7 @@ from pmalab.rig.base import (
     PressureRegulator,
     Rig,
     Sampler,
+    VentResult,
     VirtualClock,
 )
 
@@ -40,9 +41,10 @@ class RecordingRegulator(PressureRegulator):
         self.calls.append((self.clock.now(), "set", float(mpa)))
         self.value = float(mpa)
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
         self.calls.append((self.clock.now(), "vent", 0.0))
         self.value = 0.0
+        return VentResult.confirmed("fake regulator at 0 MPa")
 
     @property
     def max_commanded(self) -> float:
@@ -66,9 +68,12 @@ class FakeSupply(MusclePressureSupply):
             prompt(f"fake operator asked for {mpa}")
         self.target = mpa
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
         self.vents += 1
+        if not self.automatic:
+            return VentResult.manual()
         self.target = 0.0
+        return VentResult.confirmed("fake supply at 0 MPa")
 
 
 class FakeSampler(Sampler):

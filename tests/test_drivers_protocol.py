@@ -7,7 +7,7 @@ import struct
 import pytest
 
 from pmalab.errors import RigError
-from pmalab.rig.base import RealClock
+from pmalab.rig.base import RealClock, VentOutcome
 from pmalab.rig.drivers.calibration import Calibration, RegisterCodec
 from pmalab.rig.drivers.itv_serial import ItvSerialRegulator
 from pmalab.rig.drivers.loadcell_serial import G0, LoadCellIndicator, parse_line
@@ -140,22 +140,43 @@ def test_rtu_read_input_int16_with_crc_and_bad_crc_retry():
     assert s.link.stats.bad_frames == 1
 
 
-def test_analog_output_writes_float32_dac_and_vent_never_raises():
+def _dac(adapter):
+    link = ModbusLink(adapter, "tcp", timeout=0.01, retries=0)
+    return ModbusAnalogOutput(link, 1000, RegisterCodec(), Calibration.two_point(0, 0, 5, 0.9), (0.0, 5.0))
+
+
+def test_analog_output_writes_float32_dac_and_a_vent_without_reply_is_failed():
     # 0.45 MPa on a 0–5 V ITV1051 = 2.5 V = 0x40200000 to DAC0 (address 1000 = 0x03e8)
     req = bytes.fromhex("0001 0000 000b 01 10 03e8 0002 04 4020 0000")
     echo = mbap(1, bytes.fromhex("10 03e8 0002"))
-
-    def make(adapter):
-        link = ModbusLink(adapter, "tcp", timeout=0.01, retries=0)
-        return ModbusAnalogOutput(link, 1000, RegisterCodec(), Calibration.two_point(0, 0, 5, 0.9), (0.0, 5.0))
-
     vent_req = bytes.fromhex("0002 0000 000b 01 10 03e8 0002 04 0000 0000")
-    with expected_protocol(make, [(req, echo), (vent_req, None)]) as out:
+    with expected_protocol(_dac, [(req, echo), (vent_req, None)]) as out:
         out.set_pressure(0.45)
-        out.vent()  # no reply: must not raise
-        assert out.vent_error is not None
+        res = out.vent()  # no reply: must not raise, and must not claim a vent
+        assert res.outcome is VentOutcome.FAILED
+        assert "not acknowledged after 1 attempts" in res.detail and "no reply" in res.detail
         with pytest.raises(RigError, match="outside"):
             out.set_pressure(0.95)
+
+
+def test_analog_output_vent_is_confirmed_by_ack_and_read_back():
+    vent_req = bytes.fromhex("0001 0000 000b 01 10 03e8 0002 04 0000 0000")
+    echo = mbap(1, bytes.fromhex("10 03e8 0002"))
+    read_req = bytes.fromhex("0002 0000 0006 01 03 03e8 0002")
+    zero = mbap(2, bytes.fromhex("03 04 0000 0000"))
+    with expected_protocol(_dac, [(vent_req, echo), (read_req, zero)]) as out:
+        res = out.vent()
+    assert res.ok and "register 1000 reads back 0" in res.detail
+    # acknowledged, but something else holds the DAC at 2.5 V: not confirmed
+    still = mbap(2, bytes.fromhex("03 04 4020 0000"))
+    with expected_protocol(_dac, [(vent_req, echo), (read_req, still)]) as out:
+        res = out.vent()
+    assert res.outcome is VentOutcome.FAILED and "reads back 2.5 instead of 0" in res.detail
+    # a device that refuses to read outputs back (exception 02): the acknowledgement counts
+    refused = mbap(2, bytes.fromhex("83 02"))
+    with expected_protocol(_dac, [(vent_req, echo), (read_req, refused)]) as out:
+        res = out.vent()
+    assert res.ok and "does not read outputs back" in res.detail
 
 
 def test_itv_serial_set_mon_and_error_reply():
@@ -165,14 +186,29 @@ def test_itv_serial_set_mon_and_error_reply():
         (b"SET 512\r\n", b"OK\r\n"),
         (b"MON\r\n", b"MON 511\r\n"),
         (b"SET 0\r\n", b"OK\r\n"),
+        (b"MON\r\n", b"MON 511\r\n"),
     ]
     with expected_protocol(lambda a: ItvSerialRegulator(a, 0.9, timeout=0.01), pairs) as itv:
         assert itv.monitor_pressure() == 0.0
         itv.set_pressure(0.45)  # 0.45/0.9*1023 = 511.5 -> 512
         itv.flush()
         assert itv.monitor_pressure() == pytest.approx(511 / 1023 * 0.9)
-        itv.vent()
+        itv.vent_confirm_s = 0.0
+        res = itv.vent()  # SET 0 acknowledged, but MON still reads the old pressure
     assert itv.stats.exception_replies == 1
+    assert res.outcome is VentOutcome.FAILED
+    assert "SET 0 acknowledged" in res.detail and "still reads 0.450 MPa" in res.detail
+
+
+def test_itv_vent_confirmed_once_mon_falls_and_failed_without_ok():
+    pairs = [(b"SET 0\r\n", b"OK\r\n"), (b"MON\r\n", b"MON 300\r\n"), (b"MON\r\n", b"MON 10\r\n")]
+    with expected_protocol(lambda a: ItvSerialRegulator(a, 0.9, timeout=0.01), pairs) as itv:
+        res = itv.vent()
+    assert res.ok and "output reads 0.009 MPa" in res.detail
+    pairs = [(b"SET 0\r\n", None)] * 3  # the regulator does not answer
+    with expected_protocol(lambda a: ItvSerialRegulator(a, 0.9, timeout=0.01, retries=2), pairs) as itv:
+        res = itv.vent()
+    assert res.outcome is VentOutcome.FAILED and "SET 0 not acknowledged" in res.detail
 
 
 def test_itv_serial_gives_up_after_bound():

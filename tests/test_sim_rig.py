@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from pmalab.errors import RigError
-from pmalab.rig.base import Block, RealClock, Rig, VirtualClock
+from pmalab.rig.base import Block, RealClock, Rig, VentOutcome, VirtualClock
 from pmalab.rig.sim import RigPhysics, make_sim_rig
 
 
@@ -67,7 +67,7 @@ def test_manual_muscle_regulator_prompts_the_operator():
     assert other and "0.31" in other[0]
     rig.clock.sleep_until(3.0)
     assert rig.sampler.read_block().muscle_pressure[0] == pytest.approx(0.31, abs=0.005)
-    rig.muscle_supply.vent()  # manual: left alone
+    assert rig.muscle_supply.vent().outcome is VentOutcome.MANUAL  # left alone, and said so
     rig.clock.sleep_until(6.0)
     assert rig.sampler.read_block().muscle_pressure[0] == pytest.approx(0.31, abs=0.005)
 
@@ -78,6 +78,8 @@ def test_vent_never_raises_and_vents():
     rig.cylinder_regulator.set_pressure(0.4)
     rig.clock.sleep_until(3.0)
     rig.close()
+    assert rig.last_vent is not None and rig.last_vent.ok
+    assert rig.last_vent.cylinder.ok and rig.last_vent.muscle.ok
     rig.clock.sleep_until(6.0)
     b = rig.sampler.read_block()
     assert b.cylinder_pressure[0] < 0.005 and b.muscle_pressure[0] < 0.005

@@ -12,7 +12,7 @@ import argparse
 import signal
 import sys
 
-from pmalab.errors import ConfigError
+from pmalab.errors import ConfigError, SafetyAbort
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -82,7 +82,14 @@ def load_rig_spec(spec: str, *, seed: int | None = None, realtime: bool = False)
 
 def cmd_run(args: argparse.Namespace) -> int:
     from pmalab.acquisition.protocol import load_protocol
-    from pmalab.acquisition.runner import RunnerOptions, Terminated, run_protocol
+    from pmalab.acquisition.runner import (
+        VENT_SLOT,
+        RunnerOptions,
+        Terminated,
+        abort_error,
+        run_protocol,
+        update_abort_vent,
+    )
     from pmalab.paths import check_output
 
     if args.seed is not None and args.seed < 0:
@@ -107,12 +114,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         with rig:
             results = run_protocol(rig, protocol, args.out, force=args.force, options=opts)
+    except SafetyAbort as exc:
+        # closing the rig vented once more: a regulator that answers again is confirmed
+        update_abort_vent(exc, rig.last_vent)
+        raise
     finally:
         signal.signal(signal.SIGTERM, old)
     for r in results:
         print(r.summary())
     total = sum(r.n_samples for r in results)
     print(f"{args.out}: {len(results)} runs, {total} samples")
+    vent = rig.last_vent
+    if vent is not None and not vent.ok:  # the data are safe; the rig may not be
+        raise abort_error(f"{args.out}: all {len(results)} runs recorded, but {VENT_SLOT}", vent)
+    if vent is not None:
+        print(f"regulators: {vent.line()}")
     return 0
 
 

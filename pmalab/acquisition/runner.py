@@ -13,9 +13,13 @@ Safety.  :func:`pmalab.acquisition.safety.preflight` refuses a protocol before t
 is created or any device is commanded.  Every sample is checked against the rig's limits;
 on a trip, Ctrl-C (``KeyboardInterrupt``), any exception or a device fault
 (``RigError``), the cylinder regulator is vented at once (same sample period, before the
-next deadline), the muscle supply is vented where it is automatic, the run is closed as
-``aborted: <reason>`` with its samples, and :class:`~pmalab.errors.SafetyAbort` is raised.
-Every exit path — completed or not — ends with the regulator vented.
+next deadline), then the muscle supply, the run is closed as ``aborted: <reason>`` with
+its samples, and :class:`~pmalab.errors.SafetyAbort` is raised.  Its one line states, per
+regulator, whether the vent was confirmed by the device (:class:`~pmalab.rig.base.VentReport`)
+and, when it was not, that it FAILED and what the operator must do; a vent that failed is
+tried once more after the file is closed, and the message reports the better outcome.
+Every exit path — completed or not — ends with a vent (``rig.last_vent`` holds the last
+outcome, which ``pmalab run`` reports).
 
 Reduced rate.  A rig loaded with ``allow_reduced_rate = true`` whose link probe found the
 protocol's rate unsustainable has ``rig.info["timing"]["reduced"]`` set and a lower
@@ -65,7 +69,7 @@ from pmalab.acquisition.safety import (
 from pmalab.acquisition.waveforms import command_samples
 from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output, output_failure
-from pmalab.rig.base import Rig
+from pmalab.rig.base import Rig, VentReport
 
 
 class _Trip(Exception):
@@ -125,16 +129,35 @@ class RunnerOptions:
     pending_signal: dict[str, int | None] = field(default_factory=lambda: {"sig": None})
 
 
-def _vent(rig: Rig) -> None:
-    """Vent the cylinder regulator first (it moves the load), then the muscle supply."""
-    try:
-        rig.cylinder_regulator.vent()
-    except Exception as exc:  # vent() must not raise; if it does, still try the muscle
-        print(f"pmalab: warning: venting the cylinder regulator failed: {exc}", file=sys.stderr)
-    try:
-        rig.muscle_supply.vent()
-    except Exception as exc:
-        print(f"pmalab: warning: venting the muscle supply failed: {exc}", file=sys.stderr)
+def _vent(rig: Rig) -> VentReport:
+    """Vent the cylinder regulator first (it moves the load), then the muscle supply;
+    never raises (:meth:`Rig.vent`), the report says what each device confirmed."""
+    return rig.vent()
+
+
+#: stands for the vent report in :attr:`SafetyAbort.template` (re-rendered by the CLI
+#: when a later vent, e.g. on closing the rig, confirms what this one could not)
+VENT_SLOT = "\x00vent\x00"
+
+
+def abort_error(template: str, report: VentReport) -> SafetyAbort:
+    """A :class:`SafetyAbort` whose message is ``template`` with the vent report's line;
+    ``.vent`` and ``.template`` let a caller re-render it with a later report."""
+    err = SafetyAbort(template.replace(VENT_SLOT, report.line()))
+    err.vent = report
+    err.template = template
+    return err
+
+
+def update_abort_vent(err: SafetyAbort, later: VentReport | None) -> None:
+    """Merge a later vent report into an abort's message (per regulator, a confirmed
+    outcome of either attempt wins)."""
+    report, template = err.vent, err.template
+    if later is None or report is None or template is None:
+        return
+    merged = report.merged(later)
+    err.vent = merged
+    err.args = (template.replace(VENT_SLOT, merged.line()),)
 
 
 def info_json(info: dict[str, Any]) -> str:
@@ -356,19 +379,18 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     timing = w.finish("completed")
                 except BaseException as exc:
                     # vent FIRST — before any file work — then close the run as aborted
-                    _vent(rig)
+                    vented = _vent(rig)
                     reason = _reason(exc)
                     failed = _close_aborted(rig, rec, w, protocol.runs[i + 1:],
                                             f"aborted: {reason}")
-                    manual = ("" if rig.muscle_supply.automatic
-                              else "; close the muscle's manual regulator")
+                    if not vented.ok:  # once more: a link may answer again by now
+                        vented = vented.merged(_vent(rig))
                     kept = (f"{w.n} samples kept (status 'aborted')" if failed is None else
                             f"the file could not be finished ({failed}): what was flushed "
                             "before stays readable")
-                    abort = SafetyAbort(
-                        f"{out}: run '{spec.name}' aborted: {reason}; "
-                        f"cylinder regulator vented{manual}; {kept}"
-                    )
+                    abort = abort_error(
+                        f"{out}: run '{spec.name}' aborted: {reason}; {VENT_SLOT}; {kept}",
+                        vented)
                     abort.hard_exit = rec.unclosed
                     raise abort from (exc if isinstance(exc, Exception) else None)
                 results.append(_result(spec.name, "completed", w, timing))

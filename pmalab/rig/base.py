@@ -15,6 +15,12 @@ A rig is four things:
 * a :class:`MusclePressureSupply` — a second regulator (``automatic``) or a manual one
   that the operator turns when prompted.
 
+Venting is reported, never assumed: ``vent()`` returns a :class:`VentResult` saying whether
+the zero command was *confirmed* by the device (acknowledged, and read back where the
+device allows), *failed* (with the reason), or is *manual* (a hand-set regulator software
+cannot vent); :meth:`Rig.vent` collects both into a :class:`VentReport` whose one-line
+:meth:`~VentReport.line` tells the operator what to do when a vent was not confirmed.
+
 Implementations: :mod:`pmalab.rig.sim` (simulated physics), :mod:`pmalab.rig.drivers`
 (Modbus / serial devices).  The runner in :mod:`pmalab.acquisition` only sees this module.
 """
@@ -27,6 +33,7 @@ import time as _time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -159,6 +166,108 @@ class Limits:
         return Limits(**values)
 
 
+
+# --------------------------------------------------------------------------- venting
+class VentOutcome(Enum):
+    """What a vent command achieved, as far as the device lets software know."""
+
+    #: the device acknowledged the zero command (and read it back where it can)
+    CONFIRMED = "confirmed"
+    #: not confirmed: the command was not acknowledged, or the read-back is not zero
+    FAILED = "failed"
+    #: a hand-set regulator: software cannot vent it, the operator must
+    MANUAL = "manual"
+
+
+@dataclass(frozen=True)
+class VentResult:
+    """The outcome of one ``vent()`` and, in ``detail``, how it was confirmed or why not
+    (one line, e.g. ``"write acknowledged, register 1000 reads back 0 V"``)."""
+
+    outcome: VentOutcome
+    detail: str = ""
+
+    @classmethod
+    def confirmed(cls, detail: str) -> VentResult:
+        return cls(VentOutcome.CONFIRMED, detail)
+
+    @classmethod
+    def failed(cls, detail: str) -> VentResult:
+        return cls(VentOutcome.FAILED, detail)
+
+    @classmethod
+    def manual(cls, detail: str = "set by hand") -> VentResult:
+        return cls(VentOutcome.MANUAL, detail)
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome is VentOutcome.CONFIRMED
+
+
+#: what the operator must do when a regulator's vent is not confirmed, per role
+VENT_ACTIONS: dict[str, str] = {
+    "cylinder regulator": "close the cylinder's supply valve and exhaust the cylinder by hand",
+    "muscle regulator": "close the muscle's supply valve and exhaust the muscle by hand",
+}
+MANUAL_ACTION = "turn it to 0 MPa and exhaust the muscle"
+
+
+def vent_phrase(role: str, res: VentResult) -> str:
+    """``role`` and its vent outcome in words, with the operator's action when needed."""
+    if res.outcome is VentOutcome.CONFIRMED:
+        return f"{role} vented (confirmed: {res.detail})" if res.detail else f"{role} vented"
+    if res.outcome is VentOutcome.MANUAL:
+        return f"{role} is manual and NOT vented by software: {MANUAL_ACTION}"
+    why = f" ({res.detail})" if res.detail else ""
+    return f"{role} vent FAILED{why}: {VENT_ACTIONS.get(role, 'vent it by hand')}"
+
+
+@dataclass(frozen=True)
+class VentReport:
+    """The vent outcome of each of the rig's regulators (cylinder first, then muscle)."""
+
+    cylinder: VentResult
+    muscle: VentResult
+
+    @property
+    def items(self) -> tuple[tuple[str, VentResult], ...]:
+        return (("cylinder regulator", self.cylinder), ("muscle regulator", self.muscle))
+
+    @property
+    def failed(self) -> list[str]:
+        """Roles whose vent was attempted and not confirmed."""
+        return [role for role, r in self.items if r.outcome is VentOutcome.FAILED]
+
+    @property
+    def ok(self) -> bool:
+        """True when no vent failed (a manual regulator is the operator's, not a failure)."""
+        return not self.failed
+
+    def merged(self, later: VentReport) -> VentReport:
+        """Per regulator, the confirmed one of two attempts (else the later)."""
+        def pick(a: VentResult, b: VentResult) -> VentResult:
+            return a if a.ok and not b.ok else b
+
+        return VentReport(pick(self.cylinder, later.cylinder), pick(self.muscle, later.muscle))
+
+    def line(self) -> str:
+        """Every regulator's outcome, ``; ``-separated (one line)."""
+        return "; ".join(vent_phrase(role, r) for role, r in self.items)
+
+
+def vent_safely(vent: Callable[[], Any], what: str = "vent()") -> VentResult:
+    """Call a ``vent`` and return its :class:`VentResult`; an exception or a missing
+    result (a driver that does not report) is a FAILED vent, never a silent success."""
+    try:
+        res = vent()
+    except Exception as exc:
+        text = " ".join(str(exc).split()) or type(exc).__name__
+        return VentResult.failed(f"{what} raised {type(exc).__name__}: {text}")
+    if not isinstance(res, VentResult):
+        return VentResult.failed(f"{what} reported no outcome")
+    return res
+
+
 # --------------------------------------------------------------------------- devices
 class Sampler(ABC):
     """Delivers timestamped blocks of the five channels."""
@@ -194,8 +303,13 @@ class PressureRegulator(ABC):
         """Command a gauge pressure in MPa (0 ≤ mpa ≤ ``max_pressure_MPa``)."""
 
     @abstractmethod
-    def vent(self) -> None:
-        """Command zero pressure.  Must never raise: it is called on every exit path."""
+    def vent(self) -> VentResult:
+        """Command zero pressure and say whether the device confirmed it.
+
+        Must never raise (it is called on every exit path): a fault is a
+        :meth:`VentResult.failed` naming the reason.  Confirmed means the device
+        acknowledged the command, and read it back as zero where it can.
+        """
 
 
 class MusclePressureSupply(ABC):
@@ -209,8 +323,12 @@ class MusclePressureSupply(ABC):
     def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
         """Ask for ``mpa`` MPa: set it (automatic) or prompt the operator (manual)."""
 
-    def vent(self) -> None:  # noqa: B027 - optional hook
-        """Vent the muscle (automatic supplies only; a manual regulator is left alone)."""
+    def vent(self) -> VentResult:
+        """Vent the muscle (automatic supplies override this); a manual regulator cannot
+        be vented by software, which the result says (the operator must)."""
+        if self.automatic:
+            return VentResult.failed(f"{type(self).__name__} has no vent")
+        return VentResult.manual()
 
 
 @dataclass
@@ -224,16 +342,32 @@ class Rig:
     limits: Limits = field(default_factory=Limits)
     #: provenance recorded with every run: rig file text, calibration, device ids, ...
     info: dict[str, Any] = field(default_factory=dict)
+    #: the outcome of the latest :meth:`vent` (None before the first)
+    last_vent: VentReport | None = field(default=None, repr=False)
+
+    def vent(self) -> VentReport:
+        """Vent the cylinder regulator first (it moves the load), then the muscle supply.
+
+        Never raises; the muscle is vented even when the cylinder's vent failed.  The
+        report is also kept in :attr:`last_vent`.
+        """
+        cyl = vent_safely(self.cylinder_regulator.vent, "cylinder regulator vent()")
+        mus = vent_safely(self.muscle_supply.vent, "muscle supply vent()")
+        self.last_vent = VentReport(cyl, mus)
+        return self.last_vent
 
     def close(self) -> None:
-        """Vent everything and release devices.  Safe to call more than once.
+        """Vent everything (outcome in :attr:`last_vent`) and release the devices.  Safe to
+        call more than once.
 
-        Each step runs even when an earlier one fails (a faulted cylinder regulator must
-        not keep the muscle pressurised); the first failure is raised at the end.
+        Each step runs even when an earlier one fails; the first failure of stopping or
+        closing the sampler is raised at the end (a failed vent is reported in
+        :attr:`last_vent`, never raised).
         """
+        self.vent()
         first: Exception | None = None
         closer = getattr(self.sampler, "close", None)
-        steps = [self.cylinder_regulator.vent, self.muscle_supply.vent, self.sampler.stop]
+        steps = [self.sampler.stop]
         for step in steps + ([closer] if callable(closer) else []):
             try:
                 step()

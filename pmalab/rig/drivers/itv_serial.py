@@ -14,7 +14,12 @@ At 9600 baud ``SET 1023`` plus its ``OK`` take about 15 ms on the wire, so a 500
 cannot wait for each one.  :meth:`ItvSerialRegulator.set_pressure` therefore hands the
 newest setpoint to a writer thread that sends only changed counts (the 1023-step
 quantization makes most 2 ms updates no-ops) and returns at once; a failure in that thread
-is raised by the next ``set_pressure``.  ``vent`` is synchronous.
+is raised by the next ``set_pressure``.  ``vent`` is synchronous and reports its outcome:
+*confirmed* when ``SET 0`` is answered ``OK`` and ``MON`` then reads the output at or below
+``vent_threshold_MPa`` within ``vent_confirm_s`` (the regulator exhausts its volume in a
+fraction of a second); no ``OK``, or an output still above the threshold, is a FAILED vent.
+A ``MON`` that no longer answers after the ``OK`` leaves the acknowledgement as the
+confirmation (said so in the result).
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import time
 from typing import Any
 
 from pmalab.errors import RigError
-from pmalab.rig.base import PressureRegulator
+from pmalab.rig.base import PressureRegulator, VentResult
 from pmalab.rig.drivers.adapters import (
     Adapter,
     DeviceExceptionReply,
@@ -53,6 +58,8 @@ class ItvSerialRegulator(PressureRegulator):
         timeout: float = 0.2,
         retries: int = 2,
         name: str = "ITV regulator",
+        vent_threshold_MPa: float = 0.02,
+        vent_confirm_s: float = 2.0,
     ) -> None:
         self.adapter = adapter
         self.max_pressure_MPa = float(max_pressure_MPa)
@@ -61,7 +68,10 @@ class ItvSerialRegulator(PressureRegulator):
         self.name = name
         self.stats = LinkStats()
         self.last_command_MPa = 0.0
-        self.vent_error: str | None = None
+        #: a vent is confirmed when MON reads at most this (MPa) ...
+        self.vent_threshold_MPa = float(vent_threshold_MPa)
+        #: ... within this long after ``SET 0`` was acknowledged (s)
+        self.vent_confirm_s = float(vent_confirm_s)
         self._io = threading.Lock()  # one command on the wire at a time
         self._cv = threading.Condition()
         self._pending: int | None = None
@@ -190,13 +200,29 @@ class ItvSerialRegulator(PressureRegulator):
         """The regulator's own output-pressure reading (MPa)."""
         return self.monitor_counts() / FULL_SCALE * self.max_pressure_MPa
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
+        """``SET 0``, then watch ``MON`` fall; the result says what was confirmed (never raises)."""
         self._stop_writer()
+        where = self.adapter.name
         try:
             self.set_counts(0)
-            self.last_command_MPa = 0.0
         except Exception as exc:  # must never raise
-            self.vent_error = str(exc)
+            return VentResult.failed(f"SET 0 not acknowledged by {where}: {one_line(exc)}")
+        self.last_command_MPa = 0.0
+        deadline = time.perf_counter() + self.vent_confirm_s
+        while True:
+            try:
+                p = self.monitor_pressure()
+            except Exception as exc:
+                return VentResult.confirmed(
+                    f"SET 0 acknowledged by {where}; MON read-back failed: {one_line(exc)}")
+            if p <= self.vent_threshold_MPa:
+                return VentResult.confirmed(f"SET 0 acknowledged by {where}, output reads {p:.3f} MPa")
+            if time.perf_counter() >= deadline:
+                return VentResult.failed(
+                    f"SET 0 acknowledged by {where}, but the output still reads {p:.3f} MPa "
+                    f"after {self.vent_confirm_s:g} s")
+            time.sleep(0.02)
 
     def close(self) -> None:
         self._stop_writer()

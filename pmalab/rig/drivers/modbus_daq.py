@@ -28,10 +28,17 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import RigError
-from pmalab.rig.base import Block, Clock, MusclePressureSupply, PressureRegulator, Sampler
-from pmalab.rig.drivers.adapters import ValueOutOfRange
+from pmalab.rig.base import (
+    Block,
+    Clock,
+    MusclePressureSupply,
+    PressureRegulator,
+    Sampler,
+    VentResult,
+)
+from pmalab.rig.drivers.adapters import DeviceExceptionReply, ValueOutOfRange
 from pmalab.rig.drivers.calibration import Calibration, RegisterCodec
-from pmalab.rig.drivers.modbus_link import FC_READ_HOLDING, ModbusLink
+from pmalab.rig.drivers.modbus_link import FC_READ_HOLDING, ModbusLink, one_line
 
 #: rates a reduced-rate run may fall back to (Hz), highest first
 FALLBACK_RATES_HZ = (500.0, 400.0, 250.0, 200.0, 125.0, 100.0, 50.0, 25.0, 10.0)
@@ -235,7 +242,13 @@ class ModbusSampler(Sampler):
 
 
 class ModbusAnalogOutput(PressureRegulator):
-    """A regulator driven by an analog output register (value MPa → raw volts → register)."""
+    """A regulator driven by an analog output register (value MPa → raw volts → register).
+
+    :meth:`vent` writes the zero value (FC16) and is *confirmed* when the device
+    acknowledges the write and the register reads back (FC3) as that value; a device that
+    refuses to read its outputs back (exception 01/02) is confirmed by the acknowledgement
+    alone.  No acknowledgement, or a read-back other than zero, is a FAILED vent.
+    """
 
     def __init__(
         self,
@@ -255,7 +268,6 @@ class ModbusAnalogOutput(PressureRegulator):
         self.max_pressure_MPa = float(max_pressure_MPa)
         self.name = name
         self.last_command_MPa = 0.0
-        self.vent_error: str | None = None
 
     def raw_for(self, mpa: float) -> float:
         """The analog-output value commanding ``mpa`` MPa, clamped to the output range."""
@@ -268,12 +280,34 @@ class ModbusAnalogOutput(PressureRegulator):
         self.link.write_registers(self.address, self.codec.encode(self.raw_for(max(mpa, 0.0))))
         self.last_command_MPa = float(mpa)
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
+        """Command 0 MPa; the result says whether the device confirmed it (never raises)."""
+        raw0 = self.raw_for(0.0)
+        zero = self.codec.encode(raw0)
+        link = self.link
         try:
-            self.link.write_registers(self.address, self.codec.encode(self.raw_for(0.0)))
-            self.last_command_MPa = 0.0
+            link.write_registers(self.address, zero)
         except Exception as exc:  # vent must never raise: it runs on every exit path
-            self.vent_error = str(exc)
+            last = link.last_error if link.last_error is not None else exc
+            return VentResult.failed(
+                f"zero write to register {self.address} not acknowledged after "
+                f"{link.retries + 1} attempts; last: {one_line(last)}")
+        self.last_command_MPa = 0.0
+        try:
+            back = link.read_registers(self.address, len(zero), FC_READ_HOLDING)
+        except Exception as exc:
+            last = link.last_error if link.last_error is not None else exc
+            how = ("the device does not read outputs back"
+                   if isinstance(last, DeviceExceptionReply) and last.code in (1, 2)
+                   else f"read-back failed: {one_line(last)}")
+            return VentResult.confirmed(
+                f"zero write to register {self.address} acknowledged by {link.adapter.name}; {how}")
+        if list(back) != list(zero):
+            return VentResult.failed(
+                f"zero write to register {self.address} acknowledged, but it reads back "
+                f"{self.codec.decode(list(back)):.4g} instead of {raw0:g}")
+        return VentResult.confirmed(
+            f"write acknowledged by {link.adapter.name}, register {self.address} reads back {raw0:g}")
 
 
 class RegulatedMuscleSupply(MusclePressureSupply):
@@ -287,8 +321,8 @@ class RegulatedMuscleSupply(MusclePressureSupply):
     def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
         self.regulator.set_pressure(mpa)
 
-    def vent(self) -> None:
-        self.regulator.vent()
+    def vent(self) -> VentResult:
+        return self.regulator.vent()
 
 
 class ManualMuscleSupply(MusclePressureSupply):

@@ -18,6 +18,7 @@ from pmalab.rig.base import (
     PressureRegulator,
     Rig,
     Sampler,
+    VentResult,
     VirtualClock,
 )
 from pmalab.rig.sim.physics import RigPhysics
@@ -50,15 +51,16 @@ class SimCylinderRegulator(PressureRegulator):
         self.physics.advance_to(self.clock.now())
         self.physics.set_cylinder_command(mpa)
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
         try:
             self.physics.advance_to(self.clock.now())
-        except Exception:  # vent must never raise
+        except Exception:  # a diverged integration must not stop the vent
             pass
         try:
             self.physics.set_cylinder_command(0.0)
-        except Exception:  # pragma: no cover - cannot fail for 0 MPa
-            pass
+        except Exception as exc:  # vent must never raise
+            return VentResult.failed(f"simulated regulator: {exc}")
+        return VentResult.confirmed("simulated regulator commanded to 0 MPa")
 
 
 class SimMuscleSupply(MusclePressureSupply):
@@ -92,14 +94,18 @@ class SimMuscleSupply(MusclePressureSupply):
                 show(text)
         self.physics.set_muscle_supply(mpa)
 
-    def vent(self) -> None:
+    def vent(self) -> VentResult:
         if not self.automatic:
-            return  # a manual regulator is left as the operator set it
+            return VentResult.manual()  # left as the operator set it: the operator vents it
         try:
             self.physics.advance_to(self.clock.now())
-        except Exception:  # vent must never raise
+        except Exception:  # a diverged integration must not stop the vent
             pass
-        self.physics.set_muscle_supply(0.0)
+        try:
+            self.physics.set_muscle_supply(0.0)
+        except Exception as exc:  # vent must never raise
+            return VentResult.failed(f"simulated regulator: {exc}")
+        return VentResult.confirmed("simulated regulator commanded to 0 MPa")
 
 
 def build_sim_rig(
