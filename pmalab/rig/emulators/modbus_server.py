@@ -3,7 +3,20 @@
 The register map comes from the rig file: every input channel's and analog output's
 registers exist (shared block: FC3 and FC4 read the same registers, as on a LabJack T7);
 every other address answers ILLEGAL DATA ADDRESS, so a wrong register map in a rig file is
-caught as on a real device.
+caught as on a real device.  The emulator answers malformed requests as a device does:
+
+* FC3/FC4 with 0 or more than 125 registers → exception 03 (ILLEGAL DATA VALUE) with the
+  request's function code | 0x80 (``StrictReadHolding``/``StrictReadInput``; pymodbus itself
+  would answer function 0x80, exception 01);
+* FC6/FC16 to an input (read-only) register, to part of a multi-register output (half a
+  FLOAT32) or starting inside one (misaligned) → exception 02;
+* an output value that is not finite or outside the output's electrical range (e.g. a
+  0–5 V DAC) → exception 03, and nothing is written;
+* FC1/FC2/FC5/FC15: the module has no bit-addressed data → exception 02;
+* Modbus RTU answers only the rig file's ``device_id`` (other units' frames are ignored, as
+  on a shared RS-485 line); Modbus TCP answers any unit id, as a T7 does.
+
+A fault inside the callback becomes exception 04 with one log line, never a traceback.
 
 The ``SimDevice`` action callback (an ``async`` function pymodbus calls on every register
 access, before it answers) does the physics:
@@ -26,14 +39,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
+import math
+import struct
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from pymodbus.constants import ExcCodes
+from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu import ExceptionResponse, ModbusPDU
+from pymodbus.pdu.register_message import ReadHoldingRegistersRequest
 from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
+from pymodbus.simulator.simcore import SimCore
 
 from pmalab.rig.drivers.rigfile import ModbusRigSpec, OutputSpec
 from pmalab.rig.emulators.faults import FaultPlan
@@ -41,6 +61,59 @@ from pmalab.rig.emulators.plant import EmulatedPlant
 
 #: how far outside its range an ``out_of_range`` fault drives a channel (raw units)
 OUT_OF_RANGE_RAW = 1e4
+#: function codes of bit-addressed data (coils, discrete inputs), which the module lacks
+BIT_FUNCTIONS = (1, 2, 5, 15)
+#: slack on an output's electrical range (raw units): an integer register's scaled value
+#: at the range's end must not be refused for round-off
+RANGE_SLACK = 1e-9
+
+log = logging.getLogger("pmalab.emulator")
+
+
+class StrictReadHolding(ReadHoldingRegistersRequest):
+    """FC3 whose register count is checked when answering, as a device does.
+
+    pymodbus checks the count (1…125) while *decoding* and answers a bad one with function
+    0x80 and exception 01; a device answers 0x83 with exception 03 (ILLEGAL DATA VALUE).
+    """
+
+    def decode(self, data: bytes) -> None:
+        self.address, self.count = struct.unpack(">HH", data[:4])
+
+    async def datastore_update(self, context: Any, device_id: int) -> ModbusPDU:
+        if not 1 <= self.count <= self.MAX_COUNT:
+            return ExceptionResponse(self.function_code, ExcCodes.ILLEGAL_VALUE)
+        return await super().datastore_update(context, device_id)
+
+
+class StrictReadInput(StrictReadHolding):
+    """FC4, checked like :class:`StrictReadHolding`."""
+
+    function_code = 4
+
+
+STRICT_PDUS: list[type[ModbusPDU]] = [StrictReadHolding, StrictReadInput]
+
+
+class SingleUnitCore(SimCore):
+    """pymodbus's ``SimCore`` answering only its own unit ids.
+
+    ``SimCore`` falls back to device 0 for an unknown id (and fails with a ``KeyError``
+    when there is none); an RTU device on a shared line stays silent instead.  Raising
+    ``NoSuchIdException`` lets a server with ``ignore_missing_devices`` send nothing.
+    """
+
+    def _known(self, device_id: int) -> None:
+        if device_id not in self.devices:
+            raise NoSuchIdException(f"no unit {device_id} on this line")
+
+    async def async_getValues(self, device_id: int, *args: Any, **kwargs: Any) -> Any:
+        self._known(device_id)
+        return await super().async_getValues(device_id, *args, **kwargs)
+
+    async def async_setValues(self, device_id: int, *args: Any, **kwargs: Any) -> Any:
+        self._known(device_id)
+        return await super().async_setValues(device_id, *args, **kwargs)
 
 
 def register_runs(addresses: set[int]) -> list[tuple[int, int]]:
@@ -68,12 +141,18 @@ class ModbusDeviceModel:
                 continue
             cmd = plant.command_cylinder if name == "cylinder_regulator" else plant.command_muscle
             self.outputs.append((o, cmd))
-        addrs: set[int] = set()
+        inputs: set[int] = set()
         for c in self.inputs:
-            addrs.update(range(c.address, c.address + c.codec.width))
+            inputs.update(range(c.address, c.address + c.codec.width))
+        outputs: set[int] = set()
         for o, _ in self.outputs:
-            addrs.update(range(o.address, o.address + o.codec.width))
-        self.runs = register_runs(addrs)
+            outputs.update(range(o.address, o.address + o.codec.width))
+        #: (start, count, read-only) register runs: inputs are read-only, outputs writable
+        self.blocks = [(a, n, True) for a, n in register_runs(inputs)] + [
+            (a, n, False) for a, n in register_runs(outputs)]
+        self.runs = register_runs(inputs | outputs)
+        #: the unit id answered: 0 = any (Modbus TCP, as a T7), else the rig file's (RTU)
+        self.device_id = spec.transport.device_id if spec.transport.type == "rtu" else 0
         self.in_lo = min(c.address for c in self.inputs)
         self.in_hi = max(c.address + c.codec.width for c in self.inputs)
         self.reads = 0
@@ -83,9 +162,11 @@ class ModbusDeviceModel:
         self.watchdog_trips = 0
 
     def sim_device(self) -> SimDevice:
-        """The pymodbus ``SimDevice`` (id 0 = answers any unit id, as a T7 does)."""
-        data = [SimData(address=a, count=n, values=0, datatype=DataType.REGISTERS) for a, n in self.runs]
-        return SimDevice(id=0, simdata=data, action=self.action)
+        """The pymodbus ``SimDevice``: inputs read-only, outputs writable; unit
+        :attr:`device_id` (0 answers any unit id, as a T7 does)."""
+        data = [SimData(address=a, count=n, values=0, datatype=DataType.REGISTERS, readonly=ro)
+                for a, n, ro in sorted(self.blocks)]
+        return SimDevice(id=self.device_id, simdata=data, action=self.action)
 
     # ------------------------------------------------------------------ callback
     async def action(
@@ -100,12 +181,18 @@ class ModbusDeviceModel:
         self.last_request = time.perf_counter()
         if self.faults.take("exception"):
             return ExcCodes(self.faults.exception_code)
-        if function_code in (3, 4) and address < self.in_hi and address + count > self.in_lo:
-            self.reads += 1
-            self._fill_inputs(start_address, registers)
-        elif function_code in (6, 16) and set_values:
-            self.writes += 1
-            self._apply_outputs(start_address, address, [int(v) for v in set_values], registers)
+        try:
+            if function_code in BIT_FUNCTIONS:
+                return ExcCodes.ILLEGAL_ADDRESS
+            if function_code in (3, 4) and address < self.in_hi and address + count > self.in_lo:
+                self.reads += 1
+                self._fill_inputs(start_address, registers)
+            elif function_code in (6, 16) and set_values:
+                return self._apply_outputs(address, [int(v) for v in set_values])
+        except Exception as exc:  # a device reports a fault, it does not print a traceback
+            log.warning("emulated module: function %d at %d: %s: %s", function_code, address,
+                        type(exc).__name__, exc)
+            return ExcCodes.DEVICE_FAILURE
         return None
 
     def _fill_inputs(self, start_address: int, registers: list[int]) -> None:
@@ -121,20 +208,34 @@ class ModbusDeviceModel:
             k = c.address - start_address
             registers[k : k + len(words)] = words
 
-    def _apply_outputs(self, start_address: int, address: int, values: list[int], registers: list[int]) -> None:
+    def _apply_outputs(self, address: int, values: list[int]) -> ExcCodes | None:
+        """Check a write against the outputs it touches, then command them (all or none).
+
+        Returns exception 02 for a write covering part of an output (half a FLOAT32) or
+        starting inside one, 03 for a value that is not finite or outside the output's
+        electrical range; None when every touched output took its new value.
+        """
+        end = address + len(values)
+        commands: list[tuple[Callable[[float], None], float]] = []
         for o, command in self.outputs:
-            width = o.codec.width
-            if address + len(values) <= o.address or address >= o.address + width:
+            lo, hi = o.address, o.address + o.codec.width
+            if end <= lo or address >= hi:
                 continue
-            words = []
-            for a in range(o.address, o.address + width):
-                j = a - address
-                words.append(values[j] if 0 <= j < len(values) else registers[a - start_address])
-            raw = o.codec.decode(words)
-            raw = min(max(raw, o.raw_range[0]), o.raw_range[1])
+            if address > lo or end < hi:  # misaligned or partial
+                return ExcCodes.ILLEGAL_ADDRESS
+            raw = o.codec.decode(values[lo - address : hi - address])
+            if not (math.isfinite(raw) and o.raw_range[0] - RANGE_SLACK <= raw <= o.raw_range[1] + RANGE_SLACK):
+                return ExcCodes.ILLEGAL_VALUE
             assert o.calibration is not None
-            command(o.calibration(raw))
+            mpa = o.calibration(raw)
+            if not math.isfinite(mpa):
+                return ExcCodes.ILLEGAL_VALUE
+            commands.append((command, mpa))
+        self.writes += 1
+        for command, mpa in commands:
+            command(mpa)
             self.outputs_live = True
+        return None
 
     def watchdog(self, timeout_s: float, registers_zero: Callable[[], None]) -> bool:
         """Vent every output after ``timeout_s`` without a request (the T7's comm watchdog).
@@ -233,11 +334,14 @@ class ModbusEmulator:
         trace = self.model.make_trace_packet(self.framing, self._drop_connections)
         device = self.model.sim_device()
         if self.framing == "tcp":
-            self._server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=trace)
-        else:
+            self._server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=trace,
+                                           custom_pdu=STRICT_PDUS)
+        else:  # an RS-485 device ignores frames for other units
             self._server = ModbusSerialServer(
-                device, port=self.serial_port, baudrate=self.baudrate, trace_packet=trace
+                device, port=self.serial_port, baudrate=self.baudrate, trace_packet=trace,
+                custom_pdu=STRICT_PDUS, ignore_missing_devices=True,
             )
+            self._server.context = SingleUnitCore(device)
         await self._server.serve_forever(background=True)
         self._ready.set()
         watch = asyncio.ensure_future(self._watch(self.watchdog_s)) if self.watchdog_s else None
