@@ -160,6 +160,40 @@ def test_sensor_drift_is_a_ramp_in_time():
     assert np.array_equal(d["muscle_pressure"], b["muscle_pressure"])
 
 
+@pytest.mark.parametrize("tare_each_run", [False, True])
+def test_sensor_drift_carried_over_or_tared_at_each_run(tare_each_run):
+    """Two runs on the simulated rig (each starts with a muscle-supply request): a drifting
+    zero carried over from switch-on, or tared at each run's start so it grows from 0."""
+    from pmalab.rig.base import VirtualClock
+    from pmalab.rig.sim import make_sim_rig
+
+    drift = {"enabled": True, "force_N_per_min": 60.0, "position_mm_per_min": 0.06,
+             "tare_each_run": tare_each_run}
+    truth = default_truth().with_changes(**{"effects.sensor_drift": drift})
+    rigs = [make_sim_rig(t, seed=4, clock=VirtualClock()) for t in (truth, default_truth())]
+    diffs = {"force": [], "position": []}
+    starts = []
+    for p in (0.3, 0.45):  # run 1 from t = 0, run 2 after 20 s
+        for rig in rigs:
+            rig.clock.sleep_until(20.0 if p == 0.45 else 0.0)
+            rig.muscle_supply.request(p)
+        starts.append(rigs[0].clock.now())
+        for k in range(2500):  # 5 s at 500 Hz
+            blocks = []
+            for rig in rigs:
+                rig.clock.sleep_until(starts[-1] + k / 500.0)
+                blocks.append(rig.sampler.read_block())
+            for ch in diffs:
+                diffs[ch].append(float(getattr(blocks[0], ch)[0] - getattr(blocks[1], ch)[0]))
+    t = np.r_[starts[0] + np.arange(2500) / 500.0, starts[1] + np.arange(2500) / 500.0]
+    origin = np.r_[np.full(2500, starts[0]), np.full(2500, starts[1] if tare_each_run else 0.0)]
+    # the same seed, physics untouched: the difference is the drift itself (± quantisation)
+    np.testing.assert_allclose(diffs["force"], 1.0 * (t - origin), atol=0.11)
+    np.testing.assert_allclose(diffs["position"], 0.001 * (t - origin), atol=0.0011)
+    second_start = diffs["force"][2500]
+    assert (abs(second_start) < 0.2) if tare_each_run else (second_start > 19.0)
+
+
 def test_every_effect_off_by_default():
     t = default_truth()
     assert t.enabled_effects() == []

@@ -109,7 +109,8 @@ M_NOISE0 = 4  # 4 rms noises
 M_RES0 = 8  # 4 quantization steps
 M_DRIFT_F = 12  # N/s
 M_DRIFT_X = 13  # mm/s
-N_MPARAM = 14
+M_DRIFT_T0 = 14  # time the drifting zeros were last tared (s): drift = rate·(t − t0)
+N_MPARAM = 15
 
 # pointer array: pending-command ring head/tail, history ring write index and count
 R_HEAD = 0
@@ -357,9 +358,9 @@ def _measure(st, mpar, hist, ptr, noise, out):
         else:
             y = st[S_YX + c]
         if c == 0:
-            y += mpar[M_DRIFT_X] * t
+            y += mpar[M_DRIFT_X] * (t - mpar[M_DRIFT_T0])
         elif c == 1:
-            y += mpar[M_DRIFT_F] * t
+            y += mpar[M_DRIFT_F] * (t - mpar[M_DRIFT_T0])
         y += mpar[M_NOISE0 + c] * noise[c]
         r = mpar[M_RES0 + c]
         if r > 0.0:

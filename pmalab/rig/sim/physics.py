@@ -150,6 +150,8 @@ class RigPhysics:
         self._rng = np.random.default_rng(self.seed)
         self._noise = self._rng.standard_normal((_NOISE_BLOCK, 4))
         self._cylinder_command = 0.0
+        drift = truth.effect("sensor_drift")
+        self._tare_each_run = bool(drift and drift["tare_each_run"])
         # the sled starts at rest at nominal length, every pressure at zero
         self._st[K.S_YX] = 0.0
 
@@ -209,6 +211,16 @@ class RigPhysics:
                 f"0–{self.muscle_max_MPa:g} MPa"
             )
         self._st[K.S_PMSET] = min(max(mpa, 0.0), self.muscle_max_MPa)
+
+    def start_run(self) -> None:
+        """A run begins (the simulated rig calls this when a run's muscle pressure is requested).
+
+        With the sensor-drift effect's ``tare_each_run`` the operator tares the drifting
+        zeros now, so the drift grows from 0 in this run; otherwise nothing changes (the
+        zeros keep drifting from switch-on, carried over from run to run).
+        """
+        if self._tare_each_run:
+            self._mpar[K.M_DRIFT_T0] = self._st[K.S_T]
 
     @property
     def cylinder_command(self) -> float:

@@ -86,6 +86,7 @@ class SimMuscleSupply(MusclePressureSupply):
 
     def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
         self.physics.advance_to(self.clock.now())
+        self.physics.start_run()  # a run begins: re-tare drifting zeros if the truth says so
         if not self.automatic:
             text = f"Set the muscle regulator to {mpa:.4g} MPa, then confirm."
             self.prompts.append(text)

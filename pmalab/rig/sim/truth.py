@@ -181,6 +181,12 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "enabled": F(False, kind="bool"),
         "force_N_per_min": F(0.0, None, None, False, "load-cell zero drift (N/min)"),
         "position_mm_per_min": F(0.0, None, None, False, "position zero drift (mm/min)"),
+        "tare_each_run": F(
+            False,
+            kind="bool",
+            doc="true: the zeros are tared as each run's muscle pressure is requested, so the "
+            "drift grows from 0 in every run; false: it grows from switch-on, carried over",
+        ),
     },
 }
 
