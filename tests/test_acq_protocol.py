@@ -104,13 +104,31 @@ magnitude_MPa = 0.3
     assert r.duration_s == pytest.approx(1.0 + 2.0 + 10.0)
 
 
-@pytest.mark.parametrize("name", ["seed-bouc-wen", "seed-duhem", "quick"])
+@pytest.mark.parametrize(
+    "name", ["seed-bouc-wen", "seed-duhem", "quick", "two-frequency-campaign", "diagnosis-test"]
+)
 def test_shipped_protocols_load(name):
     p = load_protocol(PROTOCOLS_DIR / f"{name}.toml")
     assert p.runs
     for r in p.runs:
         assert 0 < r.muscle_pressure_MPa <= 0.6 and r.max_command_MPa <= 0.9
     assert p.duration_s < 400  # the demo simulates the campaign in seconds
+
+
+def test_diagnosis_test_campaign_separates_rate_effects_and_stays_small():
+    """The campaign the subtle-effect diagnosis tests record once per effect: two
+    frequencies (one ≥ 1 Hz for inertia), 3–4 identification pressures, validation runs at
+    interior pressures, and under a minute of rig time."""
+    p = load_protocol("diagnosis-test")
+    ident = [r for r in p.runs if r.role == "identification"]
+    val = [r for r in p.runs if r.role == "validation"]
+    freqs = {r.frequency_Hz for r in ident}
+    assert len(freqs) >= 2 and max(freqs) >= 1.0
+    levels = sorted({r.muscle_pressure_MPa for r in ident})
+    assert 3 <= len(levels) <= 4
+    assert val and all(levels[0] < r.muscle_pressure_MPa < levels[-1] for r in val)
+    assert {r.frequency_Hz for r in val} == freqs  # each rate is validated
+    assert p.duration_s < 60
 
 
 def test_seed_bouc_wen_matches_the_paper():
