@@ -124,6 +124,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(r.summary())
     total = sum(r.n_samples for r in results)
     print(f"{args.out}: {len(results)} runs, {total} samples")
+    for r in results:  # after the summaries: a run that did not keep its rate is not just "completed"
+        if r.warning:
+            print(f"pmalab run: warning: {args.out}: {r.warning}", file=sys.stderr)
     vent = rig.last_vent
     if vent is not None and not vent.ok:  # the data are safe; the rig may not be
         raise abort_error(f"{args.out}: all {len(results)} runs recorded, but {VENT_SLOT}", vent)

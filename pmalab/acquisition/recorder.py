@@ -53,8 +53,12 @@ from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION
 RECORDED = ("time", "position", "force", "muscle_pressure", "cylinder_pressure",
             "cylinder_pressure_command")
 #: fields of the per-run ``timing`` dataset (its ``fields`` attr)
+#: ``missed_fraction`` = missed / (samples + missed), ``late_fraction`` = late / samples;
+#: ``timing_warning`` is 1 when either exceeds ``warn_fraction`` (the run did not keep its
+#: rate: the CLI warns), else 0
 TIMING_FIELDS = ("start_unix_s", "n_samples", "duration_s", "late", "missed",
-                 "lateness_p50_s", "lateness_p99_s", "lateness_max_s", "late_threshold_s")
+                 "lateness_p50_s", "lateness_p99_s", "lateness_max_s", "late_threshold_s",
+                 "missed_fraction", "late_fraction", "warn_fraction", "timing_warning")
 STATUS_LEN = 256
 #: bytes reserved for the per-run ``device_stats`` JSON (fixed length: no resize in SWMR
 #: mode); a Modbus link + ITV + indicator report ~1 kB
@@ -118,6 +122,8 @@ class RunWriter:
         self.max_lateness = 0.0
         self.start_unix = time.time()
         self.late_threshold_s = 0.0
+        #: a run whose missed or late share exceeds this gets ``timing_warning`` = 1
+        self.warn_fraction = 0.01
         self._lateness_all: list[np.ndarray] = []
         self._t_first = self._t_last = 0.0
         self._fmin, self._fmax = math.inf, -math.inf
@@ -203,8 +209,13 @@ class RunWriter:
         if final and self._lateness_all:
             lat = np.concatenate(self._lateness_all)
             p50, p99 = (float(v) for v in np.percentile(lat, [50, 99]))
+        scheduled = self.n + self.n_missed
+        missed_frac = self.n_missed / scheduled if scheduled else 0.0
+        late_frac = self.n_late / self.n if self.n else 0.0
+        warn = float(missed_frac > self.warn_fraction or late_frac > self.warn_fraction)
         return np.array([self.start_unix, self.n, dur, self.n_late, self.n_missed, p50, p99,
-                         self.max_lateness, self.late_threshold_s], dtype=np.float64)
+                         self.max_lateness, self.late_threshold_s, missed_frac, late_frac,
+                         self.warn_fraction, warn], dtype=np.float64)
 
     def finish(self, status: str) -> dict[str, float]:
         """Write remaining samples, final timing statistics and ``status``; flush."""
@@ -256,7 +267,10 @@ class Recorder:
                 ds = g.create_dataset("lateness", shape=(0,), maxshape=(None,),
                                       chunks=(CHUNK,), dtype=np.float32)
                 ds.attrs["units"] = "s"
-                ds.attrs["description"] = "actual sample time minus its deadline"
+                ds.attrs["description"] = (
+                    "how late the sample was taken after its scheduled time: software-polled, "
+                    "the start of its request minus its deadline; hardware-timed, its "
+                    "timestamp minus its place on the nominal grid")
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
                 t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)

@@ -2,12 +2,19 @@
 
 Timing.  A software-polled sampler is read at absolute deadlines ``t0 + k/rate`` on the
 rig's clock (``RealClock.sleep_until`` sleeps, then spins; a ``VirtualClock`` jumps, so a
-simulated run goes as fast as the physics allows).  Each sample keeps its actual
-timestamp; its lateness (actual − deadline) is stored, samples later than
+simulated run goes as fast as the physics allows), ``rate`` being the rate recorded at
+(reduced or not).  Each sample keeps its actual timestamp (a Modbus sampler stamps the
+middle of its request).  Its lateness is measured against its own scheduled time: the
+moment its request started minus its deadline — so a slow link read steadily at a
+reduced rate is on time, however long each request takes.  Samples later than
 ``late_threshold_s`` are counted as *late*, and deadlines that passed entirely (more than
 one period overdue) are counted as *missed* and skipped — never dropped silently: the
 counts go into the run's ``timing`` dataset and the CLI summary.  A hardware-timed
-sampler paces itself; gaps in its timestamps count as missed samples.
+sampler paces itself; gaps in its timestamps count as missed samples, its lateness is the
+timestamp minus its place on the nominal grid.  A run that missed more than
+``timing_warn_fraction`` (1 %) of its scheduled samples, or had more than that share late,
+gets ``timing_warning = 1`` in its ``timing`` dataset and a warning line at the end of
+``pmalab run`` (:attr:`RunResult.warning`).
 
 Safety.  :func:`pmalab.acquisition.safety.preflight` refuses a protocol before the file
 is created or any device is commanded.  Every sample is checked against the rig's limits;
@@ -92,6 +99,22 @@ class RunResult:
     force_max: float
     timing: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def warning(self) -> str | None:
+        """One line when the run missed or was late on more than the warn fraction of its
+        samples (``timing_warning`` in its timing record), else None."""
+        t = self.timing
+        if not t.get("timing_warning"):
+            return None
+        late, missed = int(t.get("late", 0)), int(t.get("missed", 0))
+        scheduled = self.n_samples + missed
+        limit = 100 * t.get("warn_fraction", 0.01)
+        return (f"run '{self.name}' did not keep its sample rate: {missed} of {scheduled} "
+                f"scheduled samples missed ({100 * t.get('missed_fraction', 0.0):.1f} %), "
+                f"{late} of {self.n_samples} late ({100 * t.get('late_fraction', 0.0):.1f} %; "
+                f"more than {limit:g} % is a warning); the recorded samples keep their real "
+                "timestamps")
+
     def summary(self) -> str:
         t = self.timing
         frange = (f"force {self.force_min:.0f}…{self.force_max:.0f} N" if self.n_samples
@@ -111,6 +134,9 @@ class RunnerOptions:
 
     #: a sample later than this after its deadline counts as late (s)
     late_threshold_s: float = 0.5e-3
+    #: a run that missed more than this share of its scheduled samples, or had more than
+    #: this share late, is flagged (``timing_warning``) and warned about
+    timing_warn_fraction: float = 0.01
     #: longest wall time between two flushes of the file (s): bounds the loss on kill -9
     flush_interval_s: float = 0.25
     #: show a tqdm progress bar on stderr (off anyway when stderr is not a TTY)
@@ -367,6 +393,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
             for i, spec in enumerate(protocol.runs):
                 w = rec.writer(spec.name)
                 w.late_threshold_s = opts.late_threshold_s
+                w.warn_fraction = opts.timing_warn_fraction
                 try:
                     if i == 0:
                         rig.cylinder_regulator.set_pressure(0.0)
@@ -577,6 +604,9 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
         if not hw:
             deadline = t0 + k * dt
             clock.sleep_until(deadline)
+            # lateness: when the request starts, against the deadline (the sample's own
+            # timestamp lies inside the request, which may take most of a reduced period)
+            lateness = clock.now() - deadline
         blk = sampler.read_block()
         nb = len(blk)
         for j in range(nb):
@@ -594,7 +624,7 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                         break
                 last_t = t
                 deadline = t0 + k * dt
-            lateness = t - deadline
+                lateness = t - deadline
             reason = check(x, f, pm, pc)
             if reason is not None:
                 # trip: vent in this sample period, keep the sample, then abort
