@@ -1,8 +1,9 @@
 """CLI verbs of the acquisition area: ``pmalab run``, ``pmalab import``, ``pmalab recover``.
 
 ``pmalab run --rig sim|RIG.toml --protocol P.toml --out F.h5 [--force] [--seed N]
-[--realtime] [--quiet] [--only ROLE_OR_RUN ...]`` records a protocol (the simulated rig
-runs on its virtual clock unless ``--realtime``); ``pmalab import CSV --out F.h5 ...``
+[--realtime] [--quiet] [--only ROLE_OR_RUN ...] [--host H] [--port P]`` records a protocol
+(the simulated rig runs on its virtual clock unless ``--realtime``; ``--host/--port``
+override a Modbus TCP rig file's endpoint); ``pmalab import CSV --out F.h5 ...``
 converts another DAQ's CSV into a contract file.
 """
 
@@ -30,6 +31,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--realtime", action="store_true",
                    help="simulated rig: run on the real clock instead of the virtual one")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--host", default=None,
+                   help="Modbus TCP rig: connect to this host instead of the rig file's")
+    p.add_argument("--port", type=int, default=None,
+                   help="Modbus TCP rig: connect to this TCP port instead of the rig file's "
+                   "(e.g. the one 'pmalab emulate --port' listens on)")
     p.add_argument("--only", nargs="+", metavar="ROLE_OR_RUN",
                    help="record only runs with these roles (identification, validation) "
                    "or names")
@@ -72,12 +78,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=cmd_recover)
 
 
-def load_rig_spec(spec: str, *, seed: int | None = None, realtime: bool = False):
-    """``sim`` or a rig TOML path → a Rig; ``--realtime`` puts a simulated rig on the wall clock."""
+def load_rig_spec(spec: str, *, seed: int | None = None, realtime: bool = False,
+                  host: str | None = None, port: int | None = None):
+    """``sim`` or a rig TOML path → a Rig; ``--realtime`` puts a simulated rig on the wall
+    clock; ``host``/``port`` replace a Modbus TCP rig's endpoint."""
     from pmalab.rig.base import RealClock
     from pmalab.rig.loader import load_rig
 
-    return load_rig(spec, seed=seed, clock=RealClock() if realtime else None)
+    return load_rig(spec, seed=seed, clock=RealClock() if realtime else None, host=host,
+                    port=port)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -94,13 +103,18 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     if args.seed is not None and args.seed < 0:
         raise ConfigError(f"--seed: must be an integer ≥ 0, got {args.seed}")
+    if args.port is not None and not 1 <= args.port <= 65535:
+        raise ConfigError(f"--port: must be a TCP port 1…65535, got {args.port}")
+    if args.host is not None and not args.host.strip():
+        raise ConfigError("--host: must not be empty")
     protocol = load_protocol(args.protocol)
     if args.only:
         roles = [o for o in args.only if o in ("identification", "validation", "other")]
         names = [o for o in args.only if o not in roles]
         protocol = _select_either(protocol, roles, names)
     check_output(args.out, args.force)  # before the rig is even opened
-    rig = load_rig_spec(args.rig, seed=args.seed, realtime=args.realtime)
+    rig = load_rig_spec(args.rig, seed=args.seed, realtime=args.realtime, host=args.host,
+                        port=args.port)
 
     def on_term(signum, frame):  # SIGTERM aborts like Ctrl-C: vent, close, exit non-zero
         raise Terminated()

@@ -4,18 +4,23 @@
 device the rig file names (Modbus TCP/RTU I/O module, SMC ITV on RS-232C, load-cell
 indicator), all driven by one simulated rig, prints their endpoints and runs until Ctrl-C.
 In another shell, ``pmalab run --rig data/rigs/labjack-t7.toml ...`` then records through
-the real drivers.
+the real drivers; with ``--port P`` the printed command carries ``--port P`` too.
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import signal
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
 from pmalab.errors import ConfigError
+
+if TYPE_CHECKING:
+    from pmalab.rig.emulators.launcher import EmulatorSet
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +40,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-baud-pacing", action="store_true", help="RTU: deliver bytes at once instead of at the baud rate")
     p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)  # tests: stop after N s
     p.set_defaults(func=run_emulate)
+
+
+def run_command(rig: str, emus: EmulatorSet) -> str:
+    """The ``pmalab run`` command line that reaches these emulators: ``--port`` when the
+    Modbus TCP module listens elsewhere than the rig file says (``emulate --port``)."""
+    spec = emus.spec
+    port = ""
+    if spec.transport.type == "tcp" and int(spec.transport.port) != emus.modbus.port:
+        port = f" --port {emus.modbus.port}"
+    return f"pmalab run --rig {shlex.quote(rig)}{port} --protocol PROTOCOL.toml --out FILE.h5"
 
 
 def run_emulate(args: argparse.Namespace) -> int:
@@ -66,7 +81,7 @@ def run_emulate(args: argparse.Namespace) -> int:
         print(f"pmalab emulate: {emus.spec.name} — simulated rig in real time", flush=True)
         for line in emus.endpoints():
             print(f"  {line}", flush=True)
-        print(f"  now: pmalab run --rig {args.rig} --protocol PROTOCOL.toml --out FILE.h5", flush=True)
+        print(f"  now: {run_command(args.rig, emus)}", flush=True)
         print("  Ctrl-C to stop", flush=True)
         t_end = None if args.duration is None else time.monotonic() + args.duration
         while not stop.is_set() and (t_end is None or time.monotonic() < t_end):

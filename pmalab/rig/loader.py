@@ -30,6 +30,7 @@ from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
 from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig
+from pmalab.rig.drivers.rigfile import override_transport
 
 RigFactory = Callable[..., Rig]
 
@@ -80,15 +81,24 @@ RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
 RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
 
 
-def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None = None) -> Rig:
+#: rig kind → how ``--host/--port`` rewrite its ``[rig]`` table (kinds with a network link)
+TRANSPORT_OVERRIDES: dict[str, Callable[..., dict[str, Any]]] = {"modbus": override_transport}
+
+
+def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None = None,
+             host: str | None = None, port: int | None = None) -> Rig:
     """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
 
     ``seed`` (simulated rigs: the sensor-noise seed) overrides the rig file's ``seed``;
-    ``None`` keeps the file's (default 0).
+    ``None`` keeps the file's (default 0).  ``host``/``port`` replace a network rig's
+    endpoint (``pmalab run --host/--port``, e.g. the port ``pmalab emulate --port`` uses).
 
     Unknown kinds and bad fields raise a one-line :class:`ConfigError` naming file and field.
     """
+    override = host is not None or port is not None
     if str(spec) == "sim":
+        if override:
+            raise ConfigError("--host/--port: the simulated rig 'sim' has no network link")
         rig = RIG_KINDS["sim"]({}, None, seed=seed, clock=clock)
         rig.info.setdefault("rig_file", "sim")
         return rig
@@ -109,6 +119,11 @@ def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None =
         raise ConfigError(
             f"{where}: rig.kind: unknown kind {kind!r} (known: {', '.join(sorted(RIG_KINDS))})"
         )
+    if override:
+        if kind not in TRANSPORT_OVERRIDES:
+            raise ConfigError(f"--host/--port: {where} is a rig of kind {kind!r}, which has no "
+                              "network link (they apply to Modbus TCP rig files)")
+        section = TRANSPORT_OVERRIDES[kind](section, where, host=host, port=port)
     rig = RIG_KINDS[kind](section, path, seed=seed, clock=clock)
     if "limits" in doc:
         rig.limits = rig.limits.updated(doc["limits"], where)

@@ -277,6 +277,26 @@ def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
     raise ConfigError(f"{w} type {otype!r} is not 'analog' or 'itv-serial'")
 
 
+def override_transport(section: Mapping[str, Any], where: str, *, host: str | None = None,
+                       port: int | None = None) -> dict[str, Any]:
+    """A copy of a ``[rig]`` table with ``[rig.transport]`` host/port replaced (``pmalab run
+    --host/--port``); only for Modbus TCP (an RTU port is a serial device in the file)."""
+    out = dict(section)
+    tr = out.get("transport")
+    tr = dict(tr) if isinstance(tr, Mapping) else {}
+    ttype = str(tr.get("type", "tcp")).lower()
+    if ttype != "tcp":
+        flag = "--host" if host is not None else "--port"
+        raise ConfigError(f"{flag}: {where} talks Modbus {ttype.upper()} on a serial port; "
+                          "--host/--port apply to Modbus TCP rig files")
+    if host is not None:
+        tr["host"] = host
+    if port is not None:
+        tr["port"] = port
+    out["transport"] = tr
+    return out
+
+
 # --------------------------------------------------------------------------- building
 def make_modbus_rig(
     section: Mapping[str, Any], rig_file: Path | None = None, *, seed: int | None = None, clock: Clock | None = None
