@@ -296,3 +296,34 @@ def test_a_file_hdf5_cannot_close_ends_the_cli_with_os_exit(tmp_path, monkeypatc
     err = capsys.readouterr().err
     assert err.count("\n") == 1, err
     assert "exception: RuntimeError: No space left on device" in err
+
+
+def test_both_regulators_are_commanded_before_either_confirmation_waits():
+    """An ITV's confirmation waits for its output to fall: the muscle's zero command must
+    not wait behind it (Rig.vent commands every regulator first, then confirms)."""
+    from pmalab.rig.base import VentResult
+
+    rig = make_fake_rig()
+    events = []
+
+    class SlowConfirm(type(rig.cylinder_regulator)):
+        def start_vent(self):
+            events.append("cylinder commanded")
+
+            def confirm():
+                events.append("cylinder confirmation waits")
+                return VentResult.confirmed("output fell")
+
+            return confirm
+
+    supply = rig.muscle_supply
+
+    def muscle_vent():
+        events.append("muscle commanded")
+        return VentResult.confirmed("ack")
+
+    supply.vent = muscle_vent
+    rig.cylinder_regulator = SlowConfirm(rig.clock)
+    report = rig.vent()
+    assert events == ["cylinder commanded", "muscle commanded", "cylinder confirmation waits"]
+    assert report.ok and report.cylinder.detail == "output fell"

@@ -95,3 +95,4 @@ def test_below_one_percent_is_not_flagged(tmp_path):
     t = res[0].timing
     assert t["missed"] == 1 and t["late"] == 1 and t["n_samples"] == 160
     assert t["timing_warning"] == 0 and res[0].warning is None
+

@@ -13,7 +13,7 @@ import argparse
 import signal
 import sys
 
-from pmalab.errors import ConfigError, SafetyAbort
+from pmalab.errors import ConfigError, PmalabError, SafetyAbort
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -132,6 +132,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         # closing the rig vented once more: a regulator that answers again is confirmed
         update_abort_vent(exc, rig.last_vent)
         raise
+    except PmalabError as exc:  # e.g. a refused protocol: say so if a vent failed too
+        vent = rig.last_vent
+        if vent is None or vent.ok:
+            raise
+        err = abort_error(f"{exc}; {VENT_SLOT}", vent)
+        err.hard_exit = exc.hard_exit
+        raise err from None
     finally:
         signal.signal(signal.SIGTERM, old)
     for r in results:

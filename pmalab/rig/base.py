@@ -255,17 +255,41 @@ class VentReport:
         return "; ".join(vent_phrase(role, r) for role, r in self.items)
 
 
+#: confirms a vent already commanded (may wait for a read-back) and returns its outcome
+VentConfirm = Callable[[], VentResult]
+
+
+def _raised(what: str, exc: Exception) -> VentResult:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return VentResult.failed(f"{what} raised {type(exc).__name__}: {text}")
+
+
 def vent_safely(vent: Callable[[], Any], what: str = "vent()") -> VentResult:
     """Call a ``vent`` and return its :class:`VentResult`; an exception or a missing
     result (a driver that does not report) is a FAILED vent, never a silent success."""
     try:
         res = vent()
     except Exception as exc:
-        text = " ".join(str(exc).split()) or type(exc).__name__
-        return VentResult.failed(f"{what} raised {type(exc).__name__}: {text}")
+        return _raised(what, exc)
     if not isinstance(res, VentResult):
         return VentResult.failed(f"{what} reported no outcome")
     return res
+
+
+def start_vent_safely(device: Any, what: str) -> VentConfirm:
+    """Phase one of a vent: command zero now (``device.start_vent()``, or ``vent()`` for
+    an object without it) and return the confirmation; never raises."""
+    start = getattr(device, "start_vent", None)
+    if not callable(start):
+        return lambda: vent_safely(device.vent, f"{what} vent()")
+    try:
+        confirm = start()
+    except Exception as exc:
+        res = _raised(f"{what} vent()", exc)
+        return lambda: res
+    if not callable(confirm):
+        return lambda: vent_safely(lambda: confirm, f"{what} vent()")
+    return lambda: vent_safely(confirm, f"{what} vent()")
 
 
 # --------------------------------------------------------------------------- devices
@@ -311,6 +335,16 @@ class PressureRegulator(ABC):
         acknowledged the command, and read it back as zero where it can.
         """
 
+    def start_vent(self) -> VentConfirm:
+        """Command zero now; return the confirmation, which may wait for a read-back.
+
+        :meth:`Rig.vent` commands every regulator before confirming any, so a slow
+        confirmation (an ITV's output falling) never delays the other regulator's vent.
+        Drivers whose confirmation waits override this; the default vents at once.
+        """
+        res = self.vent()
+        return lambda: res
+
 
 class MusclePressureSupply(ABC):
     """How the muscle's (nominally constant) pressure is set."""
@@ -330,6 +364,11 @@ class MusclePressureSupply(ABC):
             return VentResult.failed(f"{type(self).__name__} has no vent")
         return VentResult.manual()
 
+    def start_vent(self) -> VentConfirm:
+        """Command zero now, confirm later (see :meth:`PressureRegulator.start_vent`)."""
+        res = self.vent()
+        return lambda: res
+
 
 @dataclass
 class Rig:
@@ -346,14 +385,15 @@ class Rig:
     last_vent: VentReport | None = field(default=None, repr=False)
 
     def vent(self) -> VentReport:
-        """Vent the cylinder regulator first (it moves the load), then the muscle supply.
+        """Vent the cylinder regulator first (it moves the load), then the muscle supply;
+        only then wait for their confirmations.
 
         Never raises; the muscle is vented even when the cylinder's vent failed.  The
         report is also kept in :attr:`last_vent`.
         """
-        cyl = vent_safely(self.cylinder_regulator.vent, "cylinder regulator vent()")
-        mus = vent_safely(self.muscle_supply.vent, "muscle supply vent()")
-        self.last_vent = VentReport(cyl, mus)
+        cyl = start_vent_safely(self.cylinder_regulator, "cylinder regulator")
+        mus = start_vent_safely(self.muscle_supply, "muscle supply")
+        self.last_vent = VentReport(cyl(), mus())
         return self.last_vent
 
     def close(self) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from pmalab.errors import RigError
@@ -202,14 +203,22 @@ class ItvSerialRegulator(PressureRegulator):
 
     def vent(self) -> VentResult:
         """``SET 0``, then watch ``MON`` fall; the result says what was confirmed (never raises)."""
+        return self.start_vent()()
+
+    def start_vent(self) -> Callable[[], VentResult]:
+        """Send ``SET 0`` now; the returned confirmation watches ``MON`` fall."""
         self._stop_writer()
-        where = self.adapter.name
         try:
             self.set_counts(0)
         except Exception as exc:  # must never raise
-            return VentResult.failed(f"SET 0 not acknowledged by {where}: {one_line(exc)}")
+            res = VentResult.failed(f"SET 0 not acknowledged by {self.adapter.name}: {one_line(exc)}")
+            return lambda: res
         self.last_command_MPa = 0.0
         deadline = time.perf_counter() + self.vent_confirm_s
+        return lambda: self._confirm_vent(deadline)
+
+    def _confirm_vent(self, deadline: float) -> VentResult:
+        where = self.adapter.name
         while True:
             try:
                 p = self.monitor_pressure()

@@ -282,6 +282,10 @@ class ModbusAnalogOutput(PressureRegulator):
 
     def vent(self) -> VentResult:
         """Command 0 MPa; the result says whether the device confirmed it (never raises)."""
+        return self.start_vent()()
+
+    def start_vent(self) -> Callable[[], VentResult]:
+        """Write the zero value now; the returned confirmation reads the register back."""
         raw0 = self.raw_for(0.0)
         zero = self.codec.encode(raw0)
         link = self.link
@@ -289,10 +293,15 @@ class ModbusAnalogOutput(PressureRegulator):
             link.write_registers(self.address, zero)
         except Exception as exc:  # vent must never raise: it runs on every exit path
             last = link.last_error if link.last_error is not None else exc
-            return VentResult.failed(
+            res = VentResult.failed(
                 f"zero write to register {self.address} not acknowledged after "
                 f"{link.retries + 1} attempts; last: {one_line(last)}")
+            return lambda: res
         self.last_command_MPa = 0.0
+        return lambda: self._confirm_vent(zero, raw0)
+
+    def _confirm_vent(self, zero: list[int], raw0: float) -> VentResult:
+        link = self.link
         try:
             back = link.read_registers(self.address, len(zero), FC_READ_HOLDING)
         except Exception as exc:
@@ -323,6 +332,9 @@ class RegulatedMuscleSupply(MusclePressureSupply):
 
     def vent(self) -> VentResult:
         return self.regulator.vent()
+
+    def start_vent(self) -> Callable[[], VentResult]:
+        return self.regulator.start_vent()
 
 
 class ManualMuscleSupply(MusclePressureSupply):
