@@ -45,6 +45,18 @@ def test_hidden_truth_files_enable_their_effect(eid):
     assert rig.info["enabled_effects"] == t.enabled_effects()
 
 
+@pytest.mark.parametrize("name", [*EFFECT_SECTIONS, "sensor-drift-carried", "two-effects", "clean"])
+def test_subtle_truth_files(name):
+    """data/truth/subtle/: the realistic load-cell noise everywhere, one effect each."""
+    t = load_truth(TRUTH_DIR / "subtle" / f"{name}.toml")
+    expected = {"two-effects": ["viscous-friction", "asymmetric-hysteresis"], "clean": [],
+                "sensor-drift-carried": ["sensor-drift"]}.get(name, [name])
+    assert t.enabled_effects() == expected
+    assert t.sensors["force_noise_N"] == 4.0
+    if name.startswith("sensor-drift"):
+        assert t.effect("sensor-drift")["tare_each_run"] is (name == "sensor-drift")
+
+
 def test_negative_value_message(tmp_path):
     p = _write(tmp_path, "truth.toml", "[effects.viscous_friction]\nenabled = true\nc = -1\n")
     with pytest.raises(ConfigError) as ei:
