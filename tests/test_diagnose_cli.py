@@ -129,7 +129,7 @@ def test_diagnose_errors_are_one_line(viscous_file: Path, tmp_path: Path,
 
 def test_validate_files_and_user_effect(viscous_file: Path, tmp_path: Path) -> None:
     """--validate scores on held-out runs; a user effect from --effects takes part."""
-    from pmalab.identify.diagnose import diagnose
+    from pmalab.identify.diagnosis import diagnose
     from pmalab.identify.effects import EFFECTS
     from pmalab.runfile import read_runs
 

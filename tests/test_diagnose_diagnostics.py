@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pmalab.identify.diagnostics import (
+from pmalab.identify.diagnosis.diagnostics import (
     BINNED_UNITS,
     binned_mean,
     campaign_diagnostics,
     correlation,
+    integrated_act,
     run_diagnostics,
 )
-from pmalab.identify.ranking import effective_n, integrated_act
+from pmalab.identify.estimation.solver import n_eff
 from pmalab.identify.signals import Signals
 
 
@@ -60,7 +61,7 @@ def test_white_residual_is_white_and_cis_are_honest() -> None:
     rng = np.random.default_rng(7)
     r = rng.normal(0, 1, 20000)
     assert integrated_act(r) < 1.2
-    assert effective_n(r) > 15000
+    assert n_eff(r) > 15000
     # smooth residual: τ_int large, CI inflated accordingly
     s = np.convolve(r, np.ones(100) / 100, mode="same")
     assert integrated_act(s) > 50

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from pmalab.cli import main as pmalab_main
-from pmalab.identify.diagnose import diagnose
+from pmalab.identify.diagnosis import diagnose
 from pmalab.paths import TRUTH_DIR
 from pmalab.runfile import read_runs
 

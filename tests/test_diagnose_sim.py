@@ -10,7 +10,7 @@ Inertia needs a faster protocol to be visible at all (its force grows with ω²)
 elapsed time, 30 N/min is ~7 N over a 14 s run, about the clean model error): 6 cycles at
 0.25 and 0.5 Hz.
 
-Thresholds in :mod:`pmalab.identify.ranking` were chosen on seeds 0–2; these tests use
+Thresholds in :mod:`pmalab.identify.diagnosis.ranking` were chosen on seeds 0–2; these tests use
 seeds 11 and 12.
 """
 
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from pmalab.cli import main as pmalab_main
-from pmalab.identify.diagnose import diagnose
+from pmalab.identify.diagnosis import diagnose
 from pmalab.paths import TRUTH_DIR
 from pmalab.runfile import read_runs
 

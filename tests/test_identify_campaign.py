@@ -8,8 +8,8 @@ from identify_synth import FORCE_NOISE_N, TRUTH, make_run
 
 from pmalab.identify.api import identify
 from pmalab.identify.campaign import fit_campaign, predict_run
-from pmalab.identify.pressure import fit_quadratic
-from pmalab.identify.validate import metrics
+from pmalab.identify.campaign.pressure import fit_quadratic
+from pmalab.identify.metrics import metrics
 from pmalab.runfile import Run, read_runs, write_runs
 
 LEVELS = (0.2, 0.3, 0.4, 0.5, 0.6)
@@ -69,7 +69,7 @@ def test_units_kpa_and_m_give_same_parameters(tmp_path) -> None:
                                ("muscle_pressure", run.muscle_pressure * 1e3, "kPa")):
             g.create_dataset(ch, data=data).attrs["units"] = unit
     ra, rb = read_runs(a)[0], read_runs(b)[0]
-    from pmalab.identify.fit import fit_run
+    from pmalab.identify.estimation.single import fit_run
 
     pa, pb = fit_run(ra, "bouc-wen").values, fit_run(rb, "bouc-wen").values
     for name in pa:

@@ -101,7 +101,7 @@ def test_identify_writes_the_contract(files, capsys) -> None:
     ],
 )
 def test_bad_options_give_one_line(files, capsys, monkeypatch, argv_tail, needle) -> None:
-    import pmalab.identify.batch as batch
+    import pmalab.identify.campaign.batch as batch
 
     monkeypatch.setattr(batch, "SCHEDULER_TIMEOUT_S", 1.0)
     d, ident, _ = files
@@ -150,7 +150,7 @@ def test_api_reads_well(files) -> None:
 
 def test_sim_rig_run_fits_base_model(tmp_path, capsys) -> None:
     """A simulated-rig run (every effect off) is fitted by the base model above 90 %."""
-    from pmalab.identify.fit import fit_run
+    from pmalab.identify.estimation.single import fit_run
     from pmalab.runfile import read_runs
 
     path = tmp_path / "sim.h5"

@@ -19,7 +19,7 @@ import pytest
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import identify
 from pmalab.identify.effects import get_effect
-from pmalab.identify.fit import INITIAL_WINDOW_S, predict_free, record_params, tares
+from pmalab.identify.estimation.records import predict_record, record_names
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 from pmalab.paths import DATA_DIR
@@ -78,7 +78,7 @@ def test_drift_rate_is_per_run_nuisance(fits) -> None:
     # predicting another run: the drift rate is 0, not a pressure law
     for p in (0.2, 0.35, 0.5):
         assert cf.theta(p)["drift_d"] == 0.0 and cf.theta(p)["h0"] == 0.0
-    assert any("force tared" in w and "50 ms" in w for w in drift.warnings)
+    assert any("record zero estimated on each predicted run" in w for w in drift.warnings)
     assert not any("force tared" in w for w in fits[0].warnings)
 
 
@@ -92,23 +92,29 @@ def test_per_run_nuisances_are_written_to_the_json(fits, tmp_path) -> None:
     assert len(block["per_run"]["c0"]) == len(block["runs"])
 
 
-def test_tare_uses_only_the_first_window(drift_runs) -> None:
+def test_record_parameters_are_estimated_on_the_predicted_record(drift_runs) -> None:
+    """The record policy: a drifting-zero model estimates each predicted record's own zero,
+    drift rate and start state (muscle parameters held), nothing else."""
     run = next(r for r in drift_runs if r.attrs.get("role") == "validation").steady()
     sig = Signals.from_run(run)
     m = ForceModel("bouc-wen", [get_effect("sensor-drift")])
-    assert tares(m) and record_params(m) == ("h0", "drift_d")
-    assert record_params(ForceModel("bouc-wen")) == ("h0",) and not tares(ForceModel("bouc-wen"))
+    assert m.tares and m.record_params == ("h0", "drift_d")
+    assert record_names(m) == ("h0", "drift_d", "c0")
+    plain = ForceModel("bouc-wen")
+    assert plain.record_params == ("h0",) and not plain.tares
     th = {"k": -30.0, "c0": 800.0, "A": -15.0, "beta": 1.2, "gamma": 0.6, "n": 1.0,
           "h0": 123.0, "drift_d": 7.0}
     f = np.asarray(run.force, dtype=float)
-    p1 = predict_free(m, sig, th, force=f)
+    p1 = predict_record(m, sig, th, force=f)
     # a constant offset of the record moves the prediction by exactly that offset
-    np.testing.assert_allclose(predict_free(m, sig, th, force=f + 250.0), p1 + 250.0, atol=1e-6)
-    # the measured force after the first window never enters the prediction
-    n_win = int(round(INITIAL_WINDOW_S / float(np.median(np.diff(sig.t)))))
-    g = f.copy()
-    g[n_win + 5:] += 1e3
-    np.testing.assert_allclose(predict_free(m, sig, th, force=g), p1, atol=1e-9)
-    # the fitted h0 of another record is not used
-    np.testing.assert_allclose(predict_free(m, sig, {**th, "h0": -50.0}, force=f), p1,
-                               atol=1e-9)
+    np.testing.assert_allclose(predict_record(m, sig, th, force=f + 250.0), p1 + 250.0, atol=1e-3)
+    # a drift of the record's zero (4 N/s, centred) is followed by the prediction
+    ramp = 4.0 * (sig.t - 0.5 * (sig.t[0] + sig.t[-1]))
+    np.testing.assert_allclose(predict_record(m, sig, th, force=f + ramp), p1 + ramp, atol=1e-3)
+    # the fitted h0 and drift rate of another record are not used
+    np.testing.assert_allclose(predict_record(m, sig, {**th, "h0": -50.0, "drift_d": -3.0},
+                                              force=f), p1, atol=1e-6)
+    # the loop itself is not fitted: a distortion that is not a record parameter stays
+    bump = 30.0 * np.sin(2 * np.pi * 3.0 * (sig.t - sig.t[0]))
+    p_bump = predict_record(m, sig, th, force=f + bump)
+    assert np.sqrt(np.mean((p_bump - p1) ** 2)) < 0.1 * np.sqrt(np.mean(bump**2))

@@ -1,4 +1,4 @@
-"""Joint refinement of the pressure laws (pmalab.identify.joint) and the validation guards.
+"""Joint refinement of the pressure laws (pmalab.identify.estimation.joint) and the validation guards.
 
 The simulated-rig tests run the seed-bouc-wen protocol (7 identification runs 0.1–0.6 MPa,
 validation at 0.498 and 0.304 MPa) on ``data/rigs/sim-<effect>.toml`` and compare the mean
@@ -18,7 +18,7 @@ from identify_synth import TRUTH, make_run
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import Identification, check_prediction, identify, split_roles
 from pmalab.identify.campaign import ModelSpec, fit_campaign, refine_pressure_laws
-from pmalab.identify.joint import PressureBasis, start_laws
+from pmalab.identify.estimation.joint import PressureBasis, start_laws
 from pmalab.identify.outputs import identification_dict
 from pmalab.paths import RIGS_DIR
 from pmalab.runfile import read_runs

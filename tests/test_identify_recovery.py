@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from identify_synth import FORCE_NOISE_N, TRUTH, make_run
 
-from pmalab.identify.fit import fit_run
+from pmalab.identify.estimation.single import fit_run
+from pmalab.identify.metrics import loop_direction
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
-from pmalab.identify.validate import loop_direction
 
 #: relative tolerance on every free parameter (h0: absolute, N)
 RTOL = 0.02

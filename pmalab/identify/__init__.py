@@ -7,7 +7,13 @@ Notebook use (names are imported lazily so ``pmalab --help`` stays fast)::
     res = identify(runs, model="bouc-wen", validate=load("held-out.h5"))
     res.predict(runs[0]); res.plot_loops(); res.save("out/")
 
-Lower level: ``fit_run``, ``fit_campaign``, ``predict_run``, ``metrics``, ``ForceModel``.
+Lower level: ``fit_run``, ``fit_campaign``, ``predict_run``, ``metrics``, ``ForceModel``,
+``get_law`` (a law with its per-sample ``step``), ``diagnose``.
+
+Layout (one-way imports, checked by import-linter): ``laws/`` and ``effects/`` (what the
+model is) → ``estimation/`` (the one fitter) → ``campaign/`` (identification, pressure
+laws, validation) → ``diagnosis/`` (ranking and ladder through the same identification) →
+``api``/``outputs``/``cli``.
 """
 
 from __future__ import annotations
@@ -19,12 +25,12 @@ _EXPORTS = {
     "load": "pmalab.identify.api",
     "identify": "pmalab.identify.api",
     "Identification": "pmalab.identify.api",
-    "fit_run": "pmalab.identify.fit",
-    "FitResult": "pmalab.identify.fit",
+    "fit_run": "pmalab.identify.estimation.single",
+    "FitResult": "pmalab.identify.estimation.single",
     "fit_campaign": "pmalab.identify.campaign",
     "predict_run": "pmalab.identify.campaign",
     "CampaignFit": "pmalab.identify.campaign",
-    "metrics": "pmalab.identify.validate",
+    "metrics": "pmalab.identify.metrics",
     "ForceModel": "pmalab.identify.model",
     "Signals": "pmalab.identify.signals",
 }

@@ -22,11 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.batch import DEFAULT_JOBS
-from pmalab.identify.campaign import CampaignFit, ModelSpec, fit_campaign
+from pmalab.identify.campaign import (
+    CampaignFit,
+    ModelSpec,
+    Validation,
+    check_prediction,  # noqa: F401  (re-exported: the notebook API)
+    fit_and_validate,
+    validate_runs,
+)
+from pmalab.identify.campaign.batch import DEFAULT_JOBS
+from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
-from pmalab.identify.validate import metrics
 from pmalab.runfile import Run, read_runs
 
 
@@ -61,63 +68,6 @@ def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None =
     for p in flat:
         out.extend(read_runs(p, runs))
     return out
-
-
-#: a prediction counts as diverged when it leaves the measured force band by more than this
-#: many times the measured range (or is not finite)
-DIVERGED_RANGE_FACTOR = 2.0
-#: validation statuses: "ok", "extrapolated" (pressure outside the identified range),
-#: "diverged" (metrics withheld: see :func:`check_prediction`)
-VALIDATION_STATUSES = ("ok", "extrapolated", "diverged")
-
-
-def check_prediction(measured: np.ndarray, predicted: np.ndarray) -> str | None:
-    """Why a prediction is unusable (non-finite, or far outside the measured force band), or None.
-
-    Band: [min F − 2·range, max F + 2·range] of the measured force (N).  A model whose
-    hysteretic state runs away produces forces of thousands of N on a 700 N record; its
-    "fit %" would be a meaningless large negative number, so it is reported as diverged.
-    """
-    y = np.asarray(measured, dtype=np.float64)
-    yh = np.asarray(predicted, dtype=np.float64)
-    if not np.all(np.isfinite(yh)):
-        return f"prediction is not finite on {int(np.sum(~np.isfinite(yh)))} sample(s)"
-    lo, hi = float(np.min(y)), float(np.max(y))
-    rng = max(hi - lo, 1e-9)
-    worst = float(np.max(np.maximum(yh - hi, lo - yh)))
-    if worst > DIVERGED_RANGE_FACTOR * rng:
-        return (f"prediction leaves the measured force band [{lo:.4g}, {hi:.4g}] N by up to "
-                f"{worst:.4g} N (> {DIVERGED_RANGE_FACTOR:g}× its range)")
-    return None
-
-
-@dataclass
-class Validation:
-    """One held-out run predicted by the pressure-law model.
-
-    ``status``: ``"ok"``, ``"extrapolated"`` (the run's pressure lies outside the identified
-    range: θ(p) is extrapolated and clipped into the law's bounds) or ``"diverged"`` (the
-    prediction ran away; ``message`` says why).  A diverged run's ``metrics`` are still
-    computed (NaN where the prediction is not finite) so tools reading
-    ``identification.json`` keep working, but the CLI, ``repr`` and tables say DIVERGED
-    instead of printing its meaningless fit %.
-    """
-
-    run: Run
-    force_model: np.ndarray
-    metrics: dict
-    x_drive: np.ndarray
-    status: str = "ok"
-    message: str = ""
-
-    @property
-    def fit_percent(self) -> float:
-        return float(self.metrics["fit_percent"])
-
-    @property
-    def diverged(self) -> bool:
-        return self.status == "diverged"
-
 
 
 @dataclass
@@ -164,31 +114,9 @@ class Identification:
 
     def validate(self, runs: Iterable[Run]) -> list[Validation]:
         """Predict held-out runs and add them to :attr:`validation`."""
-        new = []
-        cf = self.campaign
-        for r in runs:
-            sig = Signals.from_run(r)
-            with np.errstate(all="ignore"):
-                fm = cf.predict(sig, force=r.force, initial=self.initial)
-            status, msg = "ok", ""
-            p = float(r.nominal_pressure)
-            if cf.extrapolates(p):
-                lo, hi = cf.pressure_range
-                status = "extrapolated"
-                msg = (f"{p:g} MPa is outside the identified range [{lo:g}, {hi:g}] MPa: "
-                       "θ(p) extrapolated and clipped into the law's bounds")
-                self.validation_warnings.append(f"{r.label}: {msg}")
-            with np.errstate(all="ignore"):
-                m = metrics(r.force, fm, sig.x)
-            why = check_prediction(r.force, fm)
-            if why is not None:
-                status, msg = "diverged", why + (f"; {msg}" if msg else "")
-                self.validation_warnings.append(
-                    f"{r.label}: the {cf.pressure_model} pressure-law model diverged on this "
-                    f"validation run ({why}); its fit % is meaningless")
-            new.append(Validation(run=r, force_model=fm, metrics=m, x_drive=sig.x,
-                                  status=status, message=msg))
+        new, warns = validate_runs(self.campaign, runs, self.initial)
         self.validation.extend(new)
+        self.validation_warnings.extend(warns)
         return new
 
     # ---- tables (pandas, imported lazily)
@@ -211,7 +139,7 @@ class Identification:
     def pressure_table(self):
         """DataFrame: q0, q1, q2, order and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in
         MPa; ``method`` "joint" = refined on all runs at once, see
-        :mod:`pmalab.identify.joint`)."""
+        :mod:`pmalab.identify.estimation.joint`)."""
         import pandas as pd
 
         return pd.DataFrame(
@@ -343,7 +271,7 @@ def identify(
     ``effects_files``: Python files defining user effects.  ``initial``: how a validation
     run's start state is set (``estimate`` | ``burn-in`` | ``zero``).  ``pressure_model``:
     ``"joint"`` (default: the pressure laws refined on all runs at once,
-    :mod:`pmalab.identify.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
+    :mod:`pmalab.identify.estimation.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
     values).  ``whole_run``: use every sample instead of each recorded run's full-amplitude
     cycles (:meth:`~pmalab.runfile.Run.steady`).
     """
@@ -365,8 +293,8 @@ def identify(
         spec = ModelSpec(model, tuple(effects), tuple(str(f) for f in effects_files))
         spec.build()  # fail early (unknown model/effect) before any work
         fm = spec
-    cf = fit_campaign(ident, fm, fixed=fixed, free=free, jobs=jobs, scheduler=scheduler,
-                      progress=progress, pressure_model=pressure_model)
-    res = Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes)
-    res.validate([*held, *(validate or [])])
-    return res
+    cf, vals, warns = fit_and_validate(
+        ident, fm, [*held, *(validate or [])], initial=initial, fixed=fixed, free=free,
+        jobs=jobs, scheduler=scheduler, progress=progress, pressure_model=pressure_model)
+    return Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes,
+                          validation=vals, validation_warnings=warns)

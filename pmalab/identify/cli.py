@@ -40,6 +40,9 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
                    help="Python file defining user effects (Effect subclasses)")
     p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
                    help="held-out run files to validate on")
+    p.add_argument("--hold-out", action="append", default=[], metavar="RUN[,RUN]",
+                   help="hold these runs of the input files out for validation (as "
+                        "`pmalab diagnose` does when no --validate is given)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.add_argument("--jobs", type=int, default=2, metavar="N",
@@ -95,6 +98,13 @@ def run_identify(args: argparse.Namespace) -> int:
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     runs = load(args.files)
     val = load(args.validate) if args.validate else []
+    hold = [n for item in args.hold_out for n in item.split(",") if n]
+    if hold:
+        unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
+        if unknown:
+            raise PmalabError(f"--hold-out {unknown[0]}: no such run in the input files")
+        val = [r for r in runs if r.name in hold or r.label in hold] + list(val)
+        runs = [r for r in runs if not (r.name in hold or r.label in hold)]
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
                    free=args.free, initial=args.initial, progress=not args.quiet and sys.stderr.isatty(),
@@ -161,7 +171,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pmalab.identify.diagnose import diagnose, write_outputs
+    from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import read_many
 
@@ -181,7 +191,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
                  progress=not args.quiet and sys.stderr.isatty(), whole_run=args.whole_run)
     jpath, hpath = write_outputs(d, out, force=args.force)
-    print(f"Effect ranking ({args.model}; held-out nrmse without → with each effect):")
+    st = d.settings
+    print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
+    print(f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
+          f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):")
     print(d.ranking_table())
     if d.ambiguous:
         print(f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: "
@@ -189,6 +202,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
     print("\nLadder (the error falling step by step):")
     print(d.ladder_table())
     worst = sorted(d.diagnostics.items(), key=lambda kv: -kv[1]["rmse"])[:3]
+    hint = " ".join(["pmalab identify", *args.files, "--model", args.model,
+                     *[f"--add {e}" for e in d.final_effects], *(["--validate", *args.validate]
+                                                                  if args.validate else []),
+                     *([st["identify_hint"]] if st.get("identify_hint") else []), "--out DIR"])
+    print(f"\nSame numbers from identification: {hint}")
     print("\nWhere the base model fails:")
     for key, dg in worst:
         print(f"  {key}: {dg['worst_region']}")

@@ -12,7 +12,7 @@ contraction grows), c0 in N (tension at x = 0 without hysteresis).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -31,6 +31,47 @@ class ForceModel:
         ids = [e.id for e in self.effects]
         if len(set(ids)) != len(ids):
             raise ValueError(f"effect added twice: {ids}")
+
+    # ------------------------------------------------------------------ declared roles
+    @property
+    def state_params(self) -> tuple[str, ...]:
+        """The law's start-state parameters (h0): properties of a record, not the muscle."""
+        return tuple(self.law.state_params)
+
+    @property
+    def record_params(self) -> tuple[str, ...]:
+        """Parameters that belong to one record: the law's start state and the effects'
+        ``nuisance_params`` (e.g. a drift rate)."""
+        out = list(self.state_params)
+        for e in self.effects:
+            out += [n for n in e.nuisance_params if n not in out]
+        return tuple(out)
+
+    @property
+    def tares(self) -> bool:
+        """True when an effect says the record's force zero is unknown (``Effect.tare``)."""
+        return any(e.tare for e in self.effects)
+
+    @property
+    def campaign_shared(self) -> tuple[str, ...]:
+        """Parameters with one value for a whole campaign (a rig property)."""
+        return tuple(n for e in self.effects for n in e.campaign_shared)
+
+    @property
+    def multistart(self) -> dict[str, tuple[float, ...]]:
+        """Multi-start grids of the effects' multi-modal parameters."""
+        out: dict[str, tuple[float, ...]] = {}
+        for e in self.effects:
+            out.update(e.multistart)
+        return out
+
+    def held_fixed(self) -> dict[str, float | None]:
+        """Parameters held by default: the law's degeneracy fixes (value) and effect
+        parameters the law does not use (None: held at their start value)."""
+        out: dict[str, float | None] = dict(self.law.default_fixed)
+        for e in self.effects:
+            out.update(dict.fromkeys(e.fixed_for_law(self.law.name)))
+        return out
 
     @property
     def name(self) -> str:
@@ -53,11 +94,17 @@ class ForceModel:
                 ps.add(p)
         return ps
 
-    def components(self, sig: Signals, theta: dict[str, float]) -> dict[str, np.ndarray]:
-        """Each additive part of the force (N): ``linear``, ``hysteresis``, one per effect."""
+    def drive(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
+        """The signals the law and the force terms see (after the effects' transforms,
+        e.g. a channel delay); ∂F/∂k is this drive's position."""
         s = sig
         for e in self.effects:
             s = e.transform(s, theta)
+        return s
+
+    def components(self, sig: Signals, theta: Mapping[str, float]) -> dict[str, np.ndarray]:
+        """Each additive part of the force (N): ``linear``, ``hysteresis``, one per effect."""
+        s = self.drive(sig, theta)
         extras: dict[str, float] = {}
         for e in self.effects:
             extras.update(e.law_extras(self.law.name, s, theta))
@@ -69,7 +116,7 @@ class ForceModel:
                 out[e.id] = np.broadcast_to(np.asarray(term, dtype=np.float64), s.t.shape)
         return out
 
-    def predict(self, sig: Signals, theta: dict[str, float]) -> np.ndarray:
+    def predict(self, sig: Signals, theta: Mapping[str, float]) -> np.ndarray:
         """Free-run force prediction (N) along the run."""
         return np.sum(list(self.components(sig, theta).values()), axis=0)
 

@@ -48,7 +48,7 @@ import numpy as np
 
 from pmalab import __version__
 from pmalab.errors import PmalabError
-from pmalab.identify.fit import STDERR_METHOD
+from pmalab.identify.estimation.solver import STDERR_METHOD
 from pmalab.paths import check_output
 from pmalab.runfile import Run, decode_attr
 

@@ -20,7 +20,7 @@ in the joint refinement of the pressure laws (like the start state h0, never a p
 θ(p)), and a prediction of *another* run sets them to 0.  ``tare = True`` says the record's
 force zero is unknown: a validation prediction with ``initial="estimate"`` then also
 estimates the run's force offset from its first ~50 ms of measured force
-(:func:`pmalab.identify.fit.predict_free`).
+(:func:`pmalab.identify.estimation.single.predict_free`).
 
 User effects: put subclasses in a Python file and pass ``--effects my_effects.py``; every
 ``Effect`` subclass with an ``id`` found there is registered.
@@ -57,6 +57,14 @@ class Effect:
     #: True when the record's force zero is unknown (a drifting sensor): predicting another
     #: run with ``initial="estimate"`` tares the force on its first ~50 ms
     tare: ClassVar[bool] = False
+
+    #: multi-start values of parameters whose cost is multi-modal (e.g. a channel delay: a
+    #: local minimum wherever a shift lines up one feature of the loop); the fitter tries
+    #: each value as a start and keeps the best
+    multistart: ClassVar[dict[str, tuple[float, ...]]] = {}
+    #: parameters that describe the rig, not the muscle (e.g. a channel skew): one value for
+    #: every run of a campaign (pressure order 0 in the joint fit)
+    campaign_shared: ClassVar[tuple[str, ...]] = ()
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         """Parameters with start values and bounds sized from the data.

@@ -2,7 +2,7 @@
 
 The seeds fit each identified parameter as a quadratic in the muscle pressure over the
 identification pressure levels.  We weight each run's value by 1/stderr (the
-autocorrelation-corrected standard error of :mod:`pmalab.identify.fit`), so a badly
+autocorrelation-corrected standard error of :mod:`pmalab.identify.estimation.single`), so a badly
 determined value does not drag the curve; a parameter that was held fixed has no stderr
 and gets equal weights.  With fewer than three distinct pressure levels the degree drops
 (two levels: a line; one level: a constant) and the unused coefficients are 0 — the fit
@@ -10,7 +10,7 @@ records the degree used.  R² is the weighted coefficient of determination.
 
 These per-run quadratics are the *start* of the campaign's pressure laws: the campaign then
 refines the coefficients jointly on the free-run error of all runs, with each parameter's
-order chosen (0, 1 or 2) — :mod:`pmalab.identify.joint`.  A refined fit keeps the per-run
+order chosen (0, 1 or 2) — :mod:`pmalab.identify.estimation.joint`.  A refined fit keeps the per-run
 quadratic in ``per_run_coef`` and reports R²/residuals of the per-run values about the
 refined law (``method = "joint"``).
 """
@@ -21,6 +21,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from pmalab.identify.estimation.basis import fit_polynomial, weights
+from pmalab.identify.estimation.basis import weighted_r2 as _r2
 
 
 @dataclass
@@ -65,37 +68,15 @@ def fit_quadratic(
     stderr: Sequence[float | None] | None = None,
     max_degree: int = 2,
 ) -> PressureFit:
-    """Weighted least-squares quadratic of ``values`` against ``pressures`` (MPa)."""
-    p = np.asarray(pressures, dtype=np.float64)
-    y = np.asarray(values, dtype=np.float64)
-    se_in = list(stderr) if stderr is not None else [None] * len(p)
-    se = np.array([np.nan if s is None else float(s) for s in se_in])
-    good = np.isfinite(se) & (se > 0)
-    if good.any():
-        # runs without a usable stderr get the median of the others (not infinite weight)
-        se = np.where(good, se, float(np.median(se[good])))
-        w = 1.0 / se
-    else:
-        w = np.ones_like(y)
-    levels = np.unique(np.round(p, 4))
-    deg = int(min(max_degree, max(len(levels) - 1, 0)))
-    V = np.vander(p, deg + 1, increasing=True)
-    coef, *_ = np.linalg.lstsq(V * w[:, None], y * w, rcond=None)
-    fitted = V @ coef
-    res = y - fitted
-    yw = float(np.sum(w * w * y) / np.sum(w * w))
-    ss_tot = float(np.sum((w * (y - yw)) ** 2))
-    ss_res = float(np.sum((w * res) ** 2))
-    if ss_tot > 1e-24 * max(1.0, float(np.sum((w * y) ** 2))):
-        r2 = 1.0 - ss_res / ss_tot
-    else:
-        r2 = 1.0 if ss_res <= 1e-24 * max(1.0, float(np.sum((w * y) ** 2))) else 0.0
-    q = [0.0, 0.0, 0.0]
-    q[: deg + 1] = [float(c) for c in coef]
-    return PressureFit(name=name, coef=(q[0], q[1], q[2]), degree=deg, r2=float(r2),
-                       pressures=[float(v) for v in p], values=[float(v) for v in y],
+    """Weighted least-squares quadratic of ``values`` against ``pressures`` (MPa): the
+    per-run law, through the one polynomial fit
+    (:func:`~pmalab.identify.estimation.basis.fit_polynomial`)."""
+    se_in = list(stderr) if stderr is not None else [None] * len(values)
+    pf = fit_polynomial(pressures, values, weights(se_in, len(se_in)), max_degree=max_degree)
+    return PressureFit(name=name, coef=pf.coef, degree=pf.degree, r2=float(pf.r2),
+                       pressures=[float(v) for v in pressures], values=[float(v) for v in values],
                        stderr=[None if s is None else float(s) for s in se_in],
-                       residuals=[float(v) for v in res])
+                       residuals=list(pf.residuals))
 
 
 def weighted_r2(values: Sequence[float], fitted: Sequence[float],
@@ -103,17 +84,5 @@ def weighted_r2(values: Sequence[float], fitted: Sequence[float],
     """(weighted R², residuals) of per-run ``values`` about a given law's ``fitted`` values."""
     y = np.asarray(values, dtype=np.float64)
     f = np.asarray(fitted, dtype=np.float64)
-    se_in = list(stderr) if stderr is not None else [None] * len(y)
-    se = np.array([np.nan if s is None else float(s) for s in se_in])
-    good = np.isfinite(se) & (se > 0)
-    w = 1.0 / np.where(good, se, float(np.median(se[good]))) if good.any() else np.ones_like(y)
-    res = y - f
-    yw = float(np.sum(w * w * y) / np.sum(w * w))
-    ss_tot = float(np.sum((w * (y - yw)) ** 2))
-    ss_res = float(np.sum((w * res) ** 2))
-    tiny = 1e-24 * max(1.0, float(np.sum((w * y) ** 2)))
-    if ss_tot > tiny:
-        r2 = 1.0 - ss_res / ss_tot
-    else:
-        r2 = 1.0 if ss_res <= tiny else 0.0
-    return float(r2), [float(v) for v in res]
+    w = weights(list(stderr) if stderr is not None else None, y.shape[0])
+    return float(_r2(y, f, w)), [float(v) for v in y - f]

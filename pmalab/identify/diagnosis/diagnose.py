@@ -2,15 +2,17 @@
 
 ``diagnose(runs, model="bouc-wen")`` (and ``pmalab diagnose``):
 
-1. fits the base law on every pressure group (runs at one nominal pressure share
-   parameters; each run keeps its own h0 and c0), on each run's first ⅔, and scores the
-   free-run prediction on the last ⅓ (or on ``validate`` runs through pressure quadratics);
-2. ranks every catalogue effect (:mod:`pmalab.identify.ranking`) and climbs the ladder
-   (:mod:`pmalab.identify.ladder`);
-3. refits the base and the final ladder model on whole runs and computes the residual
-   diagnostics of each (:mod:`pmalab.identify.diagnostics`);
-4. writes ``diagnosis.json`` and ``predictions.h5`` (roles ``diagnosis`` for the base
-   model, ``diagnosis-final`` for the final ladder model).
+1. chooses the held-out runs exactly as ``pmalab identify`` would validate
+   (:mod:`.heldout`: ``--validate`` and role-tagged runs, else interior runs);
+2. identifies the base model and ranks every catalogue effect by the validation error
+   ``pmalab identify --add EFFECT`` gives on those runs (:mod:`.ranking`), climbing the
+   ladder (:mod:`.ladder`) while an effect is significant;
+3. estimates the measurement-noise floor of every held-out run from the data
+   (:mod:`pmalab.identify.noise`) and says what is left: the model at the floor, or an
+   unexplained structured residual N× the floor and where it is worst;
+4. computes the residual diagnostics of the base model on the held-out runs
+   (:mod:`.diagnostics`) and writes ``diagnosis.json`` and ``predictions.h5`` (roles
+   ``diagnosis`` for the base model, ``diagnosis-final`` for the final ladder model).
 """
 
 from __future__ import annotations
@@ -24,18 +26,20 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.diagnostics import campaign_diagnostics, run_diagnostics
+from pmalab.identify.campaign import ModelSpec
+from pmalab.identify.diagnosis.diagnostics import campaign_diagnostics, run_diagnostics
+from pmalab.identify.diagnosis.heldout import choose
+from pmalab.identify.diagnosis.ladder import LadderStep, Round, run_ladder
+from pmalab.identify.diagnosis.ranking import score
 from pmalab.identify.effects import EFFECTS, load_user_effects
-from pmalab.identify.ladder import LadderStep, Round, run_ladder
 from pmalab.identify.laws import LAWS
-from pmalab.identify.ranking import (
-    FIT_FRACTION,
-    PreparedRun,
-    build_model,
-    fit_group,
-    prepare_run,
-)
+from pmalab.identify.noise import noise_floor_nrmse
+from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
+
+#: the final model "reaches the noise floor" within this factor; above it the residual is
+#: structured and unexplained
+UNEXPLAINED_RATIO = 1.5
 
 PREDICTIONS_FORMAT = "pmalab.predictions"
 
@@ -78,6 +82,10 @@ class Diagnosis:
     diagnostics: dict[str, Any]
     campaign: dict[str, Any]
     summary: str
+    #: measurement-noise floor (nrmse) per held-out run and its mean
+    noise_floor: dict[str, Any] = field(default_factory=dict)
+    #: "floor" (the final model reaches the noise floor) or "unexplained"
+    verdict: str = ""
     rounds: list[dict[str, Any]] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
     #: per run: (run, base model force at full rate, final model force at full rate)
@@ -102,15 +110,18 @@ class Diagnosis:
             "final_model": "+".join([self.model, *self.final_effects]),
             "settings": self.settings,
             "summary": self.summary,
+            "noise_floor": self.noise_floor,
+            "verdict": self.verdict,
         }
         return json.loads(json.dumps(out, default=_json_default))
 
     def ranking_table(self) -> str:
         """The ranking as a fixed-width text table."""
-        rows = [("effect", "nrmse before", "nrmse after", "fall %", "ΔAIC", "k", "significant")]
+        rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
         for r in self.ranking:
             rows.append((r["effect"], f"{r['nrmse_before']:.4f}", f"{r['nrmse_after']:.4f}",
-                         f"{r['fall_percent']:+.1f}", f"{r['delta_aic']:.1f}", str(r["n_params"]),
+                         f"{r['fall_percent']:+.1f}", f"{2 * r['fall_se_percent']:.1f}",
+                         str(r["n_params"]),
                          "yes" if r["significant"] else ("ambiguous" if r["effect"] in self.ambiguous
                                                          else "no")))
         return _table(rows)
@@ -210,8 +221,8 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
         if d["ladder_step"] and d["ladder_step"] > 1:
             at = next(x for x in rounds[d["ladder_step"] - 1].candidates if x.effect == c.effect)
             d.update({k: v for k, v in at.as_json().items()
-                      if k in ("nrmse_before", "nrmse_after", "fall_percent", "delta_aic",
-                               "n_params", "runs_improved")})
+                      if k in ("nrmse_before", "nrmse_after", "fall_percent", "fall_se_percent",
+                               "n_params", "runs_improved", "per_run_before", "per_run_after")})
             d["scored_against"] = "+".join(steps[d["ladder_step"] - 1].effects)
         else:
             d["scored_against"] = "base"
@@ -222,47 +233,45 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
 
 
 def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: list[str],
-             diags: dict[str, Any], suggestion: str) -> str:
-    base = ladder[0]
-    parts = [f"Base {model} model: held-out nrmse {base['nrmse']:.4f} (fit {base['fit_percent']:.1f} %)."]
-    if diags:
-        worst_key = max(diags, key=lambda k: diags[k].get("rmse", 0.0))
-        parts.append(f"It fails worst on {worst_key}: {diags[worst_key]['worst_region']}.")
+             floor: float, worst: tuple[str, str] | None, suggestion: str, scheme: str) -> tuple[str, str]:
+    """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
+    identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
+    base, last = ladder[0], ladder[-1]
+    parts = [f"Base {model} model: validation nrmse {base['nrmse']:.4f} "
+             f"({base['nrmse'] / floor:.1f}× the noise floor {floor:.4f}; {scheme})."]
     if len(ladder) == 1:
         best = ranking[0] if ranking else None
-        parts.append("No missing effect is significant: the base model explains the data"
-                     + (f" (best candidate {best['effect']}: nrmse {best['nrmse_before']:.4f} → "
-                        f"{best['nrmse_after']:.4f}, not enough)." if best else "."))
+        parts.append("No catalogue effect cuts the validation error significantly"
+                     + (f" (best: {best['effect']}, {best['nrmse_before']:.4f} → "
+                        f"{best['nrmse_after']:.4f}, {best['fall_percent']:.0f} %)." if best else "."))
     else:
+        names = ", then ".join(s["added"] for s in ladder[1:])
+        total = 100.0 * (1.0 - last["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
         steps = " → ".join(f"+{s['added']} {s['nrmse']:.4f}" for s in ladder[1:])
-        first = ladder[1]
-        fall = 100.0 * (1.0 - first["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
-        if len(ladder) == 2:
-            parts.append(f"Missing effect: {first['added']} (held-out nrmse falls {fall:.0f} %).")
-        else:
-            total = 100.0 * (1.0 - ladder[-1]["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
-            names = ", then ".join(s["added"] for s in ladder[1:])
-            parts.append(f"Missing effects: {names} (held-out nrmse falls {total:.0f} % in all).")
-        parts.append(f"Ladder: {base['nrmse']:.4f} {steps}; nothing significant left.")
+        parts.append(f"Missing effect{'s' if len(ladder) > 2 else ''}: {names} — validation "
+                     f"nrmse {base['nrmse']:.4f} {steps} (−{total:.0f} %).")
+    ratio = last["nrmse"] / floor if floor > 0 else float("inf")
+    if ratio <= UNEXPLAINED_RATIO:
+        verdict = "floor"
+        parts.append(f"The {'final ' if len(ladder) > 1 else ''}model is at {ratio:.1f}× the "
+                     "noise floor: nothing structured is left to explain.")
+    else:
+        verdict = "unexplained"
+        where = f", worst on {worst[0]}: {worst[1]}" if worst else ""
+        parts.append(f"Unexplained structured residual, {ratio:.1f}× the noise floor{where} "
+                     "(a hysteresis law of another shape or an effect not in the catalogue).")
     if ambiguous:
         parts.append(f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
                      f"to separate them, {suggestion}.")
-    return " ".join(parts)
+    return " ".join(parts), verdict
 
 
-def _full_fit(law: str, effects: Sequence[str], group: Sequence[PreparedRun],
-              start: Sequence[dict[str, float]]) -> list[dict[str, float]]:
-    """Refit a group on whole runs (warm start) — the fit the diagnostics are made on.
-
-    Campaign-wide parameters (an effect's ``campaign_shared``, e.g. a channel delay) stay
-    at the ladder's pooled value."""
-    full = [PreparedRun(key=p.key, run=p.run, sig=p.sig, dsig=p.dsig, dforce=p.dforce,
-                        fit_mask=np.ones_like(p.fit_mask), val_mask=np.zeros_like(p.val_mask))
-            for p in group]
-    fixed = {nm: start[0][nm] for e in effects
-             for nm in getattr(EFFECTS[e], "campaign_shared", ()) if nm in start[0]}
-    ths, _, _ = fit_group(build_model(law, effects), full, start, fixed=fixed or None)
-    return ths
+def _traces(law: str, effects: Sequence[str], files: Sequence[str], train: Sequence[Run],
+            held: Sequence[Run]) -> list[np.ndarray]:
+    """Validation predictions (full rate) of an identification on the held-out runs."""
+    sc = score(train, held, ModelSpec(law, tuple(effects), tuple(files)), keep=True)
+    _, vals = sc.identification
+    return [np.asarray(v.force_model, dtype=np.float64) for v in vals]
 
 
 def diagnose(
@@ -279,9 +288,9 @@ def diagnose(
     """Diagnose ``model`` on ``runs``: rank the effects, climb the ladder, localise the error.
 
     ``effects``: candidate ids (default: the whole catalogue, plus any user effects loaded
-    from ``effects_files``).  ``validate``: held-out runs (default: each run's last third).
-    ``whole_run``: use every sample instead of each recorded run's full-amplitude cycles
-    (:meth:`~pmalab.runfile.Run.steady`).
+    from ``effects_files``).  ``validate``: held-out runs (default: see
+    :mod:`pmalab.identify.diagnosis.heldout`).  ``whole_run``: use every sample instead of
+    each recorded run's full-amplitude cycles (:meth:`~pmalab.runfile.Run.steady`).
     """
     if model not in LAWS:
         raise DiagnoseError(f"unknown model '{model}' (choose from {', '.join(LAWS)})")
@@ -290,7 +299,8 @@ def diagnose(
     if not runs:
         raise DiagnoseError("no runs to diagnose")
     user: list[str] = []
-    for f in effects_files:
+    files = [str(f) for f in effects_files]
+    for f in files:
         user += load_user_effects(f)
     cand = list(effects) if effects is not None else [*EFFECTS]
     for e in [*cand, *user]:
@@ -300,45 +310,54 @@ def diagnose(
     for r in [*runs, *validate]:
         if len(r) < 200:
             raise DiagnoseError(f"{r.label}: too few samples to diagnose ({len(r)}; need ≥ 200)")
-    train = [prepare_run(r, None if validate else FIT_FRACTION) for r in runs]
-    val = [prepare_run(r, None) for r in validate]
-    steps, rounds, gidx = run_ladder(train, model, cand, val, max_steps, jobs, progress)
+    split = choose(runs, validate)
+    if not split.train:
+        raise DiagnoseError("no identification runs left: every run is held out")
+    floors = {r.label: noise_floor_nrmse(r.force, r.time) for r in split.held}
+    floor = float(np.mean(list(floors.values())))
+    steps, rounds = run_ladder(split.train, split.held, model, cand, files, max_steps, jobs,
+                               progress)
     amb = rounds[0].ambiguous if rounds else []
     suggestion = suggest_experiment(amb)
     final = steps[-1].effects
 
-    # whole-run refits of the base and the final model → diagnostics and predictions
+    # the base and final identifications' predictions of the held-out runs → diagnostics
+    base_pred = _traces(model, (), files, split.train, split.held)
+    final_pred = base_pred if not final else _traces(model, final, files, split.train, split.held)
     diagnostics: dict[str, Any] = {}
     traces: list[tuple[Run, np.ndarray, np.ndarray]] = []
     camp_items = []
-    base_model, final_model = build_model(model, ()), build_model(model, final)
-    for gi, g in enumerate(gidx):
-        group = [train[i] for i in g]
-        th_base = _full_fit(model, (), group, steps[0].fits[gi].thetas)
-        th_final = (th_base if not final
-                    else _full_fit(model, final, group, steps[-1].fits[gi].thetas))
-        for pr, tb, tf in zip(group, th_base, th_final):
-            fb = base_model.predict(pr.sig, tb)
-            ff = final_model.predict(pr.sig, tf)
-            diagnostics[pr.key] = run_diagnostics(pr.sig, pr.run.force, fb)
-            diagnostics[pr.key]["nrmse_final"] = float(
-                np.sqrt(np.mean((pr.run.force - ff) ** 2)) / np.std(pr.run.force))
-            traces.append((pr.run, fb, ff))
-            camp_items.append((pr.sig.p_nom, pr.run.frequency, pr.run.force - fb))
+    for run, fb, ff in zip(split.held, base_pred, final_pred):
+        sig = Signals.from_run(run)
+        d = run_diagnostics(sig, run.force, fb)
+        d["nrmse_final"] = float(np.sqrt(np.mean((run.force - ff) ** 2)) / np.std(run.force))
+        d["noise_floor_nrmse"] = floors[run.label]
+        diagnostics[run.label] = d
+        traces.append((run, fb, ff))
+        camp_items.append((sig.p_nom, run.frequency, run.force - fb))
+    worst = None
+    if diagnostics:
+        wk = max(diagnostics, key=lambda k: diagnostics[k]["nrmse_final"] / max(floors[k], 1e-12))
+        worst = (wk, str(diagnostics[wk].get("worst_region", "")))
     ladder = [s.as_json() for s in steps]
     ranking = _ranking_json(rounds, steps, amb)
-    summary = _summary(model, ladder, ranking, amb, diagnostics, suggestion)
+    summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme)
     rounds_json = [{"step": r.step, "ambiguous": r.ambiguous,
                     "candidates": [c.as_json() for c in r.candidates]} for r in rounds]
-    settings = {"fit_fraction": None if validate else FIT_FRACTION,
-                "validation": "validation runs (pressure quadratics)" if validate
-                else "last third of each run (fit on the first two thirds)",
-                "groups": [[train[i].key for i in g] for g in gidx],
-                "max_steps": max_steps, "candidates": cand}
+    settings = {"validation": split.scheme,
+                "held_out": [r.label for r in split.held],
+                "identification_runs": [r.label for r in split.train],
+                "identify_hint": split.identify_hint,
+                "max_steps": max_steps, "candidates": cand,
+                "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
+                           "runs (one identification per candidate)"}
     return Diagnosis(model=model, ranking=ranking, ambiguous=list(amb),
                      suggested_experiment=suggestion, ladder=ladder, diagnostics=diagnostics,
                      campaign=campaign_diagnostics(camp_items), summary=summary,
-                     rounds=rounds_json, settings=settings, traces=traces,
+                     noise_floor={"mean_nrmse": floor, "per_run": floors,
+                                  "method": "third differences of the measured force, robust "
+                                            "scale (pmalab.identify.noise)"},
+                     verdict=verdict, rounds=rounds_json, settings=settings, traces=traces,
                      final_effects=list(final))
 
 

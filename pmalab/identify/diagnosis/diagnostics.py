@@ -27,7 +27,6 @@ import numpy as np
 from scipy.signal import hilbert
 
 from pmalab.identify.effects.inertia import smooth_acceleration
-from pmalab.identify.ranking import integrated_act
 from pmalab.identify.signals import Signals
 
 N_BINS = 12
@@ -41,6 +40,26 @@ BINNED_UNITS = {
     "time": "s",
     "branch": "-",
 }
+
+
+def integrated_act(r: np.ndarray, max_lag: int | None = None) -> float:
+    """Integrated autocorrelation time τ_int = 1 + 2·Σρ_k (to the first ρ_k ≤ 0), in samples."""
+    r = np.asarray(r, dtype=np.float64) - float(np.mean(r))
+    n = r.shape[0]
+    if n < 4 or not np.any(r):
+        return 1.0
+    nfft = 1 << (2 * n - 1).bit_length()
+    f = np.fft.rfft(r, nfft)
+    acf = np.fft.irfft(f * np.conj(f), nfft)[:n]
+    acf /= acf[0]
+    m = max_lag or n // 2
+    tau = 1.0
+    for k in range(1, m):
+        if acf[k] <= 0.0:
+            break
+        tau += 2.0 * acf[k]
+    return float(min(max(tau, 1.0), n))
+
 
 
 def _ci_scale(r: np.ndarray) -> float:

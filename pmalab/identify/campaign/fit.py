@@ -1,25 +1,24 @@
 """A campaign: per-run fits, pressure quadratics, and the pressure-parametrised model.
 
 ``fit_campaign(runs, model)`` fits every identification run (in parallel, see
-:mod:`pmalab.identify.batch`), makes the fixes consistent across runs (a parameter the fits
+:mod:`pmalab.identify.campaign.batch`), makes the fixes consistent across runs (a parameter the fits
 had to fix for collinearity on most runs is fixed on all, so the quadratics are not fed a
 mix), and fits θ(p) = q0 + q1·p + q2·p² for every parameter through the per-run values
 (weighted by their standard errors).  Those quadratics are only the start: the pressure
 laws are then refined *jointly* on the free-run error of all runs at once, each
 parameter's order (0, 1 or 2 in p) chosen so that collinear, poorly determined parameters
-become constants instead of noisy quadratics (:mod:`pmalab.identify.joint`;
+become constants instead of noisy quadratics (:mod:`pmalab.identify.estimation.joint`;
 ``pressure_model = "joint"``).
 
 The pressure-parametrised model predicts *any* run from its measured position and muscle
 pressure (:func:`predict_run`): the parameters are evaluated at the run's nominal pressure
 (θ(p_nom)) and clipped into the law's bounds; a pressure outside the identified range is
 extrapolation and is flagged (:meth:`CampaignFit.extrapolates`); effects that use the measured pressure trace get it through the signals; the
-start state h0 comes from a one-cycle burn-in (h0 is the start state of one run, not a
-property of the muscle, so its quadratic is reported but never used).  The same holds
-for the effects' record nuisance parameters (``Effect.nuisance_params``, e.g. a load cell's
-drift rate): one value per run in the joint fit, 0 when another run is predicted; a model
-with a drifting-zero effect (``Effect.tare``) also tares each predicted run's force on its
-first ~50 ms (:func:`pmalab.identify.fit.predict_free`).
+record parameters — the start state h0 and the effects' record nuisances
+(``Effect.nuisance_params``, e.g. a load cell's drift rate; with a drifting-zero effect,
+``Effect.tare``, also the force zero c0) — belong to one recording, not to the muscle: one
+value per run in the joint fit, and estimated on each predicted record with the muscle
+parameters held (:mod:`pmalab.identify.estimation.records`).
 """
 
 from __future__ import annotations
@@ -31,22 +30,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.batch import map_tasks
-from pmalab.identify.fit import (
-    STATE_PARAMS,
-    TARE_NOTE,
-    FitResult,
-    default_fixed_notes,
-    fit_run,
-    predict_free,
-    record_params,
-    tares,
-)
-from pmalab.identify.joint import JointFit, evaluate, prepare, refine, start_laws
+from pmalab.identify.campaign.batch import map_tasks
+from pmalab.identify.campaign.pressure import PressureFit, fit_quadratic, weighted_r2
+from pmalab.identify.estimation.joint import JointFit, evaluate, prepare, refine, start_laws
+from pmalab.identify.estimation.records import TARE_NOTE, predict_record
+from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
+from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
-from pmalab.identify.pressure import PressureFit, fit_quadratic, weighted_r2
 from pmalab.identify.signals import Signals
-from pmalab.identify.validate import metrics
 from pmalab.runfile import Run
 
 #: identification runs fitted worse than this (fit %) are named in the campaign warnings
@@ -161,19 +152,17 @@ class CampaignFit:
             v = float(pf(p))
             lo, hi = bounds.get(name, (-np.inf, np.inf))
             th[name] = float(min(max(v, lo), hi)) if np.isfinite(v) else v
-        for s in record_params(self.model):
-            if s in th or s not in STATE_PARAMS:
-                th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
+        for s in self.model.record_params:
+            th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
         return th
 
     def predict(self, run: Run | Signals, p_nom: float | None = None, *,
                 force: np.ndarray | None = None, initial: str = "estimate") -> np.ndarray:
         """Free-run force (N) of ``run`` from its position and pressure (see module doc).
 
-        The start state h0 is estimated from the first 50 ms of the measured force when it
-        is available (``initial``: see :func:`pmalab.identify.fit.predict_free`); with a
-        drifting-zero effect in the model the force offset (tare) is estimated from that
-        window instead.
+        The record parameters (h0, effect nuisances, a drifting zero) are set by ``initial``
+        (:mod:`pmalab.identify.estimation.records`: by default estimated on the record
+        itself with every muscle parameter held).
         """
         if isinstance(run, Run):
             force = run.force if force is None else force
@@ -181,7 +170,8 @@ class CampaignFit:
         else:
             sig = run
         p = sig.p_nom if p_nom is None else float(p_nom)
-        return predict_free(self.model, sig, self.theta(p), force=force, initial=initial)
+        return predict_record(self.model, sig, self.theta(p), force=force, initial=initial,
+                              bounds=self.bounds)
 
     def validate(self, run: Run, initial: str = "estimate") -> dict:
         """Metrics of this model's free-run prediction of ``run``."""
@@ -260,7 +250,7 @@ def fit_campaign(
     """Fit every run, make the fixes consistent, fit the pressure laws.
 
     ``pressure_model``: ``"joint"`` (default) refines the per-run quadratics jointly on all
-    runs with chosen orders (:mod:`pmalab.identify.joint`); ``"per-run"`` keeps the seeds'
+    runs with chosen orders (:mod:`pmalab.identify.estimation.joint`); ``"per-run"`` keeps the seeds'
     stderr-weighted quadratics through the per-run values.
     """
     if pressure_model not in PRESSURE_MODELS:
@@ -272,7 +262,7 @@ def fit_campaign(
     kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings = list(default_fixed_notes(fm, free))
-    if tares(fm):
+    if fm.tares:
         warnings.append(TARE_NOTE)
 
     # consistency: a collinear parameter fixed on most runs is fixed on all
@@ -354,7 +344,7 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     """Replace ``cf.pressure`` by the jointly refined laws (in place; see module doc).
 
     Parameters fixed on every run stay constants; each free parameter's order comes from
-    :func:`pmalab.identify.joint.choose_degrees`, then the joint fit (with per-run h0)
+    :func:`pmalab.identify.estimation.joint.start_laws`, then the joint fit (with per-run h0)
     refines the coefficients and prunes unsupported orders.  Every choice is recorded in
     ``cf.warnings``.
     """
@@ -362,20 +352,21 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     names = cf.parameter_names
     results = [rf.result for rf in rfs]
     # record nuisance parameters (e.g. a drift rate): one value per run, like h0
-    nuis_names = [n for n in record_params(cf.model) if n not in STATE_PARAMS and n in names
+    state = cf.model.state_params
+    nuis_names = [n for n in cf.model.record_params if n not in state and n in names
                   and any(r.params[n].vary for r in results)]
-    if tares(cf.model) and "c0" in names and any(r.params["c0"].vary for r in results):
+    if cf.model.tares and "c0" in names and any(r.params["c0"].vary for r in results):
         # a drifting zero: each record's force offset differs by the drift accumulated
         # before it, which c0's pressure law would absorb (the runs of a campaign are
         # recorded in pressure order, so time trends look like pressure trends).  c0 is then
         # a per-run parameter of the joint fit; its per-run quadratic is kept for prediction
-        # and every predicted run is tared (predict_free).
+        # and every predicted run gets its own (estimation.records).
         nuis_names.append("c0")
     nuisance = {n: [float(r.params[n].value) for r in results] for n in nuis_names}
     constants = {n: float(results[0].params[n].value) for n in names
-                 if n not in STATE_PARAMS and n not in nuisance
+                 if n not in state and n not in nuisance
                  and all(not r.params[n].vary for r in results)}
-    free = [n for n in names if n not in constants and n not in STATE_PARAMS
+    free = [n for n in names if n not in constants and n not in state
             and n not in nuisance]
     if not free:
         return
@@ -396,7 +387,8 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
         plain = ({n: cf.pressure[n].coef for n in free},
                  {n: cf.pressure[n].degree for n in free})
         joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0,
-                               alternatives=[plain], nuisance_start=nuisance or None)
+                               alternatives=[plain], nuisance_start=nuisance or None,
+                               fixed_order=[n for n in cf.model.campaign_shared if n in free])
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(f"joint refinement of the pressure laws failed ({exc}); "
                            "using the per-run quadratics")

@@ -1,0 +1,159 @@
+"""Scoring candidate effects by what ``pmalab identify --add`` gives on the held-out runs.
+
+A candidate effect is scored by running THE identification
+(:func:`~pmalab.identify.campaign.validation.fit_and_validate`: per-run fits, joint pressure
+laws, validation with the record policy) with the effect added, on the same identification
+and held-out runs as the current model — the way SysIdentPy's term selection scores a term
+with the estimator it fits with.  The numbers in the ranking are therefore the numbers the
+user gets from ``pmalab identify --add EFFECT --validate ...``.
+
+Significance follows from that fall and its uncertainty.  fall = 1 − mean(nrmse_after) /
+mean(nrmse_before) over the held-out runs; its spread comes from the per-run ratios
+ρ_i = after_i / before_i (standard error σ_ρ/√n).  An effect is *significant* when it cuts
+the held-out error by at least ``MIN_FALL`` = 30 % and the fall is clear of its noise
+(fall − 2·se ≥ ``MIN_CLEAR_FALL`` = 10 %).  Two significant effects are *ambiguous* when
+the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pmalab.identify.campaign import ModelSpec, fit_and_validate
+from pmalab.identify.campaign.batch import map_tasks
+from pmalab.identify.effects import EFFECTS
+from pmalab.runfile import Run
+
+#: an effect must cut the held-out nrmse by this fraction to be significant
+MIN_FALL = 0.30
+#: ... and the fall minus twice its standard error must stay above this
+MIN_CLEAR_FALL = 0.10
+#: runner-up / winner fall ratio above which two significant effects are ambiguous
+AMBIGUITY_RATIO = 0.85
+#: a diverged validation counts with this nrmse (it is then never significant)
+DIVERGED_NRMSE = 10.0
+
+
+@dataclass
+class Scored:
+    """One identification scored on the held-out runs."""
+
+    effects: tuple[str, ...]
+    nrmse: list[float]  # per held-out run
+    diverged: list[str] = field(default_factory=list)
+    n_params: int = 0
+    identification: Any = None  # (CampaignFit, validations) when kept in-process
+
+    @property
+    def mean(self) -> float:
+        return float(np.mean(self.nrmse)) if self.nrmse else float("nan")
+
+
+#: the identification and held-out runs of the running diagnosis (set before the worker
+#: processes fork, so the runs are not pickled once per task)
+_CONTEXT: dict[str, Any] = {}
+
+
+def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec,
+          keep: bool = False) -> Scored:
+    """Identify ``spec`` on ``train`` and validate on ``held`` — ``pmalab identify``'s path."""
+    cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
+    nr, div = [], []
+    for v in vals:
+        x = float(v.metrics["nrmse"])
+        if v.diverged or not math.isfinite(x):
+            div.append(v.run.label)
+            x = DIVERGED_NRMSE
+        nr.append(min(x, DIVERGED_NRMSE))
+    n_params = sum(1 for p in cf.runs[0].result.params if p.vary) if cf.runs else 0
+    return Scored(tuple(spec.effects), nr, div, n_params, (cf, vals) if keep else None)
+
+
+def _task(spec: ModelSpec) -> Scored:
+    return score(_CONTEXT["train"], _CONTEXT["held"], spec)
+
+
+def score_all(train: Sequence[Run], held: Sequence[Run], specs: Sequence[ModelSpec],
+              jobs: int = 1, progress: bool = False, desc: str = "candidates") -> list[Scored]:
+    """Score every model spec (in parallel over candidates: one identification each)."""
+    _CONTEXT.update(train=list(train), held=list(held))
+    try:
+        return map_tasks(_task, list(specs), jobs=jobs, progress=progress, desc=desc)
+    finally:
+        _CONTEXT.clear()
+
+
+@dataclass
+class Candidate:
+    """One effect's score against the current model on the held-out runs."""
+
+    effect: str
+    before: Scored
+    after: Scored
+    significant: bool = False
+
+    @property
+    def nrmse_before(self) -> float:
+        return self.before.mean
+
+    @property
+    def nrmse_after(self) -> float:
+        return self.after.mean
+
+    @property
+    def fall(self) -> float:
+        """1 − mean(after)/mean(before): the relative fall the user sees."""
+        b = self.nrmse_before
+        return 1.0 - self.nrmse_after / b if b > 0 else 0.0
+
+    @property
+    def fall_se(self) -> float:
+        """Standard error of the fall from the spread of the per-run ratios."""
+        b = np.asarray(self.before.nrmse, float)
+        a = np.asarray(self.after.nrmse, float)
+        if b.size < 2 or np.any(b <= 0):
+            return 0.0
+        return float(np.std(a / b, ddof=1) / math.sqrt(b.size))
+
+    @property
+    def runs_improved(self) -> float:
+        b = np.asarray(self.before.nrmse, float)
+        a = np.asarray(self.after.nrmse, float)
+        return float(np.mean(a < b)) if b.size else 0.0
+
+    def as_json(self) -> dict[str, Any]:
+        cls = EFFECTS.get(self.effect)
+        return {
+            "effect": self.effect,
+            "nrmse_before": float(self.nrmse_before),
+            "nrmse_after": float(self.nrmse_after),
+            "fall_percent": float(100.0 * self.fall),
+            "fall_se_percent": float(100.0 * self.fall_se),
+            "significant": bool(self.significant),
+            "n_params": int(self.after.n_params - self.before.n_params),
+            "runs_improved": float(self.runs_improved),
+            "per_run_before": [float(v) for v in self.before.nrmse],
+            "per_run_after": [float(v) for v in self.after.nrmse],
+            "diverged": list(self.after.diverged),
+            "title": cls.title if cls else "",
+            "explanation": cls.explanation if cls else "",
+            "signature": cls.signature if cls else "",
+        }
+
+
+def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
+    """Sort best first, mark significance (module docstring), find the ambiguous set."""
+    for c in cands:
+        c.significant = bool(not c.after.diverged and c.fall >= MIN_FALL
+                             and c.fall - 2.0 * c.fall_se >= MIN_CLEAR_FALL)
+    cands.sort(key=lambda c: -c.fall)
+    sig = [c for c in cands if c.significant]
+    amb: list[str] = []
+    if len(sig) >= 2 and sig[1].fall >= AMBIGUITY_RATIO * sig[0].fall:
+        amb = [c.effect for c in sig if c.fall >= AMBIGUITY_RATIO * sig[0].fall]
+    return cands, amb

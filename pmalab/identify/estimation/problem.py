@@ -1,0 +1,220 @@
+"""THE estimation problem: shared parameters through a pressure basis, plus per-run blocks.
+
+Every fit in pmalab is an instance of one problem.  Given runs i = 1..R (each a record at
+nominal muscle pressure p_i) and a force model F(sig; θ):
+
+* every *shared* parameter θ_j is a polynomial of order d_j ∈ {0, 1, 2} in p through the
+  Legendre basis of :mod:`.basis`: θ_j(p_i) = Σ_d c_jd·P_d(u(p_i)), clipped into the
+  parameter's bounds (order 0 coefficients are bounded directly);
+* every *per-run* parameter (the record's start state h0 and the record nuisances of the
+  effects, e.g. a drift rate or a tared force zero) has one free value per run;
+* the residual of run i is (F_model − F_measured)·w_i, stacked over runs.
+
+A single-run fit is R = 1 with every order 0 and w = 1; a campaign's joint pressure-law fit
+is R runs with w_i = 1/(σ_i·√N_i) (σ_i the run's own error scale, so each run counts
+equally); refitting the record parameters of a held-out run with the muscle parameters
+held is a problem with no shared parameters.  One residual, one Jacobian, one solver
+(:mod:`.solver`) and one uncertainty estimate serve them all.
+
+Jacobian: forward differences per *parameter* (one perturbation of θ_j evaluated on each
+run, chained to its basis coefficients) and per run for the per-run parameters; the linear
+parameters are analytic: ∂F/∂k is the (effect-transformed) drive position and ∂F/∂c0 = 1.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from pmalab.identify.estimation.basis import PressureBasis
+from pmalab.identify.model import ForceModel
+from pmalab.identify.signals import Signals
+
+#: parameters whose residual derivative is known in closed form (F = k·x + c0 + ...)
+LINEAR = ("k", "c0")
+
+
+@dataclass
+class Record:
+    """One run's data for the estimator (signals already filtered, possibly subsampled)."""
+
+    label: str
+    p_nom: float
+    sig: Signals
+    force: np.ndarray  # N
+    weight: float = 1.0  # residual multiplier
+
+    @property
+    def n(self) -> int:
+        return int(self.force.shape[0])
+
+    @property
+    def sd(self) -> float:
+        return max(float(np.std(self.force)), 1e-9)
+
+
+class Problem:
+    """Residual and Jacobian of one estimation problem (see the module docstring).
+
+    ``free``: shared parameter names with their pressure orders ``degree``; ``constants``:
+    parameters held fixed on every run; ``run_params``: per-run parameter names;
+    ``bounds``: (lo, hi) per parameter; ``cap``: limit of one weighted residual (a runaway
+    prediction becomes a large finite cost instead of inf), None for no cap.
+    """
+
+    def __init__(self, model: ForceModel, records: Sequence[Record], *, free: Sequence[str],
+                 degree: Mapping[str, int], constants: Mapping[str, float],
+                 bounds: Mapping[str, tuple[float, float]], run_params: Sequence[str] = (),
+                 cap: float | None = None, basis: PressureBasis | None = None) -> None:
+        self.model, self.records = model, list(records)
+        self.free = list(free)
+        self.degree = {n: int(degree[n]) for n in self.free}
+        self.constants = dict(constants)
+        self.bounds = dict(bounds)
+        self.run_params = list(run_params)
+        self.cap = cap
+        self.basis = basis or PressureBasis.over([r.p_nom for r in self.records])
+        ps = [r.p_nom for r in self.records]
+        self.B = {n: self.basis.matrix(ps, self.degree[n]) for n in self.free}
+        self.slices: dict[str, slice] = {}
+        i = 0
+        for n in self.free:
+            self.slices[n] = slice(i, i + self.degree[n] + 1)
+            i += self.degree[n] + 1
+        self.n_coef = i
+        self.n_var = i + len(self.records) * len(self.run_params)
+        offs = np.cumsum([0] + [r.n for r in self.records])
+        self.rows = [slice(int(a), int(b)) for a, b in itertools.pairwise(offs)]
+        self.n_rows = int(offs[-1])
+        self._cache: tuple[bytes, np.ndarray] | None = None
+
+    # ------------------------------------------------------------------ layout
+    def block(self, j: int) -> slice:
+        """z indices of the j-th per-run parameter (``run_params[j]``), one per run."""
+        R = len(self.records)
+        return slice(self.n_coef + j * R, self.n_coef + (j + 1) * R)
+
+    def z_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of z: order-0 coefficients and per-run values bounded, higher orders free
+        (their θ is clipped instead)."""
+        lo = np.full(self.n_var, -np.inf)
+        hi = np.full(self.n_var, np.inf)
+        for n in self.free:
+            if self.degree[n] == 0:
+                lo[self.slices[n]], hi[self.slices[n]] = self.bounds.get(n, (-np.inf, np.inf))
+        for j, rn in enumerate(self.run_params):
+            lo[self.block(j)], hi[self.block(j)] = self.bounds.get(rn, (-np.inf, np.inf))
+        return lo, hi
+
+    def z_from(self, coefs: Mapping[str, Sequence[float]],
+               run_values: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
+        """z from Legendre coefficients per free parameter (padded/truncated to its order)
+        and per-run values per run parameter (default 0)."""
+        z = np.zeros(self.n_var)
+        for n in self.free:
+            c = np.atleast_1d(np.asarray(coefs[n], dtype=float))
+            k = self.degree[n] + 1
+            z[self.slices[n]] = np.concatenate([c, np.zeros(max(0, k - c.size))])[:k]
+        for j, rn in enumerate(self.run_params):
+            if run_values and rn in run_values:
+                z[self.block(j)] = [float(v) for v in run_values[rn]]
+        return z
+
+    def coefficients(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        return {n: np.array(z[self.slices[n]]) for n in self.free}
+
+    def run_values(self, z: np.ndarray) -> dict[str, list[float]]:
+        return {rn: [float(v) for v in z[self.block(j)]] for j, rn in enumerate(self.run_params)}
+
+    # ------------------------------------------------------------------ parameters
+    def raw(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        """Unclipped θ_j at every run's pressure."""
+        return {n: self.B[n] @ z[self.slices[n]] for n in self.free}
+
+    def thetas(self, z: np.ndarray) -> list[dict[str, float]]:
+        """The full parameter set of every run."""
+        raw = self.raw(z)
+        out = []
+        for i in range(len(self.records)):
+            th = dict(self.constants)
+            for n in self.free:
+                lo, hi = self.bounds.get(n, (-np.inf, np.inf))
+                th[n] = float(min(max(raw[n][i], lo), hi))
+            for j, rn in enumerate(self.run_params):
+                th[rn] = float(z[self.block(j).start + i])
+            out.append(th)
+        return out
+
+    # ------------------------------------------------------------------ residuals
+    def run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
+        r = self.records[i]
+        with np.errstate(all="ignore"):
+            e = (self.model.predict(r.sig, th) - r.force) * r.weight
+        if self.cap is not None:
+            if not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > self.cap:
+                e = np.clip(np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
+                            -self.cap, self.cap)
+        elif not np.all(np.isfinite(e)):
+            e = np.nan_to_num(e, nan=1e9, posinf=1e9, neginf=-1e9)
+        return e
+
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        key = np.asarray(z, dtype=float).tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        e = np.concatenate([self.run_residual(i, th) for i, th in enumerate(self.thetas(z))])
+        self._cache = (key, e)
+        return e
+
+    def jac(self, z: np.ndarray, run_only: bool = False) -> np.ndarray:
+        """Jacobian of :meth:`residual` (``run_only``: only the per-run columns are filled)."""
+        z = np.asarray(z, dtype=float)
+        r0 = self.residual(z)
+        ths = self.thetas(z)
+        raw = self.raw(z)
+        J = np.zeros((self.n_rows, self.n_var))
+        for n in ([] if run_only else self.free):
+            lo, hi = self.bounds.get(n, (-np.inf, np.inf))
+            sl = self.slices[n]
+            for i, th in enumerate(ths):
+                if not (lo <= raw[n][i] <= hi):
+                    continue  # clipped: θ does not move with the coefficients here
+                d = self.dresid(i, th, n, r0)
+                J[self.rows[i], sl] = np.outer(d, self.B[n][i])
+        for j, rn in enumerate(self.run_params):
+            col0 = self.block(j).start
+            for i, th in enumerate(ths):
+                J[self.rows[i], col0 + i] = self.dresid(i, th, rn, r0)
+        return J
+
+    def dresid(self, i: int, th: Mapping[str, float], name: str, r0: np.ndarray) -> np.ndarray:
+        """∂(run i's residual)/∂θ_name: analytic for k and c0, else a forward difference
+        (stepping back at the upper bound)."""
+        rec = self.records[i]
+        if name == "c0":
+            return np.full(rec.n, rec.weight)
+        if name == "k":
+            return self.model.drive(rec.sig, th).x * rec.weight
+        v = th[name]
+        lo, hi = self.bounds.get(name, (-np.inf, np.inf))
+        h = math.sqrt(np.finfo(float).eps) * max(1.0, abs(v))
+        if v + h > hi:
+            h = -h
+        if not (lo <= v + h <= hi):
+            h = -h
+        th2 = dict(th)
+        th2[name] = v + h
+        return (self.run_residual(i, th2) - r0[self.rows[i]]) / h
+
+    # ------------------------------------------------------------------ summaries
+    def per_run_rmse(self, z: np.ndarray) -> list[float]:
+        """Each run's rmse (N) of the unweighted residual."""
+        e = self.residual(z)
+        return [float(np.sqrt(e[s] @ e[s] / r.n)) / r.weight for r, s in zip(self.records, self.rows)]
+
+    def per_run_nrmse(self, z: np.ndarray) -> list[float]:
+        return [rm / r.sd for rm, r in zip(self.per_run_rmse(z), self.records)]

@@ -1,0 +1,135 @@
+"""The one record policy: how a run's own parameters are set when a model predicts it.
+
+A *record parameter* belongs to one recording, not to the muscle: the law's start state h0
+and the effects' ``nuisance_params`` (a load cell's drift rate during that run), plus — for a
+model with a drifting-zero effect (``Effect.tare``) — the record's force zero c0.  Every fit
+gives them one value per run (:mod:`.problem`, per-run blocks).  When a model predicts a run
+it was not fitted on (validation, diagnosis, reports), the muscle parameters come from the
+pressure laws and the record parameters are set by ``initial``:
+
+* ``"estimate"`` (default; MATLAB ``compare``'s initial-condition estimate): the record
+  parameters are fitted by least squares on the predicted record itself with every muscle
+  parameter held — a start from the first 50 ms (h0 = median(F − F_model) there), then a
+  few Gauss–Newton steps.  One or two numbers per record against thousands of samples: it
+  cannot fit the loop, only say where the record started (a virgin muscle, an imported file
+  that starts mid-cycle, a drifted zero).  Without the measured force: ``"burn-in"``.
+* ``"burn-in"``: the first excitation period is replayed before the run, putting h on its
+  periodic orbit (record parameters other than h0 at 0);
+* ``"zero"``: every record parameter 0 (a virgin state, no drift).
+
+Identification's validation, diagnosis's scoring and the reports all predict through
+:func:`predict_record`, so the number a user reads is the same wherever it is shown.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import replace
+
+import numpy as np
+
+from pmalab.identify.estimation.problem import Problem, Record
+from pmalab.identify.estimation.solver import solve
+from pmalab.identify.model import ForceModel
+from pmalab.identify.signals import Signals
+
+#: how a prediction of another run sets its record parameters
+INITIAL_STATES = ("estimate", "burn-in", "zero")
+#: window used for the first estimate of the start state (s)
+INITIAL_WINDOW_S = 0.05
+#: Gauss–Newton evaluations for the record parameters of one predicted run
+RECORD_NFEV = 12
+
+#: the note every prediction with a drifting-zero effect carries (JSON warnings)
+TARE_NOTE = ("record zero estimated on each predicted run: the model has a drifting-zero effect "
+             "(sensor-drift), so each record's force offset (c0) and drift rate are record "
+             "parameters — fitted per run in identification and estimated on each predicted "
+             "run (initial='estimate') with every muscle parameter held")
+
+
+def record_names(model: ForceModel) -> tuple[str, ...]:
+    """The record parameters of ``model`` (see the module docstring)."""
+    out = list(model.record_params)
+    if model.tares and "c0" not in out:
+        out.append("c0")
+    return tuple(out)
+
+
+def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
+    """Signals with one excitation period (or the whole run) prepended; returns (sig, P).
+
+    Rate-independent laws depend on the path only, so replaying the first cycle before the
+    run puts the hysteretic state on its periodic orbit at the first sample.
+    """
+    n = sig.t.shape[0]
+    dt = float(np.median(np.diff(sig.t)))
+    if sig.frequency_Hz and sig.frequency_Hz > 0:
+        P = int(round(1.0 / (sig.frequency_Hz * dt)))
+        P = min(max(P, 2), n)
+    else:
+        P = n
+    shift = sig.t[P - 1] - sig.t[0] + dt
+
+    def cat(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a[:P], a])
+
+    aug = replace(sig, t=np.concatenate([sig.t[:P] - shift, sig.t]), x=cat(sig.x), v=cat(sig.v),
+                  a=cat(sig.a), p=cat(sig.p), x_raw=cat(sig.x_raw))
+    return aug, P
+
+
+def estimate_record(model: ForceModel, sig: Signals, force: np.ndarray,
+                    theta: Mapping[str, float],
+                    bounds: Mapping[str, tuple[float, float]] | None = None) -> dict[str, float]:
+    """``theta`` with the record parameters fitted on this record (muscle parameters held)."""
+    th = dict(theta)
+    names = [n for n in record_names(model) if n in th]
+    for n in names:
+        if n != "c0":
+            th[n] = 0.0
+    if not names:
+        return th
+    force = np.asarray(force, dtype=np.float64)
+    dt = float(np.median(np.diff(sig.t)))
+    m = max(1, min(sig.t.shape[0], int(round(INITIAL_WINDOW_S / dt))))
+    pred0 = model.predict(sig, th)
+    start = float(np.median(force[:m] - pred0[:m]))
+    if "h0" in names and np.isfinite(start):
+        th["h0"] = start
+    elif "c0" in names and np.isfinite(start):
+        th["c0"] = th.get("c0", 0.0) + start
+    b = dict(bounds or {})
+    for n in names:
+        b.setdefault(n, (-np.inf, np.inf))
+    prob = Problem(model, [Record("", sig.p_nom, sig, force)], free=[], degree={},
+                   constants={k: v for k, v in th.items() if k not in names}, bounds=b,
+                   run_params=names)
+    z0 = prob.z_from({}, {n: [th[n]] for n in names})
+    lo, hi = prob.z_bounds()
+    sol = solve(prob.residual, prob.jac, z0, lo, hi, max_nfev=RECORD_NFEV, tol=1e-6)
+    z = sol.x if sol.cost <= 0.5 * float(prob.residual(z0) @ prob.residual(z0)) else z0
+    th.update({n: v[0] for n, v in prob.run_values(z).items()})
+    return th
+
+
+def predict_record(model: ForceModel, sig: Signals, theta: Mapping[str, float],
+                   force: np.ndarray | None = None, initial: str = "estimate",
+                   bounds: Mapping[str, tuple[float, float]] | None = None) -> np.ndarray:
+    """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``.
+
+    ``theta``: the muscle parameters (record parameters in it are replaced).
+    """
+    if initial not in INITIAL_STATES:
+        raise ValueError(f"initial must be one of {INITIAL_STATES}, not {initial!r}")
+    th = dict(theta)
+    for n in model.record_params:
+        if n in th:
+            th[n] = 0.0
+    if initial == "estimate" and force is None:
+        initial = "burn-in"
+    if initial == "zero":
+        return model.predict(sig, th)
+    if initial == "burn-in":
+        aug, P = burn_in_signals(sig)
+        return model.predict(aug, th)[P:]
+    return model.predict(sig, estimate_record(model, sig, force, th, bounds))

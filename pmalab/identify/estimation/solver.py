@@ -1,0 +1,99 @@
+"""The one solver and the one uncertainty estimate of every fit pmalab makes.
+
+:func:`solve` is ``scipy.optimize.least_squares`` (trust-region reflective, bounds,
+``x_scale='jac'``) started strictly inside the bounds, with BLAS single-threaded (tall-skinny
+Jacobian products are slower threaded; batches parallelise across runs instead).
+
+:func:`uncertainty`: covariance s²·(JᵀJ)⁻¹ at the optimum, computed on the column-scaled
+Jacobian (pseudo-inverse, so a degenerate direction gives large errors instead of a crash),
+inflated by N/N_eff.  Residuals of a hysteresis fit are strongly autocorrelated (a model
+error persists over a loop), so naive standard errors are optimistic; N_eff is the AR(1)
+effective sample size N·(1 − ρ₁)/(1 + ρ₁) from each run's lag-1 residual autocorrelation ρ₁,
+summed over the runs of the problem.  The same N_eff enters every information criterion.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import OptimizeResult, least_squares
+from threadpoolctl import threadpool_limits
+
+STDERR_METHOD = (
+    "Jacobian covariance s^2 (J^T J)^-1 inflated by N/N_eff, N_eff = N(1-r1)/(1+r1) "
+    "from the lag-1 residual autocorrelation r1 of each run (AR(1) effective sample size)"
+)
+
+
+def inside(z0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """``z0`` moved strictly inside the bounds (the trust-region method's requirement)."""
+    span = np.where(np.isfinite(hi - lo), hi - lo, np.abs(z0) + 1.0)
+    return np.clip(z0, lo + 1e-9 * span, hi - 1e-9 * span)
+
+
+def solve(residual: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray],
+          z0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, max_nfev: int,
+          tol: float = 1e-8) -> OptimizeResult:
+    """Bounded nonlinear least squares from ``z0`` (see the module docstring)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return least_squares(residual, inside(np.asarray(z0, float), lo, hi), jac=jac,
+                             bounds=(lo, hi), method="trf", x_scale="jac", ftol=tol,
+                             xtol=tol, gtol=tol, max_nfev=max_nfev)
+
+
+def autocorr1(r: np.ndarray) -> float:
+    """Lag-1 autocorrelation of a residual (0 for a constant one)."""
+    r = r - float(np.mean(r))
+    d = float(r @ r)
+    return float(r[1:] @ r[:-1]) / d if d > 0 else 0.0
+
+
+def n_eff(residual: np.ndarray, rows: Sequence[slice] | None = None) -> float:
+    """AR(1) effective sample size of ``residual``, summed over its runs (``rows``)."""
+    rows = rows or [slice(0, residual.shape[0])]
+    tot = 0.0
+    for s in rows:
+        r = residual[s]
+        rho = min(max(autocorr1(r), 0.0), 0.999)
+        tot += r.shape[0] * (1.0 - rho) / (1.0 + rho)
+    return max(tot, 1.0)
+
+
+@dataclass
+class Uncertainty:
+    """Standard errors, correlation, conditioning and N_eff at an optimum."""
+
+    stderr: np.ndarray  # same order as the solution vector (NaN where undetermined)
+    correlation: np.ndarray
+    condition: float  # of the column-scaled JᵀJ
+    n_eff: float
+
+    def ic(self, rss: float, n: int, k: int) -> tuple[float, float]:
+        """(AIC, BIC) with N_eff: N_eff·ln(RSS/N) + penalty."""
+        ll = self.n_eff * math.log(max(rss / max(n, 1), 1e-300))
+        return ll + 2 * k, ll + k * math.log(max(self.n_eff, 2.0))
+
+
+def uncertainty(J: np.ndarray, r: np.ndarray, rows: Sequence[slice] | None = None) -> Uncertainty:
+    """Covariance of the least-squares solution (see the module docstring)."""
+    J = np.asarray(J, dtype=float)
+    r = np.asarray(r, dtype=float)
+    N, p = J.shape
+    norms = np.linalg.norm(J, axis=0)
+    norms[norms == 0] = 1.0
+    Js = J / norms
+    sv = np.linalg.svd(Js, compute_uv=False)
+    cond = float((sv[0] / sv[-1]) ** 2) if sv.size and sv[-1] > 0 else float("inf")
+    cov_s = np.linalg.pinv(Js.T @ Js, rcond=1e-15)
+    ne = max(n_eff(r, rows), p + 1.0)
+    s2 = float(r @ r) / max(N - p, 1)
+    cov = s2 * (N / ne) * cov_s / np.outer(norms, norms)
+    var = np.diag(cov).copy()
+    se = np.sqrt(np.where(var > 0, var, np.nan))
+    d = np.sqrt(np.abs(np.diag(cov_s)))
+    d[d == 0] = 1.0
+    corr = np.clip(cov_s / np.outer(d, d), -1.0, 1.0)
+    return Uncertainty(stderr=se, correlation=corr, condition=cond, n_eff=ne)
