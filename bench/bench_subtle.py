@@ -100,14 +100,16 @@ def identify_nrmse(ident: Path, val: Path, out: Path, effects: tuple[str, ...] =
     return {v["run"]: float(v["nrmse"]) for v in doc["validation"]}
 
 
-def diagnose_verdict(ident: Path, val: Path, out: Path) -> tuple[str, bool, float, float]:
-    """``pmalab diagnose --validate``: (top-1 effect, significant?, nrmse before, after)."""
+def diagnose_verdict(ident: Path, val: Path, out: Path) -> tuple[str, bool, float, float, str]:
+    """``pmalab diagnose --validate``: (top-1 effect, significant?, nrmse before, after,
+    the effects it calls ambiguous with it)."""
     _cli(["diagnose", str(ident), "--model", MODEL, "--validate", str(val), "--out", str(out),
           "--quiet", "--jobs", "1", "--max-steps", "2"])
     doc = json.loads((out / "diagnosis.json").read_text())
     top = doc["ranking"][0]
-    return top["effect"], bool(top["significant"]), float(top["nrmse_before"]), float(
-        top["nrmse_after"])
+    return (top["effect"], bool(top["significant"]), float(top["nrmse_before"]),
+            float(top["nrmse_after"]), ", ".join(e for e in doc.get("ambiguous", [])
+                                                 if e != top["effect"]) or "—")
 
 
 def ratio(nrmse: dict[str, float], floor: dict[str, float]) -> float:
@@ -160,11 +162,12 @@ def main(argv: list[str] | None = None) -> None:
                 "—" if r["added"] is None else f"{r['added']:.2f}×",
                 "—" if d is None else d[0], "—" if d is None else ("yes" if d[1] else "no"),
                 "—" if d is None else f"{100 * (1 - d[3] / d[2]):.0f} %",
+                "—" if d is None else d[4],
                 r["t_record"], r["t_identify"], r.get("t_diagnose", "—"),
             ))
             print(f"   {case.name}: done", flush=True)
     print_table(("truth (data/truth/subtle)", "floor nrmse", "base / floor", "--add / floor",
-                 "diagnose top-1", "significant", "diagnose fall", "record s", "identify s",
+                 "diagnose top-1", "significant", "diagnose fall", "ambiguous with", "record s", "identify s",
                  "diagnose s"), rows)
 
 
