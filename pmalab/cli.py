@@ -17,7 +17,7 @@ from pmalab.errors import PmalabError
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
 #: ``func(args) -> int`` as the parser default.
 VERB_MODULES = (
-    "pmalab.acquisition.cli",  # run, import, recover
+    "pmalab.acquisition.cli",  # run, import, recover, view
     "pmalab.rig.cli",  # emulate
     "pmalab.identify.cli",  # identify, diagnose
     "pmalab.reports.cli",  # report

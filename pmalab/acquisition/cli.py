@@ -1,17 +1,21 @@
-"""CLI verbs of the acquisition area: ``pmalab run``, ``pmalab import``, ``pmalab recover``.
+"""CLI verbs of the acquisition area: ``pmalab run``, ``pmalab import``, ``pmalab recover``,
+``pmalab view``.
 
 ``pmalab run --rig sim|RIG.toml --protocol P.toml --out F.h5 [--force] [--seed N]
-[--realtime] [--quiet] [--only ROLE_OR_RUN ...] [--host H] [--port P]`` records a protocol
-(the simulated rig runs on its virtual clock unless ``--realtime``; ``--host/--port``
-override a Modbus TCP rig file's endpoint); ``pmalab import CSV --out F.h5 ...``
-converts another DAQ's CSV into a contract file.
+[--realtime] [--quiet] [--only ROLE_OR_RUN ...] [--host H] [--port P] [--live [HOST:]PORT]``
+records a protocol (the simulated rig runs on its virtual clock unless ``--realtime``;
+``--host/--port`` override a Modbus TCP rig file's endpoint; ``--live`` serves the live
+page while it runs); ``pmalab import CSV --out F.h5 ...`` converts another DAQ's CSV into
+a contract file; ``pmalab view F.h5`` serves the live page on a run file.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import time
 
 from pmalab.errors import ConfigError, PmalabError, SafetyAbort
 
@@ -39,7 +43,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", nargs="+", metavar="ROLE_OR_RUN",
                    help="record only runs with these roles (identification, validation) "
                    "or names")
+    p.add_argument("--live", metavar="[HOST:]PORT",
+                   help="serve a live page of the recording on HOST:PORT (HOST defaults to "
+                   "127.0.0.1; port 0 picks a free one); its stop button works from "
+                   "127.0.0.1 only")
     p.set_defaults(func=cmd_run)
+
+    v = sub.add_parser("view", help="show a run file (finished or still recording) in the "
+                       "live page",
+                       description="Serve the live page on a run file: a finished one, or one "
+                       "still being recorded (followed as it grows).  Ctrl-C to quit.")
+    v.add_argument("file", help="the HDF5 run file")
+    v.add_argument("--port", metavar="[HOST:]PORT", default="0",
+                   help="where to serve (default: a free port on 127.0.0.1)")
+    v.add_argument("--no-browser", action="store_true",
+                   help="only print the address (default: open it where a desktop is running)")
+    v.set_defaults(func=cmd_view)
 
     q = sub.add_parser("import", help="convert a CSV from another DAQ into a run file",
                        description="Convert a CSV (one run) into a pmalab HDF5 run file. "
@@ -113,6 +132,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         names = [o for o in args.only if o not in roles]
         protocol = _select_either(protocol, roles, names)
     check_output(args.out, args.force)  # before the rig is even opened
+    live = None
+    if args.live is not None:
+        from pmalab.acquisition.live.address import parse_address
+
+        live = parse_address(args.live, "--live")
     rig = load_rig_spec(args.rig, seed=args.seed, realtime=args.realtime, host=args.host,
                         port=args.port)
 
@@ -127,7 +151,18 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     try:
         with rig:
-            results = run_protocol(rig, protocol, args.out, force=args.force, options=opts)
+            if live is None:
+                results = run_protocol(rig, protocol, args.out, force=args.force, options=opts)
+            else:
+                from pmalab.acquisition.live.session import LiveSession
+
+                if rig.clock.virtual:
+                    print("pmalab: note: the simulated rig runs on its virtual clock, faster "
+                          "than real time; add --realtime to watch it at its pace",
+                          file=sys.stderr)
+                with LiveSession(rig, protocol, args.out, opts, *live):
+                    results = run_protocol(rig, protocol, args.out, force=args.force,
+                                           options=opts)
     except SafetyAbort as exc:
         # closing the rig vented once more: a regulator that answers again is confirmed
         update_abort_vent(exc, rig.last_vent)
@@ -195,3 +230,42 @@ def cmd_recover(args: argparse.Namespace) -> int:
     print(f"{where}: closed; " + (f"marked aborted: {', '.join(fixed)}" if fixed
                                   else "no run was cut mid-recording"))
     return 0
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pmalab.acquisition.live import FileFollower, Hub, LiveServer, open_run_file
+    from pmalab.acquisition.live.address import parse_address
+    from pmalab.runfile import decode_attr
+
+    host, port = parse_address(args.port, "--port")
+    path = Path(args.file)
+    with open_run_file(path) as f:
+        protocol = decode_attr(f.attrs.get("protocol_name", ""))
+    hub = Hub({"mode": "view", "file": str(path), "protocol": protocol})
+    follower = FileFollower(path, hub)
+    follower.poll()  # a file it cannot read fails here, before anything is served
+    server = LiveServer(hub, host, port, on_stop=None, option="--port")
+    url = server.start()
+    follower.start()
+    print(f"pmalab: viewing {path} on {url} (Ctrl-C to quit)", file=sys.stderr, flush=True)
+    if not args.no_browser and _has_desktop():
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        while True:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        follower.close()
+        server.close(grace_s=0.2)
+    return 0
+
+
+def _has_desktop() -> bool:
+    """A graphical session to open a browser in (not a terminal browser over ssh)."""
+    return sys.platform in ("darwin", "win32") or bool(
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))

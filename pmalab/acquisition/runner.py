@@ -35,6 +35,12 @@ it as each run's ``sample_rate_Hz`` (with ``requested_sample_rate_Hz`` = the pro
 and prints one warning line.  A run whose waveform would get fewer than 20 samples per
 period at that rate is refused before anything moves.
 
+Observers.  ``RunnerOptions.observer`` (e.g. the live view, :mod:`pmalab.acquisition.live`)
+is told when a run starts (it may tap the writer's ``add`` with a non-blocking hand-off)
+and how it ended; its failures are ignored (a display never stops a recording).
+``RunnerOptions.request_stop()`` — the live view's stop button — asks for the same safe
+abort as Ctrl-C, acted on at the next sample.
+
 Device statistics.  When the sampler has ``stats()`` (the drivers' link/ITV/indicator
 fault counters: retries, timeouts, reconnects, bad frames, ...), its JSON is stored in
 each run's ``device_stats`` dataset at the run's end — completed or aborted.
@@ -85,6 +91,28 @@ class _Trip(Exception):
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised in the main thread by the CLI's signal handler."""
+
+
+class Stopped(KeyboardInterrupt):
+    """The operator's stop request (live view): the same safe abort as Ctrl-C."""
+
+
+#: ``pending_signal["sig"]`` value of a stop request (not a signal number)
+STOP_REQUEST = -1
+
+
+class RunObserver:
+    """Watches a recording (the live view).  Called from the sample loop's thread, so each
+    method must return at once; exceptions are ignored."""
+
+    def run_started(self, index: int, spec: RunSpec, writer: RunWriter) -> None:
+        """Run ``index`` of the protocol starts (muscle pressure not yet settled).  May
+        replace ``writer.add`` by a tap that calls it and hands the sample on without
+        blocking."""
+
+    def run_ended(self, index: int, spec: RunSpec, status: str, message: str) -> None:
+        """The run ended: ``status`` as stored ("completed" | "aborted: <reason>");
+        ``message`` the abort's one-line message (empty when completed)."""
 
 
 @dataclass
@@ -153,6 +181,14 @@ class RunnerOptions:
     realtime_priority_level: int = 50
     #: run-time state: the signal (SIGINT/SIGTERM) received and not yet acted on
     pending_signal: dict[str, int | None] = field(default_factory=lambda: {"sig": None})
+    #: told when each run starts and ends (e.g. the live view); None: nobody watches
+    observer: RunObserver | None = None
+
+    def request_stop(self) -> None:
+        """Ask the runner for a safe abort (vent, keep the samples) at the next sample;
+        callable from any thread.  A pending signal is not overridden."""
+        if self.pending_signal["sig"] is None:
+            self.pending_signal["sig"] = STOP_REQUEST
 
 
 def _vent(rig: Rig) -> VentReport:
@@ -283,7 +319,16 @@ def _check_signal(pending: dict[str, int | None]) -> None:
     sig = pending["sig"]
     if sig is not None:
         pending["sig"] = None
+        if sig == STOP_REQUEST:
+            raise Stopped()
         raise Terminated() if sig == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _notify(opts: RunnerOptions, event: str, *args: Any) -> None:
+    """Tell the observer (if any); its failures never reach the recording."""
+    if opts.observer is not None:
+        with contextlib.suppress(Exception):
+            getattr(opts.observer, event)(*args)
 
 
 @contextlib.contextmanager
@@ -394,6 +439,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                 w = rec.writer(spec.name)
                 w.late_threshold_s = opts.late_threshold_s
                 w.warn_fraction = opts.timing_warn_fraction
+                _notify(opts, "run_started", i, spec, w)
                 try:
                     if i == 0:
                         rig.cylinder_regulator.set_pressure(0.0)
@@ -404,6 +450,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     rig.cylinder_regulator.set_pressure(0.0)
                     _store_device_stats(rig, w)
                     timing = w.finish("completed")
+                    _notify(opts, "run_ended", i, spec, "completed", "")
                 except BaseException as exc:
                     # vent FIRST — before any file work — then close the run as aborted
                     vented = _vent(rig)
@@ -419,6 +466,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                         f"{out}: run '{spec.name}' aborted: {reason}; {VENT_SLOT}; {kept}",
                         vented)
                     abort.hard_exit = rec.unclosed
+                    _notify(opts, "run_ended", i, spec, f"aborted: {reason}", str(abort))
                     raise abort from (exc if isinstance(exc, Exception) else None)
                 results.append(_result(spec.name, "completed", w, timing))
         except BaseException:
@@ -486,6 +534,8 @@ def _reason(exc: BaseException) -> str:
         return str(exc.args[0])
     if isinstance(exc, Terminated):
         return "terminated (SIGTERM)"
+    if isinstance(exc, Stopped):
+        return "stopped from the live view"
     if isinstance(exc, KeyboardInterrupt):
         return "interrupted (Ctrl-C)"
     if isinstance(exc, RigError):
