@@ -254,12 +254,18 @@ def cmd_view(args: argparse.Namespace) -> int:
         import webbrowser
 
         webbrowser.open(url)
+
+    def on_term(signum, frame):  # SIGTERM quits like Ctrl-C
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, on_term)
     try:
         while True:
             time.sleep(0.5)
     except KeyboardInterrupt:
         pass
     finally:
+        signal.signal(signal.SIGTERM, old)
         follower.close()
         server.close(grace_s=0.2)
     return 0

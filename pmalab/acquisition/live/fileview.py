@@ -139,7 +139,9 @@ class FileFollower(threading.Thread):
                 self.hub.set_status(self._status_of(newest, len(names), f["runs"][names[newest]]))
             if final and newest >= 0:
                 self.complete = True
-                self.hub.finish(f"{self.path.name}: complete, {len(self.done)} runs with samples")
+                k = len(self.done)
+                self.hub.finish(f"{self.path.name}: complete ({k} run{'s' * (k != 1)} "
+                                "with samples)")
 
     def _publish(self, i: int, g: Any, n0: int, n1: int) -> None:
         rate = decode_attr(g.attrs.get("sample_rate_Hz", 0)) or 0

@@ -29,7 +29,7 @@
 
   const loopEl = $("loop");
   const loop = new uPlot({
-    mode: 2, ...size(loopEl, 460), legend: { show: true }, cursor: { show: false },
+    mode: 2, ...size(loopEl, 460), legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false }, y: {} },
     axes: [{ label: "contraction x (mm)" }, { label: "tension F (N)" }],
     series: [{}, facet("older cycles", COLORS.old, 1), facet("previous cycle", COLORS.prev, 1.5),
@@ -38,7 +38,7 @@
 
   function timeChart(el, yLabel, series, h) {
     return new uPlot({
-      ...size(el, h), cursor: { sync: { key: "pmalab-t" } },
+      ...size(el, h), cursor: { sync: { key: "pmalab-t" } }, legend: { live: false },
       scales: { x: { time: false } },
       axes: [{ label: "t (s)" }, { label: yLabel }],
       series: [{ label: "t (s)" }, ...series.map(([label, stroke, dash]) =>
@@ -218,10 +218,10 @@
     try {
       const r = await fetch("/stop", { method: "POST", headers: { "X-Pmalab-Stop": "1" } });
       const j = await r.json();
-      $("message").textContent = j.message;
+      $("stop-reply").textContent = j.message;
       if (!r.ok) stop.disabled = !stopAllowed;
     } catch (err) {
-      $("message").textContent = "stop request failed: " + err + " — use Ctrl-C in the terminal";
+      $("stop-reply").textContent = "stop request failed: " + err + " — use Ctrl-C in the terminal";
       stop.disabled = !stopAllowed;
     }
   });
