@@ -49,8 +49,9 @@ RUN_WITH_VENT_LOG = textwrap.dedent("""
         set_pressure(self, mpa)
         log.write(f"set {mpa!r}\\n")
     def logged_vent(self):
-        vent(self)
+        res = vent(self)
         log.write(f"vent {self.physics._cylinder_command!r}\\n")
+        return res
     simrig.SimCylinderRegulator.set_pressure = logged_set
     simrig.SimCylinderRegulator.vent = logged_vent
     from pmalab.cli import main
@@ -137,7 +138,7 @@ def test_live_page_draws_the_loop_and_its_stop_button_aborts_safely(tmp_path):
             proc.kill()
             proc.communicate()
     assert proc.returncode == SafetyAbort.exit_code, (out, err)
-    assert "run 'long' aborted: stopped from the live view; cylinder regulator vented" in err
+    assert "run 'long' aborted: stopped from the live view; cylinder regulator vented (confirmed" in err
     # the regulator: every command after the first vent is 0, and it ends vented at 0 MPa
     log = (tmp_path / "regulator.log").read_text().split()
     ops = list(zip(log[::2], map(float, log[1::2])))
