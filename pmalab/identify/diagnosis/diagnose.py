@@ -322,7 +322,8 @@ def diagnose(
     final = steps[-1].effects
 
     # the base and final identifications' predictions of the held-out runs → diagnostics
-    base_pred = _traces(model, (), files, split.train, split.held)
+    base_pred = [np.asarray(v.force_model, dtype=np.float64)
+                 for v in steps[0].scored.identification[1]]
     final_pred = base_pred if not final else _traces(model, final, files, split.train, split.held)
     diagnostics: dict[str, Any] = {}
     traces: list[tuple[Run, np.ndarray, np.ndarray]] = []
@@ -337,8 +338,12 @@ def diagnose(
         camp_items.append((sig.p_nom, run.frequency, run.force - fb))
     worst = None
     if diagnostics:
-        wk = max(diagnostics, key=lambda k: diagnostics[k]["nrmse_final"] / max(floors[k], 1e-12))
-        worst = (wk, str(diagnostics[wk].get("worst_region", "")))
+        # where the FINAL model is worst (relative to each run's noise floor)
+        i = int(np.argmax([diagnostics[r.label]["nrmse_final"] / max(floors[r.label], 1e-12)
+                           for r in split.held]))
+        run, _, ff = traces[i]
+        worst = (run.label, str(run_diagnostics(Signals.from_run(run), run.force, ff)
+                                .get("worst_region", "")))
     ladder = [s.as_json() for s in steps]
     ranking = _ranking_json(rounds, steps, amb)
     summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme)
