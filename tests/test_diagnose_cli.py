@@ -72,7 +72,7 @@ def test_diagnose_writes_contract_outputs(viscous_file: Path, tmp_path: Path,
     top = doc["ranking"][0]
     assert top["effect"] == "viscous-friction" and top["significant"] is True
     for r in doc["ranking"]:
-        assert {"effect", "nrmse_before", "nrmse_after", "significant", "delta_aic", "n_params",
+        assert {"effect", "nrmse_before", "nrmse_after", "significant", "fall_se_percent", "n_params",
                 "explanation"} <= set(r)
         assert isinstance(r["significant"], bool)
     assert isinstance(doc["ambiguous"], list) and isinstance(doc["suggested_experiment"], str)
