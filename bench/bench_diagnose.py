@@ -1,4 +1,8 @@
-"""Diagnosis: a 14-run simulated campaign, 7 candidate effects, ranking + ladder (goal ≤ 30 s on 2 cores)."""
+"""Diagnosis: a 14-run simulated campaign, 7 candidate effects, ranking + ladder (goal ≤ 30 s on 2 cores).
+
+Every candidate is one identification (``identify --add``) scored on the held-out runs, so
+the table counts identifications, not group fits.
+"""
 
 from __future__ import annotations
 
@@ -10,12 +14,11 @@ from bench.table import print_table
 
 #: the shipped 14-run campaign (7 pressure levels × 0.25 and 1 Hz)
 PROTOCOL = "two-frequency-campaign"
-N_LEVELS = 7  # pressure groups the diagnosis fits per candidate
 
 
 def main() -> None:
     from pmalab.cli import main as pmalab_main
-    from pmalab.identify.diagnose import diagnose
+    from pmalab.identify.diagnosis import diagnose
     from pmalab.paths import RIGS_DIR
     from pmalab.runfile import read_runs
 
@@ -31,9 +34,9 @@ def main() -> None:
             t0 = time.perf_counter()
             d = diagnose(runs, model="bouc-wen", jobs=2)
             dt = time.perf_counter() - t0
-            n_fits = sum(len(r["candidates"]) for r in d.to_json()["rounds"]) * N_LEVELS + N_LEVELS
+            n_fits = sum(len(r["candidates"]) for r in d.to_json()["rounds"]) + 1 + bool(d.winner)
             rows.append((effect, len(runs), 7, len(d.ladder) - 1, d.winner or "none",
                          d.ladder[0]["nrmse"], d.ladder[-1]["nrmse"], n_fits, dt,
                          "yes" if dt <= 30.0 else "NO"))
     print_table(("hidden effect", "runs", "candidates", "ladder steps", "named", "nrmse base",
-                 "nrmse final", "group fits", "time s", "≤ 30 s"), rows)
+                 "nrmse final", "identifications", "time s", "≤ 30 s"), rows)

@@ -16,8 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
+from pmalab.identify.zero_phase import butter2, filtfilt2
 from pmalab.runfile import Run
 
 #: cut-off of the position filter as a multiple of the excitation frequency.  Chosen on
@@ -39,8 +39,8 @@ def zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_Hz: float) -> np.nda
     fs = 1.0 / float(np.median(np.diff(t)))
     if cutoff_Hz >= 0.45 * fs or y.shape[0] < 30:
         return y.astype(np.float64, copy=True)
-    sos = butter(2, cutoff_Hz / (0.5 * fs), output="sos")  # 2nd order, twice = 4th order
-    return sosfiltfilt(sos, y, padtype="odd", padlen=min(3 * 50, y.shape[0] - 1))
+    b, a = butter2(cutoff_Hz / (0.5 * fs))  # 2nd order, twice = 4th order
+    return filtfilt2(b, a, y, padlen=min(3 * 50, y.shape[0] - 1))
 
 
 @dataclass(frozen=True)
