@@ -28,3 +28,14 @@ def test_coefficients_match_scipy() -> None:
         bs, as_ = butter(2, wn)
         np.testing.assert_allclose(b, bs, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(a, as_, rtol=1e-12, atol=1e-15)
+
+
+def test_moving_mean_matches_scipy_uniform_filter() -> None:
+    from scipy.ndimage import uniform_filter1d
+
+    from pmalab.identify.metrics import moving_mean
+
+    x = np.random.default_rng(3).standard_normal(1000).cumsum()
+    for w in (2, 3, 10, 51):
+        np.testing.assert_allclose(moving_mean(x, w), uniform_filter1d(x, w, mode="nearest"),
+                                   atol=1e-9)

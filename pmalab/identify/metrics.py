@@ -23,14 +23,22 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
+
+
+def moving_mean(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred moving mean over ``w`` samples, ends padded with the edge values
+    (``scipy.ndimage.uniform_filter1d(x, w, mode="nearest")``)."""
+    lo, hi = w // 2, w - 1 - w // 2
+    xp = np.concatenate([np.full(lo, x[0]), x, np.full(hi, x[-1])])
+    c = np.concatenate([[0.0], np.cumsum(xp)])
+    return (c[w:] - c[:-w]) / w
 
 
 def branch_masks(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Boolean masks (stretch, release): x decreasing / x increasing."""
     x = np.asarray(x, dtype=np.float64)
     w = max(1, x.shape[0] // 400)
-    xs = uniform_filter1d(x, w, mode="nearest") if w > 1 else x
+    xs = moving_mean(x, w) if w > 1 else x
     v = np.gradient(xs)
     return v < 0.0, v > 0.0
 
