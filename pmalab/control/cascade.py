@@ -1,0 +1,80 @@
+"""The seeds' cascade: position loop → desired tension → model inversion → pressure loop.
+
+Per sample (T = 2 ms), with x the measured position from home (mm), p the measured muscle
+pressure (MPa) and r, r̈ the position reference and its acceleration::
+
+    x̃      = low-pass(x)                              (drives the model, not the PID)
+    h      = law.step(h, x_abs(k−1), x_abs(k), θ(p))   x_abs = x_home + x̃ (the identified
+                                                       model is in absolute contraction)
+    F_ff   = F_spring(x_home + r) + m·r̈               (the manipulator's known dynamics)
+    F_d    = outer(r, x, F_ff)                         ∈ [0, F_max]  (a muscle only pulls)
+    p_d    = model⁻¹(F_d; x_abs, h)                    ∈ [0, p_max]
+    u      = inner(p_d, p)                             ∈ [0, p_max]  → regulator command
+
+The pressure-loop experiment uses the inner loop alone: u = inner(p_ref, p).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from pmalab.control.controllers import CascadeSettings, make_loop
+from pmalab.control.model import HysteresisState, IdentifiedModel
+from pmalab.rig.manipulator import ManipulatorGeometry
+
+
+@dataclass
+class CascadeOutput:
+    """One sample's internal signals (for recording)."""
+
+    command: float  # MPa, to the regulator
+    pressure_reference: float  # MPa, the inner loop's reference
+    force_reference: float  # N (NaN in the pressure loop)
+    hysteresis: float  # N (NaN in the pressure loop)
+
+
+class Cascade:
+    """Both loops of one controller kind (``pid``, ``sn-pid`` or ``rbf-pid``)."""
+
+    def __init__(self, controller: str, settings: CascadeSettings, model: IdentifiedModel | None,
+                 geometry: ManipulatorGeometry, p_max: float, hysteresis: HysteresisState | None
+                 = None) -> None:
+        self.controller = controller
+        self.settings = settings
+        self.model = model
+        self.geometry = geometry
+        self.p_max = float(p_max)
+        self.outer = make_loop(controller, settings.outer)
+        self.inner = make_loop(controller, settings.inner)
+        self.hyst = hysteresis
+        if model is not None and hysteresis is None:
+            self.hyst = HysteresisState(model, geometry.home_contraction_mm)
+        self._a = 1.0 - math.exp(-2.0 * math.pi * settings.position_filter_Hz
+                                 * settings.outer.dt)
+        self._xf: float | None = None
+
+    def position_step(self, r: float, r_dd: float, x: float, p: float) -> CascadeOutput:
+        """One sample of the position loop (see the module docstring)."""
+        g = self.geometry
+        xf = x if self._xf is None else self._xf + self._a * (x - self._xf)
+        self._xf = xf
+        x_abs = g.home_contraction_mm + xf
+        h = self.hyst.update(x_abs, p) if self.hyst is not None else 0.0
+        ff = 0.0
+        if self.settings.feedforward:
+            ff = g.spring_force(g.home_contraction_mm + r) + g.moving_mass_kg * r_dd * 1e-3
+        f_d = self.outer.step(r, x, ff)
+        assert self.model is not None, "the position loop needs an identified model"
+        p_d = self.model.invert(f_d, x_abs, h, self.p_max)
+        u = self.inner.step(p_d, p)
+        return CascadeOutput(u, p_d, f_d, h)
+
+    def pressure_step(self, p_ref: float, p: float) -> CascadeOutput:
+        """One sample of the pressure loop alone."""
+        u = self.inner.step(p_ref, p)
+        return CascadeOutput(u, p_ref, math.nan, math.nan)
+
+    def gains(self) -> tuple[float, ...]:
+        """(outer Kp, Ki, Kd, inner Kp, Ki, Kd) now."""
+        return (*self.outer.gains, *self.inner.gains)

@@ -1,0 +1,136 @@
+"""Registry of loop controllers and their shared default settings.
+
+``CONTROLLERS[name](LoopSettings)`` builds one loop's controller; the cascade uses the
+same kind in both loops.  :func:`default_settings` holds the ONE set of initial gains every
+controller starts from (the seeds' "same initial gains for classic and adaptive"); they
+were tuned once, by hand, on the simulated manipulator's 15 mm square with the classic PID
+(a damped response without the adaptive laws), and are never changed per experiment.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+from pmalab.control.pid import Gains, IncrementalPID, LoopSettings
+from pmalab.control.rbf_pid import RbfPID
+from pmalab.control.single_neuron import SingleNeuronPID
+from pmalab.errors import ConfigError
+
+CONTROLLERS: dict[str, Callable[[LoopSettings], IncrementalPID]] = {
+    IncrementalPID.name: IncrementalPID,
+    SingleNeuronPID.name: SingleNeuronPID,
+    RbfPID.name: RbfPID,
+}
+
+#: what each controller is, for help texts and reports
+TITLES = {
+    "pid": "classic cascade PID (fixed gains)",
+    "sn-pid": "single-neuron adaptive PID (S1: supervised Hebb, normalised weights)",
+    "rbf-pid": "RBF-network-tuned PID (S2: 3-4-1 Gaussian Jacobian, momentum descent)",
+}
+
+
+@dataclass(frozen=True)
+class CascadeSettings:
+    """Both loops' settings and the cascade's own.
+
+    ``outer``: position error (mm) → desired tension (N); ``inner``: pressure error (MPa)
+    → regulator command (MPa).  ``position_filter_Hz``: first-order low-pass on the
+    measured position that drives the model inversion and the hysteresis state (raw 500 Hz
+    increments are mostly sensor noise); ``feedforward``: add the spring force and the
+    link's inertia at the reference to the outer loop's output (the seeds' model-based
+    outer loop).
+    """
+
+    outer: LoopSettings
+    inner: LoopSettings
+    position_filter_Hz: float = 15.0
+    feedforward: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        def loop(s: LoopSettings) -> dict[str, Any]:
+            return {"kp": s.gains.kp, "ki": s.gains.ki, "kd": s.gains.kd, "u_min": s.u_min,
+                    "u_max": s.u_max, "e_scale": s.e_scale, "u_scale": s.u_scale,
+                    "y_scale": s.y_scale, "dt": s.dt, "d_filter_Hz": s.d_filter_Hz,
+                    "gain_bounds": list(s.gain_bounds), "learning": dict(s.learning),
+                    "max_rate": s.max_rate}
+        return {"outer": loop(self.outer), "inner": loop(self.inner),
+                "position_filter_Hz": self.position_filter_Hz, "feedforward": self.feedforward}
+
+
+def default_settings(p_max: float = 0.6, dt: float = 0.002) -> CascadeSettings:
+    """The shared initial gains and ranges (units in :class:`LoopSettings`)."""
+    outer = LoopSettings(gains=Gains(kp=12.0, ki=40.0, kd=0.4), u_min=0.0, u_max=1500.0,
+                         e_scale=5.0, u_scale=300.0, y_scale=25.0, dt=dt, d_filter_Hz=20.0)
+    inner = LoopSettings(gains=Gains(kp=0.6, ki=6.0, kd=0.004), u_min=0.0, u_max=p_max,
+                         e_scale=0.1, u_scale=p_max, y_scale=p_max, dt=dt, d_filter_Hz=30.0)
+    return CascadeSettings(outer=outer, inner=inner)
+
+
+_LOOP_KEYS = {"kp", "ki", "kd", "d_filter_Hz", "gain_bounds", "learning", "max_rate"}
+
+
+def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: str
+                        ) -> CascadeSettings:
+    """``base`` with a TOML table's ``[outer]``/``[inner]`` overrides (same for every
+    controller); one-line :class:`ConfigError` naming ``where`` and the field."""
+    out = base
+    for key, val in table.items():
+        if key in ("position_filter_Hz",):
+            out = replace(out, position_filter_Hz=_positive(val, f"{where}: {key}"))
+            continue
+        if key == "feedforward":
+            if not isinstance(val, bool):
+                raise ConfigError(f"{where}: feedforward: must be true or false")
+            out = replace(out, feedforward=val)
+            continue
+        if key not in ("outer", "inner") or not isinstance(val, Mapping):
+            raise ConfigError(f"{where}: {key}: unknown (known: outer, inner, "
+                              "position_filter_Hz, feedforward)")
+        loop: LoopSettings = getattr(out, key)
+        for k, v in val.items():
+            field = f"{where}: {key}.{k}"
+            if k not in _LOOP_KEYS:
+                raise ConfigError(f"{field}: unknown (known: {', '.join(sorted(_LOOP_KEYS))})")
+            if k in ("kp", "ki", "kd"):
+                g = loop.gains
+                gains = {"kp": g.kp, "ki": g.ki, "kd": g.kd, k: _nonneg(v, field)}
+                loop = replace(loop, gains=Gains(**gains))
+            elif k == "gain_bounds":
+                if (not isinstance(v, list) or len(v) != 2
+                        or not 0 <= _nonneg(v[0], field) <= 1 <= _nonneg(v[1], field) <= 100):
+                    raise ConfigError(f"{field}: must be [lo, hi] with 0 ≤ lo ≤ 1 ≤ hi ≤ 100")
+                loop = replace(loop, gain_bounds=(float(v[0]), float(v[1])))
+            elif k == "learning":
+                if not isinstance(v, Mapping):
+                    raise ConfigError(f"{field}: must be a table of rates")
+                rates = {str(n): _nonneg(r, f"{field}.{n}") for n, r in v.items()}
+                loop = replace(loop, learning={**loop.learning, **rates})
+            else:
+                loop = replace(loop, **{k: _positive(v, field)})
+        out = replace(out, **{key: loop})
+    return out
+
+
+def _nonneg(v: Any, field: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not v == v or v < 0 \
+            or v == float("inf"):
+        raise ConfigError(f"{field}: must be a finite number ≥ 0")
+    return float(v)
+
+
+def _positive(v: Any, field: str) -> float:
+    if _nonneg(v, field) <= 0:
+        raise ConfigError(f"{field}: must be > 0")
+    return float(v)
+
+
+def make_loop(name: str, settings: LoopSettings) -> IncrementalPID:
+    try:
+        cls = CONTROLLERS[name]
+    except KeyError:
+        raise ConfigError(f"--controller: unknown '{name}' (choose from "
+                          f"{', '.join(CONTROLLERS)})") from None
+    return cls(settings)

@@ -1,0 +1,90 @@
+"""Reference signals: ``square:0.1Hz:15mm``, ``sine:0.1Hz:20mm``, ``square:0.1Hz:0.5MPa``.
+
+``KIND:FREQ Hz:MAGNITUDE UNIT`` with KIND ``square`` or ``sine``, the unit ``mm`` (a
+position reference) or ``MPa`` (a pressure reference).  Both run from 0 to the magnitude,
+like the protocol files' ``magnitude_MPa = M`` (a muscle only contracts):
+
+* square: M for the first half period, 0 for the second (the seeds' step up at t = 0 and
+  step down at T/2);
+* sine: M/2·(1 − cos 2πft), starting at 0 with zero velocity.
+
+:meth:`Reference.value` gives r(t) and its first two time derivatives (units/s, units/s²),
+which the outer loop's feedforward uses; a square's derivatives are 0 (its jumps are steps).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+
+from pmalab.errors import ConfigError
+
+_SPEC = re.compile(r"^(square|sine):([0-9.eE+-]+)hz:([0-9.eE+-]+)(mm|mpa)$")
+
+#: the largest references the manipulator and the DMSP-20 can take
+MAX_POSITION_MM = 25.0
+MAX_PRESSURE_MPA = 0.6
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A periodic reference from 0 to ``magnitude`` (mm or MPa)."""
+
+    kind: str
+    frequency_Hz: float
+    magnitude: float
+    unit: str  # "mm" | "MPa"
+
+    @property
+    def quantity(self) -> str:
+        """``position`` or ``pressure``."""
+        return "position" if self.unit == "mm" else "pressure"
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.frequency_Hz
+
+    @property
+    def text(self) -> str:
+        return f"{self.kind}:{self.frequency_Hz:g}Hz:{self.magnitude:g}{self.unit}"
+
+    def value(self, t: float) -> tuple[float, float, float]:
+        """(r, ṙ, r̈) at time ``t`` (s)."""
+        if self.kind == "square":
+            phase = (t * self.frequency_Hz) % 1.0
+            return (self.magnitude if phase < 0.5 else 0.0), 0.0, 0.0
+        w = 2.0 * math.pi * self.frequency_Hz
+        half = 0.5 * self.magnitude
+        return (half * (1.0 - math.cos(w * t)), half * w * math.sin(w * t),
+                half * w * w * math.cos(w * t))
+
+    def step_times(self, duration_s: float) -> list[float]:
+        """Instants (s) of the square's steps inside [0, duration) — empty for a sine."""
+        if self.kind != "square":
+            return []
+        half = 0.5 * self.period_s
+        n = int(math.floor(duration_s / half + 1e-9))
+        return [i * half for i in range(n) if i * half < duration_s]
+
+
+def parse_reference(text: str, where: str = "--reference") -> Reference:
+    """Parse ``KIND:FREQHz:MAGNITUDE{mm|MPa}``; one-line :class:`ConfigError` on a mistake."""
+    s = str(text).strip().replace(" ", "").lower()
+    m = _SPEC.match(s)
+    if not m:
+        raise ConfigError(f"{where}: '{text}': expected KIND:FREQHz:MAGNITUDE with KIND square|"
+                          "sine and a magnitude in mm or MPa, e.g. square:0.1Hz:15mm")
+    kind, f_txt, m_txt, unit = m.groups()
+    try:
+        f, mag = float(f_txt), float(m_txt)
+    except ValueError:
+        raise ConfigError(f"{where}: '{text}': frequency and magnitude must be numbers") from None
+    unit = "mm" if unit == "mm" else "MPa"
+    if not (math.isfinite(f) and 0.0 < f <= 5.0):
+        raise ConfigError(f"{where}: '{text}': frequency must be in (0, 5] Hz")
+    top = MAX_POSITION_MM if unit == "mm" else MAX_PRESSURE_MPA
+    if not (math.isfinite(mag) and 0.0 < mag <= top):
+        raise ConfigError(f"{where}: '{text}': magnitude must be in (0, {top:g}] {unit} "
+                          "(the manipulator's travel / the DMSP-20's rating)")
+    return Reference(kind, f, mag, unit)

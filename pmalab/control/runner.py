@@ -1,0 +1,193 @@
+"""The 500 Hz control loop on a :class:`~pmalab.rig.manipulator.ManipulatorRig`.
+
+Each sample: wait for the deadline on the rig's clock (a virtual clock jumps there, so a
+simulated run goes as fast as the physics and the controller compute), read the sensors,
+check the limits, run the cascade, command the regulator, record.
+
+Safety (acquisition's rules, :class:`pmalab.acquisition.safety.SafetyMonitor`): every
+sample is checked against the rig's limits (muscle pressure, travel, force, NaN); a trip,
+a non-finite controller output, a device fault or Ctrl-C vents the regulator in the same
+sample period and ends the run as ``aborted: <reason>``; the samples recorded so far are
+kept.  ``rig.close()`` vents again on the way out.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from pmalab.acquisition.safety import SafetyMonitor
+from pmalab.control.cascade import Cascade
+from pmalab.control.controllers import CascadeSettings
+from pmalab.control.model import IdentifiedModel
+from pmalab.control.reference import Reference
+from pmalab.errors import PmalabError
+from pmalab.rig.manipulator import ManipulatorRig
+
+#: recorded signals → units (the run file's channels and the ``gains/`` datasets)
+SIGNALS = {
+    "time": "s",
+    "position": "mm",
+    "position_reference": "mm",
+    "force": "N",
+    "muscle_pressure": "MPa",
+    "muscle_pressure_command": "MPa",
+    "muscle_pressure_reference": "MPa",
+    "force_reference": "N",
+    "hysteresis_force": "N",
+}
+GAINS = {
+    "outer_kp": "N/mm", "outer_ki": "N/(mm*s)", "outer_kd": "N*s/mm",
+    "inner_kp": "MPa/MPa", "inner_ki": "1/s", "inner_kd": "s",
+}
+
+
+@dataclass
+class ControlRun:
+    """A finished (or aborted) control run: signals, gains, status and its settings."""
+
+    name: str
+    controller: str
+    loop: str
+    reference: Reference
+    signals: dict[str, np.ndarray]
+    gains: dict[str, np.ndarray]
+    status: str
+    attrs: dict[str, Any] = field(default_factory=dict)
+    wall_s: float = 0.0
+
+    @property
+    def n(self) -> int:
+        return int(self.signals["time"].shape[0])
+
+    @property
+    def completed(self) -> bool:
+        return self.status == "completed"
+
+
+def run_control(
+    rig: ManipulatorRig,
+    controller: str,
+    reference: Reference,
+    duration_s: float,
+    settings: CascadeSettings,
+    model: IdentifiedModel | None,
+    *,
+    name: str | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> ControlRun:
+    """Run ``controller`` on ``rig`` following ``reference`` for ``duration_s`` seconds.
+
+    The loop is the reference's quantity: a position reference runs the cascade (it needs
+    the identified ``model``), a pressure reference the inner loop alone.  Never raises
+    for a limit trip or Ctrl-C: the run comes back with ``status = "aborted: …"`` and the
+    regulator vented (check :attr:`ControlRun.completed`).
+    """
+    dt = settings.outer.dt
+    loop = reference.quantity
+    if loop == "position" and model is None:
+        raise PmalabError("the position loop needs an identified model (--model)")
+    p_max = float(min(rig.muscle_regulator.max_pressure_MPa, rig.limits.max_muscle_pressure_MPa))
+    cascade = Cascade(controller, settings, model if loop == "position" else None,
+                      rig.geometry, p_max)
+    n = int(round(duration_s / dt)) + 1
+    sig = {k: np.full(n, np.nan) for k in SIGNALS}
+    gains = {k: np.full(n, np.nan) for k in GAINS}
+    monitor = SafetyMonitor(rig.limits)
+    clock = rig.clock
+    sampler = rig.sampler
+    read_now = getattr(sampler, "read_now", None)
+    regulator = rig.muscle_regulator
+    status = "completed"
+    k = 0
+    t_start = clock.now()
+    wall0 = time.perf_counter()
+    every = max(1, int(1.0 / dt))
+    is_pos = loop == "position"
+    s_t, s_x, s_xr, s_f, s_p = (sig["time"], sig["position"], sig["position_reference"],
+                                sig["force"], sig["muscle_pressure"])
+    s_u, s_pr, s_fr, s_h = (sig["muscle_pressure_command"], sig["muscle_pressure_reference"],
+                            sig["force_reference"], sig["hysteresis_force"])
+    gk = [gains[g] for g in GAINS]
+    try:
+        sampler.start()
+        for k in range(n):
+            clock.sleep_until(t_start + k * dt)
+            if read_now is not None:
+                t, x, f, p, _ = read_now()
+            else:
+                b = sampler.read_block()
+                t, x, f, p = (float(b.time[-1]), float(b.position[-1]), float(b.force[-1]),
+                              float(b.muscle_pressure[-1]))
+            trip = monitor.check(x, f, p, 0.0)
+            if trip is not None:
+                regulator.vent()
+                status = f"aborted: {trip}"
+                break
+            tr = t - t_start
+            r, _, r_dd = reference.value(tr)
+            if is_pos:
+                out = cascade.position_step(r, r_dd, x, p)
+            else:
+                out = cascade.pressure_step(r, p)
+            u = out.command
+            if not math.isfinite(u):
+                regulator.vent()
+                status = "aborted: controller output is not finite (diverged)"
+                break
+            regulator.set_pressure(u)
+            s_t[k] = tr
+            s_x[k] = x
+            s_f[k] = f
+            s_p[k] = p
+            s_u[k] = u
+            s_pr[k] = out.pressure_reference
+            s_fr[k] = out.force_reference
+            s_h[k] = out.hysteresis
+            if is_pos:
+                s_xr[k] = r
+            for arr, v in zip(gk, cascade.gains()):
+                arr[k] = v
+            if progress is not None and k % every == 0:
+                progress(tr)
+        else:
+            k = n
+    except KeyboardInterrupt:
+        status = "aborted: interrupted (Ctrl-C)"
+    except PmalabError as exc:
+        status = f"aborted: {exc}"
+    finally:
+        regulator.vent()
+        try:
+            sampler.stop()
+        except Exception:  # the vent above is what matters; stop faults are secondary
+            pass
+    keep = slice(0, k)
+    signals = {kk: v[keep] for kk, v in sig.items()}
+    if not is_pos:
+        signals.pop("force_reference")
+        signals.pop("hysteresis_force")
+        signals.pop("position_reference")
+    attrs = {
+        "controller": controller,
+        "loop": loop,
+        "reference": reference.text,
+        "waveform": reference.kind,
+        "frequency_Hz": reference.frequency_Hz,
+        "reference_magnitude": reference.magnitude,
+        "reference_unit": reference.unit,
+        "duration_s": duration_s,
+        "sample_rate_Hz": 1.0 / dt,
+        "settings": settings.to_dict(),
+        "model": (model.source if model is not None and is_pos else ""),
+        "model_law": (model.law if model is not None and is_pos else ""),
+        "vented": getattr(regulator, "vented", None),
+    }
+    return ControlRun(name or controller, controller, loop, reference, signals,
+                      {kk: v[keep] for kk, v in gains.items()}, status, attrs,
+                      time.perf_counter() - wall0)
