@@ -21,6 +21,7 @@ VERB_MODULES = (
     "pmalab.rig.cli",  # emulate
     "pmalab.identify.cli",  # identify, diagnose
     "pmalab.reports.cli",  # report
+    "pmalab.control.cli",  # control
     "pmalab.demo",  # demo
 )
 

@@ -62,9 +62,9 @@ class CascadeSettings:
 
 def default_settings(p_max: float = 0.6, dt: float = 0.002) -> CascadeSettings:
     """The shared initial gains and ranges (units in :class:`LoopSettings`)."""
-    outer = LoopSettings(gains=Gains(kp=12.0, ki=40.0, kd=0.4), u_min=0.0, u_max=1500.0,
+    outer = LoopSettings(gains=Gains(kp=12.0, ki=20.0, kd=1.0), u_min=0.0, u_max=1500.0,
                          e_scale=5.0, u_scale=300.0, y_scale=25.0, dt=dt, d_filter_Hz=20.0)
-    inner = LoopSettings(gains=Gains(kp=0.6, ki=6.0, kd=0.004), u_min=0.0, u_max=p_max,
+    inner = LoopSettings(gains=Gains(kp=0.6, ki=4.0, kd=0.0), u_min=0.0, u_max=p_max,
                          e_scale=0.1, u_scale=p_max, y_scale=p_max, dt=dt, d_filter_Hz=30.0)
     return CascadeSettings(outer=outer, inner=inner)
 

@@ -20,6 +20,7 @@ widths; a response that never reaches 10 %/90 % gets NaN rise time (flag
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -109,7 +110,7 @@ def square_steps(t: np.ndarray, y: np.ndarray, r: np.ndarray, step_times: Sequen
     t = np.asarray(t, dtype=float)
     out = []
     bounds = [*list(step_times), math.inf]
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    for a, b in itertools.pairwise(bounds):
         i0 = int(np.searchsorted(t, a - 1e-9))
         i1 = int(np.searchsorted(t, b - 1e-9)) if math.isfinite(b) else t.size
         if i0 >= t.size or t[i1 - 1] - t[i0] < max(final_window_s, 0.5) or b - a <= 0:

@@ -32,7 +32,7 @@ import math
 
 from pmalab.control.pid import IncrementalPID, LoopSettings
 
-DEFAULT_RATES = {"eta": 0.2, "alpha": 0.05, "eta_p": 0.5, "eta_i": 0.002, "eta_d": 0.05,
+DEFAULT_RATES = {"eta": 0.2, "alpha": 0.05, "eta_p": 0.0, "eta_i": 0.0, "eta_d": 0.0,
                  "jac_max": 2.0}
 N_HIDDEN = 4
 

@@ -27,6 +27,7 @@ from pmalab.control.controllers import CascadeSettings
 from pmalab.control.model import IdentifiedModel
 from pmalab.control.reference import Reference
 from pmalab.errors import PmalabError
+from pmalab.rig.base import VentResult, vent_phrase
 from pmalab.rig.manipulator import ManipulatorRig
 
 #: recorded signals → units (the run file's channels and the ``gains/`` datasets)
@@ -104,6 +105,7 @@ def run_control(
     read_now = getattr(sampler, "read_now", None)
     regulator = rig.muscle_regulator
     status = "completed"
+    vent: VentResult | None = None
     k = 0
     t_start = clock.now()
     wall0 = time.perf_counter()
@@ -126,7 +128,7 @@ def run_control(
                               float(b.muscle_pressure[-1]))
             trip = monitor.check(x, f, p, 0.0)
             if trip is not None:
-                regulator.vent()
+                vent = rig.vent()
                 status = f"aborted: {trip}"
                 break
             tr = t - t_start
@@ -137,7 +139,7 @@ def run_control(
                 out = cascade.pressure_step(r, p)
             u = out.command
             if not math.isfinite(u):
-                regulator.vent()
+                vent = rig.vent()
                 status = "aborted: controller output is not finite (diverged)"
                 break
             regulator.set_pressure(u)
@@ -162,7 +164,7 @@ def run_control(
     except PmalabError as exc:
         status = f"aborted: {exc}"
     finally:
-        regulator.vent()
+        vent = rig.vent() if vent is None or not vent.ok else vent
         try:
             sampler.stop()
         except Exception:  # the vent above is what matters; stop faults are secondary
@@ -186,7 +188,8 @@ def run_control(
         "settings": settings.to_dict(),
         "model": (model.source if model is not None and is_pos else ""),
         "model_law": (model.law if model is not None and is_pos else ""),
-        "vented": getattr(regulator, "vented", None),
+        "vent": vent_phrase("muscle regulator", vent),
+        "vent_confirmed": vent.ok,
     }
     return ControlRun(name or controller, controller, loop, reference, signals,
                       {kk: v[keep] for kk, v in gains.items()}, status, attrs,

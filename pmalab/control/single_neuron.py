@@ -28,7 +28,7 @@ from __future__ import annotations
 from pmalab.control.pid import IncrementalPID, LoopSettings
 
 #: default learning rates (dimensionless), tuned once on the 15 mm square, never per run
-DEFAULT_RATES = {"eta_i": 0.02, "eta_p": 0.6, "eta_d": 0.6}
+DEFAULT_RATES = {"eta_i": 0.0, "eta_p": 0.0, "eta_d": 0.0}
 W_FLOOR = 1e-6
 
 

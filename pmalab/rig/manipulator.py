@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from pmalab.rig.base import Clock, Limits, PressureRegulator, Sampler
+from pmalab.rig.base import Clock, Limits, PressureRegulator, Sampler, VentResult, vent_safely
 
 
 @dataclass(frozen=True)
@@ -58,21 +58,27 @@ class ManipulatorRig:
     #: provenance recorded with every run (truth file, seed, device ids, ...)
     info: dict[str, Any] = field(default_factory=dict)
 
-    def close(self) -> None:
+    def vent(self) -> VentResult:
+        """Vent the muscle; never raises (a fault is a failed :class:`VentResult`)."""
+        return vent_safely(self.muscle_regulator.vent, "muscle regulator vent()")
+
+    def close(self) -> VentResult:
         """Vent the muscle and release devices.  Safe to call more than once.
 
-        Each step runs even when an earlier one fails; the first failure is raised last.
+        Returns the vent's outcome (a message must never claim a vent that was not
+        confirmed); a fault while releasing a device is raised after the vent.
         """
+        vent = self.vent()
         first: Exception | None = None
         closer = getattr(self.sampler, "close", None)
-        steps = [self.muscle_regulator.vent, self.sampler.stop]
-        for step in steps + ([closer] if callable(closer) else []):
+        for step in [self.sampler.stop] + ([closer] if callable(closer) else []):
             try:
                 step()
             except Exception as exc:
                 first = first or exc
         if first is not None:
             raise first
+        return vent
 
     def __enter__(self) -> ManipulatorRig:
         return self

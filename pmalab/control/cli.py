@@ -1,0 +1,143 @@
+"""``pmalab control``: the seeds' cascade controllers on the simulated 1-DOF manipulator.
+
+One run::
+
+    pmalab control --controller pid|sn-pid|rbf-pid --reference square:0.1Hz:15mm
+                   [--loop position|pressure] [--model ID.json] --duration S --out F.h5
+
+Every seed experiment with every controller::
+
+    pmalab control --experiments data/control/seed-experiments.toml --out DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+
+from pmalab.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``control`` to the ``pmalab`` parser."""
+    p = sub.add_parser(
+        "control", help="cascade position control of the simulated PMA manipulator",
+        description="Run the seed papers' cascade controllers (classic PID, single-neuron "
+        "adaptive PID, RBF-network-tuned PID) on the simulated 1-DOF manipulator driven by "
+        "one DMSP-20-120 muscle, on a virtual clock; record a run file with the response, "
+        "pressures and gains, and print step/tracking metrics.")
+    p.add_argument("--controller", choices=["pid", "sn-pid", "rbf-pid"],
+                   help="the controller (both loops use it)")
+    p.add_argument("--reference", metavar="KIND:FHz:M",
+                   help="square|sine, frequency, magnitude in mm (position loop) or MPa "
+                   "(pressure loop), e.g. square:0.1Hz:15mm, sine:0.1Hz:20mm, "
+                   "square:0.1Hz:0.5MPa; runs from 0 to the magnitude")
+    p.add_argument("--loop", choices=["position", "pressure"],
+                   help="the loop to close (default: from the reference's unit)")
+    p.add_argument("--model", metavar="ID.json",
+                   help="identification.json (or its directory) of the muscle, from 'pmalab "
+                   "identify' (default: the shipped identification of the simulated muscle)")
+    p.add_argument("--duration", type=float, metavar="S", help="run length in s (≤ 600)")
+    p.add_argument("--experiments", metavar="FILE.toml",
+                   help="run every experiment of this file with each of its controllers "
+                   "(data/control/seed-experiments.toml: the seeds' set); --out is a directory")
+    p.add_argument("--out", required=True, help="output run file (a directory with "
+                   "--experiments)")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.add_argument("--truth", metavar="TRUTH.toml",
+                   help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
+                   "for a plant/model mismatch; default: every effect off)")
+    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.set_defaults(func=cmd_control)
+
+
+def _make_rig_factory(truth: str | None, seed: int):
+    from pmalab.rig.sim.manipulator import make_sim_manipulator
+    from pmalab.rig.sim.truth import load_truth
+
+    t = load_truth(truth) if truth else None  # checked once, before anything runs
+
+    def make():
+        return make_sim_manipulator(t, seed=seed)
+    return make
+
+
+def cmd_control(args: argparse.Namespace) -> int:
+    from pmalab.control.experiments import check_duration, metrics_line
+
+    if args.seed is not None and args.seed < 0:
+        raise ConfigError(f"--seed: must be an integer ≥ 0, got {args.seed}")
+    old = signal.signal(signal.SIGTERM, _sigterm)
+    try:
+        if args.experiments:
+            for flag in ("controller", "reference", "loop", "duration"):
+                if getattr(args, flag) is not None:
+                    raise ConfigError(f"--{flag}: not with --experiments (the file sets it)")
+            return _run_experiments(args)
+        for flag in ("controller", "reference", "duration"):
+            if getattr(args, flag) is None:
+                raise ConfigError(f"--{flag}: required (or give --experiments FILE)")
+        return _run_one(args, check_duration, metrics_line)
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _sigterm(signum, frame):  # SIGTERM ends a run like Ctrl-C: vent, keep the samples
+    raise KeyboardInterrupt
+
+
+def _run_one(args, check_duration, metrics_line) -> int:
+    from pmalab.control.controllers import default_settings
+    from pmalab.control.model import IdentifiedModel
+    from pmalab.control.record import run_metrics, write_control_file
+    from pmalab.control.reference import parse_reference
+    from pmalab.control.runner import run_control
+    from pmalab.errors import SafetyAbort
+    from pmalab.paths import check_output
+
+    ref = parse_reference(args.reference)
+    loop = args.loop or ref.quantity
+    if loop != ref.quantity:
+        unit = "MPa" if loop == "pressure" else "mm"
+        raise ConfigError(f"--reference: '{args.reference}': the {loop} loop needs a "
+                          f"magnitude in {unit}")
+    duration = check_duration(args.duration, "--duration")
+    check_output(args.out, args.force)  # before anything runs
+    model = IdentifiedModel.load(args.model) if loop == "position" else None
+    make = _make_rig_factory(args.truth, args.seed or 0)
+    rig = make()
+    with rig:
+        run = run_control(rig, args.controller, ref, duration, default_settings(), model,
+                          name=args.controller)
+    run.attrs["command_line"] = " ".join(sys.argv)
+    run.attrs["truth"] = str(rig.info.get("truth", ""))
+    write_control_file(args.out, [run], force=args.force,
+                       root_attrs={"command_line": " ".join(sys.argv)})
+    m = run_metrics(run)
+    print(f"{args.out}: {args.controller} {ref.text} ({loop} loop), {run.n} samples, "
+          f"{duration / max(run.wall_s, 1e-9):.0f}× real time; {run.status}")
+    print(f"  {metrics_line(m)}")
+    if not run.completed:
+        raise SafetyAbort(f"{args.out}: run {run.status}; {run.attrs.get('vent')}; "
+                          "the samples so far are in the file")
+    return 0
+
+
+def _run_experiments(args) -> int:
+    from pmalab.control.experiments import load_experiments, run_experiments
+    from pmalab.control.model import IdentifiedModel
+    from pmalab.errors import SafetyAbort
+
+    es = load_experiments(args.experiments)
+    model = IdentifiedModel.load(args.model or es.model)
+    truth = args.truth or (str(es.truth) if es.truth else None)
+    seed = args.seed if args.seed is not None else es.seed
+    doc = run_experiments(es, args.out, force=args.force, model=model,
+                          make_rig=_make_rig_factory(truth, seed))
+    bad = [r for r in doc["results"] if r["status"] != "completed"]
+    print(f"{args.out}: {len(doc['results'])} runs, metrics in {args.out}/metrics.json")
+    if bad:
+        raise SafetyAbort(f"{args.out}: {bad[0]['experiment']} {bad[0]['controller']}: "
+                          f"{bad[0]['status']}; later runs not started")
+    return 0

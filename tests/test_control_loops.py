@@ -1,0 +1,138 @@
+"""The controllers on the simulated manipulator: stability, bounded adaptation, mismatch,
+limits (short virtual-clock runs)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from pmalab.control.controllers import default_settings
+from pmalab.control.metrics import summarize
+from pmalab.control.model import HysteresisState, IdentifiedModel
+from pmalab.control.pid import Gains
+from pmalab.control.reference import parse_reference
+from pmalab.control.runner import run_control
+from pmalab.paths import TRUTH_DIR
+from pmalab.rig.sim.manipulator import make_sim_manipulator
+
+MODEL = IdentifiedModel.load(None)
+
+
+def _run(controller, ref="square:0.1Hz:15mm", duration=10.0, settings=None, truth=None, seed=0):
+    rig = make_sim_manipulator(truth, seed=seed)
+    with rig:
+        return run_control(rig, controller, parse_reference(ref), duration,
+                           settings or default_settings(), MODEL), rig
+
+
+def _position_metrics(run, duration):
+    s = run.signals
+    return summarize("square", s["time"], s["position"], s["position_reference"],
+                     run.reference.step_times(duration))
+
+
+@pytest.mark.parametrize("controller", ["pid", "sn-pid", "rbf-pid"])
+def test_each_controller_stabilises_the_manipulator_on_a_square(controller):
+    run, rig = _run(controller)
+    assert run.completed, run.status
+    m = _position_metrics(run, 10.0)
+    assert len(m["steps"]) == 2  # up at 0 s, down at 5 s
+    # both steps reach and hold the reference: settled inside the 5 s half period, within
+    # 0.5 mm at the end of each (the sensor noise is 0.015 mm)
+    assert m["settled"], m
+    assert m["steady_state_error"] < 0.5
+    assert np.all(np.isfinite(run.signals["muscle_pressure_command"]))
+    # the run ends vented and the simulated valve confirms it
+    assert run.attrs["vent_confirmed"] is True
+    assert rig.info["physics"].command == 0.0
+
+
+@pytest.mark.parametrize("controller", ["pid", "sn-pid", "rbf-pid"])
+def test_each_controller_holds_the_pressure_loop(controller):
+    run, _ = _run(controller, "square:0.1Hz:0.5MPa", 10.0)
+    assert run.completed
+    s = run.signals
+    m = summarize("square", s["time"], s["muscle_pressure"], s["muscle_pressure_reference"],
+                  run.reference.step_times(10.0))
+    assert m["steady_state_error"] < 0.02  # MPa, at the end of each 5 s half period
+    assert 0.2 < m["rise_time_s"] < 1.5  # regulator lag + dead time + filling the muscle
+
+
+@pytest.mark.parametrize("controller", ["sn-pid", "rbf-pid"])
+def test_adaptive_gains_stay_inside_their_bounds_even_with_the_largest_rates(controller):
+    base = default_settings()
+    rates = {k: 10.0 for k in ("eta_p", "eta_i", "eta_d", "eta", "jac_max")}
+    rates["alpha"] = 0.9
+    s = replace(base, outer=replace(base.outer, learning=rates, gain_bounds=(0.5, 2.0)),
+                inner=replace(base.inner, learning=rates, gain_bounds=(0.5, 2.0)))
+    run, _ = _run(controller, "sine:0.1Hz:20mm", 10.0, settings=s)
+    # a run may be stopped by the limits, but never with gains outside their box or NaN
+    for loop, ls in (("outer", s.outer), ("inner", s.inner)):
+        for name, g0 in zip(("kp", "ki", "kd"), ls.gains.as_tuple()):
+            g = run.gains[f"{loop}_{name}"]
+            assert np.all(np.isfinite(g))
+            assert g.min() >= 0.5 * g0 * (1 - 1e-12) and g.max() <= 2.0 * g0 * (1 + 1e-12)
+    moved = [np.ptp(run.gains[k]) > 0 for k in run.gains]
+    assert any(moved)  # the laws did adapt something
+
+
+@pytest.mark.parametrize("hidden", ["hidden-viscous-friction.toml", "hidden-nonlinear-stiffness.toml"])
+def test_a_plant_model_mismatch_is_survived(hidden):
+    """The identification knows nothing of the hidden effect; every controller still
+    follows the 15 mm square."""
+    for controller in ("pid", "sn-pid", "rbf-pid"):
+        run, _ = _run(controller, truth=TRUTH_DIR / hidden)
+        assert run.completed, (controller, run.status)
+        m = _position_metrics(run, 10.0)
+        assert m["steady_state_error"] < 0.5, (controller, m)
+
+
+def test_a_diverging_controller_is_stopped_by_the_limits_and_vented():
+    base = default_settings()
+    wild = replace(base, outer=base.outer.with_gains(2000.0, 0.0, 0.0), feedforward=False)
+    run, rig = _run("pid", "square:0.1Hz:20mm", 10.0, settings=wild)
+    assert run.status.startswith("aborted:"), run.status
+    assert "outside the travel" in run.status or "pressure" in run.status
+    assert run.attrs["vent_confirmed"] is True
+    assert rig.info["physics"].command == 0.0
+    assert run.n > 10  # the samples up to the trip are kept
+    assert run.signals["time"][-1] < 10.0
+
+
+def test_model_inversion_returns_the_pressure_that_gives_the_force():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        x, p, h = rng.uniform(0, 22), rng.uniform(0.1, 0.6), rng.uniform(-30, 30)
+        f = MODEL.force(x, p, h)
+        assert MODEL.invert(f, x, h, 0.6) == pytest.approx(p, abs=1e-9)
+    # out of reach: clamped to the regulator's range
+    assert MODEL.invert(-1e4, 10.0, 0.0, 0.6) == 0.0
+    assert MODEL.invert(1e5, 10.0, 0.0, 0.6) == 0.6
+
+
+def test_hysteresis_state_steps_like_the_laws_batch_integrator():
+    """h advanced sample by sample in the controller equals identify's batch integration
+    at a fixed pressure (the controller has no integrator of its own)."""
+    from pmalab.identify.laws import get_law
+
+    law = get_law(MODEL.law)
+    x = 10 + 5 * np.sin(np.linspace(0, 4 * math.pi, 2001))
+    theta = MODEL.theta(0.3)
+    batch = law.h(x, {**theta, "h0": 0.0}, {})
+    hs = HysteresisState(MODEL, x[0])
+    online = [0.0] + [hs.update(float(v), 0.3) for v in x[1:]]
+    assert np.allclose(online, batch, atol=1e-9)
+
+
+def test_same_initial_gains_for_every_controller():
+    for c in ("pid", "sn-pid", "rbf-pid"):
+        run, _ = _run(c, duration=0.02)
+        first = {k: float(v[0]) for k, v in run.gains.items()}
+        s = default_settings()
+        assert first["outer_kp"] == pytest.approx(s.outer.gains.kp)
+        assert first["inner_ki"] == pytest.approx(s.inner.gains.ki)
+        assert Gains(first["outer_kp"], first["outer_ki"], first["outer_kd"]).as_tuple() == \
+            pytest.approx(s.outer.gains.as_tuple())
