@@ -336,6 +336,31 @@ def _short(exc: BaseException) -> str:
     return str(exc).splitlines()[0][:120] if str(exc) else type(exc).__name__
 
 
+def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray, str]]:
+    """Every 1-D dataset of run ``run`` that carries a ``units`` attr, subgroups included
+    (``"gains/outer_kp"``), as ``{name: (values, units)}`` in the units stored — the
+    channels :func:`read_runs` does not know (references, commands, a controller's gains).
+    One-line :class:`RunFileError` naming file and run on any problem."""
+    path = Path(path)
+    f = open_h5(path)
+    out: dict[str, tuple[np.ndarray, str]] = {}
+    try:
+        if "runs" not in f or run not in f["runs"]:
+            raise _fail(path, run, None, "no such run")
+
+        def visit(name: str, obj: Any) -> None:
+            if getattr(obj, "ndim", None) == 1 and "units" in obj.attrs:
+                out[name] = (np.asarray(obj[()], dtype=np.float64),
+                             str(decode_attr(obj.attrs["units"])))
+
+        f["runs"][run].visititems(visit)
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise _fail(path, run, None, f"damaged file ({_short(exc)})") from None
+    finally:
+        f.close()
+    return out
+
+
 # --------------------------------------------------------------------------- writing
 def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Path:
     """Write complete in-memory runs to a new contract file (canonical units).

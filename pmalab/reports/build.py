@@ -346,6 +346,17 @@ def build_report(
         raise ReportError(f"{out}: the report must be a .pdf file")
     if out.is_dir():
         raise ReportError(f"{out}: is a directory")
+    # `pmalab control` output files get their own pages (pmalab.reports.control)
+    from pmalab.reports.control import build_control_report, is_control_file
+
+    inputs = [directory] if isinstance(directory, str | Path) else list(directory)
+    controls = [p for p in inputs if is_control_file(p)]
+    if controls:
+        if len(controls) != len(inputs):
+            raise ReportError(f"{inputs[0] if inputs[0] not in controls else inputs[-1]}: give "
+                              "control run files (pmalab control) without result directories")
+        return build_control_report(controls, out, force, png_dir=png_dir, svg_dir=svg_dir,
+                                    progress=progress)
     try:
         check_output(out, force)
     except OutputExistsError:

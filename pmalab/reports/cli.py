@@ -16,7 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("directories", nargs="+", metavar="DIR",
                    help="identification and/or diagnosis output directory (several are merged "
-                   "into one report, e.g. an identify --out and a diagnose --out)")
+                   "into one report, e.g. an identify --out and a diagnose --out), or "
+                   "'pmalab control' run files (CONTROL.h5: a page per experiment)")
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     exp = p.add_mutually_exclusive_group()

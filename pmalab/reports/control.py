@@ -1,0 +1,124 @@
+"""The report of ``pmalab control`` output: ``pmalab report EXP.h5... --out R.pdf``.
+
+Reads the run files through :mod:`pmalab.runfile` only (reports never import
+:mod:`pmalab.control`): a control file is a contract run file whose root attr ``kind`` is
+``"control"``.  Pages: one metrics table for every file given, then per experiment file a
+response page (position or pressure, error, pressures) and a gains page.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+
+import matplotlib as mpl
+from matplotlib.backends.backend_pdf import PdfPages
+
+from pmalab import __version__
+from pmalab.errors import OutputError, OutputExistsError, PmalabError
+from pmalab.paths import check_output
+from pmalab.reports import style
+from pmalab.reports.errors import ReportError
+from pmalab.reports.figures_control import (
+    ControlFileData,
+    ControlRunData,
+    gains_figure,
+    metrics_table_figure,
+    response_figure,
+)
+from pmalab.runfile import decode_attr, open_h5, read_run_datasets, read_runs
+
+
+def is_control_file(path: str | Path) -> bool:
+    """True for an HDF5 run file written by ``pmalab control`` (root attr kind = control)."""
+    p = Path(path)
+    if not p.is_file() or p.suffix.lower() not in (".h5", ".hdf5"):
+        return False
+    try:
+        f = open_h5(p)
+    except PmalabError:
+        return False
+    try:
+        return decode_attr(f.attrs.get("kind")) == "control"
+    finally:
+        f.close()
+
+
+def load_control_file(path: str | Path) -> ControlFileData:
+    """Every run of a control file with its datasets; :class:`ReportError` on a problem."""
+    p = Path(path)
+    try:
+        runs = read_runs(p)
+        f = open_h5(p)
+        try:
+            root = {k: decode_attr(v, parse_json=True) for k, v in f.attrs.items()}
+        finally:
+            f.close()
+        out = []
+        for r in runs:
+            attrs = {k: decode_attr(v, parse_json=True) for k, v in r.attrs.items()}
+            data = {k: v for k, (v, _) in read_run_datasets(p, r.name).items()}
+            out.append(ControlRunData(r.name, attrs, str(attrs.get("status", "completed")), data))
+    except PmalabError as exc:
+        raise ReportError(str(exc)) from None
+    title = str(root.get("experiment") or p.stem)
+    return ControlFileData(str(p), title, root, out)
+
+
+def build_control_report(
+    paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    *,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Path:
+    """Render the control report of ``paths`` into ``out`` (a temporary file until complete)."""
+    out = Path(out)
+    try:
+        check_output(out, force)
+    except OutputExistsError:
+        raise
+    except OutputError as exc:
+        raise ReportError(str(exc)) from None
+    files = [load_control_file(p) for p in paths]
+    pages: list[tuple[str, Callable[[], object]]] = [
+        ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))]
+    for f in files:
+        pages.append((f"{f.title}-response", lambda f=f: response_figure(f)))
+        pages.append((f"{f.title}-gains", lambda f=f: gains_figure(f)))
+    exports = []
+    for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
+        if d is not None:
+            for i, (slug, _) in enumerate(pages, 1):
+                check_output(Path(d) / f"{i:02d}-{slug}.{ext}", force)
+            exports.append((Path(d), ext))
+    tmp = out.with_name(f".{out.name}.part")
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp.touch()
+    except OSError as exc:
+        raise ReportError(f"{out}: cannot write ({exc.strerror or exc})") from None
+    n = len(pages)
+    try:
+        meta = {"Title": "pmalab control report", "Creator": f"pmalab {__version__}",
+                "CreationDate": datetime.now(UTC)}
+        with PdfPages(tmp, metadata=meta) as pdf:
+            for i, (slug, make) in enumerate(pages, 1):
+                fig = make()
+                with mpl.rc_context(style.RC):
+                    fig.text(0.99, 0.005, f"pmalab control report · page {i}/{n}", ha="right",
+                             va="bottom", fontsize=8, color="0.4")
+                    pdf.savefig(fig)
+                for d, ext in exports:
+                    style.save_figure(fig, d / f"{i:02d}-{slug}.{ext}", force=True, dpi=150)
+                if progress is not None:
+                    progress(f"page {i}/{n}: {slug}")
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return out

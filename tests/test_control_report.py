@@ -1,0 +1,40 @@
+"""``pmalab report CONTROL.h5``: a metrics page, then response and gains pages per file."""
+
+from __future__ import annotations
+
+import pypdfium2 as pdfium
+import pytest
+
+from pmalab.cli import main
+
+
+@pytest.fixture(scope="module")
+def control_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ctl")
+    exp = d / "e.toml"
+    exp.write_text('[experiments]\ncontrollers = ["pid", "sn-pid"]\nduration_s = 2.0\n'
+                   '[[experiment]]\nname = "sq"\nreference = "square:0.5Hz:10mm"\n'
+                   '[experiment.seeds]\nS1 = { classic_overshoot_pct = 31.0 }\n'
+                   '[[experiment]]\nname = "p"\nreference = "square:0.5Hz:0.5MPa"\n')
+    assert main(["control", "--experiments", str(exp), "--out", str(d / "out")]) == 0
+    return d / "out"
+
+
+def test_report_of_control_files_has_a_page_per_experiment_part(control_dir, tmp_path, capsys):
+    out = tmp_path / "r.pdf"
+    rc = main(["report", str(control_dir / "sq.h5"), str(control_dir / "p.h5"), "--out",
+               str(out)])
+    assert rc == 0
+    pdf = pdfium.PdfDocument(str(out))
+    assert len(pdf) == 5  # metrics + (response, gains) × 2
+    text = pdf[0].get_textpage().get_text_range()
+    assert "sn-pid" in text and "classic overshoot pct 31" in text
+    assert "page 5/5: p-gains" in capsys.readouterr().out
+
+
+def test_control_files_and_result_directories_are_not_mixed(control_dir, tmp_path, capsys):
+    rc = main(["report", str(control_dir / "sq.h5"), str(tmp_path), "--out",
+               str(tmp_path / "r.pdf")])
+    assert rc != 0
+    assert "without result directories" in capsys.readouterr().err
+    assert not (tmp_path / "r.pdf").exists()
