@@ -53,6 +53,11 @@ from pmalab.rig.sim.physics import build_params
 from pmalab.rig.sim.truth import Truth, default_truth, load_truth
 
 _NOISE_BLOCK = 4096
+#: _KERNEL_STAMP: the compiled manipulator kernel is built from the isobaric kernel's
+#: functions and state/parameter layout (pmalab.rig.sim.kernel), but numba's disk cache is
+#: keyed on *this* file only, so a change of the kernel would leave a stale compiled copy
+#: reading the wrong slots.  :func:`_drop_stale_cache` (run at import) stores a hash of
+#: kernel.py next to the cache and deletes this module's cached code when it changed.
 
 
 @dataclass(frozen=True)
@@ -139,7 +144,7 @@ def _manip_params(spec: ManipulatorSpec, truth: Truth) -> np.ndarray:
     return q
 
 
-@njit(cache=True)
+@njit(cache=True)  # see _KERNEL_STAMP
 def _advance(st, par, mq, pend, ptr, hist, t_target):
     """Integrate the manipulator from ``st[S_T]`` to ``t_target`` (sub-steps ≤ P_HMAX).
 
@@ -260,7 +265,7 @@ def _advance(st, par, mq, pend, ptr, hist, t_target):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True)  # see _KERNEL_STAMP
 def advance_measure(w, mq, pend, ptr, hist, noise, t_target):
     """Integrate to ``t_target`` and write the five channels into ``w[O_OUT:]``.
 
@@ -270,9 +275,38 @@ def advance_measure(w, mq, pend, ptr, hist, noise, t_target):
     return rc | K.measure(w, ptr, hist, noise)
 
 
-@njit(cache=True)
+@njit(cache=True)  # see _KERNEL_STAMP
 def advance_only(w, mq, pend, ptr, hist, t_target):
     return _advance(w[K.O_ST:K.O_PAR], w[K.O_PAR:K.O_MPAR], mq, pend, ptr, hist, t_target)
+
+
+def _drop_stale_cache() -> None:
+    """Delete this module's numba cache files when kernel.py changed since they were made."""
+    import hashlib
+
+    try:
+        digest = hashlib.sha256(Path(K.__file__).read_bytes()).hexdigest()[:16]
+    except OSError:
+        return
+    for fn in (_advance, advance_measure, advance_only):
+        path = getattr(getattr(fn, "_cache", None), "_cache_path", None)
+        if not path:
+            continue
+        stamp = Path(path) / f"{__name__.rsplit('.', 1)[-1]}.kernel-stamp"
+        try:
+            if stamp.read_text() == digest:
+                continue
+        except OSError:
+            pass
+        for old in Path(path).glob(f"{__name__.rsplit('.', 1)[-1]}.*.nb[ic]"):
+            old.unlink(missing_ok=True)
+        try:
+            stamp.write_text(digest)
+        except OSError:
+            pass
+
+
+_drop_stale_cache()
 
 
 class ManipulatorPhysics:
