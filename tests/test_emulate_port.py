@@ -48,7 +48,8 @@ def test_the_printed_command_reaches_the_emulator_on_its_port(tmp_path):
         argv = shlex.split(command)
         assert argv[:2] == ["pmalab", "run"] and argv[argv.index("--port") + 1] == str(port)
         proto = tmp_path / "p.toml"
-        proto.write_text(PROTO.replace("cycles = 3", "cycles = 1"))
+        proto.write_text(PROTO.replace("cycles = 3", "cycles = 1").replace(
+            "frequency_Hz = 0.5", "frequency_Hz = 1.0"))
         out = tmp_path / "x.h5"
         argv = [str(proto) if a == "PROTOCOL.toml" else str(out) if a == "FILE.h5" else a
                 for a in argv[1:]]

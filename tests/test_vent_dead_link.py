@@ -139,7 +139,8 @@ def test_itv_that_stops_answering_fails_its_vent_while_the_dac_confirms(tmp_path
         itv = emus.itvs["cylinder_regulator"]
         with build_modbus_rig(spec) as rig:
             rig.cylinder_regulator.vent_confirm_s = 0.3
-            timer = threading.Timer(1.5, itv.faults.arm, ("drop", 10**6))
+            rig.cylinder_regulator.timeout = 0.05  # a dead ITV fails each vent in 0.15 s
+            timer = threading.Timer(1.0, itv.faults.arm, ("drop", 10**6))
             timer.start()
             try:
                 with pytest.raises(SafetyAbort) as ei:

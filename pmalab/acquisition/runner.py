@@ -285,7 +285,11 @@ def run_protocol(
             opts.extra_attrs.setdefault("scheduling", sched)
             return _run_protocol(rig, protocol, out, force, opts)
     finally:
-        _vent(rig)  # every exit path, including a refused protocol or an existing output
+        # every exit path, including a refused protocol or an existing output; once (a
+        # dead link makes each vent wait for its retries), then the sampler stops
+        _vent(rig)
+        with contextlib.suppress(Exception):
+            rig.sampler.stop()
 
 
 @contextlib.contextmanager
@@ -480,11 +484,6 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
             err.hard_exit = rec.unclosed
             raise err from None
     finally:
-        _vent(rig)
-        try:
-            rig.sampler.stop()
-        except Exception:
-            pass
         if pbar is not None:
             pbar.close()
     return results
