@@ -33,7 +33,8 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
-    p.add_argument("--model", required=True, choices=("bouc-wen", "duhem"), help="hysteresis law")
+    p.add_argument("--model", required=True, metavar="LAW",
+                   help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)")
     p.add_argument("--add", action="append", default=[], metavar="EFFECT",
                    help="add an effect by id (repeatable), e.g. viscous-friction")
     p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
@@ -148,7 +149,8 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
-    p.add_argument("--model", required=True, choices=("bouc-wen", "duhem"), help="hysteresis law")
+    p.add_argument("--model", required=True, metavar="LAW",
+                   help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)")
     p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
                    help="held-out run files (default: the last third of every run)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")

@@ -7,20 +7,15 @@ listing the valid ids.
 
 from __future__ import annotations
 
+import importlib
 import importlib.util
 import inspect
+import pkgutil
 import sys
 from pathlib import Path
 
 from pmalab.errors import PmalabError
-from pmalab.identify.effects.asymmetric import AsymmetricHysteresis
 from pmalab.identify.effects.base import Effect
-from pmalab.identify.effects.delay import SensorDelay
-from pmalab.identify.effects.drift import SensorDrift
-from pmalab.identify.effects.inertia import Inertia
-from pmalab.identify.effects.pressure import PressureVariation
-from pmalab.identify.effects.stiffness import NonlinearStiffness
-from pmalab.identify.effects.viscous import ViscousFriction
 
 __all__ = ["BUILTIN_IDS", "EFFECTS", "Effect", "EffectError", "get_effect", "load_user_effects"]
 
@@ -29,12 +24,24 @@ class EffectError(PmalabError):
     """An unknown effect id or a broken user effects file."""
 
 
-#: the catalogue, in DESIGN.md order
-EFFECTS: dict[str, type[Effect]] = {
-    cls.id: cls
-    for cls in (ViscousFriction, AsymmetricHysteresis, NonlinearStiffness, PressureVariation,
-                SensorDelay, Inertia, SensorDrift)
-}
+# adding an effect is ONE new file in this folder: every module here is imported and every
+# Effect subclass with an ``id`` registered
+for _m in pkgutil.iter_modules(__path__):
+    if not _m.name.startswith("_") and _m.name != "base":
+        importlib.import_module(f"{__name__}.{_m.name}")
+
+#: the catalogue's display order (DESIGN.md); effects in new files follow, by id
+_ORDER = ("viscous-friction", "asymmetric-hysteresis", "nonlinear-stiffness",
+          "pressure-variation", "sensor-delay", "inertia", "sensor-drift")
+
+
+def _builtin() -> list[type[Effect]]:
+    found = {c.id: c for c in Effect.__subclasses__() if c.id and c.__module__.startswith(__name__)}
+    return sorted(found.values(), key=lambda c: (_ORDER.index(c.id) if c.id in _ORDER else 99, c.id))
+
+
+#: the catalogue: id -> class (plus any user effects loaded with load_user_effects)
+EFFECTS: dict[str, type[Effect]] = {cls.id: cls for cls in _builtin()}
 BUILTIN_IDS: tuple[str, ...] = tuple(EFFECTS)
 
 

@@ -1,10 +1,15 @@
 """Hysteresis laws, one file each; ``LAWS`` is the registry, :func:`get_law` the lookup.
 
-Adding a law (e.g. Prandtl-Ishlinskii or Maxwell-slip) is one new file with a
-:class:`~pmalab.identify.laws.base.HysteresisLaw` subclass, registered here.
+Adding a law (e.g. Prandtl-Ishlinskii or Maxwell-slip) is ONE new file in this folder with a
+:class:`~pmalab.identify.laws.base.HysteresisLaw` subclass that sets ``name``: every module
+here is imported and every such subclass registered (``--model NAME`` then works in
+``identify``, ``diagnose`` and the controllers).
 """
 
 from __future__ import annotations
+
+import importlib
+import pkgutil
 
 from pmalab.errors import PmalabError
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
@@ -13,8 +18,20 @@ from pmalab.identify.laws.duhem import Duhem
 
 __all__ = ["LAWS", "BoucWen", "Duhem", "HysteresisLaw", "LawParam", "get_law"]
 
+for _m in pkgutil.iter_modules(__path__):
+    if not _m.name.startswith("_") and _m.name != "base":
+        importlib.import_module(f"{__name__}.{_m.name}")
+
+
+def _all_laws(cls: type[HysteresisLaw]) -> list[type[HysteresisLaw]]:
+    out = []
+    for sub in cls.__subclasses__():
+        out += ([sub] if sub.name else []) + _all_laws(sub)
+    return out
+
+
 #: every law by the id users type (``--model``)
-LAWS: dict[str, type[HysteresisLaw]] = {cls.name: cls for cls in (BoucWen, Duhem)}
+LAWS: dict[str, type[HysteresisLaw]] = {cls.name: cls for cls in _all_laws(HysteresisLaw)}
 
 
 def get_law(name: str) -> HysteresisLaw:
