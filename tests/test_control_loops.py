@@ -67,8 +67,8 @@ def test_each_controller_holds_the_pressure_loop(controller):
 def test_adaptive_gains_stay_inside_their_bounds_even_with_the_largest_rates(controller):
     base = default_settings()
     # the largest gain rates allowed (max_rate = 10) on a network that learns
-    rates = {"eta_p": 10.0, "eta_i": 10.0, "eta_d": 10.0, "eta": 0.5, "alpha": 0.5,
-             "jac_max": 10.0}
+    rates = {controller: {"eta_p": 10.0, "eta_i": 10.0, "eta_d": 10.0, "eta": 0.5,
+                          "alpha": 0.5, "jac_max": 10.0}}
     s = replace(base, outer=replace(base.outer, learning=rates, gain_bounds=(0.5, 2.0)),
                 inner=replace(base.inner, learning=rates, gain_bounds=(0.5, 2.0)))
     run, _ = _run(controller, "sine:0.1Hz:20mm", 10.0, settings=s)

@@ -67,12 +67,12 @@ class Cascade:
         f_d = self.outer.step(r, x, ff)
         assert self.model is not None, "the position loop needs an identified model"
         p_d = self.model.invert(f_d, x_abs, h, self.p_max)
-        u = self.inner.step(p_d, p)
+        u = self.inner.step(p_d, p, p_d if self.settings.inner_feedforward else 0.0)
         return CascadeOutput(u, p_d, f_d, h)
 
     def pressure_step(self, p_ref: float, p: float) -> CascadeOutput:
         """One sample of the pressure loop alone."""
-        u = self.inner.step(p_ref, p)
+        u = self.inner.step(p_ref, p, p_ref if self.settings.inner_feedforward else 0.0)
         return CascadeOutput(u, p_ref, math.nan, math.nan)
 
     def gains(self) -> tuple[float, ...]:

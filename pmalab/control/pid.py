@@ -60,15 +60,15 @@ class LoopSettings:
     dt: float = 0.002
     d_filter_Hz: float = 20.0
     gain_bounds: tuple[float, float] = (0.2, 5.0)
-    learning: dict[str, float] = field(default_factory=dict)
+    learning: dict[str, dict[str, float]] = field(default_factory=dict)
     max_rate: float = 10.0
 
     def with_gains(self, kp: float, ki: float, kd: float) -> LoopSettings:
         return replace(self, gains=Gains(kp, ki, kd))
 
-    def rate(self, name: str, default: float) -> float:
-        """A learning rate, clipped to [0, max_rate]."""
-        v = float(self.learning.get(name, default))
+    def rate(self, controller: str, name: str, default: float) -> float:
+        """``controller``'s learning rate ``name``, clipped to [0, max_rate]."""
+        v = float(self.learning.get(controller, {}).get(name, default))
         if not math.isfinite(v):
             v = default
         return min(max(v, 0.0), self.max_rate)

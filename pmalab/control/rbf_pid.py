@@ -32,6 +32,8 @@ import math
 
 from pmalab.control.pid import IncrementalPID, LoopSettings
 
+#: rates a settings table leaves out (gain rates 0: no tuning; the tuned ones are in
+#: :func:`pmalab.control.controllers.default_settings`)
 DEFAULT_RATES = {"eta": 0.2, "alpha": 0.05, "eta_p": 0.0, "eta_i": 0.0, "eta_d": 0.0,
                  "jac_max": 2.0}
 N_HIDDEN = 4
@@ -44,7 +46,9 @@ class RbfPID(IncrementalPID):
 
     def __init__(self, settings: LoopSettings) -> None:
         super().__init__(settings)
-        r = settings.rate
+        def r(key: str, default: float) -> float:
+            return settings.rate(self.name, key, default)
+
         self.eta = r("eta", DEFAULT_RATES["eta"])
         self.alpha = min(r("alpha", DEFAULT_RATES["alpha"]), 0.95)
         self.eta_pid = (r("eta_p", DEFAULT_RATES["eta_p"]), r("eta_i", DEFAULT_RATES["eta_i"]),

@@ -27,7 +27,8 @@ from __future__ import annotations
 
 from pmalab.control.pid import IncrementalPID, LoopSettings
 
-#: default learning rates (dimensionless), tuned once on the 15 mm square, never per run
+#: learning rates (dimensionless) a settings table leaves out: no learning
+#: (the tuned ones are in :func:`pmalab.control.controllers.default_settings`)
 DEFAULT_RATES = {"eta_i": 0.0, "eta_p": 0.0, "eta_d": 0.0}
 W_FLOOR = 1e-6
 
@@ -45,9 +46,8 @@ class SingleNeuronPID(IncrementalPID):
         self.K = sum(abs(v) for v in disc)
         self.w0 = tuple(v / self.K for v in disc)
         self.w = list(self.w0)
-        self.eta = (settings.rate("eta_i", DEFAULT_RATES["eta_i"]),
-                    settings.rate("eta_p", DEFAULT_RATES["eta_p"]),
-                    settings.rate("eta_d", DEFAULT_RATES["eta_d"]))
+        self.eta = tuple(settings.rate(self.name, k, DEFAULT_RATES[k])
+                         for k in ("eta_i", "eta_p", "eta_d"))
 
     def reset(self, u0: float = 0.0) -> None:
         super().reset(u0)
