@@ -20,7 +20,7 @@ from test_acq_fakes import TWO_RUNS, make_fake_rig
 
 from pmalab.acquisition.live import FileFollower, Hub, LiveServer, parse_address
 from pmalab.acquisition.live.address import is_loopback
-from pmalab.acquisition.live.feed import LiveFeed
+from pmalab.acquisition.live.feed import RingFeed, RingReader, ring_bytes
 from pmalab.acquisition.live.hub import Cursor
 from pmalab.acquisition.live.margins import Margins
 from pmalab.acquisition.live.pump import Pump
@@ -72,28 +72,65 @@ def _spec(frequency=1.0):
     return parse_protocol(TWO_RUNS, "t.toml").runs[0]
 
 
-def test_tap_stores_every_sample_and_the_bounded_queue_drops_the_oldest_counted():
+def _ring(rows):
+    buf = bytearray(ring_bytes(rows))
+    events = []
+    return buf, events, RingFeed(buf, 2, events.append, rows=rows), RingReader(buf, rows)
+
+
+def test_tap_stores_every_sample_and_the_ring_drops_the_oldest_counted():
     proto = parse_protocol(TWO_RUNS, "t.toml")
-    feed = LiveFeed(maxlen=100)
+    _, events, feed, reader = _ring(100)
     w = _Writer()
     feed.run_started(0, proto.runs[0], w)
+    assert events == [("start", 0, events[0][2])] and events[0][2]["name"] == "first"
     for k in range(1000):
+        w.late = k
         w.add(k / 500, 20.0, 300.0 + k, 0.4, 0.2, 0.25, 1e-5)
     assert len(w.rows) == 1000 and w.rows[-1][2] == 1299.0  # the file gets every sample
-    assert len(feed.samples) == 100  # the display queue stays bounded
     hub = Hub({"mode": "live"})
-    pump = Pump(feed, hub, proto, 500.0, Margins.from_limits(LIMITS))
+    pump = Pump(reader, hub, [r.duration_s for r in proto.runs], 500.0,
+                Margins.from_limits(LIMITS))
+    pump.events.extend(events)
     pump.pump()
-    assert pump.dropped == 900
+    assert reader.dropped == 900  # the reader came after 1000 samples into a 100-row ring
     (run,) = hub.runs.values()
     pts = json.loads(run.frames[0].decode().split("data: ", 1)[1])
     assert pts["t"] == [k / 500 for k in range(900, 1000, 10)]  # stride 10 on the seq grid
     status = pump.status()
     assert status["dropped"] == 900 and status["safety"]["state"] == "ok"
+    assert status["samples"] == 1000
     force = next(m for m in status["margins"] if m["channel"] == "force")
-    # only the queued samples reach the margins (the last one: F = 1299 N, 299 N past)
+    # only the rows still in the ring reach the margins (the last one: F = 1299 N, 299 N past)
     assert force["reading"] == 1299.0 and force["margin"] == pytest.approx(-299.0)
     assert force["lowest"] == pytest.approx(-299.0)
+    for k in range(1000, 1050):  # drained again: only what is new, none dropped
+        w.add(k / 500, 20.0, 300.0, 0.4, 0.2, 0.25, 1e-5)
+    rows = reader.drain()
+    assert rows[:, 0].tolist() == list(range(1000, 1050)) and reader.dropped == 900
+
+
+def test_ring_rows_overwritten_while_being_read_are_not_trusted():
+    _, _, feed, reader = _ring(8)
+    w = _Writer()
+    feed.run_started(0, parse_protocol(TWO_RUNS, "t.toml").runs[0], w)
+    for k in range(8):
+        w.add(k, 0, 0, 0, 0, 0, 0)
+    real_head = reader._head
+    # the writer laps the reader between its reading the head and copying the rows
+    class Racing:
+        def __init__(self):
+            self.reads = 0
+
+        def __getitem__(self, i):
+            self.reads += 1
+            if self.reads == 3:  # the re-read after the copy
+                for k in range(8, 12):
+                    w.add(k, 0, 0, 0, 0, 0, 0)
+            return real_head[i]
+    reader._head = Racing()
+    rows = reader.drain()
+    assert rows[:, 0].tolist() == [4, 5, 6, 7] and reader.dropped == 4
 
 
 def test_margins_against_the_interlock_thresholds():
@@ -127,7 +164,7 @@ def test_hub_replays_the_current_run_to_a_late_browser_and_follows_new_runs():
 
 
 # ------------------------------------------------------------------ server
-def _events(port, path="/events", until="points", timeout=10.0):
+def _events(port, path="/events", until="points", timeout=30.0):
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
     conn.request("GET", path)
     resp = conn.getresponse()
@@ -262,16 +299,17 @@ def test_observed_recording_is_identical_and_a_failing_observer_is_ignored(tmp_p
     proto = parse_protocol(TWO_RUNS, "t.toml")
     run_protocol(make_fake_rig(), proto, tmp_path / "plain.h5",
                  options=RunnerOptions(progress=False))
-    feed = LiveFeed(maxlen=100_000)
+    _, events, feed, reader = _ring(100_000)
     run_protocol(make_fake_rig(), proto, tmp_path / "live.h5",
                  options=RunnerOptions(progress=False, observer=feed))
     plain, live = _channels(tmp_path / "plain.h5"), _channels(tmp_path / "live.h5")
     assert plain.keys() == live.keys()
     for name in plain:
         np.testing.assert_array_equal(plain[name], live[name])
-    assert len(feed.samples) == sum(len(v) for v in live.values())
-    assert [e[0] for e in feed.events] == ["start", "end", "start", "end"]
-    assert feed.events[1][2] == "completed"
+    rows = reader.drain()  # the ring saw exactly what was recorded
+    np.testing.assert_array_equal(rows[:, 2:], np.vstack([live["first"], live["second"]]))
+    assert [e[0] for e in events] == ["start", "end", "start", "end"]
+    assert events[1][2] == "completed"
 
     class Broken(RunObserver):
         def run_started(self, index, spec, writer):
@@ -361,7 +399,9 @@ def test_view_command_serves_a_recorded_file_until_interrupted(tmp_path):
                              str(tmp_path / "done.h5"), "--no-browser"],
                             stderr=subprocess.PIPE, text=True, env=env)
     try:
-        line = proc.stderr.readline()
+        line = ""
+        while "viewing" not in line and proc.poll() is None:
+            line = proc.stderr.readline()
         assert "viewing" in line and "http://127.0.0.1:" in line
         port = int(line.split("http://127.0.0.1:", 1)[1].split("/", 1)[0])
         text = _events(port, until="end")
@@ -382,6 +422,21 @@ def test_view_of_a_missing_or_foreign_file_is_one_line(tmp_path, capsys):
         assert main(["view", str(tmp_path / name), "--no-browser"]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and why in err and name in err
+
+
+def test_run_with_a_busy_live_port_fails_before_anything_moves(tmp_path, capsys):
+    from pmalab.cli import main
+
+    out = tmp_path / "o.h5"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        assert main(["run", "--rig", "sim", "--protocol", "quick", "--out", str(out),
+                     "--live", str(port), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"--live 127.0.0.1:{port}: cannot serve the live view" in err
+    assert err.count("\n") == 1 and not out.exists()
 
 
 def test_run_with_a_bad_live_address_fails_before_anything_is_created(tmp_path, capsys):

@@ -156,11 +156,11 @@ def cmd_run(args: argparse.Namespace) -> int:
             else:
                 from pmalab.acquisition.live.session import LiveSession
 
-                if rig.clock.virtual:
-                    print("pmalab: note: the simulated rig runs on its virtual clock, faster "
-                          "than real time; add --realtime to watch it at its pace",
-                          file=sys.stderr)
                 with LiveSession(rig, protocol, args.out, opts, *live):
+                    if rig.clock.virtual:
+                        print("pmalab: note: the simulated rig runs on its virtual clock, "
+                              "faster than real time; add --realtime to watch it at its pace",
+                              file=sys.stderr)
                     results = run_protocol(rig, protocol, args.out, force=args.force,
                                            options=opts)
     except SafetyAbort as exc:

@@ -5,11 +5,13 @@
 current run's force–position loop building up, force/position/pressures against time,
 progress, limit margins, the safety state and late/missed samples, with a stop button.
 
-Data path (see each module): the sample loop's :class:`~.feed.LiveFeed` tap appends to a
-bounded deque (never blocks, drops the oldest when full) → the :class:`~.pump.Pump`
-thread decimates to ~50 points/s, tracks :mod:`.margins` and encodes SSE once into the
-:class:`~.hub.Hub` → one :mod:`.server` thread per browser streams it.  ``pmalab view``
-replaces feed and pump by a :class:`~.fileview.FileFollower` polling the (SWMR) file.
+Data path (see each module): the sample loop's :class:`~.feed.RingFeed` tap copies each
+sample into a shared-memory ring (never blocks, never waits; a reader that falls behind
+loses the oldest rows, counted) → in a separate display process (:mod:`.process`), the
+:class:`~.pump.Pump` thread decimates to ~50 points/s, tracks :mod:`.margins` and encodes
+SSE once into the :class:`~.hub.Hub` → one :mod:`.server` thread per browser streams it.
+``pmalab view`` replaces ring and pump by a :class:`~.fileview.FileFollower` polling the
+(SWMR) file, in the ``view`` process itself.
 The runner knows only its :class:`~pmalab.acquisition.runner.RunObserver` interface; this
 package is never imported by the recording code (import-linter contract).
 """
