@@ -84,7 +84,9 @@ def main() -> None:
         med, p99 = float(np.median(us)), float(np.percentile(us, 99))
         rows.append((c, med, p99, f"≤ {STEP_MEDIAN_US:g} / ≤ {STEP_P99_US:g}",
                      "ok" if med <= STEP_MEDIAN_US and p99 <= STEP_P99_US else "FAIL"))
-    print("one controller step, both loops + model inversion + hysteresis step (µs):")
+    load = os.getloadavg()[0]
+    print("one controller step, both loops + model inversion + hysteresis step (µs); "
+          f"machine load {load:.1f} on {os.cpu_count()} CPUs (p99 includes preemption):")
     print_table(["controller", "median", "p99", "target", "check"], rows)
 
     speed = _plant_speed()

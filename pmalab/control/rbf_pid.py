@@ -30,13 +30,73 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numba import njit
+
 from pmalab.control.pid import IncrementalPID, LoopSettings
 
+#: rates a settings table leaves out (gain rates 0: no tuning; the tuned ones are in
+#: :func:`pmalab.control.controllers.default_settings`)
 #: rates a settings table leaves out (gain rates 0: no tuning; the tuned ones are in
 #: :func:`pmalab.control.controllers.default_settings`)
 DEFAULT_RATES = {"eta": 0.2, "alpha": 0.05, "eta_p": 0.0, "eta_i": 0.0, "eta_d": 0.0,
                  "jac_max": 2.0}
 N_HIDDEN = 4
+N_IN = 3
+
+
+@njit(cache=True)
+def _hidden(net, X, h):
+    """Gaussian outputs h_j of the network ``net`` (rows: w, b, c_0, c_1, c_2) for ``X``."""
+    for j in range(N_HIDDEN):
+        d2 = 0.0
+        for i in range(N_IN):
+            d = X[i] - net[2 + i, j]
+            d2 += d * d
+        b = net[1, j]
+        h[j] = math.exp(-d2 / (2.0 * b * b))
+
+
+@njit(cache=True)
+def rbf_step(net, prev, X_learn, y, X_now, eta, alpha, jac_max, h):
+    """One identification step on (``X_learn`` → ``y``), then the Jacobian at ``X_now``.
+
+    ``net``/``prev``: (5, 4) arrays — rows w, b, c_0..c_2 — now and one step ago (the
+    momentum term).  Returns ∂y/∂u clipped to [0, ``jac_max``].
+    """
+    _hidden(net, X_learn, h)
+    ym = 0.0
+    for j in range(N_HIDDEN):
+        ym += net[0, j] * h[j]
+    err = y - ym
+    for j in range(N_HIDDEN):
+        w = net[0, j]
+        b = net[1, j]
+        hj = h[j]
+        d2 = 0.0
+        for i in range(N_IN):
+            d = X_learn[i] - net[2 + i, j]
+            d2 += d * d
+        g = eta * err * w * hj
+        w_new = w + eta * err * hj + alpha * (w - prev[0, j])
+        b_new = b + g * d2 / (b * b * b) + alpha * (b - prev[1, j])
+        prev[0, j] = w
+        prev[1, j] = b
+        net[0, j] = min(max(w_new, -100.0), 100.0)
+        net[1, j] = min(max(b_new, 0.05), 20.0)  # a width must stay positive and finite
+        for i in range(N_IN):
+            c = net[2 + i, j]
+            c_new = c + g * (X_learn[i] - c) / (b * b) + alpha * (c - prev[2 + i, j])
+            prev[2 + i, j] = c
+            net[2 + i, j] = min(max(c_new, -10.0), 10.0)
+    _hidden(net, X_now, h)
+    jac = 0.0
+    for j in range(N_HIDDEN):
+        b = net[1, j]
+        jac += net[0, j] * h[j] * (net[2, j] - X_now[0]) / (b * b)
+    if not jac == jac:
+        return 0.0
+    return min(max(jac, 0.0), jac_max)
 
 
 class RbfPID(IncrementalPID):
@@ -46,6 +106,7 @@ class RbfPID(IncrementalPID):
 
     def __init__(self, settings: LoopSettings) -> None:
         super().__init__(settings)
+
         def r(key: str, default: float) -> float:
             return settings.rate(self.name, key, default)
 
@@ -58,12 +119,16 @@ class RbfPID(IncrementalPID):
 
     def _init_net(self) -> None:
         # centres spread over the normalised operating range, unit widths, small weights
-        self.c = [[0.25 * j, 0.25 * j, 0.25 * j] for j in range(N_HIDDEN)]
-        self.b = [1.0] * N_HIDDEN
-        self.w = [0.1] * N_HIDDEN
-        self.c1 = [row[:] for row in self.c]
-        self.b1 = self.b[:]
-        self.w1 = self.w[:]
+        net = np.zeros((2 + N_IN, N_HIDDEN))
+        net[0, :] = 0.1
+        net[1, :] = 1.0
+        for j in range(N_HIDDEN):
+            net[2:, j] = 0.25 * j
+        self.net = net
+        self.prev = net.copy()
+        self._h = np.zeros(N_HIDDEN)
+        self._xl = np.zeros(N_IN)
+        self._xn = np.zeros(N_IN)
         self.jac = 0.0
         self.y1 = self.y2 = None
         self.u_prev = 0.0
@@ -74,56 +139,30 @@ class RbfPID(IncrementalPID):
             self._init_net()
             self.u_prev = u0 / self.s.u_scale
 
-    def _hidden(self, X: tuple[float, float, float]) -> list[float]:
-        out = []
-        for j in range(N_HIDDEN):
-            c = self.c[j]
-            d2 = (X[0] - c[0]) ** 2 + (X[1] - c[1]) ** 2 + (X[2] - c[2]) ** 2
-            out.append(math.exp(-d2 / (2.0 * self.b[j] ** 2)))
-        return out
-
-    def _learn(self, X: tuple[float, float, float], y: float) -> None:
-        """One gradient step with momentum on E = ½(y − y_m)² for input ``X``."""
-        h = self._hidden(X)
-        ym = sum(wj * hj for wj, hj in zip(self.w, h))
-        err = y - ym
-        eta, al = self.eta, self.alpha
-        for j in range(N_HIDDEN):
-            wj, bj, cj, hj = self.w[j], self.b[j], self.c[j], h[j]
-            d2 = sum((X[i] - cj[i]) ** 2 for i in range(3))
-            w_new = wj + eta * err * hj + al * (wj - self.w1[j])
-            b_new = bj + eta * err * wj * hj * d2 / bj**3 + al * (bj - self.b1[j])
-            b_new = min(max(b_new, 0.05), 20.0)  # a width must stay positive and finite
-            c_new = [cj[i] + eta * err * wj * hj * (X[i] - cj[i]) / bj**2
-                     + al * (cj[i] - self.c1[j][i]) for i in range(3)]
-            self.w1[j], self.b1[j], self.c1[j] = wj, bj, cj
-            self.w[j] = min(max(w_new, -100.0), 100.0)
-            self.b[j] = b_new
-            self.c[j] = [min(max(v, -10.0), 10.0) for v in c_new]
-
     def adapt(self, e: float, xp: float, xi: float, xd: float, y: float) -> None:
         s = self.s
         yn = y / s.y_scale
         if self.y1 is None:
             self.y1 = self.y2 = yn
         # learn y(k) from what produced it, then linearise around the newest input
-        self._learn((self.u_prev, self.y1, self.y2), yn)
-        un = self.u / s.u_scale
-        X = (un, yn, self.y1)
-        h = self._hidden(X)
-        jac = sum(self.w[j] * h[j] * (self.c[j][0] - un) / self.b[j] ** 2 for j in range(N_HIDDEN))
-        jac = min(max(jac, 0.0), self.jac_max) if jac == jac else 0.0
+        xl, xn = self._xl, self._xn
+        xl[0], xl[1], xl[2] = self.u_prev, self.y1, self.y2
+        xn[0], xn[1], xn[2] = self.u / s.u_scale, yn, self.y1
+        jac = rbf_step(self.net, self.prev, xl, yn, xn, self.eta, self.alpha, self.jac_max,
+                       self._h)
         self.jac = jac
+        self.y2, self.y1 = self.y1, yn
+        ep, ei, ed = self.eta_pid
+        if jac == 0.0 or (ep == 0.0 and ei == 0.0 and ed == 0.0):
+            return
         es = s.e_scale
         en = e / es
-        ep, ei, ed = self.eta_pid
         g0 = self.g0
         # gains move in proportion to their initial size (dimensionless updates)
         self.kp += ep * en * jac * (xp / es) * g0.kp
         self.ki += ei * en * jac * (xi / (es * s.dt)) * g0.ki
         self.kd += ed * en * jac * (xd * s.dt / es) * g0.kd
         self.clip_gains()
-        self.y2, self.y1 = self.y1, yn
 
     def step(self, r: float, y: float, ff: float = 0.0) -> float:
         u = super().step(r, y, ff)
