@@ -10,9 +10,11 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 from pmalab import __version__
-from pmalab.errors import PmalabError
+from pmalab.errors import PmalabError, RunFileWarning
+from pmalab.paths import missing_roots, remove_empty_dirs
 
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
 #: ``func(args) -> int`` as the parser default.
@@ -39,9 +41,42 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: argparse destinations that name outputs: a failed command removes the directories it
+#: created for them when they are still empty ("a failed command leaves nothing behind")
+OUTPUT_ARGS = ("out", "png", "svg", "plot")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    outputs = [v for k in OUTPUT_ARGS if isinstance(v := getattr(args, k, None), str) and v]
+    created = missing_roots(outputs)
+    rc = 1
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", RunFileWarning)
+            warnings.showwarning = _one_line_warning(args.verb)
+            rc = _dispatch(args)
+        return rc
+    finally:
+        if rc != 0:
+            remove_empty_dirs(created)
+
+
+def _one_line_warning(verb: str):
+    """``warnings.showwarning`` for the CLI: pmalab's warnings as one line on stderr."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, RunFileWarning):
+            print(f"pmalab {verb}: warning: {message}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    return show
+
+
+def _dispatch(args: argparse.Namespace) -> int:
     try:
         return int(args.func(args) or 0)
     except PmalabError as exc:

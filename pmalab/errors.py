@@ -51,3 +51,8 @@ class OutputError(PmalabError):
 
 class OutputExistsError(OutputError):
     """An output exists and ``--force`` was not given."""
+
+
+class RunFileWarning(UserWarning):
+    """Something the user should know about an input that is used anyway or left out (an
+    aborted run skipped); the CLI prints it as one ``pmalab VERB: warning: ...`` line."""

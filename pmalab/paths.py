@@ -48,17 +48,48 @@ def output_failure(path: str | Path, exc: Exception, what: str = "write") -> Out
 
 
 def prepare_output_dir(directory: str | Path, names: tuple[str, ...], force: bool) -> Path:
-    """Check, before any work, that ``directory/<name>`` can all be written; create it.
+    """Check, before any work, that ``directory/<name>`` can all be written.
 
-    Refuses existing outputs without ``force`` and unwritable places with one line.
+    Refuses existing outputs without ``force`` and unwritable places with one line.  The
+    directory is not created here (the writer creates it when the results exist), so a
+    command that fails later leaves no empty directory behind.
     """
     d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise OutputError(f"{d}: exists and is not a directory")
     for n in names:
         check_output(d / n, force)
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise output_failure(d, exc, "create the output directory") from None
-    if not os.access(d, os.W_OK | os.X_OK):
-        raise OutputError(f"{d}: cannot write into this directory (permission denied)")
+    base = d if d.exists() else next((a for a in d.parents if a.exists()), Path("."))
+    if not os.access(base, os.W_OK | os.X_OK):
+        what = "this directory" if base == d else f"{base}"
+        raise OutputError(f"{d}: cannot write into {what} (permission denied)")
     return d
+
+
+def missing_roots(paths: list[str | Path]) -> list[Path]:
+    """For each output path, the outermost of it and its parents that does not exist yet
+    (what a command may create); paths that exist give nothing."""
+    roots: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        if p.exists():
+            continue
+        root = p
+        for a in p.parents:
+            if a.exists():
+                break
+            root = a
+        roots.append(root)
+    return roots
+
+
+def remove_empty_dirs(roots: list[Path]) -> None:
+    """Remove the directories a failed command created and left empty (never a file)."""
+    for root in roots:
+        if not root.is_dir() or root.is_symlink():
+            continue
+        for dirpath, _dirs, _files in sorted(os.walk(root), key=lambda w: -len(w[0])):
+            try:
+                os.rmdir(dirpath)  # only succeeds when empty
+            except OSError:
+                pass

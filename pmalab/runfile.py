@@ -17,14 +17,17 @@ run and channel.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+import math
+import os
+import warnings
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from pmalab.errors import RunFileError
+from pmalab.errors import RunFileError, RunFileWarning
 
 FORMAT = "pmalab.run"
 FORMAT_VERSION = 1
@@ -53,6 +56,72 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "cylinder_pressure": _PRESSURE,
     "cylinder_pressure_command": _PRESSURE,
 }
+#: other spellings of a unit (after brackets are stripped and µ/μ folded to "u")
+_UNIT_ALIASES = {"sec": "s", "msec": "ms", "micron": "um", "microns": "um", "um": "um"}
+
+
+def normalize_unit(channel: str, text: str | None) -> str | None:
+    """The key of ``UNIT_FACTORS[channel]`` that ``text`` spells, or None.
+
+    Understands how DAQ exports write units: ``mm``, ``[mm]``, ``(mm)``, ``{mm}``,
+    ``µm`` (micro sign U+00B5 or Greek mu U+03BC), ``um``, ``micron``, ``sec``, and any
+    letter case when it is unambiguous (``kpa`` → kPa, ``KN`` → kN).
+    """
+    if text is None or channel not in UNIT_FACTORS:
+        return None
+    factors = UNIT_FACTORS[channel]
+    u = str(text).strip()
+    while len(u) >= 2 and u[0] + u[-1] in ("[]", "()", "{}", "<>"):
+        u = u[1:-1].strip()
+    if u in factors:
+        return u
+    u = u.replace("\u03bc", "u").replace("\u00b5", "u")
+    u = _UNIT_ALIASES.get(u, _UNIT_ALIASES.get(u.lower(), u))
+    if u in factors:
+        return u
+    folded = [k for k in factors if k.lower() == u.lower()]
+    return folded[0] if len(folded) == 1 else None
+
+
+@dataclass(frozen=True)
+class Plausible:
+    """The range (canonical units) a channel of a PMA test can reach, and a typical
+    magnitude used to guess which unit a wrongly labelled channel was really in."""
+
+    lo: float
+    hi: float
+    typical: float
+    what: str
+
+
+#: gauge pressures: a DMSP muscle is rated 0.6 MPa and the regulators 0.9 MPa, so 1.2 MPa
+#: is beyond any rig; below -0.05 MPa (50 kPa of vacuum, 5 % of a 1 MPa gauge's span) is
+#: not sensor noise or zero offset.  Forces: a DMSP-20 pulls at most ~1.5 kN; positions:
+#: a muscle of a few hundred mm contracts by at most a quarter of its length.
+_GAUGE = Plausible(-0.05, 1.2, 0.4, "gauge pressure between -0.05 and 1.2 MPa")
+PLAUSIBLE: dict[str, Plausible] = {
+    "position": Plausible(-500.0, 500.0, 20.0, "|position| ≤ 500 mm"),
+    "force": Plausible(-20e3, 20e3, 500.0, "|force| ≤ 20 kN"),
+    "muscle_pressure": _GAUGE,
+    "cylinder_pressure": _GAUGE,
+    "cylinder_pressure_command": _GAUGE,
+}
+
+
+def likely_unit(channel: str, raw: np.ndarray) -> str | None:
+    """The unit in which the raw values ``raw`` of ``channel`` look like a PMA test (within
+    :data:`PLAUSIBLE` and nearest its typical magnitude, on a log scale), or None."""
+    rule = PLAUSIBLE[channel]
+    lo, hi = float(np.min(raw)), float(np.max(raw))
+    peak = max(abs(lo), abs(hi))
+    best, score = None, math.inf
+    for unit, k in UNIT_FACTORS[channel].items():
+        if not (rule.lo <= lo * k and hi * k <= rule.hi) or peak == 0:
+            continue
+        s = abs(math.log(peak * k / rule.typical))
+        if s < score:
+            best, score = unit, s
+    return best
 
 
 @dataclass
@@ -76,6 +145,12 @@ class Run:
         """Nominal muscle pressure (MPa); falls back to the mean measured pressure."""
         v = self.attrs.get("muscle_pressure_MPa")
         return float(v) if v is not None else float(np.mean(self.muscle_pressure))
+
+    @property
+    def state(self) -> str:
+        """``completed``, ``aborted``, ``interrupted`` (writer killed) or ``not run``
+        (see :func:`run_state`)."""
+        return run_state(self.attrs.get("status"))
 
     @property
     def frequency(self) -> float | None:
@@ -162,10 +237,45 @@ def decode_attr(v: Any, *, parse_json: bool = False) -> Any:
 
 
 
+def run_state(status: Any) -> str:
+    """What a run's recorded ``status`` means for analysis.
+
+    ``completed`` (or no status: imported and derived data), ``aborted`` (``aborted: <reason>``:
+    a limit trip, Ctrl-C, SIGTERM or a device fault cut it), ``interrupted`` (``running``:
+    its writer was killed mid-run and the file was never closed) or ``not run``
+    (``pending``, ``not run: ...``).
+    """
+    if status is None:
+        return "completed"
+    text = str(status).strip()
+    if text in ("", "completed"):
+        return "completed"
+    if text.startswith("aborted"):
+        return "aborted"
+    if text == "running":
+        return "interrupted"
+    return "not run"
+
+
+def _hdf5_units_hint(channel: str, declared: str, unit: str | None) -> str:
+    if unit is None:
+        return f"check its 'units' attribute ('{declared}')"
+    return f"looks like {unit}: its 'units' attribute says '{declared}'"
+
+
 def validate_channels(
-    path: Path | str, run: str, raw: dict[str, tuple[np.ndarray, str | None]]
+    path: Path | str,
+    run: str,
+    raw: dict[str, tuple[np.ndarray, str | None]],
+    units_hint: Callable[[str, str, str | None], str] = _hdf5_units_hint,
 ) -> dict[str, np.ndarray]:
-    """Check and convert raw channels ``{name: (values, units)}`` to canonical units."""
+    """Check and convert raw channels ``{name: (values, units)}`` to canonical units.
+
+    Besides the format (1-D, numeric, known unit, finite, equal lengths, time increasing),
+    refuses values no PMA test can produce (:data:`PLAUSIBLE`), naming the unit they
+    probably are in; ``units_hint(channel, declared_unit, likely_unit_or_None)`` words the
+    advice (the CSV import names its ``--units`` option).
+    """
     out: dict[str, np.ndarray] = {}
     for ch in REQUIRED_CHANNELS:
         if ch not in raw:
@@ -182,14 +292,23 @@ def validate_channels(
         if units is None:
             raise _fail(path, run, ch, "missing 'units' attribute")
         factors = UNIT_FACTORS[ch]
-        if units not in factors:
+        unit = normalize_unit(ch, units)
+        if unit is None:
             raise _fail(
                 path, run, ch, f"unknown unit '{units}' (expected one of {', '.join(factors)})"
             )
-        arr = arr.astype(np.float64) * factors[units]
+        rawf = arr.astype(np.float64)
+        arr = rawf * factors[unit]
         if not np.all(np.isfinite(arr)):
             bad = int(np.flatnonzero(~np.isfinite(arr))[0])
             raise _fail(path, run, ch, f"NaN or infinite value at sample {bad}")
+        rule = PLAUSIBLE.get(ch)
+        if rule is not None and arr.size and not (rule.lo <= arr.min() and arr.max() <= rule.hi):
+            i = int(np.argmax(np.maximum(arr - rule.hi, rule.lo - arr)))
+            canon = CANONICAL_UNITS[ch]
+            raise _fail(path, run, ch, f"reaches {arr[i]:.4g} {canon} at sample {i}, which no "
+                        f"PMA test produces ({rule.what}) — "
+                        + units_hint(ch, str(units), likely_unit(ch, rawf)))
         if n is None:
             n = arr.shape[0]
         out[ch] = arr
@@ -208,7 +327,18 @@ def validate_channels(
     return out
 
 
-def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
+#: the advice a skipped or refused incomplete run carries
+INCLUDE_HINT = "--include-aborted uses it anyway"
+
+
+def recover_hint(path: Path | str) -> str:
+    """What makes a file whose writer was killed readable by other HDF5 tools."""
+    return (f"h5dump/HDFView cannot open this file until 'pmalab recover {path}' "
+            f"(or 'h5clear -s {path}')")
+
+
+def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
+              skip_incomplete: bool = False) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
     Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
@@ -217,6 +347,11 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
     ``attrs["timing"]`` (lateness statistics) and ``attrs["device_stats"]`` (the devices'
     link/fault counters at the run's end, a dict; {} when the rig reports none); runs
     never started are skipped.
+
+    ``skip_incomplete`` (what analysis wants): runs that were aborted or interrupted
+    (:func:`run_state`) are left out with one :class:`~pmalab.errors.RunFileWarning` each
+    — a killed 0.8 s settle fragment is not an isobaric test — unless named in ``runs``;
+    a file left with no complete run is an error.
     """
     path = Path(path)
     if not path.exists():
@@ -224,6 +359,8 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
     if path.is_dir():
         raise _fail(path, None, None, "is a directory, not a run file")
     f = open_h5(path)
+    killed = bool(getattr(f, "swmr_mode", False))  # opened only in SWMR-read mode
+    skipped: list[tuple[str, str]] = []
     try:
         fmt = decode_attr(f.attrs.get("format"))
         if fmt != FORMAT:
@@ -264,25 +401,67 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None) -> list[Run]:
                     continue
                 if extra.get("status") == "running":
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
-            chans = validate_channels(path, name, raw)
             attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             attrs.update(extra)
+            status = attrs.get("status")
+            if skip_incomplete and runs is None and run_state(status) != "completed":
+                skipped.append((name, str(status)))
+                continue
+            chans = validate_channels(path, name, raw)
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
                         attrs[key] = json.loads(attrs[key])
                     except json.JSONDecodeError:
                         pass
+            _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
+        if not out and skipped:
+            states = "; ".join(f"run '{n}' {_state_words(s)}" for n, s in skipped)
+            raise _fail(path, None, None, f"no complete run ({states}); {INCLUDE_HINT}"
+                        + (f"; {recover_hint(path)}" if killed else ""))
         if not out:
             raise _fail(path, None, None, "no run holds recorded samples (statuses: "
                         + ", ".join(f"{n}={_recording_state(f['runs'][n]).get('status')}"
                                     for n in names) + ")")
-        return out
     except (OSError, KeyError) as exc:
         raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
     finally:
         f.close()
+    for name, status in skipped:
+        warnings.warn(RunFileWarning(
+            f"{path}: run '{name}' skipped: {_state_words(status)} ({INCLUDE_HINT})"
+            + (f"; {recover_hint(path)}" if killed and status == "running" else "")),
+            stacklevel=2)
+    return out
+
+
+def _state_words(status: str) -> str:
+    """A recorded status as words: ``running`` is a writer that was killed."""
+    if run_state(status) == "interrupted":
+        return "interrupted (its recording was killed mid-run)"
+    return status
+
+
+def _check_window(path: Path, run: str, attrs: dict[str, Any], t: np.ndarray) -> None:
+    """Refuse a full-amplitude window (``steady_start_s``/``steady_end_s``, s from the
+    run's first sample) that is not a window of this run."""
+    t0, t1 = attrs.get("steady_start_s"), attrs.get("steady_end_s")
+    if t0 is None and t1 is None:
+        return
+    for key, v in (("steady_start_s", t0), ("steady_end_s", t1)):
+        if v is None:
+            other = "steady_end_s" if key == "steady_start_s" else "steady_start_s"
+            raise _fail(path, run, None, f"field '{key}' missing (it has '{other}')")
+        if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+            raise _fail(path, run, None, f"field '{key}' = {v!r}: must be a time ≥ 0 s")
+    if t1 <= t0:
+        raise _fail(path, run, None, f"field 'steady_end_s' = {t1:g} s is not after "
+                    f"'steady_start_s' = {t0:g} s (a reversed window)")
+    dur = float(t[-1] - t[0])
+    if t0 >= dur:
+        raise _fail(path, run, None, f"field 'steady_start_s' = {t0:g} s is beyond the run's "
+                    f"end ({dur:.3g} s)")
 
 
 def open_h5(path: Path):
@@ -324,12 +503,44 @@ def _recording_state(g: Any) -> dict[str, Any]:
     return out
 
 
-def read_many(paths: Sequence[str | Path]) -> list[Run]:
-    """All runs of all files, in order."""
+def read_many(paths: Sequence[str | Path], *, include_aborted: bool = False) -> list[Run]:
+    """All complete runs of all files, in order, for analysis.
+
+    Aborted and interrupted runs are skipped with a warning unless ``include_aborted``
+    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`).
+    """
+    check_distinct(paths)
     runs: list[Run] = []
     for p in paths:
-        runs.extend(read_runs(p))
+        runs.extend(read_runs(p, skip_incomplete=not include_aborted))
     return runs
+
+
+def check_distinct(paths: Sequence[str | Path], other: Sequence[str | Path] = (),
+                   other_name: str = "--validate") -> None:
+    """Refuse a file given twice (in ``paths``, or in both ``paths`` and ``other``).
+
+    Refused rather than de-duplicated: the same runs counted twice weigh double in the
+    pressure laws, and one file as both training and held-out data makes validation
+    meaningless; the second name is most likely a typo for another file, which a silent
+    de-duplication would hide.
+    """
+    seen: dict[tuple[int, int] | str, tuple[Path, str]] = {}
+    for group, items in (("", paths), (other_name, other)):
+        for p in items:
+            p = Path(p)
+            try:
+                st = os.stat(p)
+                key: tuple[int, int] | str = (st.st_dev, st.st_ino)
+            except OSError:
+                key = str(p.resolve())  # missing: read_runs names it
+            if key in seen:
+                first, first_group = seen[key]
+                same = "" if str(first) == str(p) else f" (the same file as {first})"
+                where = (f"given both as input and to {group}" if group and not first_group
+                         else "given twice")
+                raise RunFileError(f"{p}: file {where}{same}: use each file once")
+            seen[key] = (p, group)
 
 
 def _short(exc: BaseException) -> str:

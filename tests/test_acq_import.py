@@ -123,3 +123,149 @@ def test_parse_units_maps_pressure_to_all_pressure_channels():
                  "cylinder_pressure_command": "bar", "position": "um"}
     with pytest.raises(RunFileError, match="not KEY=UNIT"):
         parse_units("position")
+
+
+# --------------------------------------------------------------------------- real exports
+LABVIEW_HEADER = """LabVIEW Measurement\t
+Writer_Version\t2
+Reader_Version\t2
+Separator\tTab
+Decimal_Separator\t.
+Multi_Headings\tNo
+X_Columns\tOne
+Time_Pref\tRelative
+Operator\tbench 3
+Date\t2024/03/05
+Time\t14:21:07.1230
+***End_of_Header***\t
+
+"""
+
+
+def _labview(path):
+    """A LabVIEW-style text export: a metadata block, tab-separated, units in the names."""
+    t, x, f, p = _signals()
+    rows = "\n".join(f"{a:.6f}\t{b:.6f}\t{c:.5f}\t{d * 1e3:.4f}\t" for a, b, c, d in
+                     zip(t, x, f, p))
+    path.write_text(LABVIEW_HEADER + "Time (s)\tStroke (mm)\tLoad (N)\tP_muscle (kPa)\t\n"
+                    + rows + "\n")
+    return path
+
+
+def _dewesoft(path):
+    """A DEWESoft-style export: ';' with decimal comma, a units row, cp1252 text (µ)."""
+    t, x, f, p = _signals()
+    lines = ["Zeit;Weg;Kraft;Druck", "[s];[µm];[kN];[bar]"]
+    for a, b, c, d in zip(t, x, f, p):
+        lines.append(";".join(f"{v:.7f}".replace(".", ",") for v in (a, b * 1e3, c / 1e3,
+                                                                     d * 10)))
+    path.write_bytes(("\r\n".join(lines) + "\r\n").encode("cp1252"))
+    return path
+
+
+def _check_signals(r):
+    t, x, f, p = _signals()
+    np.testing.assert_allclose(r.time, t, atol=1e-6)
+    np.testing.assert_allclose(r.position, x, atol=1e-6)
+    np.testing.assert_allclose(r.force, f, atol=1e-4)
+    np.testing.assert_allclose(r.muscle_pressure, p, atol=1e-6)
+
+
+def test_import_a_labview_style_export(tmp_path, capsys):
+    src = _labview(tmp_path / "lv.lvm")
+    out = tmp_path / "lv.h5"
+    rc = main(["import", str(src), "--out", str(out), "--header-rows", "13", "--delimiter",
+               "\\t", "--time-col", "Time", "--position-col", "stroke", "--force-col", "Load",
+               "--pressure-col", "P_muscle"])
+    assert rc == 0, capsys.readouterr().err
+    (r,) = read_runs(out)
+    _check_signals(r)  # units came from the names: (s), (mm), (N), (kPa)
+
+
+def test_import_a_dewesoft_style_export(tmp_path, capsys):
+    src = _dewesoft(tmp_path / "dw.csv")
+    out = tmp_path / "dw.h5"
+    rc = main(["import", str(src), "--out", str(out), "--delimiter", ";", "--decimal", ",",
+               "--encoding", "cp1252", "--units-row", "--time-col", "Zeit", "--position-col",
+               "Weg", "--force-col", "Kraft", "--pressure-col", "Druck"])
+    assert rc == 0, capsys.readouterr().err
+    (r,) = read_runs(out)
+    _check_signals(r)  # [µm] in cp1252, [kN], [bar] from the units row
+
+
+def test_units_option_overrides_the_units_row(tmp_path):
+    src = _dewesoft(tmp_path / "dw.csv")
+    lines = src.read_bytes().decode("cp1252").splitlines()
+    lines[1] = "[s];[um];[N];[bar]"  # a wrong force unit in the file
+    src.write_bytes("\n".join(lines).encode("cp1252"))
+    opts = CsvImportOptions(delimiter=";", decimal=",", units_row=True,
+                            columns={"time": "Zeit", "position": "Weg", "force": "Kraft",
+                                     "muscle_pressure": "Druck"},
+                            units=parse_units("force=kN"))
+    _check_signals(read_csv_run(src, opts))
+
+
+EXPORT_MISTAKES = [
+    # (writer, extra args, text the one line must hold)
+    (_dewesoft, ["--delimiter", ";", "--decimal", ",", "--units-row"],
+     "line 2: not utf-8 text (byte 0xb5); give --encoding (cp1252 for most Windows exports)"),
+    (_dewesoft, ["--delimiter", ";", "--decimal", ",", "--encoding", "cp1252"],
+     "column 'Zeit' row 2 is not a number ('[s]'): a units row? use --units-row"),
+    (_dewesoft, ["--delimiter", ";", "--encoding", "cp1252", "--units-row"],
+     "column 'Zeit' row 3 is not a number ('0,0000000'): a decimal comma? use --decimal ,"),
+    (_dewesoft, ["--delimiter", ";", "--decimal", ",", "--encoding", "cp1252", "--units-row",
+                 "--units", "position=mm"],
+     "channel 'position': reaches 2e+04 mm at sample "),
+    (_labview, ["--delimiter", "\\t"],
+     "no column 'Time' (columns: LabVIEW Measurement); the names look like line 14: use "
+     "--header-rows 13"),
+    (_labview, ["--delimiter", "\\t", "--header-rows", "999"],
+     "--header-rows 999: the file has only 414 line(s)"),
+    (_labview, ["--delimiter", "\\t", "--header-rows", "13", "--units-row"],
+     "channel 'time': unknown unit '0.000000' (expected one of s, ms)"),
+    (_labview, ["--delimiter", "\\t", "--header-rows", "13", "--decimal", ";"],
+     "--decimal: invalid choice"),
+    (_labview, ["--delimiter", "ab"], "--delimiter: 'ab' is not one character"),
+    (_labview, ["--delimiter", ",", "--decimal", ","], "--decimal ,: the same character as"),
+    (_labview, ["--encoding", "klingon"], "--encoding: unknown encoding 'klingon'"),
+]
+
+
+@pytest.mark.parametrize("writer, args, needle", EXPORT_MISTAKES,
+                         ids=[f"{i}" for i in range(len(EXPORT_MISTAKES))])
+def test_export_mistakes_are_one_line_that_says_which_option(tmp_path, capsys, writer, args,
+                                                            needle):
+    src = writer(tmp_path / "x.csv")
+    cols = (["--time-col", "Zeit", "--position-col", "Weg", "--force-col", "Kraft",
+             "--pressure-col", "Druck"] if writer is _dewesoft else
+            ["--time-col", "Time", "--position-col", "Stroke", "--force-col", "Load",
+             "--pressure-col", "P_muscle"])
+    try:
+        rc = main(["import", str(src), "--out", str(tmp_path / "o.h5"), *cols, *args])
+    except SystemExit as exc:  # argparse's own refusals (exit 2, usage + one error line)
+        rc = exc.code
+    err = capsys.readouterr().err.strip()
+    assert rc != 0
+    assert needle in err.splitlines()[-1], err
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_a_kpa_csv_without_units_is_refused_naming_kpa(tmp_path, capsys):
+    t, x, f, p = _signals()
+    csv = _write_csv(tmp_path / "k.csv", ["time", "position", "force", "muscle_pressure"],
+                     [t, x, f, p * 1e3])
+    rc = main(["import", str(csv), "--out", str(tmp_path / "k.h5")])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1
+    assert ("k.csv: run 'k': channel 'muscle_pressure': reaches 450 MPa at sample 0, which no "
+            "PMA test produces (gauge pressure between -0.05 and 1.2 MPa) — looks like kPa: use "
+            "--units muscle_pressure=kPa") in err
+    assert main(["import", str(csv), "--out", str(tmp_path / "k.h5"), "--units",
+                 "muscle_pressure=kPa"]) == 0
+
+
+def test_a_constant_pressure_beyond_any_pma_is_refused(tmp_path):
+    t, x, f, _ = _signals()
+    csv = _write_csv(tmp_path / "d.csv", ["time", "position", "force"], [t, x, f])
+    with pytest.raises(RunFileError, match=r"--pressure: must be a muscle pressure > 0 and ≤ 1\.2"):
+        read_csv_run(csv, CsvImportOptions(pressure_MPa=400.0))

@@ -18,13 +18,17 @@ import sys
 import time
 
 from pmalab.errors import ConfigError, PmalabError, SafetyAbort
+from pmalab.runfile import recover_hint
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``run`` and ``import`` to the ``pmalab`` parser."""
     p = sub.add_parser("run", help="run a test protocol on a rig and record it to HDF5",
                        description="Run a protocol on a rig (or the simulated one) and record "
-                       "every run at 500 Hz into a crash-proof HDF5 run file.")
+                       "every run at 500 Hz into a crash-proof HDF5 run file.  Ctrl-C or "
+                       "SIGTERM vents, closes the file and exits non-zero; after a kill -9 or "
+                       "power cut pmalab still reads the file, but h5dump/HDFView open it only "
+                       "after 'pmalab recover FILE' (or 'h5clear -s FILE').")
     p.add_argument("--rig", required=True, help="'sim' or a rig TOML file")
     p.add_argument("--protocol", required=True,
                    help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)")
@@ -62,8 +66,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     q = sub.add_parser("import", help="convert a CSV from another DAQ into a run file",
                        description="Convert a CSV (one run) into a pmalab HDF5 run file. "
-                       "Columns default to time, position, force, muscle_pressure.")
-    q.add_argument("csv", help="input CSV file (header row with column names)")
+                       "Columns default to time, position, force, muscle_pressure.  Exports "
+                       "with a metadata block (--header-rows), a units row (--units-row), "
+                       "';' and a decimal comma (--delimiter ';' --decimal ,) or Windows text "
+                       "(--encoding cp1252) are understood; values no PMA test can produce "
+                       "(gauge pressure above 1.2 MPa, |force| above 20 kN, |position| above "
+                       "500 mm) are refused with the unit they probably are in.")
+    q.add_argument("csv", help="input CSV file (a row of column names, then data rows)")
     q.add_argument("--out", required=True, help="output HDF5 run file")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     for ch in ("time", "position", "force"):
@@ -75,11 +84,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="column holding the cylinder pressure (optional)")
     q.add_argument("--units", metavar="Q=U,...",
                    help="units of the columns, e.g. position=m,force=kN,time=ms,pressure=kPa "
-                   "(defaults: s, mm, N, MPa)")
+                   "(override the units row and units in column names; defaults: s, mm, N, "
+                   "MPa); also written [mm], (mm), µm, um")
     q.add_argument("--pressure", type=float, metavar="MPA",
                    help="nominal muscle pressure in MPa (required without a pressure column)")
     q.add_argument("--run", metavar="NAME", help="run name (default: the CSV's stem)")
-    q.add_argument("--delimiter", default=",", help="field separator (default ',')")
+    q.add_argument("--delimiter", default=",",
+                   help="field separator: ',' (default), ';', '\\t' (tab) or any one character")
+    q.add_argument("--decimal", default=".", choices=(".", ","),
+                   help="decimal mark of the numbers (default '.')")
+    q.add_argument("--header-rows", type=int, default=0, metavar="N",
+                   help="lines before the row of column names (a metadata block; default 0)")
+    q.add_argument("--units-row", action="store_true",
+                   help="the row under the names holds each column's unit ([s], mm, µm, kPa...)")
+    q.add_argument("--encoding", default="utf-8", metavar="NAME",
+                   help="text encoding (default utf-8; cp1252 for most Windows exports)")
     q.add_argument("--negate", nargs="+", default=[], choices=["position", "force"],
                    help="flip the sign of these channels (e.g. a DAQ recording elongation)")
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
@@ -87,13 +106,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.set_defaults(func=cmd_import)
 
     r = sub.add_parser("recover", help="close a run file whose recording was killed",
-                       description="Rewrite a run file whose writer died (kill -9, power "
-                       "cut) as a plainly closed HDF5 file that any tool opens; runs cut "
-                       "mid-recording are marked aborted.  pmalab's own reader does not "
-                       "need this.")
+                       description="A recording killed mid-run (kill -9, power cut) leaves "
+                       "its HDF5 file flagged 'open for write': h5dump, h5ls, HDFView and "
+                       "MATLAB refuse to open it until it is recovered (this command, or "
+                       "HDF5's 'h5clear -s FILE').  recover rewrites it as a plainly closed "
+                       "file that any tool opens; runs cut mid-recording are marked "
+                       "aborted.  pmalab's own readers do not need this.  A healthy file is "
+                       "left as it is (exit 0) unless --force.")
     r.add_argument("file", help="the run file")
     r.add_argument("--out", help="write here instead of replacing FILE")
-    r.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    r.add_argument("--force", action="store_true",
+                   help="overwrite --out if it exists; rewrite even a healthy file")
     r.set_defaults(func=cmd_recover)
 
 
@@ -166,14 +189,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     except SafetyAbort as exc:
         # closing the rig vented once more: a regulator that answers again is confirmed
         update_abort_vent(exc, rig.last_vent)
+        _with_recover_hint(exc, args.out)
         raise
     except PmalabError as exc:  # e.g. a refused protocol: say so if a vent failed too
         vent = rig.last_vent
         if vent is None or vent.ok:
+            _with_recover_hint(exc, args.out)
             raise
         err = abort_error(f"{exc}; {VENT_SLOT}", vent)
         err.hard_exit = exc.hard_exit
-        raise err from None
+        raise _with_recover_hint(err, args.out) from None
     finally:
         signal.signal(signal.SIGTERM, old)
     for r in results:
@@ -191,6 +216,14 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _with_recover_hint(exc: PmalabError, out: str) -> PmalabError:
+    """An error after which the process ends without closing the run file (``hard_exit``:
+    HDF5 could not flush it) leaves HDF5's "open for write" flag: say what opens it."""
+    if exc.hard_exit:
+        exc.args = (f"{exc}; {recover_hint(out)}",)
+    return exc
+
+
 def _select_either(protocol, roles, names):
     from pmalab.acquisition.protocol import Protocol
 
@@ -202,7 +235,12 @@ def _select_either(protocol, roles, names):
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    from pmalab.acquisition.csv_import import CsvImportOptions, import_csv, parse_units
+    from pmalab.acquisition.csv_import import (
+        CsvImportOptions,
+        import_csv,
+        parse_delimiter,
+        parse_units,
+    )
 
     cols = {}
     for ch, val in (("time", args.time_col), ("position", args.position_col),
@@ -212,9 +250,11 @@ def cmd_import(args: argparse.Namespace) -> int:
             cols[ch] = val
     opts = CsvImportOptions(
         columns=cols, units=parse_units(args.units), pressure_MPa=args.pressure, run=args.run,
-        delimiter=args.delimiter, negate=tuple(args.negate), waveform=args.waveform,
-        frequency_Hz=args.frequency,
+        delimiter=parse_delimiter(args.delimiter), negate=tuple(args.negate),
+        waveform=args.waveform, frequency_Hz=args.frequency, header_rows=args.header_rows,
+        units_row=args.units_row, decimal=args.decimal, encoding=args.encoding,
     )
+    opts.check()  # option mistakes before the input is read
     run = import_csv(args.csv, args.out, opts, force=args.force)
     print(f"{args.out}: run '{run.name}', {len(run)} samples, "
           f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
@@ -226,6 +266,11 @@ def cmd_recover(args: argparse.Namespace) -> int:
     from pmalab.acquisition.recover import recover
 
     fixed = recover(args.file, args.out, force=args.force)
+    if fixed is None:
+        print(f"{args.file}: nothing to recover (closed cleanly, no run cut mid-recording); "
+              "left as it is" + (f", {args.out} not written" if args.out else "")
+              + " (--force rewrites it anyway)")
+        return 0
     where = args.out or args.file
     print(f"{where}: closed; " + (f"marked aborted: {', '.join(fixed)}" if fixed
                                   else "no run was cut mid-recording"))

@@ -6,6 +6,10 @@ while its "open for write" flag is set.  ``recover`` copies everything into a fr
 (temporary name, then an atomic rename), marks each run that was cut mid-recording
 (status ``running``) as ``aborted: recording interrupted (writer killed; recovered)``, and
 leaves finished and never-started runs as they were.
+
+A healthy file (it opens without SWMR, no run is cut mid-recording) is left alone: there
+is nothing to recover, and rewriting a good file in place only risks it; ``force``
+rewrites it anyway.
 """
 
 from __future__ import annotations
@@ -20,8 +24,36 @@ from pmalab.paths import output_failure
 from pmalab.runfile import FORMAT, open_h5
 
 
-def recover(path: str | Path, out: str | Path | None = None, *, force: bool = False) -> list[str]:
-    """Rewrite ``path`` (or into ``out``) as a closed file; return the runs marked aborted."""
+def is_healthy(path: Path) -> bool:
+    """True when ``path`` opens as a plain HDF5 file (no "open for write" flag left by a
+    killed writer) and none of its runs has the status ``running``."""
+    import h5py
+
+    try:
+        f = h5py.File(path, "r")
+    except OSError:
+        return False
+    try:
+        if f.attrs.get("format") not in (FORMAT, FORMAT.encode()):
+            return False  # not ours: recover() names the problem
+        runs = f.get("runs")
+        if runs is None:
+            return True
+        for name in runs:
+            g = runs[name]
+            if "status" in g and isinstance(g["status"], h5py.Dataset):
+                status = g["status"][()]
+                if isinstance(status, bytes) and status.rstrip(b"\x00 ") == b"running":
+                    return False
+        return True
+    finally:
+        f.close()
+
+
+def recover(path: str | Path, out: str | Path | None = None, *,
+            force: bool = False) -> list[str] | None:
+    """Rewrite ``path`` (or into ``out``) as a closed file; return the runs marked aborted,
+    or None when the file is healthy and ``force`` is not given (nothing is written)."""
     import h5py
 
     from pmalab.paths import check_output
@@ -34,6 +66,8 @@ def recover(path: str | Path, out: str | Path | None = None, *, force: bool = Fa
     dst_path = Path(out) if out is not None else src_path
     if out is not None:
         check_output(dst_path, force)
+    if not force and is_healthy(src_path):
+        return None
     # plain read first; SWMR-read only for the "already open for write" flag a killed
     # writer leaves (a damaged file opened in SWMR mode makes HDF5 retry its reads forever)
     src = open_h5(src_path)

@@ -34,7 +34,7 @@ from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
-from pmalab.runfile import Run, read_runs
+from pmalab.runfile import Run, check_distinct, read_runs
 
 
 class RunList(list):
@@ -59,14 +59,22 @@ class RunList(list):
         return f"RunList({len(self)} runs)\n  " + "\n  ".join(rows)
 
 
-def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None = None) -> RunList:
-    """Every run of the given contract files (or the named ``runs``), canonical units."""
+def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None = None,
+         include_aborted: bool = False) -> RunList:
+    """Every complete run of the given contract files (or the named ``runs``), canonical units.
+
+    Runs that were aborted or interrupted (status ``aborted: ...`` / ``running``) are
+    skipped with one :class:`~pmalab.errors.RunFileWarning` each unless ``include_aborted``
+    or named in ``runs``; a file given twice is refused.
+    """
     flat: list[str | Path] = []
     for p in paths:
         flat.extend(p if isinstance(p, list | tuple) else [p])
+    check_distinct(flat)
+    wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, runs))
+        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted))
     return out
 
 

@@ -61,11 +61,14 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
                    help="pressure laws: refined jointly on all runs with chosen orders "
                         "(default) or the seeds' per-run quadratics")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_window_option(p)
+    _add_input_options(p)
     p.set_defaults(func=run_identify)
 
 
-def _add_window_option(p: argparse.ArgumentParser) -> None:
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--include-aborted", action="store_true",
+                   help="also use runs that were aborted or interrupted (default: skip them "
+                        "with a warning; their fragments are not full tests)")
     p.add_argument("--whole-run", action="store_true",
                    help="use every sample, including the settle time and ramps (default: "
                         "the full-amplitude cycles recorded in steady_start_s/steady_end_s)")
@@ -89,6 +92,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
     from pmalab.identify.api import identify, load
     from pmalab.paths import prepare_output_dir
+    from pmalab.runfile import check_distinct
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
@@ -97,8 +101,9 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--effects {f}: no such file")
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
-    runs = load(args.files)
-    val = load(args.validate) if args.validate else []
+    check_distinct(args.files, args.validate)
+    runs = load(args.files, include_aborted=args.include_aborted)
+    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
         unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
@@ -166,7 +171,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="also save the ranking/ladder figure")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    _add_window_option(p)
+    _add_input_options(p)
     p.set_defaults(func=run_diagnose)
 
 
@@ -175,7 +180,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.paths import check_output, prepare_output_dir
-    from pmalab.runfile import read_many
+    from pmalab.runfile import check_distinct, read_many
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
@@ -187,8 +192,9 @@ def run_diagnose(args: argparse.Namespace) -> int:
         plot_dir = Path(args.plot).resolve().parent
         if not plot_dir.is_dir() or not os.access(plot_dir, os.W_OK):
             raise PmalabError(f"--plot {args.plot}: cannot write there")
-    runs = read_many(args.files)
-    val = read_many(args.validate) if args.validate else []
+    check_distinct(args.files, args.validate)
+    runs = read_many(args.files, include_aborted=args.include_aborted)
+    val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
                  progress=not args.quiet and sys.stderr.isatty(), whole_run=args.whole_run)
