@@ -445,7 +445,7 @@ def _state_words(status: str) -> str:
 
 def _check_window(path: Path, run: str, attrs: dict[str, Any], t: np.ndarray) -> None:
     """Refuse a full-amplitude window (``steady_start_s``/``steady_end_s``, s from the
-    run's first sample) that is not a window of this run."""
+    run's first sample) that is reversed, negative, or (completed runs) beyond the run."""
     t0, t1 = attrs.get("steady_start_s"), attrs.get("steady_end_s")
     if t0 is None and t1 is None:
         return
@@ -459,7 +459,9 @@ def _check_window(path: Path, run: str, attrs: dict[str, Any], t: np.ndarray) ->
         raise _fail(path, run, None, f"field 'steady_end_s' = {t1:g} s is not after "
                     f"'steady_start_s' = {t0:g} s (a reversed window)")
     dur = float(t[-1] - t[0])
-    if t0 >= dur:
+    # an aborted or interrupted run stops before the window its protocol planned: only a
+    # completed run must hold its window
+    if t0 >= dur and run_state(attrs.get("status")) == "completed":
         raise _fail(path, run, None, f"field 'steady_start_s' = {t0:g} s is beyond the run's "
                     f"end ({dur:.3g} s)")
 

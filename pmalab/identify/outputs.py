@@ -283,12 +283,17 @@ def write_outputs(res: Identification, out_dir: str | Path, force: bool = False)
         raise PmalabError(f"{out}: exists and is not a directory")
     jpath = check_output(out / "identification.json", force)
     hpath = check_output(out / "predictions.h5", force)
-    out.mkdir(parents=True, exist_ok=True)
     doc = identification_dict(res)
+    out.mkdir(parents=True, exist_ok=True)
     tmp = jpath.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    tmp.replace(jpath)
     htmp = hpath.with_suffix(".h5.tmp")
-    write_predictions(res, htmp)
+    try:  # both written before either is renamed: a failure leaves neither behind
+        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+        write_predictions(res, htmp)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        htmp.unlink(missing_ok=True)
+        raise
+    tmp.replace(jpath)
     htmp.replace(hpath)
     return jpath, hpath
