@@ -16,6 +16,7 @@ run and channel.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -57,7 +58,7 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "cylinder_pressure_command": _PRESSURE,
 }
 #: other spellings of a unit (after brackets are stripped and µ/μ folded to "u")
-_UNIT_ALIASES = {"sec": "s", "msec": "ms", "micron": "um", "microns": "um", "um": "um"}
+_UNIT_ALIASES = {"sec": "s", "msec": "ms", "micron": "um", "microns": "um"}
 
 
 def normalize_unit(channel: str, text: str | None) -> str | None:
@@ -268,13 +269,18 @@ def validate_channels(
     run: str,
     raw: dict[str, tuple[np.ndarray, str | None]],
     units_hint: Callable[[str, str, str | None], str] = _hdf5_units_hint,
+    *,
+    exempt_last: bool = False,
 ) -> dict[str, np.ndarray]:
     """Check and convert raw channels ``{name: (values, units)}`` to canonical units.
 
     Besides the format (1-D, numeric, known unit, finite, equal lengths, time increasing),
     refuses values no PMA test can produce (:data:`PLAUSIBLE`), naming the unit they
     probably are in; ``units_hint(channel, declared_unit, likely_unit_or_None)`` words the
-    advice (the CSV import names its ``--units`` option).
+    advice (the CSV import names its ``--units`` option).  ``exempt_last``: the last sample
+    is not held to :data:`PLAUSIBLE` — an aborted run keeps the reading that tripped its
+    limit (a disconnected 4–20 mA gauge reads −0.25 MPa), and that evidence must not make
+    the file unreadable.
     """
     out: dict[str, np.ndarray] = {}
     for ch in REQUIRED_CHANNELS:
@@ -303,12 +309,14 @@ def validate_channels(
             bad = int(np.flatnonzero(~np.isfinite(arr))[0])
             raise _fail(path, run, ch, f"NaN or infinite value at sample {bad}")
         rule = PLAUSIBLE.get(ch)
-        if rule is not None and arr.size and not (rule.lo <= arr.min() and arr.max() <= rule.hi):
-            i = int(np.argmax(np.maximum(arr - rule.hi, rule.lo - arr)))
+        held = arr[:-1] if exempt_last else arr
+        if rule is not None and held.size and not (rule.lo <= held.min()
+                                                   and held.max() <= rule.hi):
+            i = int(np.argmax(np.maximum(held - rule.hi, rule.lo - held)))
             canon = CANONICAL_UNITS[ch]
             raise _fail(path, run, ch, f"reaches {arr[i]:.4g} {canon} at sample {i}, which no "
                         f"PMA test produces ({rule.what}) — "
-                        + units_hint(ch, str(units), likely_unit(ch, rawf)))
+                        + units_hint(ch, str(units), likely_unit(ch, rawf[: held.size])))
         if n is None:
             n = arr.shape[0]
         out[ch] = arr
@@ -407,7 +415,8 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
                 continue
-            chans = validate_channels(path, name, raw)
+            chans = validate_channels(path, name, raw,
+                                      exempt_last=run_state(status) != "completed")
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
@@ -515,7 +524,22 @@ def read_many(paths: Sequence[str | Path], *, include_aborted: bool = False) -> 
     runs: list[Run] = []
     for p in paths:
         runs.extend(read_runs(p, skip_incomplete=not include_aborted))
+    check_distinct_runs(runs)
     return runs
+
+
+def check_distinct_runs(runs: Sequence[Run]) -> None:
+    """Refuse the same recording read from two files (a copied file given twice): equal
+    run name and identical time and force samples."""
+    seen: dict[tuple[str, int, str], Run] = {}
+    for r in runs:
+        digest = hashlib.sha1(np.ascontiguousarray(r.time).tobytes()
+                              + np.ascontiguousarray(r.force).tobytes()).hexdigest()
+        key = (r.name, len(r), digest)
+        first = seen.setdefault(key, r)
+        if first is not r and first.file != r.file:
+            raise RunFileError(f"{r.file}: run '{r.name}': the same recording as "
+                               f"{first.label} (a copy of one file?): use each recording once")
 
 
 def check_distinct(paths: Sequence[str | Path], other: Sequence[str | Path] = (),

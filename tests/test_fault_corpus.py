@@ -66,6 +66,7 @@ def build_corpus(d: Path) -> None:
     good = write_runs(d / "good.h5", [_run()])
     write_runs(d / "other.h5", [_run("o")])
     data = good.read_bytes()
+    (d / "copy.h5").write_bytes(data)
     (d / "trunc.h5").write_bytes(data[: len(data) // 3])
     with h5py.File(d / "foreign.h5", "w") as f:
         f["x"] = np.arange(3)
@@ -131,6 +132,8 @@ CASES = [
     (["identify", "{d}/good.h5", "{d}/good.h5", *ID], "good.h5: file given twice"),
     (["diagnose", "{d}/good.h5", "--validate", "{d}/good.h5", *DG],
      "good.h5: file given both as input and to --validate"),
+    (["identify", "{d}/good.h5", "--validate", "{d}/copy.h5", *ID],
+     "copy.h5: run 'r': the same recording as good.h5:r (a copy of one file?)"),
     (["identify", "{d}/nan.h5", *ID], "nan.h5: run 'r': channel 'force': NaN or infinite value "
      "at sample 700"),
     (["identify", "{d}/noforce.h5", *ID], "noforce.h5: run 'r': channel 'force': missing channel"),
@@ -246,10 +249,10 @@ def test_the_corpus_holds_at_least_20_cases_and_every_kind_of_input():
     assert len(CASES) >= 20 and all(n >= 4 for n in kinds.values()), kinds
 
 
-@pytest.mark.parametrize("i", [0, 19])
-def test_a_subprocess_says_the_same_as_in_process(corpus, tmp_path, capsys, i):
+@pytest.mark.parametrize("verb, source", [("identify", "{d}/kpa.h5"), ("import", "{d}/kpa.csv")])
+def test_a_subprocess_says_the_same_as_in_process(corpus, tmp_path, capsys, verb, source):
     """In-process ``main`` is faithful: the console entry point prints the same line."""
-    args, _ = CASES[i]
+    args = next(a for a, _ in CASES if a[:2] == [verb, source])
     d = _case_dir(corpus, tmp_path)
     argv = [a.replace("{d}", str(d)) for a in args]
     rc = main(argv)

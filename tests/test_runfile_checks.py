@@ -166,6 +166,23 @@ def test_each_limit_is_enforced(tmp_path, channel, value):
         read_runs(f)
 
 
+def test_an_aborted_run_keeps_the_implausible_reading_that_tripped_it(tmp_path):
+    """A disconnected 4-20 mA gauge reads -0.25 MPa: the runner trips and keeps that sample
+    as the run's last; the file must stay readable (the rest of the run is still checked)."""
+    r = _run("r", "aborted: muscle pressure -0.250 MPa below the limit at t=1.998 s")
+    r.muscle_pressure[-1] = -0.25
+    f = write_runs(tmp_path / "trip.h5", [r])
+    (back,) = read_runs(f)
+    assert back.muscle_pressure[-1] == -0.25 and back.state == "aborted"
+    r.muscle_pressure[-2] = -0.25
+    with pytest.raises(RunFileError, match="at sample 998"):
+        read_runs(write_runs(tmp_path / "two.h5", [r]))
+    r = _run("r")  # a completed run has no such excuse
+    r.muscle_pressure[-1] = -0.25
+    with pytest.raises(RunFileError, match="at sample 999"):
+        read_runs(write_runs(tmp_path / "done.h5", [r]))
+
+
 def test_values_within_noise_of_the_limits_pass(tmp_path):
     r = _run("r")
     r.muscle_pressure[:10] = -0.01  # a gauge's zero offset at vent
@@ -223,6 +240,19 @@ def test_the_same_file_twice_is_refused(tmp_path):
     with pytest.raises(RunFileError, match="given both as input and to --validate"):
         check_distinct([f], [link])
     check_distinct([f], [])  # once is fine
+
+
+def test_a_copied_file_is_the_same_recording(tmp_path):
+    f = write_runs(tmp_path / "a.h5", [_run("r")])
+    copy = tmp_path / "b.h5"
+    copy.write_bytes(f.read_bytes())
+    with pytest.raises(RunFileError) as ei:
+        read_many([f, copy])
+    assert str(ei.value) == (f"{copy}: run 'r': the same recording as a.h5:r (a copy of one "
+                             "file?): use each recording once")
+    other = _run("r")
+    other.force[3] += 0.5  # one sample differs: another recording
+    assert len(read_many([f, write_runs(tmp_path / "c.h5", [other])])) == 2
 
 
 def test_identify_refuses_a_file_given_twice_and_leaves_no_directory(tmp_path, capsys):

@@ -249,10 +249,12 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         col = find(ch, explicit=required or ch in opts.columns)
         if col is not None:
             wanted[ch] = col
-    # ---- the numbers (pandas' C parser; fields as text, converted per column below)
+    # ---- the numbers: pandas' C parser makes every clean column float at once; a column
+    # with a bad cell stays text and is converted cell by cell below to name the cell
     try:
         df = pd.read_csv(io.StringIO("\n".join(ln for _, ln in data_rows)), sep=d, header=None,
-                         dtype=str, keep_default_na=False, skipinitialspace=True)
+                         decimal=opts.decimal, keep_default_na=False, na_values=[],
+                         skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", first)
@@ -261,10 +263,10 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
                 f"{path}: line {data_rows[int(m.group(2)) - 1][0]}: {m.group(3)} fields where the "
                 f"rows before have {m.group(1)}; wrong --delimiter or --header-rows?") from None
         raise RunFileError(f"{path}: not a readable CSV file ({first[:120]})") from None
-    df = df.fillna("")
     extra = df.shape[1] - len(names)
     if extra > 0:
-        if not (df.iloc[:, len(names):] == "").all().all():  # a trailing delimiter is harmless
+        tail = df.iloc[:, len(names):]
+        if not tail.astype(str).isin(["", "nan"]).all().all():  # a trailing delimiter is harmless
             raise RunFileError(f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
                                f"{len(names)} column names (line {names_line}); wrong "
                                "--delimiter or --header-rows?")
@@ -276,16 +278,20 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         if col >= df.shape[1]:
             raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' has no "
                                f"values (rows have {df.shape[1]} fields)")
-        text = df.iloc[:, col].str.strip()
-        num = text.str.replace(",", ".", regex=False) if opts.decimal == "," else text
-        values = pd.to_numeric(num, errors="coerce").to_numpy(dtype=np.float64)
-        bad = np.flatnonzero(np.isnan(values) & (num.str.lower() != "nan").to_numpy())
-        if bad.size:
-            k = int(bad[0])
-            cell = text.iloc[k]
-            raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' row "
-                               f"{data_rows[k][0]} is not a number ({cell!r})"
-                               + _cell_hint(cell, k, opts, ch))
+        column = df.iloc[:, col]
+        if np.issubdtype(column.dtype, np.number):
+            values = column.to_numpy(dtype=np.float64)
+        else:
+            text = column.fillna("").astype(str).str.strip()
+            num = text.str.replace(",", ".", regex=False) if opts.decimal == "," else text
+            values = pd.to_numeric(num, errors="coerce").to_numpy(dtype=np.float64)
+            bad = np.flatnonzero(np.isnan(values) & (num.str.lower() != "nan").to_numpy())
+            if bad.size:
+                k = int(bad[0])
+                cell = text.iloc[k]
+                raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' row "
+                                   f"{data_rows[k][0]} is not a number ({cell!r})"
+                                   + _cell_hint(cell, k, opts, ch))
         if ch in opts.negate:
             values = -values
         unit = opts.units.get(ch)

@@ -34,7 +34,7 @@ from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
-from pmalab.runfile import Run, check_distinct, read_runs
+from pmalab.runfile import Run, check_distinct, check_distinct_runs, read_runs
 
 
 class RunList(list):
@@ -75,6 +75,7 @@ def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None =
     out = RunList()
     for p in flat:
         out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted))
+    check_distinct_runs(out)
     return out
 
 

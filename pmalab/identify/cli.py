@@ -92,7 +92,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
     from pmalab.identify.api import identify, load
     from pmalab.paths import prepare_output_dir
-    from pmalab.runfile import check_distinct
+    from pmalab.runfile import check_distinct, check_distinct_runs
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
@@ -104,6 +104,7 @@ def run_identify(args: argparse.Namespace) -> int:
     check_distinct(args.files, args.validate)
     runs = load(args.files, include_aborted=args.include_aborted)
     val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    check_distinct_runs([*runs, *val])
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
         unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
@@ -180,7 +181,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.paths import check_output, prepare_output_dir
-    from pmalab.runfile import check_distinct, read_many
+    from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
@@ -195,6 +196,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     check_distinct(args.files, args.validate)
     runs = read_many(args.files, include_aborted=args.include_aborted)
     val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    check_distinct_runs([*runs, *val])
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
                  progress=not args.quiet and sys.stderr.isatty(), whole_run=args.whole_run)
