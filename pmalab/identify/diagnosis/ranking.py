@@ -10,8 +10,11 @@ user gets from ``pmalab identify --add EFFECT --validate ...``.
 Significance follows from that fall and its uncertainty.  fall = 1 − mean(nrmse_after) /
 mean(nrmse_before) over the held-out runs; its spread comes from the per-run ratios
 ρ_i = after_i / before_i (standard error σ_ρ/√n).  An effect is *significant* when it cuts
-the held-out error by at least ``MIN_FALL`` = 30 % and the fall is clear of its noise
-(fall − 2·se ≥ ``MIN_CLEAR_FALL`` = 10 %).  Two significant effects are *ambiguous* when
+the held-out error by at least ``MIN_FALL`` = 30 % and that fall is not one run's luck:
+the error falls on every held-out run, or the fall stays above ``MIN_CLEAR_FALL`` = 10 %
+by two standard errors.  (With two or three held-out runs a standard error from their
+spread is itself very uncertain — a drift that is large in one run and small in the other
+gives falls of 90 % and 40 %, both real — so "falls on every run" is the test there.)  Two significant effects are *ambiguous* when
 the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall.
 """
 
@@ -149,8 +152,8 @@ class Candidate:
 def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
     """Sort best first, mark significance (module docstring), find the ambiguous set."""
     for c in cands:
-        c.significant = bool(not c.after.diverged and c.fall >= MIN_FALL
-                             and c.fall - 2.0 * c.fall_se >= MIN_CLEAR_FALL)
+        consistent = c.runs_improved == 1.0 or c.fall - 2.0 * c.fall_se >= MIN_CLEAR_FALL
+        c.significant = bool(not c.after.diverged and c.fall >= MIN_FALL and consistent)
     cands.sort(key=lambda c: -c.fall)
     sig = [c for c in cands if c.significant]
     amb: list[str] = []

@@ -5,9 +5,9 @@ direction of motion, β·sgn(ẋh) + γ + ψ_v·sgn(ẋ) + ψ_h·sgn(h) (see
 :mod:`pmalab.identify.laws`), which changes each branch's decay rate — and with it
 its saturation level, since the initial slope A is common to both.  Braid friction also
 has a different *initial* stiffness on each branch (different pre-sliding lengths), so we
-add a direction-dependent slope: the law is driven by the path coordinate
-x' = x + ψ_a·∫|dx| (dx' = (1 + ψ_a·σ)·dx, σ = sgn(ẋ)), which scales both A and the decay
-rate of one branch.  The effect returns h_asym − h, the change of the hysteretic force.
+add a direction-dependent slope: the law integrates the path dx' = (1 + ψ_a·σ)·dx
+(σ = sgn(ẋ)), which scales both A and the decay rate of one branch.  All three enter the
+law through its extras, so h is integrated once.
 
 Loops of a McKibben muscle are also not point-symmetric along the stroke: the braid
 presses harder on the bladder where the muscle is stretched, so the loop is wide at low
@@ -24,15 +24,8 @@ from __future__ import annotations
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
-from pmalab.identify.laws import BoucWen
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals
-
-
-def path_warp(x: np.ndarray, psi_a: float) -> np.ndarray:
-    """x' = x + ψ_a·(cumulative |dx|): each step scaled by (1 + ψ_a·sgn(dx))."""
-    travelled = np.concatenate([[0.0], np.cumsum(np.abs(np.diff(x)))])
-    return x + psi_a * travelled
 
 
 class AsymmetricHysteresis(Effect):
@@ -76,12 +69,11 @@ class AsymmetricHysteresis(Effect):
             # ratios kept inside (−1, 1) so α and b keep their sign on both branches
             return {"psi_alpha": float(np.tanh(theta["asym_psi_v"])),
                     "psi_b": float(np.tanh(theta["asym_psi_h"]))}
-        return {}
+        # Bouc-Wen: the generalized shape terms and the direction-dependent path length
+        # (the law integrates dx' = (1 + ψ_a·σ)·dx itself, so h is computed once)
+        return {"psi_v": float(theta["asym_psi_v"]), "psi_h": float(theta["asym_psi_h"]),
+                "psi_a": float(theta["asym_psi_a"])}
 
     def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
-        width = 1.0 + theta["asym_g"] * sig.x
-        if not {"A", "beta", "gamma", "n"} <= theta.keys():  # Duhem: ψ's are in its extras
-            return h * (width - 1.0)
-        extras = {"psi_v": theta["asym_psi_v"], "psi_h": theta["asym_psi_h"]}
-        h_asym = BoucWen().h(path_warp(sig.x, theta["asym_psi_a"]), theta, extras)
-        return h_asym * width - h
+        # the loop width changes along the stroke: h·(1 + g·x) = h + h·g·x
+        return h * (theta["asym_g"] * sig.x)

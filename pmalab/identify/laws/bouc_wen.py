@@ -4,7 +4,8 @@ Rate independent, so it is integrated in the *position* domain: for each sample 
 (filtered) position moves by dx = x[k+1] − x[k] in a constant direction σ = sign(dx), and
 h is advanced along that straight segment — exact in time stamps, no velocity estimate::
 
-    dh/dx = A − |h|^n · (β·sgn(dx·h) + γ + ψ_v·sgn(dx) + ψ_h·sgn(h) + ψ_x·sgn(x − x_c))
+    dh/dx' = A − |h|^n · (β·sgn(dx·h) + γ + ψ_v·sgn(dx) + ψ_h·sgn(h) + ψ_x·sgn(x − x_c)),
+    dx' = (1 + ψ_a·sgn(dx))·dx  (a direction-dependent path length: each branch its own slope)
 
 For ψ = 0 this is ḣ = A·ẋ − β·|ẋ|·|h|^(n−1)·h − γ·ẋ·|h|^n.
 
@@ -46,12 +47,15 @@ def _bw_rate(h, sigma, xs, A, beta, gamma, n, psi_v, psi_h, psi_x):
 
 
 @njit(cache=True, fastmath=False)
-def bw_segment(hk, x0, x1, A, beta, gamma, n, psi_v, psi_h, psi_x, x_c):
-    """h after the segment x0 → x1 (mm), general n: RK4 with adaptive sub-steps."""
+def bw_segment(hk, x0, x1, A, beta, gamma, n, psi_v, psi_h, psi_x, x_c, psi_a=0.0):
+    """h after the segment x0 → x1 (mm), general n: RK4 with adaptive sub-steps.
+
+    ``psi_a``: direction-dependent path length, the law sees dx' = (1 + ψ_a·σ)·dx."""
     dx = x1 - x0
     if dx == 0.0:
         return hk
     sigma = 1.0 if dx > 0.0 else -1.0
+    dx = dx * (1.0 + psi_a * sigma)
     lip0 = abs(beta) + abs(gamma) + abs(psi_v) + abs(psi_h) + abs(psi_x)
     ah = abs(hk)
     lip = n * lip0 * (ah ** (n - 1.0) if ah > 0.0 else (1.0 if n == 1.0 else 0.0))
@@ -59,9 +63,10 @@ def bw_segment(hk, x0, x1, A, beta, gamma, n, psi_v, psi_h, psi_x, x_c):
     if m > 64:
         m = 64
     dxs = dx / m
+    dxp = (x1 - x0) / m  # sub-step in the measured position (for the sgn(x − x_c) term)
     for j in range(m):
-        xa = x0 + j * dxs
-        xs = 1.0 if xa + 0.5 * dxs > x_c else -1.0
+        xa = x0 + j * dxp
+        xs = 1.0 if xa + 0.5 * dxp > x_c else -1.0
         k1 = _bw_rate(hk, sigma, xs, A, beta, gamma, n, psi_v, psi_h, psi_x)
         k2 = _bw_rate(hk + 0.5 * dxs * k1, sigma, xs, A, beta, gamma, n, psi_v, psi_h, psi_x)
         k3 = _bw_rate(hk + 0.5 * dxs * k2, sigma, xs, A, beta, gamma, n, psi_v, psi_h, psi_x)
@@ -71,13 +76,14 @@ def bw_segment(hk, x0, x1, A, beta, gamma, n, psi_v, psi_h, psi_x, x_c):
 
 
 @njit(cache=True, fastmath=False)
-def bw1_segment(hk, x0, x1, A, beta, gamma, psi_v, psi_h, psi_x, x_c):
-    """h after the segment x0 → x1 (mm) for n = 1, integrated exactly."""
+def bw1_segment(hk, x0, x1, A, beta, gamma, psi_v, psi_h, psi_x, x_c, psi_a=0.0):
+    """h after the segment x0 → x1 (mm) for n = 1, integrated exactly (``psi_a``: see
+    :func:`bw_segment`)."""
     dx = x1 - x0
     if dx == 0.0:
         return hk
     sigma = 1.0 if dx > 0.0 else -1.0
-    s = abs(dx)
+    s = abs(dx) * (1.0 + psi_a * sigma)
     xs = 1.0 if x0 + 0.5 * dx > x_c else -1.0
     drive = sigma * A  # dh/ds at h = 0
     # at most two pieces: before and after a zero crossing of h
@@ -116,27 +122,27 @@ def bw1_segment(hk, x0, x1, A, beta, gamma, psi_v, psi_h, psi_x, x_c):
 
 
 @njit(cache=True, fastmath=False)
-def bouc_wen_h(x, A, beta, gamma, n, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0):
+def bouc_wen_h(x, A, beta, gamma, n, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0, psi_a=0.0):
     """h[k] for the Bouc-Wen law driven by position samples ``x`` (mm); h in N."""
     N = x.shape[0]
     h = np.empty(N)
     h[0] = h0
     hk = h0
     for k in range(N - 1):
-        hk = bw_segment(hk, x[k], x[k + 1], A, beta, gamma, n, psi_v, psi_h, psi_x, x_c)
+        hk = bw_segment(hk, x[k], x[k + 1], A, beta, gamma, n, psi_v, psi_h, psi_x, x_c, psi_a)
         h[k + 1] = hk
     return h
 
 
 @njit(cache=True, fastmath=False)
-def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0):
+def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0, psi_a=0.0):
     """h[k] for Bouc-Wen with n = 1, integrated exactly on each linear segment of ``x``."""
     N = x.shape[0]
     h = np.empty(N)
     h[0] = h0
     hk = h0
     for k in range(N - 1):
-        hk = bw1_segment(hk, x[k], x[k + 1], A, beta, gamma, psi_v, psi_h, psi_x, x_c)
+        hk = bw1_segment(hk, x[k], x[k + 1], A, beta, gamma, psi_v, psi_h, psi_x, x_c, psi_a)
         h[k + 1] = hk
     return h
 
@@ -145,7 +151,7 @@ def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tup
     e = extras or {}
     return (float(theta["A"]), float(theta["beta"]), float(theta["gamma"]),
             float(e.get("psi_v", 0.0)), float(e.get("psi_h", 0.0)), float(e.get("psi_x", 0.0)),
-            float(e.get("x_c", 0.0)))
+            float(e.get("x_c", 0.0)), float(e.get("psi_a", 0.0)))
 
 
 class BoucWen(HysteresisLaw):
@@ -157,7 +163,7 @@ class BoucWen(HysteresisLaw):
         LawParam("n", 1.0, 0.5, 4.0, "-", "sharpness of the elastic-plastic transition"),
         LawParam("h0", 0.0, -1e4, 1e4, "N", "initial hysteretic force"),
     )
-    extras = ("psi_v", "psi_h", "psi_x", "x_c")
+    extras = ("psi_v", "psi_h", "psi_x", "x_c", "psi_a")
     default_fixed: ClassVar[dict[str, float]] = {"n": 1.0}
     default_fixed_why: ClassVar[dict[str, str]] = {
         "n": "n fixed at 1 (default): n trades off against beta/gamma; free it with --free n",
@@ -187,20 +193,20 @@ class BoucWen(HysteresisLaw):
 
     def h(self, x, theta, extras=None):
         x = np.ascontiguousarray(x, dtype=np.float64)
-        A, beta, gamma, pv, ph, px, xc = _args(theta, extras)
+        A, beta, gamma, pv, ph, px, xc, pa = _args(theta, extras)
         if float(theta["n"]) == 1.0:
-            return bouc_wen_h1(x, A, beta, gamma, float(theta["h0"]), pv, ph, px, xc)
+            return bouc_wen_h1(x, A, beta, gamma, float(theta["h0"]), pv, ph, px, xc, pa)
         return bouc_wen_h(x, A, beta, gamma, float(theta["n"]), float(theta["h0"]),
-                          pv, ph, px, xc)
+                          pv, ph, px, xc, pa)
 
     def stepper(self, theta, extras=None) -> Callable[[float, float, float], float]:
-        A, beta, gamma, pv, ph, px, xc = _args(theta, extras)
+        A, beta, gamma, pv, ph, px, xc, pa = _args(theta, extras)
         n = float(theta["n"])
         if n == 1.0:
             def step1(h: float, x_prev: float, x: float) -> float:
-                return bw1_segment(h, x_prev, x, A, beta, gamma, pv, ph, px, xc)
+                return bw1_segment(h, x_prev, x, A, beta, gamma, pv, ph, px, xc, pa)
             return step1
 
         def step(h: float, x_prev: float, x: float) -> float:
-            return bw_segment(h, x_prev, x, A, beta, gamma, n, pv, ph, px, xc)
+            return bw_segment(h, x_prev, x, A, beta, gamma, n, pv, ph, px, xc, pa)
         return step
