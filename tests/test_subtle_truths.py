@@ -13,7 +13,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.noise import noise_floor_nrmse
