@@ -142,3 +142,24 @@ def test_same_initial_gains_for_every_controller():
         assert first["inner_ki"] == pytest.approx(s.inner.gains.ki)
         assert Gains(first["outer_kp"], first["outer_ki"], first["outer_kd"]).as_tuple() == \
             pytest.approx(s.outer.gains.as_tuple())
+
+
+def test_ctrl_c_mid_run_vents_and_keeps_the_samples():
+    rig = make_sim_manipulator()
+    real = rig.sampler.read_now
+    calls = {"n": 0}
+
+    def read_now():
+        calls["n"] += 1
+        if calls["n"] == 301:
+            raise KeyboardInterrupt
+        return real()
+
+    rig.sampler.read_now = read_now
+    with rig:
+        run = run_control(rig, "sn-pid", parse_reference("square:0.1Hz:15mm"), 10.0,
+                          default_settings(), MODEL)
+    assert run.status == "aborted: interrupted (Ctrl-C)"
+    assert run.n == 300 and np.all(np.isfinite(run.signals["position"]))
+    assert run.attrs["vent_confirmed"] is True
+    assert rig.info["physics"].command == 0.0

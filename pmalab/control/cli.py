@@ -107,9 +107,16 @@ def _run_one(args, check_duration, metrics_line) -> int:
     model = IdentifiedModel.load(args.model) if loop == "position" else None
     make = _make_rig_factory(args.truth, args.seed or 0)
     rig = make()
+    progress = None
+    if sys.stderr.isatty():  # a long run shows where it is (simulated seconds)
+        def progress(t: float) -> None:
+            print(f"\r{args.controller}: {t:5.0f} / {duration:g} s", end="", file=sys.stderr,
+                  flush=True)
     with rig:
         run = run_control(rig, args.controller, ref, duration, default_settings(), model,
-                          name=args.controller)
+                          name=args.controller, progress=progress)
+    if progress is not None:
+        print(file=sys.stderr)
     run.attrs["command_line"] = " ".join(sys.argv)
     run.attrs["truth"] = str(rig.info.get("truth", ""))
     write_control_file(args.out, [run], force=args.force,

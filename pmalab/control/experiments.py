@@ -185,10 +185,13 @@ def run_experiments(
     out.mkdir(parents=True, exist_ok=True)
     doc: dict[str, Any] = {"experiments": es.name, "file": es.path,
                            "controllers": es.controllers, "results": []}
+    total = len(es.experiments) * len(es.controllers)
+    done = 0
     for e in es.experiments:
         runs: list[ControlRun] = []
         stop = False
         for c in es.controllers:
+            done += 1
             rig = make_rig()
             with rig:
                 run = run_control(rig, c, e.reference, e.duration_s, es.settings, model,
@@ -198,7 +201,7 @@ def run_experiments(
             doc["results"].append({"experiment": e.name, "reference": e.reference.text,
                                    "controller": c, "status": run.status, "metrics": m,
                                    "seeds": e.seeds})
-            report(f"{e.name} {c}: {run.status}; " + metrics_line(m))
+            report(f"[{done}/{total}] {e.name} {c}: {run.status}; " + metrics_line(m))
             if not run.completed:
                 stop = True
                 break
