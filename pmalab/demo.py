@@ -19,6 +19,7 @@ import shutil
 import time
 from pathlib import Path
 
+from pmalab.console import add_verbosity
 from pmalab.errors import OutputExistsError, PmalabError
 from pmalab.paths import PROTOCOLS_DIR, RIGS_DIR, TRUTH_DIR
 
@@ -47,6 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the effect switched on in the simulated muscle (default: "
                         "asymmetric-hysteresis, which the Bouc-Wen seed paper reports missing)")
     p.add_argument("--seed", type=int, default=7, help="random seed of the simulated rig")
+    add_verbosity(p, quiet_help="pass -q to every step: results and warnings only")
     p.set_defaults(func=run_demo)
 
 
@@ -61,12 +63,16 @@ def _step(n: int, title: str, argv: list[str]) -> None:
     print(f"      ({time.perf_counter() - t0:.1f} s)", flush=True)
 
 
-def _mean_validation_fit(result_dir: Path) -> float:
-    doc = json.loads((result_dir / "identification.json").read_text())
-    vals = [v["nrmse"] for v in doc.get("validation", [])]
-    if not vals:
-        raise PmalabError(f"{result_dir}/identification.json: no validation runs")
-    return 100.0 * (1.0 - sum(vals) / len(vals))
+def _error_fall(base: Path, improved: Path):
+    """The one error-fall figure (:func:`pmalab.identify.headline.error_fall`): the report's
+    base-vs-improved pages print the same."""
+    from pmalab.identify.headline import error_fall
+
+    docs = [json.loads((d / "identification.json").read_text()) for d in (base, improved)]
+    fall = error_fall(*docs)
+    if fall is None:
+        raise PmalabError(f"{base}/identification.json: no validation runs")
+    return fall
 
 
 def _neutral_rig(folder: Path, hidden: str) -> Path:
@@ -113,11 +119,11 @@ def run_demo(args: argparse.Namespace) -> int:
     protocol = PROTOCOLS_DIR / "seed-bouc-wen.toml"
     campaign = out / "campaign.h5"
     base, diagnosis, improved = out / "identify", out / "diagnose", out / "identify-improved"
-    q = ["--quiet"]
+    q = ["--quiet"] if args.quiet else (["--verbose"] if args.verbose else [])
 
     _step(1, "record the seed campaign on a simulated rig with a hidden effect",
           ["run", "--rig", str(rig), "--protocol", str(protocol), "--out", str(campaign),
-           "--seed", str(args.seed), *q])
+           "--seed", str(args.seed), "--quiet"])
     _step(2, f"identify {args.model} per pressure level, quadratics, validation",
           ["identify", str(campaign), "--model", args.model, "--out", str(base), *q])
     _step(3, "diagnose: where does the model fail, which effect is missing?",
@@ -131,17 +137,16 @@ def run_demo(args: argparse.Namespace) -> int:
           else "identify again (diagnosis named no effect)",
           ["identify", str(campaign), "--model", args.model, *add, "--out", str(improved), *q])
     report = out / "report.pdf"
-    _step(5, "report", ["report", str(base), str(diagnosis), "--out", str(report), "--quiet"])
+    _step(5, "report: base and improved identification side by side, and the diagnosis",
+          ["report", str(base), str(improved), str(diagnosis), "--out", str(report), *q])
 
-    before, after = _mean_validation_fit(base), _mean_validation_fit(improved)
+    fall = _error_fall(base, improved)
     print("\nSummary")
     print(f"  hidden effect in the simulated muscle : {args.hidden}")
     print(f"  effects diagnosis added (ladder)      : {', '.join(found) or 'none'}")
-    print(f"  mean validation fit, base model       : {before:6.2f} %")
-    print(f"  mean validation fit, with the effects : {after:6.2f} %")
-    if before < 100.0:
-        fall = 100.0 * (1.0 - (100.0 - after) / (100.0 - before))
-        print(f"  validation error (nrmse) falls by     : {fall:6.1f} %")
+    print(f"  mean validation fit, base model       : {100 * (1 - fall.before):6.2f} %")
+    print(f"  mean validation fit, with the effects : {100 * (1 - fall.after):6.2f} %")
+    print(f"  {fall.sentence()}")
     print(f"  diagnosis: {_verdict(args.hidden, found, diag)}")
     print(f"  total {time.perf_counter() - t0:.0f} s")
     print(f"\nReport: {report.resolve()}")

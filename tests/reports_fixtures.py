@@ -62,14 +62,26 @@ def write_predictions(path: Path, entries: list[tuple[str, str, str, str, float,
                             "frequency_Hz": fq, "waveform": "sine", "model": model})
 
 
-def identification_doc(*, pressures=ID_PRESSURES, validation=VAL_RUNS) -> tuple[dict, list]:
+#: the added effect of the "improved" identification (``identify --add``) and its parameters
+ADDED_EFFECT = "asymmetric-hysteresis"
+ADDED_PARAMS = ["asym_psi_h", "asym_g"]
+
+
+def identification_doc(*, pressures=ID_PRESSURES, validation=VAL_RUNS,
+                       improved: bool = False) -> tuple[dict, list]:
+    """An identification.json document and its prediction entries; ``improved``: the same
+    runs identified with :data:`ADDED_EFFECT` (extra parameters, smaller model errors)."""
+    err = 0.25 if improved else 1.0  # the improved model misses a quarter of the base's error
     runs, entries = [], []
     rng = np.random.default_rng(1)
     for i, p in enumerate(pressures):
-        tr = synthetic_trace(p, 0.15, seed=i)
+        tr = synthetic_trace(p, 0.15, seed=i, model_error=0.05 * err)
         name = f"p{int(round(p * 1e4)):04d}"
         params = {"k": -40.0 + 5 * p, "c0": 1500 * p, "A": 3.0 + p, "beta": 0.02 + 0.01 * p,
                   "gamma": 0.01 - 0.005 * p, "n": 1.0}
+        if improved:
+            params.update({"k": params["k"] + 1.5, "asym_psi_h": 0.004 + 0.002 * p,
+                           "asym_g": 0.1 - 0.05 * p})
         se = {k: abs(v) * 0.02 for k, v in params.items()}
         se["n"] = None
         corr = np.eye(5)
@@ -82,12 +94,14 @@ def identification_doc(*, pressures=ID_PRESSURES, validation=VAL_RUNS) -> tuple[
             "correlation": {"names": PARAMS[:5], "matrix": corr.tolist()},
             "fixed": ["n"], "warnings": ["beta and gamma correlated (rho = 0.998)"] if i == 0 else [],
             **_metrics(tr),
+            "quadratic_model": {"nrmse": _nrmse(tr) * 1.1},
         })
         entries.append((f"ident__{name}", "identification", "ident.h5", name, p, 0.15, tr))
         rng.normal()
     ps = np.array(pressures)
     fits, stats = {}, {}
-    for n_ in PARAMS:
+    names = PARAMS + (ADDED_PARAMS if improved else [])
+    for n_ in names:
         vals = np.array([r["parameters"][n_] for r in runs])
         q = np.polyfit(ps, vals, 2)[::-1] if len(ps) >= 3 else np.array([vals.mean(), 0, 0])
         fits[n_] = q.tolist()
@@ -95,12 +109,13 @@ def identification_doc(*, pressures=ID_PRESSURES, validation=VAL_RUNS) -> tuple[
                      "values": vals.tolist(), "stderr": [abs(v) * 0.02 for v in vals]}
     val = []
     for j, (file, run, p, fq) in enumerate(validation):
-        tr = synthetic_trace(p, fq, seed=10 + j, model_error=0.08)
+        tr = synthetic_trace(p, fq, seed=10 + j, model_error=0.08 * err)
         val.append({"file": file, "run": run, "muscle_pressure_MPa": p, "frequency_Hz": fq,
                     **_metrics(tr)})
         entries.append((f"val__{run}", "validation", file, run, p, fq, tr))
     doc = {
-        "model": "bouc-wen", "effects": [], "pmalab_version": "0.1.0",
+        "model": "bouc-wen", "effects": [ADDED_EFFECT] if improved else [],
+        "pmalab_version": "0.1.0",
         "created": "2026-11-21T09:00:00+00:00",
         "inputs": [
             {"file": "ident.h5", "runs": [r["run"] for r in runs],
@@ -122,7 +137,7 @@ def identification_doc(*, pressures=ID_PRESSURES, validation=VAL_RUNS) -> tuple[
                           for r in runs}}},
             {"file": "val.h5", "runs": [v[1] for v in validation], "provenance": {}},
         ],
-        "parameter_names": PARAMS, "runs": runs, "pressure_fits": fits,
+        "parameter_names": names, "runs": runs, "pressure_fits": fits,
         "pressure_fit_stats": stats, "validation": val,
         "warnings": ["beta, gamma nearly collinear: n held fixed at 1"],
     }
@@ -176,7 +191,7 @@ def diagnosis_doc() -> dict:
                 "acf": {"lags_s": lags, "values": acf.tolist(), "bound95": 0.08},
                 "ccf_input": {"lags_s": ccf_lags, "values": ccf.tolist(), "bound95": 0.08,
                               "input": "position", "peak_lag_s": 0.0},
-                "nrmse": 0.12, "nrmse_final": 0.037,
+                "rmse": 4.2, "nrmse": 0.12, "nrmse_final": 0.037,
                 "worst_region": "stretch, high contraction (x 14.7–20.0 mm): rms error 6.1 N "
                                 "(1.5× the run's 4.2 N), mean +3.9 N: model tension too low",
                 "regions": [
@@ -205,7 +220,7 @@ def diagnosis_doc() -> dict:
     }
     # a second run with only an autocorrelation: worse, so its page comes first
     doc["diagnostics"]["ident.h5:p3102"] = {
-        "nrmse": 0.2, "nrmse_final": 0.05,
+        "rmse": 6.0, "nrmse": 0.2, "nrmse_final": 0.05,
         "acf": {"lags_s": lags, "values": (0.8 * acf).tolist(), "bound95": 0.08},
         "worst_region": "release branch, low contraction"}
     return doc
@@ -217,6 +232,12 @@ def write_identification_dir(d: Path, **kw) -> Path:
     (d / "identification.json").write_text(json.dumps(doc, indent=1))
     write_predictions(d / "predictions.h5", entries, doc["model"])
     return d
+
+
+def write_improved_dir(d: Path, **kw) -> Path:
+    """The "improved" identification (``identify --add asymmetric-hysteresis``) of the same
+    runs as :func:`write_identification_dir`."""
+    return write_identification_dir(d, improved=True, **kw)
 
 
 def write_diagnosis_dir(d: Path, *, with_predictions: bool = True) -> Path:

@@ -163,3 +163,21 @@ def test_sim_rig_run_fits_base_model(tmp_path, capsys) -> None:
         assert res.fit_percent > 90.0, (law, res.fit_percent)
         # the physical loop direction: A < 0 (Bouc-Wen) / b < 0 (Duhem, a = 0)
         assert res.values["A" if law == "bouc-wen" else "b"] < 0
+
+
+def test_information_is_a_note_and_quiet_prints_warnings_only(files, capsys) -> None:
+    """The joint refinement and the held-out runs are information (`note:`); with -q only
+    `warning:` lines remain; nothing says `free=[...]` (the CLI flag is --free)."""
+    d, ident, _ = files
+    assert main(["identify", str(ident), "--model", "duhem", "--out", str(d / "n1"),
+                 "--jobs", "1"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert any(ln.startswith("note: ") and "held out for validation" in ln for ln in err)
+    assert any(ln.startswith("note: pressure laws refined jointly") for ln in err)
+    assert not any(ln.startswith("warning: pressure laws refined") for ln in err)
+    assert all(ln.startswith(("note: ", "warning: ")) for ln in err if ln.strip())
+    assert not any("free=[" in ln for ln in err)
+    assert main(["identify", str(ident), "--model", "duhem", "--out", str(d / "n2"),
+                 "--jobs", "1", "-q"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert not any(ln.startswith("note:") for ln in err)

@@ -55,7 +55,7 @@ FULL_PAGES = [
     "Fit quality table",
     "Time histories — identification, bouc-wen",
     "Measured vs model loops per pressure level — identification, bouc-wen",
-    "Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²",
+    "Parameters against muscle pressure: per-run fits and the pressure laws",
     "Identified parameters (value ± standard error) and identifiability",
     "Parameter correlation (identifiability); |ρ| > 0.95 outlined",
     "Validation: pressure-quadratic model, free-run prediction",
@@ -137,7 +137,7 @@ def test_no_overwrite_without_force_and_atomic_replace(tmp_path, full_report):
 def test_cli_report_with_png_export(tmp_path, capsys):
     d = rf.write_diagnosis_dir(tmp_path / "diag", with_predictions=False)
     out, png = tmp_path / "out" / "rep.pdf", tmp_path / "png"
-    assert main(["report", str(d), "--out", str(out), "--png", str(png)]) == 0
+    assert main(["report", str(d), "--out", str(out), "--png", str(png), "-v"]) == 0
     printed = capsys.readouterr().out.splitlines()
     assert printed[:5] == ["page 1/5: Title page",
                            "page 2/5: Where the base model fails across the campaign",
@@ -148,10 +148,14 @@ def test_cli_report_with_png_export(tmp_path, capsys):
     assert sorted(p.name for p in png.iterdir()) == [
         "01-title.png", "02-campaign.png", "03-residuals-1.png", "04-residuals-2.png",
         "05-effects.png"]
-    # second time: refused (exit 2, one line), then --force works quietly
+    # second time: refused (exit 2, one line), then --force works; piped (not a terminal)
+    # and without -v it prints no progress, only where the PDF is
     assert main(["report", str(d), "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "already exists (use --force" in err[0]
+    assert main(["report", str(d), "--out", str(out), "--force"]) == 0
+    cap = capsys.readouterr()
+    assert cap.out.splitlines() == [f"report written: {out}"] and cap.err == ""
     assert main(["report", str(d), "--out", str(out), "--force", "--quiet", "--svg",
                  str(tmp_path / "svg")]) == 0
     assert capsys.readouterr().out == ""

@@ -85,29 +85,56 @@ def test_parameter_vs_pressure_draws_points_and_quadratic():
     ax = _new_axes()
     q = [1.0, -2.0, 3.0]
     F.plot_parameter_vs_pressure(ax, "k", [0.2, 0.4, 0.6], [0.9, 0.7, 1.1], [0.1, None, 0.2],
-                                 q, r2=0.97, unit="N/mm", validation_pressures=[0.5])
+                                 q, stat={"r2": 0.97, "degree": 2, "method": "per-run"},
+                                 unit="N/mm", validation_pressures=[0.5])
     (curve,) = [ln for ln in ax.lines if len(ln.get_xdata()) == 100]
     p = curve.get_xdata()
     np.testing.assert_allclose(curve.get_ydata(), 1 - 2 * p + 3 * p**2)
     assert p.min() < 0.2 and p.max() > 0.6  # spans the identification pressures
-    assert ax.get_title() == "k (N/mm)   R² = 0.970"
+    assert ax.get_title() == "k (N/mm)\nquadratic through the points, order 2, R² 0.970"
     pts = next(ln for ln in ax.lines if len(ln.get_xdata()) == 3)
     np.testing.assert_allclose(pts.get_ydata(), [0.9, 0.7, 1.1])
+
+
+def test_joint_law_is_the_drawn_law_and_an_unreadable_r2_is_never_shown():
+    """The joint law (what predictions use) is the solid line; the quadratic through the
+    per-run points is dashed; its R² against the per-run values (−100 here) is not shown."""
+    ax = _new_axes()
+    joint, per_run = [0.86, 0.0, 0.0], [1.0, 0.5, -0.5]
+    F.plot_parameter_vs_pressure(
+        ax, "beta", [0.2, 0.4, 0.6], [1.03, 1.09, 1.05], [0.06, 0.4, 0.3], joint,
+        stat={"r2": -100.2, "degree": 0, "method": "joint", "per_run_quadratic": per_run})
+    solid = [ln for ln in ax.lines if len(ln.get_xdata()) == 100 and ln.get_linestyle() == "-"]
+    dashed = [ln for ln in ax.lines if ln.get_linestyle() == "--"]
+    np.testing.assert_allclose(solid[0].get_ydata(), 0.86)
+    p = dashed[0].get_xdata()
+    np.testing.assert_allclose(dashed[0].get_ydata(), 1.0 + 0.5 * p - 0.5 * p**2)
+    assert solid[0].get_label() == "law used for prediction (joint fit)"
+    assert ax.get_title() == "beta\njoint law, order 0"
+    assert "R²" not in ax.get_title() and "-100" not in ax.get_title()
+
+
+def test_coefficients_print_round_off_and_negative_zero_as_zero():
+    assert F.coef_text([-0.4047, -22.53, 2.842e-14]) == ["-0.4047", "-22.53", "0"]
+    assert F.coef_text([0.8628, 0.0, -0.0]) == ["0.8628", "0", "0"]
+    assert F.coef_text([None, 1.5, 0.0]) == ["—", "1.5", "0"]
 
 
 def test_residual_panels_and_correlation_bounds():
     diag = rf.diagnosis_doc()["diagnostics"]["ident.h5:p4762"]
     fig = F.residual_diagnostics_figure("ident.h5:p4762", diag)
     visible = [ax for ax in fig.axes if ax.get_visible() and ax.get_label() != "<colorbar>"]
-    # 7 binned variables + ACF + CCF + loop regions + loop phase
-    assert len(visible) == 11
+    # 7 binned variables less "direction" (the same split as "branch") + ACF + CCF + loop
+    # regions + loop phase
+    assert len(visible) == 10
+    assert not any("direction" in ax.get_title() for ax in visible)
     labels = [ax.get_xlabel() for ax in visible]
     assert "Pressure deviation p − p_nom (kPa)" in labels  # small MPa shown in kPa
     assert "Contraction x (mm)" in labels and labels.count("Lag (s)") == 2
-    acf_ax = visible[7]
+    acf_ax = visible[6]
     assert "lags outside the bound" in acf_ax.get_title()
     assert "worst region: stretch, high contraction" in fig._suptitle.get_text()
-    regions = visible[9]
+    regions = visible[8]
     np.testing.assert_allclose(regions.images[0].get_array(), [[3.1, 4.0, 6.1], [2.5, 3.0, 3.3]])
 
 

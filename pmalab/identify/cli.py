@@ -10,6 +10,7 @@ import argparse
 import os
 import sys
 
+from pmalab.console import VERBOSE, add_verbosity, note, show_progress, verbosity, warning
 from pmalab.errors import PmalabError
 
 
@@ -60,7 +61,7 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pressure-model", default="joint", choices=("joint", "per-run"),
                    help="pressure laws: refined jointly on all runs with chosen orders "
                         "(default) or the seeds' per-run quadratics")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_identify)
 
@@ -91,6 +92,7 @@ def run_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from pmalab.identify.api import identify, load
+    from pmalab.identify.messages import sort_messages
     from pmalab.paths import prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
@@ -114,19 +116,18 @@ def run_identify(args: argparse.Namespace) -> int:
         runs = [r for r in runs if not (r.name in hold or r.label in hold)]
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
-                   free=args.free, initial=args.initial, progress=not args.quiet and sys.stderr.isatty(),
+                   free=args.free, initial=args.initial, progress=show_progress(args),
                    pressure_model=args.pressure_model, whole_run=args.whole_run)
     jpath, hpath = res.save(out, force=args.force)
 
-    for n in res.notes:
-        print(f"note: {n}", file=sys.stderr)
+    level = verbosity(args)
     w = max([len(rf.label) for rf in res.campaign.runs] + [len(v.run.label) for v in res.validation] + [10])
     print(f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
           f"{len(res.validation)} validation run(s)")
     for rf in res.campaign.runs:
         r = rf.result
         print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
-              f"rmse {r.rmse:7.3g} N" + (f"  ({len(r.warnings)} warning(s))" if r.warnings else ""))
+              f"rmse {r.rmse:7.3g} N")
     for v in res.validation:
         m = v.metrics
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
@@ -136,8 +137,18 @@ def run_identify(args: argparse.Namespace) -> int:
         print(head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
               f"energy {m['energy_error_percent']:+.1f} %"
               + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else ""))
-    for wmsg in res.warnings:
-        print(f"warning: {wmsg}", file=sys.stderr)
+    sys.stdout.flush()
+    msgs = sort_messages([*res.notes, *res.warnings],
+                         [(rf.label, rf.result.warnings, getattr(rf.result, "notes", []))
+                          for rf in res.campaign.runs])
+    if level > 0:
+        for n in msgs.notes:
+            note(n)
+    if level >= VERBOSE:
+        for n in msgs.details:
+            note(n)
+    for wmsg in msgs.warnings:
+        warning(wmsg)
     print(f"wrote {jpath} and {hpath}")
     return 0
 
@@ -171,7 +182,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
                    help="parallel worker processes (default 2)")
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="also save the ranking/ladder figure")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
 
@@ -180,6 +191,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
+    from pmalab.identify.headline import WORST_BY, worst_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -199,7 +211,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
     check_distinct_runs([*runs, *val])
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
-                 progress=not args.quiet and sys.stderr.isatty(), whole_run=args.whole_run)
+                 progress=show_progress(args), whole_run=args.whole_run)
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
     print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
@@ -211,15 +223,14 @@ def run_diagnose(args: argparse.Namespace) -> int:
               f"{d.suggested_experiment}")
     print("\nLadder (the error falling step by step):")
     print(d.ladder_table())
-    worst = sorted(d.diagnostics.items(), key=lambda kv: -kv[1]["rmse"])[:3]
     hint = " ".join(["pmalab identify", *args.files, "--model", args.model,
                      *[f"--add {e}" for e in d.final_effects], *(["--validate", *args.validate]
                                                                   if args.validate else []),
                      *([st["identify_hint"]] if st.get("identify_hint") else []), "--out DIR"])
     print(f"\nSame numbers from identification: {hint}")
-    print("\nWhere the base model fails:")
-    for key, dg in worst:
-        print(f"  {key}: {dg['worst_region']}")
+    print(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
+    for key in worst_runs(d.diagnostics, 3):
+        print(f"  {key}: {d.diagnostics[key]['worst_region']}")
     print(f"\n{d.summary}")
     if args.plot:
         d.plot(check_output(args.plot, args.force))

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -19,13 +20,20 @@ from typing import Any
 import matplotlib as mpl
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
+from tqdm import tqdm
 
 from pmalab import __version__
 from pmalab.errors import OutputError, OutputExistsError
+from pmalab.identify.headline import error_fall, worst_runs
 from pmalab.paths import check_output
 from pmalab.reports import style
-from pmalab.reports.data import ReportData, Trace, load_report_dir
+from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
 from pmalab.reports.errors import ReportError
+from pmalab.reports.figures_compare import (
+    compare_figure,
+    hysteresis_component_figure,
+    linear_component,
+)
 from pmalab.reports.figures_diagnosis import (
     campaign_figure,
     effects_figure,
@@ -63,6 +71,7 @@ CORR_PER_PAGE = 6
 MAX_RESIDUAL_PAGES = 4
 BEFORE_AFTER_RUNS = 3
 PROVENANCE_ROWS_PER_PAGE = 16
+KEY_RUNS = 3
 
 
 @dataclass
@@ -164,22 +173,16 @@ def plan_pages(data: ReportData) -> list[Page]:
     if ident and id_rows and ident["parameter_names"]:
         names = list(ident["parameter_names"])
         units = _units(ident)
-        pressures = [float(r["muscle_pressure_MPa"]) for r in id_rows]
-        nan = float("nan")
-        values = {n: [r["parameters"].get(n, nan) for r in id_rows] for n in names}
-        stderr = {n: [(r.get("stderr") or {}).get(n) for r in id_rows] for n in names}
         fits = ident.get("pressure_fits") or {}
         stats = ident.get("pressure_fit_stats") or {}
-        r2 = {n: (stats.get(n) or {}).get("r2") for n in names}
+        states = list(ident.get("state_parameters") or ["h0"])
         vps = [float(v["muscle_pressure_MPa"]) for v in val_rows]
         pc = _chunks(names, PARAMS_PER_PAGE)
         for i, chunk in enumerate(pc):
-            title = ("Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²"
+            title = ("Parameters against muscle pressure: per-run fits and the pressure laws"
                      + _part(i, len(pc)))
             pages.append(Page(title, f"parameters-{i + 1}", lambda c=chunk, t=title:
-                              parameters_vs_pressure_figure(
-                                  c, pressures, values, stderr, fits, r2, units=units,
-                                  validation_pressures=vps, title=t)))
+                              _parameter_page(ident, id_rows, c, vps, t)))
         warnings = list(ident.get("warnings") or [])
         for r in id_rows:  # run warnings not already repeated in the top-level list
             warnings += [f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): {w}"
@@ -190,8 +193,9 @@ def plan_pages(data: ReportData) -> list[Page]:
             title = "Identified parameters (value ± standard error) and identifiability" + _part(
                 i, len(tc))
             pages.append(Page(title, f"parameter-table-{i + 1}", lambda c=chunk, t=title:
-                              parameter_table_figure(names, c, fits, r2, units=units,
-                                                     warnings=warnings, title=t)))
+                              parameter_table_figure(names, c, fits, stats, units=units,
+                                                     warnings=warnings, state_parameters=states,
+                                                     title=t)))
         # warnings that do not fit under the tables get pages of their own
         if len(bullet_lines(warnings)) > table_page_warning_capacity(len(names), bool(fits)):
             per_page, groups, cur, n = 2 * WARNINGS_LINES_PER_COLUMN, [], [], 0
@@ -237,10 +241,9 @@ def plan_pages(data: ReportData) -> list[Page]:
                               lambda: campaign_figure(
                                   [r for r in per_run if r["nrmse"] is not None],
                                   diag.get("campaign_diagnostics"), final_model=final_name)))
-        # residual panels for the worst runs (by base-model NRMSE when known)
-        drawable = [(k, d) for k, d in diags.items()
-                    if d.get("binned") or d.get("acf") or d.get("ccf_input")]
-        drawable.sort(key=lambda kd: -(kd[1].get("nrmse") or 0.0))
+        # residual panels for the worst runs (one definition with `pmalab diagnose`)
+        drawable = [(k, diags[k]) for k in worst_runs(diags)
+                    if diags[k].get("binned") or diags[k].get("acf") or diags[k].get("ccf_input")]
         shown = drawable[:MAX_RESIDUAL_PAGES]
         for i, (label, d) in enumerate(shown):
             title = f"Residual diagnostics — {label}"
@@ -251,9 +254,10 @@ def plan_pages(data: ReportData) -> list[Page]:
         # base vs final model, when the ladder added effects
         if final_name is not None:
             finals = {_key(t.file, t.run): t for t in data.traces_with_role("diagnosis-final")}
+            order = {k: i for i, k in enumerate(worst_runs(diags))}
             pairs = [(t, finals[_key(t.file, t.run)]) for t in data.traces_with_role("diagnosis")
                      if _key(t.file, t.run) in finals]
-            pairs.sort(key=lambda p: -p[0].nrmse)
+            pairs.sort(key=lambda p: (order.get(p[0].label, len(order)), -p[0].nrmse))
             if pairs:
                 chosen = pairs[:BEFORE_AFTER_RUNS]
                 pages.append(Page("The error falling: base model vs final model", "before-after",
@@ -266,9 +270,79 @@ def plan_pages(data: ReportData) -> list[Page]:
                 suggested_experiment=diag.get("suggested_experiment"),
                 summary=diag.get("summary"), model=diag["model"])))
 
+    if ident and data.improved:
+        pages += _comparison_pages(data)
+
     contents = [p.title for p in pages]
     pages.insert(0, Page("Title page", "title", lambda: _title_page(data, contents)))
     return pages
+
+
+def model_name(doc: dict) -> str:
+    """``bouc-wen + asymmetric-hysteresis`` (or the bare law) of an identification."""
+    return " + ".join([str(doc.get("model", "")), *(str(e) for e in doc.get("effects") or [])])
+
+
+def _comparison_pages(data: ReportData) -> list[Page]:
+    """Base vs improved identification: the error per run with the one error-fall figure,
+    the added effect's parameters, loops and the hysteretic component side by side."""
+    base, imp = data.identification or {}, data.improved or {}
+    bname, iname = model_name(base), model_name(imp)
+    fall = error_fall(base, imp)
+    headline = fall.sentence() if fall else "no validation run was predicted by both models"
+    pages = [Page("Base vs improved: validation error per run, parameter changes", "compare",
+                  lambda: compare_figure(base, imp, headline, base_name=bname,
+                                         improved_name=iname))]
+    added = [n for n in imp.get("parameter_names") or []
+             if n not in (base.get("parameter_names") or [])]
+    rows = sorted(imp.get("runs") or [], key=lambda r: r["muscle_pressure_MPa"])
+    if added and rows:
+        vps = [float(v["muscle_pressure_MPa"]) for v in imp.get("validation") or []]
+        pc = _chunks(added, PARAMS_PER_PAGE)
+        for i, chunk in enumerate(pc):
+            title = (f"Added effect ({', '.join(imp.get('effects') or []) or 'improved model'}): "
+                     "parameters ± s.e. against pressure" + _part(i, len(pc)))
+            pages.append(Page(title, f"added-parameters-{i + 1}", lambda c=chunk, t=title:
+                              _parameter_page(imp, rows, c, vps, t)))
+    # the runs the error-fall figure is measured on, else the identification runs
+    imp_tr = {_key(t.file, t.run): t for t in data.traces
+              if t.role in (IMPROVED + "validation", IMPROVED + "identification")}
+    val_traces, _ = _ordered(data.traces_with_role("validation"), base.get("validation") or [])
+    key_runs = [t for t in val_traces if _key(t.file, t.run) in imp_tr][:KEY_RUNS]
+    if not key_runs:
+        ids = [t for t in data.traces_with_role("identification") if _key(t.file, t.run) in imp_tr]
+        key_runs = sorted(ids, key=lambda t: -t.nrmse)[:KEY_RUNS]
+    pairs = [(t, imp_tr[_key(t.file, t.run)]) for t in key_runs]
+    if pairs:
+        pages.append(Page("Base vs improved: measured vs model loops (same |error| scale)",
+                          "compare-loops", lambda: before_after_figure(
+                              pairs, base_name=f"base: {bname}",
+                              final_name=f"improved: {iname}",
+                              title="Base vs improved: measured vs model loops (same |error| "
+                                    "scale per run)")))
+    for i, (b, m) in enumerate(pairs):
+        lin = linear_component(base, b)
+        if lin is None:
+            continue
+        title = f"Hysteretic component F − (k·x + c0), base vs improved — {b.run}"
+        pages.append(Page(title, f"hysteresis-{i + 1}", lambda b=b, m=m, lin=lin, t=title:
+                          hysteresis_component_figure(b, m, lin, base_name=bname,
+                                                      improved_name=iname, title=t)))
+    return pages
+
+
+def _parameter_page(doc: dict, rows: list[dict], names: Sequence[str], vps: list[float],
+                    title: str) -> Figure:
+    """Parameters against pressure for ``names`` of one identification document."""
+    nan = float("nan")
+    stats = doc.get("pressure_fit_stats") or {}
+    return parameters_vs_pressure_figure(
+        names, [float(r["muscle_pressure_MPa"]) for r in rows],
+        {n: [r["parameters"].get(n, nan) for r in rows] for n in names},
+        {n: [(r.get("stderr") or {}).get(n) for r in rows] for n in names},
+        doc.get("pressure_fits") or {}, {n: (stats.get(n) or {}) for n in names},
+        units=_units(doc), validation_pressures=vps,
+        state_parameters=list(doc.get("state_parameters") or ["h0"]), title=title)
 
 
 def _final_model_name(diag: dict) -> str | None:
@@ -303,11 +377,25 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
         for t in data.traces:
             seen.setdefault(Path(t.file).name or "?", []).append(t.run)
         inputs = [{"file": f, "runs": r} for f, r in seen.items()]
+    headline = None
+    if data.identification and data.improved:
+        fall = error_fall(data.identification, data.improved)
+        headline = fall.sentence() if fall else None
     return title_page_figure(
         model=data.model, effects=effects,
-        directory=", ".join(str(d) for d in data.directories or [data.directory]),
+        improved_model=model_name(data.improved) if data.improved else None,
+        headline=headline,
+        directory=_directories(data),
         created=str(doc.get("created", "")), version=str(doc.get("pmalab_version", "")),
         inputs=inputs, datasets=datasets, summary=summary, contents=contents)
+
+
+def _directories(data: ReportData, limit: int = 110) -> str:
+    """The result directories for the title page: full paths, or their names when the
+    paths would not fit on one line."""
+    dirs = data.directories or [data.directory]
+    full = ", ".join(str(d) for d in dirs)
+    return full if len(full) <= limit else ", ".join(d.name for d in dirs)
 
 
 def _slug(s: str) -> str:
@@ -332,12 +420,14 @@ def build_report(
     png_dir: str | Path | None = None,
     svg_dir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
+    bar: bool = False,
 ) -> Path:
     """Render the report of a result directory (or of several merged: e.g. an identify
     output and a diagnose output) into the PDF ``out`` and return its path.
 
     ``png_dir``/``svg_dir`` also export every page as ``NN-<slug>.png``/``.svg``.
-    ``progress`` receives one line per page written (the CLI passes ``print``).
+    ``progress`` receives one line per page written (``pmalab report -v`` prints them);
+    ``bar`` draws a progress bar on stderr (the CLI's default on a terminal).
     Raises :class:`ReportError` (bad directory/contents) or
     :class:`~pmalab.errors.OutputExistsError` (``out`` exists and not ``force``).
     """
@@ -386,8 +476,11 @@ def build_report(
         meta = {"Title": f"pmalab report: {data.model} ({_names(data)})",
                 "Creator": f"pmalab {__version__}", "Subject": "pneumatic muscle identification",
                 "CreationDate": datetime.now(UTC)}
-        with PdfPages(tmp, metadata=meta) as pdf:
+        with PdfPages(tmp, metadata=meta) as pdf, tqdm(
+                total=n, desc="report", unit="page", file=sys.stderr, disable=not bar,
+                leave=False, dynamic_ncols=True) as pbar:
             for i, page in enumerate(pages, 1):
+                pbar.set_postfix_str(page.title[:48], refresh=True)
                 fig = page.make()
                 _footer(fig, data, i, n)
                 with mpl.rc_context(style.RC):
@@ -397,6 +490,7 @@ def build_report(
                                       dpi=150)
                 if progress is not None:
                     progress(f"page {i}/{n}: {page.title}")
+                pbar.update(1)
                 del fig
         os.replace(tmp, out)
     finally:

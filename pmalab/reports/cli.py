@@ -1,37 +1,48 @@
-"""``pmalab report DIR --out REPORT.pdf``: the multi-page PDF of a result directory."""
+"""``pmalab report BASE_DIR [IMPROVED_DIR] [DIAG_DIR] --out REPORT.pdf``: the multi-page PDF
+of one identification (and optionally an improved one, side by side) and a diagnosis."""
 
 from __future__ import annotations
 
 import argparse
+
+from pmalab.console import VERBOSE, add_verbosity, show_progress, verbosity
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``report`` verb to the ``pmalab`` parser."""
     p = sub.add_parser(
         "report",
-        help="multi-page PDF report of an identification and/or diagnosis directory",
-        description="Render DIR (identification.json, diagnosis.json, predictions.h5 as "
-        "written by 'pmalab identify'/'pmalab diagnose') into a multi-page PDF.  Pages for "
-        "parts a directory lacks are left out.",
+        help="multi-page PDF report of identification and/or diagnosis directories",
+        description="Render result directories (identification.json, diagnosis.json, "
+        "predictions.h5 as written by 'pmalab identify'/'pmalab diagnose') into one "
+        "multi-page PDF.  Give one identification directory, or two (the base model first, "
+        "then the model identified with --add) to draw them side by side, plus optionally a "
+        "diagnosis directory.  Pages for parts the directories lack are left out.",
     )
     p.add_argument("directories", nargs="+", metavar="DIR",
-                   help="identification and/or diagnosis output directory (several are merged "
-                   "into one report, e.g. an identify --out and a diagnose --out), or "
-                   "'pmalab control' run files (CONTROL.h5: a page per experiment)")
+                   help="BASE_DIR [IMPROVED_DIR] [DIAG_DIR]: identification directories "
+                   "(base first) and/or a diagnosis directory, in any mix; or 'pmalab "
+                   "control' run files (CONTROL.h5: a page per experiment)")
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     exp = p.add_mutually_exclusive_group()
     exp.add_argument("--png", metavar="DIR", help="also export every page as PNG into DIR")
     exp.add_argument("--svg", metavar="DIR", help="also export every page as SVG into DIR")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_verbosity(p, quiet_help="print nothing on success")
     p.set_defaults(func=run_report)
 
 
 def run_report(args: argparse.Namespace) -> int:
     from pmalab.reports.build import build_report
 
+    level = verbosity(args)
+
+    def line(text: str) -> None:
+        print(text, flush=True)
+
     out = build_report(args.directories, args.out, args.force, png_dir=args.png,
-                       svg_dir=args.svg, progress=None if args.quiet else print)
-    if not args.quiet:
-        print(f"report written: {out}")
+                       svg_dir=args.svg, progress=line if level >= VERBOSE else None,
+                       bar=show_progress(args))
+    if level > 0:
+        print(f"report written: {out}", flush=True)
     return 0

@@ -40,6 +40,8 @@ TRACE_CHANNELS = ("time", "position", "muscle_pressure", "force", "force_model")
 #: roles the report draws; a trace with another (string) role is read but not drawn.
 #: ``diagnosis-final`` is the diagnosis's final model (base + the effects the ladder added).
 ROLES = ("identification", "validation", "diagnosis", "diagnosis-final")
+#: role prefix of the traces of a second (improved) identification directory
+IMPROVED = "improved-"
 
 
 # --------------------------------------------------------------------------- traces
@@ -109,6 +111,9 @@ class ReportData:
     identification: dict[str, Any] | None = None
     diagnosis: dict[str, Any] | None = None
     traces: list[Trace] = field(default_factory=list)
+    #: a second identification (e.g. ``identify --add EFFECT``) drawn beside the first; its
+    #: traces carry the roles ``improved-identification`` / ``improved-validation``
+    improved: dict[str, Any] | None = None
 
     def traces_with_role(self, role: str) -> list[Trace]:
         return [t for t in self.traces if t.role == role]
@@ -400,9 +405,12 @@ def read_predictions(path: Path) -> list[Trace]:
 
 
 def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
-    """Read and check one result directory, or several (e.g. an identification directory
-    and a diagnosis directory) merged into one report; raise :class:`ReportError` on any
-    problem.  At most one of the directories may hold each JSON document."""
+    """Read and check one result directory, or several merged into one report; raise
+    :class:`ReportError` on any problem.
+
+    At most two directories may hold an ``identification.json``: the first is the base
+    model, the second the improved one (``identify --add``), drawn side by side; at most
+    one may hold a ``diagnosis.json``."""
     dirs = [Path(directory)] if isinstance(directory, str | Path) else [Path(d) for d in directory]
     if not dirs:
         raise ReportError("no result directory given")
@@ -417,19 +425,33 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
         if not ident.exists() and not diag.exists():
             raise ReportError(f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
                               "(run 'pmalab identify' or 'pmalab diagnose' with --out there)")
-        for path in (ident, diag):
-            if path.exists() and path.name in seen:
-                raise ReportError(f"{path}: a second {path.name} (the first is in "
-                                  f"{seen[path.name]}); give one directory per document")
-            if path.exists():
-                seen[path.name] = d
+        if diag.exists() and DIAGNOSIS_JSON in seen:
+            raise ReportError(f"{diag}: a second {DIAGNOSIS_JSON} (the first is in "
+                              f"{seen[DIAGNOSIS_JSON]}); give one diagnosis directory")
+        second = ident.exists() and IDENTIFICATION_JSON in seen
+        if second and data.improved is not None:
+            raise ReportError(f"{ident}: a third {IDENTIFICATION_JSON}; give at most two "
+                              "identification directories (BASE_DIR IMPROVED_DIR)")
+        if second and diag.exists():
+            raise ReportError(f"{d}: holds the second {IDENTIFICATION_JSON} and a "
+                              f"{DIAGNOSIS_JSON}; give the improved identification its own "
+                              "directory")
         if ident.exists():
             obj, _ = _load_json(ident)
-            data.identification = check_identification(obj, ident)
+            if second:
+                data.improved = check_identification(obj, ident)
+            else:
+                data.identification = check_identification(obj, ident)
+                seen[IDENTIFICATION_JSON] = d
         if diag.exists():
             obj, _ = _load_json(diag)
             data.diagnosis = check_diagnosis(obj, diag)
+            seen[DIAGNOSIS_JSON] = d
         pred = d / PREDICTIONS_H5
         if pred.exists():
-            data.traces.extend(read_predictions(pred))
+            traces = read_predictions(pred)
+            if second:
+                for t in traces:
+                    t.role = IMPROVED + t.role
+            data.traces.extend(traces)
     return data

@@ -6,6 +6,7 @@ Units throughout: time s, contraction x mm (positive = shorter), tension F N, pr
 MPa; residuals are F − F_model in N (measured − model).
 """
 
+from pmalab.reports.figures_compare import compare_figure, hysteresis_component_figure
 from pmalab.reports.figures_diagnosis import (
     campaign_figure,
     effects_figure,
@@ -20,6 +21,7 @@ from pmalab.reports.figures_diagnosis import (
     residual_diagnostics_figure,
 )
 from pmalab.reports.figures_parameters import (
+    coef_text,
     correlation_figure,
     metrics_table_figure,
     parameter_table_figure,
@@ -39,9 +41,12 @@ from pmalab.reports.style import save_figure
 __all__ = [
     "before_after_figure",
     "campaign_figure",
+    "coef_text",
+    "compare_figure",
     "correlation_figure",
     "effects_figure",
     "error_loop",
+    "hysteresis_component_figure",
     "ladder_figure",
     "loops_figure",
     "metrics_table_figure",

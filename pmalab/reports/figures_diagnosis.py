@@ -110,7 +110,7 @@ def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
         i, j = branches.index(str(c["branch"])), parts.index(str(c["position"]))
         rms[i, j] = np.nan if c.get("rms") is None else float(c["rms"])
         mean[i, j] = np.nan if c.get("mean") is None else float(c["mean"])
-    im = ax.imshow(rms, cmap=style.ERROR_CMAP, aspect="auto",
+    ax.imshow(rms, cmap=style.ERROR_CMAP, aspect="auto",
                    vmin=0.0, vmax=max(float(np.nanmax(rms, initial=0.0)), 1e-12))
     ax.grid(False)
     ax.set_xticks(range(len(parts)), [p.replace(" contraction", "") for p in parts])
@@ -126,8 +126,8 @@ def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
                                              if np.isfinite(mean[i, j]) else "")
                 ax.text(j, i, txt, ha="center", va="center", fontsize=8,
                         color="white" if rms[i, j] < 0.6 * vmax else "black")
-    ax.set_title("R.m.s. residual by loop region")
-    ax.figure.colorbar(im, ax=ax, label="rms (N)", shrink=0.9)
+    # every cell carries its value, so no colour bar (it would widen one grid column)
+    ax.set_title("R.m.s. residual by loop region (N)")
 
 
 def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
@@ -138,8 +138,8 @@ def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
             v = np.array([np.nan if x is None else float(x) for x in phase[key]])
             ax.plot(c, v, mk, color=colour, ms=3.5, label=key)
     ax.axvspan(90.0, 270.0, color="0.9", zorder=0)
-    ax.text(180.0, 0.98, "stretch (x falling)", transform=ax.get_xaxis_transform(),
-            ha="center", va="top", fontsize=8, color="0.35")
+    ax.text(180.0, 0.02, "stretch (x falling)", transform=ax.get_xaxis_transform(),
+            ha="center", va="bottom", fontsize=8, color="0.35")
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlim(0.0, 360.0)
     ax.set_xticks([0, 90, 180, 270, 360])
@@ -147,7 +147,8 @@ def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
     ax.set_ylabel("F − F_model (N)")
     ax.set_title("Residual by loop phase")
     lo, hi = ax.get_ylim()
-    ax.set_ylim(lo, hi + 0.35 * (hi - lo))  # headroom for the legend
+    # headroom: the legend on top, the shaded band's label at the bottom
+    ax.set_ylim(lo - 0.15 * (hi - lo), hi + 0.35 * (hi - lo))
     ax.legend(loc="upper right", ncols=2, fontsize=8)
 
 
@@ -161,6 +162,9 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
     binned = diag.get("binned") or {}
     order = [v for v in BINNED_VARIABLES if v in binned] + [v for v in binned
                                                             if v not in BINNED_VARIABLES]
+    if "branch" in binned and "velocity_sign" in binned:
+        # the same split of the samples (ẋ < 0 is the stretch branch): one panel, not two
+        order.remove("velocity_sign")
     panels += [("binned", v) for v in order]
     if diag.get("acf"):
         panels.append(("acf", None))
@@ -354,9 +358,11 @@ def campaign_figure(
         ax.bar(xs + w / 2, fin, width=w, color=style.SIGNIFICANT, label=f"final: {final_model}")
     ax.set_xticks(xs, [str(r["label"]) for r in rows], rotation=20, ha="right")
     ax.set_ylabel("NRMSE")
-    ax.set_title("NRMSE per run, worst first")
+    ax.set_title("NRMSE per run (whole run, each run's own fit), highest first")
     ax.grid(axis="x", visible=False)
-    ax.legend(loc="upper right")
+    top = np.nanmax([*base, *(fin if has_final else []), 1e-9])
+    ax.set_ylim(0.0, 1.3 * top)  # headroom: the legend sits above the bars
+    ax.legend(loc="upper center", ncols=2)
     for j, (var, c) in enumerate(camp):
         a = fig.add_subplot(gs[1, j])
         centers = np.asarray(c["centers"], dtype=float)

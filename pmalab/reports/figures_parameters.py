@@ -9,11 +9,13 @@ from __future__ import annotations
 import math
 import textwrap
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from pmalab.reports import style
 
@@ -66,6 +68,23 @@ def quadratic(q: Sequence[float], p: np.ndarray) -> np.ndarray:
     return q0 + q1 * p + q2 * p * p
 
 
+def law_text(stat: Mapping[str, Any] | None, *, state: bool = False) -> str:
+    """What draws a parameter's pressure law, for a title or a table cell: ``joint law,
+    order 2``, ``quadratic through the points, R² 0.983`` (an R² only where it can be read,
+    0 ≤ R² ≤ 1), or ``per-run state (no law)``."""
+    if state:
+        return "per-run state (no law)"
+    st = stat or {}
+    deg = st.get("degree")
+    order = f", order {int(deg)}" if isinstance(deg, int | float) and math.isfinite(deg) else ""
+    if st.get("method") == "joint":
+        return f"joint law{order}"
+    r2 = st.get("r2")
+    if isinstance(r2, int | float) and math.isfinite(r2) and 0.0 <= r2 <= 1.0:
+        return f"quadratic through the points{order}, R² {r2:.3f}"
+    return f"quadratic through the points{order}"
+
+
 def plot_parameter_vs_pressure(
     ax: Axes,
     name: str,
@@ -74,11 +93,20 @@ def plot_parameter_vs_pressure(
     stderr: Sequence[float | None] | None = None,
     fit: Sequence[float] | None = None,
     *,
-    r2: float | None = None,
+    stat: Mapping[str, Any] | None = None,
     unit: str = "",
     validation_pressures: Sequence[float] = (),
+    state: bool = False,
 ) -> None:
-    """One parameter: points ± stderr at the identification pressures and its quadratic."""
+    """One parameter: each run's own fit ± stderr at its pressure (points) and the pressure
+    law θ(p) = q0 + q1·p + q2·p² the predictions use (line).
+
+    ``stat`` is the parameter's ``pressure_fit_stats`` entry: with ``method = "joint"`` the
+    law was refined on all runs at once and need not pass through the per-run points (those
+    trade off among collinear parameters run by run); the seeds' quadratic through the
+    points is then drawn dashed for reference.  ``state``: a per-run start state (h0), for
+    which no law is drawn (each prediction estimates its own).
+    """
     p = np.asarray(pressures, dtype=float)
     v = np.asarray(values, dtype=float)
     se = None
@@ -86,19 +114,29 @@ def plot_parameter_vs_pressure(
         se = np.array([np.nan if s is None else float(s) for s in stderr])
         se = np.where(np.isfinite(se), se, 0.0)
     ax.errorbar(p, v, yerr=se, fmt="o", color=style.MEASURED, ms=4, capsize=3,
-                label="identified ± s.e.", zorder=3)
+                label="each run fitted alone ± s.e.", zorder=3)
     allp = np.concatenate([p, np.asarray(validation_pressures, dtype=float)])
     shown = list(v[np.isfinite(v)])
-    if fit is not None and allp.size and all(q is not None for q in fit):
+    st = stat or {}
+    if allp.size:
         lo, hi = float(np.min(allp)), float(np.max(allp))
         pad = 0.05 * max(hi - lo, 0.05)
         pp = np.linspace(lo - pad, hi + pad, 100)
-        curve = quadratic(fit, pp)
-        ax.plot(pp, curve, color=style.MODEL, label="quadratic fit", zorder=2)
-        shown += list(curve[np.isfinite(curve)])
+        joint = st.get("method") == "joint"
+        if fit is not None and all(q is not None for q in fit) and not state:
+            curve = quadratic(fit, pp)
+            ax.plot(pp, curve, color=style.MODEL, lw=1.6, zorder=2,
+                    label="law used for prediction" + (" (joint fit)" if joint else ""))
+            shown += list(curve[np.isfinite(curve)])
+        prq = st.get("per_run_quadratic")
+        if joint and prq and all(q is not None for q in prq) and not state:
+            curve = quadratic(prq, pp)
+            ax.plot(pp, curve, color=style.MODEL, lw=0.9, ls="--", alpha=0.7, zorder=2,
+                    label="quadratic through the points")
+            shown += list(curve[np.isfinite(curve)])
     if shown and se is not None and np.any(se > 0):
-        # y range from the values and the fit, not from huge error bars of a poorly
-        # identified level (those bars are clipped and marked in the title)
+        # y range from the values and the laws, not from huge error bars of a poorly
+        # identified level (those bars are clipped and marked)
         lo, hi = min(shown), max(shown)
         span = max(hi - lo, 1e-9 * max(abs(lo), abs(hi), 1.0))
         ylo, yhi = lo - 0.15 * span, hi + 0.15 * span
@@ -110,11 +148,10 @@ def plot_parameter_vs_pressure(
         ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
                    label="validation p" if i == 0 else None)
     title = f"{name} ({unit})" if unit and unit not in ("–", "-") else name
-    if r2 is not None and math.isfinite(r2):
-        title += f"   R² = {r2:.3f}"
-    ax.set_title(title)
+    ax.set_title(f"{title}\n{law_text(st, state=state)}", fontsize=9)
     ax.set_xlabel(style.PRESSURE)
     ax.set_ylabel(f"{name} ({unit})" if unit and unit not in ("–", "-") else name)
+    ax.yaxis.set_major_locator(MaxNLocator(6))
 
 
 @style.styled
@@ -124,13 +161,15 @@ def parameters_vs_pressure_figure(
     values: Mapping[str, Sequence[float]],
     stderr: Mapping[str, Sequence[float | None]] | None = None,
     pressure_fits: Mapping[str, Sequence[float]] | None = None,
-    r2: Mapping[str, float | None] | None = None,
+    stats: Mapping[str, Mapping[str, Any] | None] | None = None,
     *,
     units: Mapping[str, str] | None = None,
     validation_pressures: Sequence[float] = (),
-    title: str = "Parameters against muscle pressure, quadratic fits θ(p) = q0 + q1·p + q2·p²",
+    state_parameters: Sequence[str] = ("h0",),
+    title: str = "Parameters against muscle pressure: per-run fits and the pressure laws",
 ) -> Figure:
-    """Up to nine parameters (3 × 3 grid), one panel each."""
+    """Up to nine parameters (3 × 3 grid), one panel each (:func:`plot_parameter_vs_pressure`);
+    ``stats``: ``pressure_fit_stats`` of identification.json (method, degree, r2, ...)."""
     fig = style.new_figure(title)
     n = len(parameter_names)
     ncols = min(3, max(n, 1))
@@ -142,12 +181,30 @@ def parameters_vs_pressure_figure(
             ax, name, pressures, values[name],
             None if stderr is None else stderr.get(name),
             None if pressure_fits is None else pressure_fits.get(name),
-            r2=None if r2 is None else r2.get(name), unit=unit_of(name, units),
-            validation_pressures=validation_pressures,
+            stat=None if stats is None else stats.get(name), unit=unit_of(name, units),
+            validation_pressures=validation_pressures, state=name in state_parameters,
         )
-        if i == 0:
-            ax.legend(loc="best")
+    if axes:
+        handles: dict[str, Any] = {}
+        for ax in axes:
+            for h, lab in zip(*ax.get_legend_handles_labels()):
+                handles.setdefault(lab, h)
+        fig.legend(handles.values(), handles.keys(), loc="outside lower center",
+                   ncols=len(handles), frameon=False)
     return fig
+
+
+def coef_text(q: Sequence[float | None]) -> list[str]:
+    """q0, q1, q2 as table text: round-off residue (|q| < 1e-9 of the largest) and −0
+    print as ``0``."""
+    vals = [None if x is None or not math.isfinite(float(x)) else float(x) for x in q]
+    big = max([abs(x) for x in vals if x is not None] + [0.0])
+    out = []
+    for x in vals:
+        if x is not None and abs(x) <= 1e-9 * big:
+            x = 0.0
+        out.append("0" if x == 0.0 else _fmt(x))
+    return out
 
 
 def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
@@ -210,17 +267,20 @@ def parameter_table_figure(
     parameter_names: Sequence[str],
     runs: Sequence[Mapping[str, Any]],
     pressure_fits: Mapping[str, Sequence[float]] | None = None,
-    r2: Mapping[str, float | None] | None = None,
+    stats: Mapping[str, Mapping[str, Any] | None] | None = None,
     *,
     units: Mapping[str, str] | None = None,
     warnings: Sequence[str] = (),
+    state_parameters: Sequence[str] = ("h0",),
     title: str = "Identified parameters (value ± standard error) and identifiability",
 ) -> Figure:
     """Table of parameter values ± standard errors per run (≤ 7 runs per page), the
-    quadratic coefficients with R², and the identifiability warnings.
+    pressure laws' coefficients and how each law was made (:func:`law_text`), and the
+    identifiability warnings.
 
     ``runs``: dicts with ``muscle_pressure_MPa``, ``parameters``, optional ``stderr``,
-    ``fixed`` and ``run``.  Cells whose relative standard error exceeds 50 % are shaded.
+    ``fixed`` and ``run``.  Cells whose relative standard error exceeds 50 % are shaded
+    (the caption under the table says so).
     """
     fig = style.new_figure(title)
     has_fits = bool(pressure_fits)
@@ -248,15 +308,20 @@ def parameter_table_figure(
     n = len(runs)
     widths = [0.1, 0.08] + [min(0.82 / max(n, 1), 0.2)] * n
     _table(axes[0], cells, head, col_widths=widths, highlight=hi)
+    axes[0].set_title("Each run fitted alone; shaded: relative standard error > 50 % "
+                      "(poorly determined on that run)", loc="left", fontsize=8.5,
+                      color="0.3")
     if has_fits:
-        head2 = ["parameter", "unit", "q0", "q1 (per MPa)", "q2 (per MPa²)", "R²"]
+        head2 = ["parameter", "unit", "q0", "q1 (per MPa)", "q2 (per MPa²)",
+                 "θ(p) = q0 + q1·p + q2·p²"]
         cells2 = []
         for name in parameter_names:
             q = list((pressure_fits or {}).get(name) or [])
             q = ([*q, None, None, None])[:3]
-            cells2.append([name, unit_of(name, units), *(_fmt(x) for x in q),
-                           _fmt(None if r2 is None else r2.get(name), 4)])
-        _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.16, 0.16, 0.16, 0.1])
+            st = None if stats is None else stats.get(name)
+            cells2.append([name, unit_of(name, units), *coef_text(q),
+                           law_text(st, state=name in state_parameters)])
+        _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.14, 0.14, 0.14, 0.3])
     else:
         axes[1].axis("off")
     _text_block(axes[2], "Identifiability and fit warnings", list(warnings),
@@ -315,7 +380,7 @@ METRIC_COLUMNS = [
     ("rmse", "RMSE\n(N)", ".3g"),
     ("nrmse", "NRMSE", ".3g"),
     ("fit_percent", "fit\n(%)", ".1f"),
-    ("max_error", "max |error|\n(N)", ".3g"),
+    ("max_error", "max\n|error| (N)", ".3g"),
     ("energy_error_percent", "loop energy\nerror (%)", "+.1f"),
 ]
 
@@ -335,11 +400,11 @@ def metrics_table_figure(
     axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": [nrow + 1.2, 5.0, 1.6]})
     head = ["role", "run", "p\n(MPa)", "f\n(Hz)", "waveform"] + [h for _, h, _ in
                                                               METRIC_COLUMNS] + [
-        "RMSE stretch\n(N)", "RMSE release\n(N)"]
+        "RMSE\nstretch (N)", "RMSE\nrelease (N)"]
     cells, hi = [], set()
     for i, r in enumerate(rows):
         f = r.get("frequency_Hz")
-        row = [str(r.get("role", "")), f"{r.get('file', '')}:{r.get('run', '')}",
+        row = [str(r.get("role", "")), f"{Path(str(r.get('file', ''))).name}:{r.get('run', '')}",
                f"{r['muscle_pressure_MPa']:.4g}", _fmt(f, 3), str(r.get("waveform") or "—")]
         for k, _, spec in METRIC_COLUMNS:
             v = r.get(k)
@@ -349,7 +414,7 @@ def metrics_table_figure(
         cells.append(row)
         if r.get("role") == "validation":
             hi.add((i, 0))
-    widths = [0.1, 0.17, 0.06, 0.05, 0.07] + [0.075] * len(METRIC_COLUMNS) + [0.09, 0.09]
+    widths = [0.085, 0.22, 0.05, 0.04, 0.06, 0.065, 0.065, 0.05, 0.075, 0.085, 0.08, 0.08]
     _table(axes[0], cells, head, col_widths=widths, highlight=hi, row_height=1.6)
     ax = axes[1]
     fits = [r.get("fit_percent") if r.get("fit_percent") is not None

@@ -23,6 +23,9 @@ from pmalab.reports.data import Trace
 LOOP_MAX_POINTS = 1200
 ERROR_PERCENTILE = 98.0
 TIME_MAX_POINTS = 2000
+#: line widths (pt) of a loop: the measurement wide underneath, the model thinner on top
+MEASURED_LW = 2.2
+MODEL_LW = 1.0
 
 
 def error_loop(
@@ -34,10 +37,13 @@ def error_loop(
     norm: Normalize | None = None,
     max_points: int = LOOP_MAX_POINTS,
     measured_label: str = "measured",
+    measured_lw: float = MEASURED_LW,
+    model_lw: float = MODEL_LW,
 ) -> LineCollection:
-    """Draw a measured F–x loop (thin black) and the model loop as segments coloured by the
-    absolute error |F − F_model| (N) at each segment (mean of its two end samples); the
-    colour scale runs from 0 to the 98th percentile of those errors unless ``norm`` is given.
+    """Draw a measured F–x loop (a wide grey band, visible under the model) and the model
+    loop over it, thinner, as segments coloured by the absolute error |F − F_model| (N) at
+    each segment (mean of its two end samples); the colour scale runs from 0 to the 98th
+    percentile of those errors unless ``norm`` is given.
 
     At most ``max_points`` samples are drawn (uniform stride), so a loop of n ≤ max_points
     samples has exactly n − 1 coloured segments.  Returns the LineCollection (its array
@@ -57,13 +63,14 @@ def error_loop(
         # would otherwise paint the rest of the loop in the lowest colour
         top = float(np.percentile(seg_err, ERROR_PERCENTILE)) if seg_err.size else 0.0
         norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
-    ax.plot(x, f, color=style.MEASURED, lw=0.7, alpha=0.8, label=measured_label, zorder=1)
-    lc = LineCollection(segs, cmap=style.ERROR_CMAP, norm=norm, linewidths=1.6, zorder=2)
+    ax.plot(x, f, color=style.MEASURED_BAND, lw=measured_lw, label=measured_label, zorder=1,
+            solid_capstyle="round")
+    lc = LineCollection(segs, cmap=style.ERROR_CMAP, norm=norm, linewidths=model_lw, zorder=2)
     lc.set_array(seg_err)
     ax.add_collection(lc)
     ax.autoscale_view()
     # legend proxy: a LineCollection's own handle would show its unused default colour
-    ax.add_line(Line2D([], [], color=style.ERROR_CMAP(0.55), lw=1.6,
+    ax.add_line(Line2D([], [], color=style.ERROR_CMAP(0.55), lw=model_lw,
                        label="model (colour = |error|)"))
     ax.set_xlabel(style.POSITION)
     ax.set_ylabel(style.FORCE)
@@ -191,8 +198,10 @@ def before_after_figure(
         for i, (t, name) in enumerate(((base, base_name), (final, final_name))):
             ax = axes[i, j]
             lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
-            ax.set_title(f"{name}\n{t.label}: {t.describe()}, fit {t.fit_percent:.1f} %")
-            ax.legend(loc="best")
+            ax.set_title(f"{name}\n{t.run or t.label}: {t.describe()}\nfit {t.fit_percent:.1f} %",
+                         fontsize=9)
+            if i == 0 and j == 0:
+                ax.legend(loc="best")
         fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,
                      aspect=40, extend="max" if float(np.max(e)) > norm.vmax else "neither")
         axes[1, j].sharex(axes[0, j])

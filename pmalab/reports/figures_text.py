@@ -4,6 +4,7 @@ datasets/provenance page."""
 from __future__ import annotations
 
 import json
+import math
 import textwrap
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -45,7 +46,8 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
 
 #: vertical space of one text line, as a fraction of the A4-landscape page height
 _LINE = {8.5: 8.5 * 1.35 / 72 / 8.27, 9.0: 9.0 * 1.4 / 72 / 8.27}
-TITLE_MAX_RUNS = 8
+#: the runs table shows at least this many rows (more when the page has room)
+TITLE_MIN_RUNS = 4
 TITLE_MAX_SUMMARY_LINES = 3
 
 
@@ -61,10 +63,14 @@ def title_page_figure(
     datasets: Sequence[Mapping[str, Any]] = (),
     summary: str | None = None,
     contents: Sequence[str] = (),
+    improved_model: str | None = None,
+    headline: str | None = None,
 ) -> Figure:
     """Title page: model and effects, source files, a table of the runs with their timing
-    statistics (duration, rate, jitter, largest interval), the diagnosis summary and the
-    report's contents.  Long lists are cut (with a note) so nothing overlaps.
+    statistics (duration, rate, jitter, largest interval), the diagnosis summary, the
+    error fall from the base to the improved model (``headline``) and the report's
+    contents.  The runs table takes the room the other blocks leave; longer lists are cut
+    (with a note) so nothing overlaps.
 
     ``datasets``: dicts with role, label, p, f, waveform and the :func:`timing_stats` keys.
     """
@@ -72,6 +78,8 @@ def title_page_figure(
     fig.text(0.5, 0.96, "Pneumatic muscle identification report", ha="center", va="top",
              fontsize=20, fontweight="bold")
     sub = f"model: {model}" + (f"  +  {', '.join(effects)}" if effects else "  (base model)")
+    if improved_model:
+        sub += f"   →   improved: {improved_model}"
     fig.text(0.5, 0.905, sub, ha="center", va="top", fontsize=13)
     meta = [f"results: {directory}"]
     if created:
@@ -102,8 +110,18 @@ def title_page_figure(
             lines = [*lines[:2], f"… and {len(lines) - 2} more files"]
         heading("Data files")
         block(lines)
+    # room the blocks under the runs table need (figure fraction), so the table can grow
+    sum_lines = min(len(textwrap.wrap(summary, 150)), TITLE_MAX_SUMMARY_LINES) if summary else 0
+    head_lines = len(textwrap.wrap(headline, 150)) if headline else 0
+    below = 0.07 + 0.02
+    for n_lines in (sum_lines, head_lines):
+        if n_lines:
+            below += 0.032 + _LINE[9.0] * n_lines + 0.022
+    if contents:
+        below += 0.032 + _LINE[8.5] * math.ceil(len(contents) / 2)
     if datasets:
-        rows = list(datasets)[:TITLE_MAX_RUNS]
+        fit = int((y - 0.032 - below) / 0.027) - 1  # rows of 0.027 under a header row
+        rows = list(datasets)[:max(fit, TITLE_MIN_RUNS)]
         h = 0.027 * (len(rows) + 1)
         heading("Runs and sampling (from the prediction files)")
         ax = fig.add_axes((0.05, y - h, 0.9, h))
@@ -126,6 +144,9 @@ def title_page_figure(
                      fontsize=8.5, va="top")
             y -= _LINE[8.5]
         y -= 0.02
+    if headline:
+        heading("Base vs improved model")
+        block(textwrap.wrap(headline[:1].upper() + headline[1:], 150))
     if summary:
         heading("Diagnosis")
         wrapped = textwrap.wrap(summary, 150)

@@ -45,6 +45,8 @@ RC = {
 # Colours: measured data is black, the model blue, errors on a dark-to-orange scale that
 # stays visible on white at both ends.
 MEASURED = "0.15"
+#: the measured loop drawn as a wide band under a thinner model line
+MEASURED_BAND = "0.62"
 MODEL = "#1f77b4"
 VALIDATION = "#d62728"
 SIGNIFICANT = "#2ca02c"

@@ -1,0 +1,151 @@
+"""Layout check of a drawn report page: no two texts overlap, no text leaves the page.
+
+:func:`text_problems` draws the figure and compares the extents of every visible,
+non-empty text (titles, labels, tick labels actually drawn, legend entries, table cells,
+annotations).  Rotated texts are compared as rotated rectangles, so two slanted tick
+labels that merely share a bounding box are not reported.  The report's tests run it on
+every page; ``python -m pmalab.reports.layout DIR... `` checks a real result directory.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Iterator
+
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.axis import Axis
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.table import Cell
+from matplotlib.text import Text
+
+#: overlaps smaller than this (display pixels at 100 dpi) are ignored: glyph boxes include
+#: a little padding, and two texts that touch are still readable
+TOLERANCE_PX = 1.0
+
+
+def _drawn_ticks(axis: Axis) -> list:
+    """The ticks the axis drew at the last draw (those inside the view interval)."""
+    try:
+        return list(axis._update_ticks())  # the ticks to draw (matplotlib ≥ 3.x)
+    except AttributeError:  # pragma: no cover - a future matplotlib
+        return list(axis.get_major_ticks())
+
+
+def _walk(artist) -> Iterator[Text]:
+    """Visible texts below ``artist``, descending only into visible containers; an axis
+    gives its label, offset text and the labels of the ticks it drew."""
+    if not artist.get_visible():
+        return
+    if isinstance(artist, Axis):
+        yield from (t for t in (artist.label, artist.offsetText) if t.get_visible())
+        for tick in _drawn_ticks(artist):
+            if tick.get_visible():
+                yield from (lb for lb in (tick.label1, tick.label2) if lb.get_visible())
+        return
+    if isinstance(artist, Text):
+        yield artist
+    if isinstance(artist, Cell):  # a table cell's text is not among its children
+        yield artist.get_text()
+    off = isinstance(artist, Axes) and not artist.axison  # ax.axis("off"): no axis drawn
+    for child in artist.get_children():
+        if off and isinstance(child, Axis):
+            continue
+        yield from _walk(child)
+
+
+def page_texts(fig: Figure) -> Iterator[Text]:
+    """Every drawn, visible, non-empty text of ``fig`` (tick labels only for drawn ticks)."""
+    seen: set[int] = set()
+    for t in _walk(fig):
+        if id(t) in seen or not t.get_text().strip() or t.get_alpha() == 0:
+            continue
+        seen.add(id(t))
+        yield t
+
+
+def _corners(t: Text, renderer) -> np.ndarray:
+    """The text's rectangle (4 × 2 display coordinates), rotated with the text."""
+    box = t.get_window_extent(renderer)
+    rot = math.radians(t.get_rotation() % 360.0)
+    if abs(math.sin(rot)) < 1e-6 or abs(math.cos(rot)) < 1e-6:
+        return np.array([[box.x0, box.y0], [box.x1, box.y0], [box.x1, box.y1], [box.x0, box.y1]])
+    # unrotated size: the text's layout without rotation (same font and string)
+    old = t.get_rotation()
+    t.set_rotation(0.0)
+    try:
+        flat = t.get_window_extent(renderer)
+    finally:
+        t.set_rotation(old)
+    w, h = flat.width, flat.height
+    cx, cy = (box.x0 + box.x1) / 2.0, (box.y0 + box.y1) / 2.0  # a rotated box's centre
+    c, s = math.cos(rot), math.sin(rot)
+    pts = np.array([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]])
+    return pts @ np.array([[c, s], [-s, c]]) + [cx, cy]
+
+
+def _overlap(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
+    """Separating-axis test of two convex quadrilaterals, shrunk by ``tol`` pixels."""
+    for poly in (a, b):
+        for i in range(4):
+            edge = poly[(i + 1) % 4] - poly[i]
+            n = np.array([-edge[1], edge[0]])
+            norm = float(np.hypot(*n))
+            if norm == 0.0:
+                continue
+            n /= norm
+            pa, pb = a @ n, b @ n
+            if pa.max() - tol <= pb.min() or pb.max() - tol <= pa.min():
+                return False
+    return True
+
+
+def _name(t: Text) -> str:
+    s = " ".join(t.get_text().split())
+    return repr(s if len(s) <= 40 else s[:37] + "…")
+
+
+def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX) -> list[str]:
+    """Texts of ``fig`` that overlap each other or leave the page, one line each (empty
+    when the page is clean).  Draws the figure first (at ``dpi``)."""
+    fig.set_dpi(dpi)
+    canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    texts = list(page_texts(fig))
+    boxes = [_corners(t, renderer) for t in texts]
+    W, H = fig.bbox.width, fig.bbox.height
+    out = []
+    for t, c in zip(texts, boxes):
+        if c[:, 0].min() < -tol or c[:, 1].min() < -tol or c[:, 0].max() > W + tol \
+                or c[:, 1].max() > H + tol:
+            out.append(f"{_name(t)} leaves the page")
+    lo, hi = np.array([c.min(axis=0) for c in boxes]), np.array([c.max(axis=0) for c in boxes])
+    for i in range(len(texts)):
+        for j in range(i + 1, len(texts)):
+            if (lo[i] >= hi[j] - tol).any() or (lo[j] >= hi[i] - tol).any():
+                continue
+            if _overlap(boxes[i], boxes[j], tol):
+                out.append(f"{_name(texts[i])} overlaps {_name(texts[j])}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m pmalab.reports.layout DIR...``: check every page of the report of DIRs."""
+    from pmalab.reports.build import plan_pages
+    from pmalab.reports.data import load_report_dir
+
+    dirs = list(sys.argv[1:] if argv is None else argv)
+    bad = 0
+    for i, page in enumerate(plan_pages(load_report_dir(dirs)), 1):
+        probs = text_problems(page.make())
+        bad += bool(probs)
+        for p in probs:
+            print(f"page {i} ({page.title}): {p}")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
