@@ -172,7 +172,8 @@ def test_information_is_a_note_and_quiet_prints_warnings_only(files, capsys) -> 
     assert main(["identify", str(ident), "--model", "duhem", "--out", str(d / "n1"),
                  "--jobs", "1"]) == 0
     err = capsys.readouterr().err.splitlines()
-    assert any(ln.startswith("note: ") and "held out for validation" in ln for ln in err)
+    assert any(ln.startswith("note: 1 run(s) with role 'validation'") and
+               ln.endswith("held out for validation: ident.h5:held") for ln in err)
     assert any(ln.startswith("note: pressure laws refined jointly") for ln in err)
     assert not any(ln.startswith("warning: pressure laws refined") for ln in err)
     assert all(ln.startswith(("note: ", "warning: ")) for ln in err if ln.strip())

@@ -33,8 +33,10 @@ def test_information_is_a_note_and_problems_are_warnings_in_full():
         ("f.h5:r2", ["rho(A,h0)=+0.994: |rho| > 0.95; these parameters trade off"], []),
         ("f.h5:r3", [], []),
     ])
-    assert len(m.notes) == 4 and all(is_note(n) or "--free n" in n for n in CAMPAIGN[:4])
+    assert all(is_note(n) for n in CAMPAIGN[:4])
+    assert m.notes == [cli_text(CAMPAIGN[0]), CAMPAIGN[1]]
     assert m.notes[0].endswith("free it with --free n")
+    assert CAMPAIGN[2] in m.details and CAMPAIGN[3] in m.details  # the method's details: -v
     assert "f.h5:r1: beta = 0.5 is at its bound [0, 0.5]" in m.warnings
     assert any(w.startswith("f.h5:r1: measured loop runs anti-physically") and
                w.endswith("check the position sign / channel mapping") for w in m.warnings)
@@ -47,6 +49,14 @@ def test_information_is_a_note_and_problems_are_warnings_in_full():
     assert "beta/gamma (1 run)" in coll[0]
     assert "f.h5:r1: |rho| > 0.95: A/h0 +0.988, beta/gamma -0.976" in m.details
     assert any("only because c0 is extrapolated" in d for d in m.details)
+
+
+def test_held_out_runs_are_one_note():
+    m = sort_messages(["f.h5:v1: role 'validation' in the run file, held out for validation",
+                       "f.h5:v2: role 'validation' in the run file, held out for validation"], [])
+    assert m.notes == ["2 run(s) with role 'validation' in the run file held out for "
+                       "validation: f.h5:v1, f.h5:v2"]
+    assert not m.warnings
 
 
 def test_cli_text_turns_python_hints_into_flags():

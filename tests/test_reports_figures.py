@@ -129,7 +129,7 @@ def test_residual_panels_and_correlation_bounds():
     assert len(visible) == 10
     assert not any("direction" in ax.get_title() for ax in visible)
     labels = [ax.get_xlabel() for ax in visible]
-    assert "Pressure deviation p − p_nom (kPa)" in labels  # small MPa shown in kPa
+    assert "Pressure p − p_nom (kPa)" in labels  # small MPa shown in kPa
     assert "Contraction x (mm)" in labels and labels.count("Lag (s)") == 2
     acf_ax = visible[6]
     assert "lags outside the bound" in acf_ax.get_title()
@@ -232,3 +232,14 @@ def test_campaign_figure_sorts_runs_worst_first():
     heights = [p.get_height() for p in ax.patches]
     np.testing.assert_allclose(heights, [0.3, 0.1, 0.1, 0.05])
     assert len(fig.axes) == 3  # NRMSE bars + pressure level + frequency
+
+
+def test_contents_group_consecutive_pages_of_one_kind():
+    from pmalab.reports.figures_text import contents_entries
+
+    titles = ["Fit quality table", "Time histories — identification (1/2)",
+              "Time histories — identification (2/2)", "Residual diagnostics — a (worst 1 of 2)",
+              "Residual diagnostics — b (worst 2 of 2)", "Effect ranking and ladder"]
+    assert contents_entries(titles) == [
+        ("2", "Fit quality table"), ("3–4", "Time histories — identification"),
+        ("5–6", "Residual diagnostics (2 runs)"), ("7", "Effect ranking and ladder")]

@@ -6,6 +6,7 @@ Notebook use (names are imported lazily so ``pmalab --help`` stays fast)::
     runs = load("campaign.h5")
     res = identify(runs, model="bouc-wen", validate=load("held-out.h5"))
     res.predict(runs[0]); res.plot_loops(); res.save("out/")
+    d = diagnose(runs, model="bouc-wen")   # d.ranking, d.ladder: DataFrames; d.summary
 
 Lower level: ``fit_run``, ``fit_campaign``, ``predict_run``, ``metrics``, ``ForceModel``,
 ``get_law`` (a law with its per-sample ``step``), ``diagnose``.
@@ -27,6 +28,8 @@ _EXPORTS = {
     "Identification": "pmalab.identify.api",
     "fit_run": "pmalab.identify.estimation.single",
     "FitResult": "pmalab.identify.estimation.single",
+    "diagnose": "pmalab.identify.api",
+    "DiagnosisResult": "pmalab.identify.api",
     "fit_campaign": "pmalab.identify.campaign",
     "predict_run": "pmalab.identify.campaign",
     "CampaignFit": "pmalab.identify.campaign",

@@ -176,7 +176,8 @@ class Identification:
 
     # ---- plots (matplotlib only)
     def plot_loops(self, which: str = "all", ncols: int = 3):
-        """Measured (grey) vs model (colour) force–position loops; returns the Figure.
+        """Measured (wide grey band) vs model (thin blue line over it) force–position loops;
+        returns the Figure.
 
         ``which``: ``"identification"``, ``"validation"`` or ``"all"``.
         """
@@ -197,8 +198,11 @@ class Identification:
         nr = int(np.ceil(n / nc))
         fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.4 * nr), squeeze=False)
         for ax, (title, x, f, fm) in zip(axes.flat, panels):
-            ax.plot(x, f, color="0.6", lw=0.8, label="measured")
-            ax.plot(x, fm, lw=1.0, label=self.model.name)
+            # the measurement as a wide band underneath, the model thinner on top: both
+            # stay visible where they agree, and the band shows where the model leaves it
+            ax.plot(x, f, color="0.55", lw=2.4, alpha=0.8, label="measured",
+                    solid_capstyle="round", zorder=1)
+            ax.plot(x, fm, color="#1f77b4", lw=0.9, label=self.model.name, zorder=2)
             ax.set_title(title, fontsize=8)
             ax.set_xlabel("contraction x (mm)")
             ax.set_ylabel("tension F (N)")
@@ -307,3 +311,92 @@ def identify(
         jobs=jobs, scheduler=scheduler, progress=progress, pressure_model=pressure_model)
     return Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes,
                           validation=vals, validation_warnings=warns)
+
+
+class DiagnosisResult:
+    """:func:`diagnose` for notebooks: the ranking and the ladder as DataFrames.
+
+    ``ranking``: one row per effect, best first (index ``effect``; held-out ``nrmse_before``,
+    ``nrmse_after``, ``fall_percent``, ``delta_aic``, ``n_params``, ``significant``,
+    ``ambiguous``); ``ladder``: one row per step (index ``step``; ``model``, ``added``,
+    ``nrmse``, ``fit_percent``); ``worst``: the runs where the base model fails worst
+    (:func:`pmalab.identify.headline.worst_runs`).  ``summary`` is the sentence the CLI
+    prints, ``ranking_table()``/``ladder_table()`` its text tables, ``plot()`` the
+    ranking/ladder figure, ``save(dir)`` writes diagnosis.json and predictions.h5 (the
+    same files as ``pmalab diagnose``).  Anything else is read from the underlying
+    :class:`pmalab.identify.diagnosis.Diagnosis` (``raw``).
+    """
+
+    def __init__(self, raw):
+        self.raw = raw
+
+    @property
+    def ranking(self):
+        import pandas as pd
+
+        cols = ["effect", "nrmse_before", "nrmse_after", "fall_percent", "delta_aic",
+                "n_params", "significant"]
+        rows = [{c: r.get(c) for c in cols} | {"ambiguous": r["effect"] in self.raw.ambiguous}
+                for r in self.raw.ranking]
+        return pd.DataFrame(rows, columns=[*cols, "ambiguous"]).set_index("effect")
+
+    @property
+    def ladder(self):
+        import pandas as pd
+
+        rows = [{"step": s["step"], "model": "+".join([self.raw.model, *s.get("effects", [])]),
+                 "added": s.get("added"), "nrmse": s["nrmse"],
+                 "fit_percent": s.get("fit_percent")} for s in self.raw.ladder]
+        return pd.DataFrame(rows, columns=["step", "model", "added", "nrmse",
+                                           "fit_percent"]).set_index("step")
+
+    @property
+    def worst(self):
+        """DataFrame of the runs, worst first: base-model rmse (N), nrmse, worst region."""
+        import pandas as pd
+
+        from pmalab.identify.headline import worst_runs
+
+        d = self.raw.diagnostics
+        return pd.DataFrame([{"run": k, "rmse_N": d[k].get("rmse"), "nrmse": d[k].get("nrmse"),
+                              "worst_region": d[k].get("worst_region")}
+                             for k in worst_runs(d)]).set_index("run")
+
+    @property
+    def summary(self) -> str:
+        return self.raw.summary
+
+    def ranking_table(self) -> str:
+        return self.raw.ranking_table()
+
+    def ladder_table(self) -> str:
+        return self.raw.ladder_table()
+
+    def plot(self, path: str | Path | None = None):
+        """Ranking (held-out nrmse without/with each effect) and the ladder; the Figure."""
+        return self.raw.plot(path)
+
+    def save(self, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+        """Write ``diagnosis.json`` and ``predictions.h5`` into ``out_dir``."""
+        from pmalab.identify.diagnosis import write_outputs
+
+        return write_outputs(self.raw, out_dir, force=force)
+
+    def __getattr__(self, name: str):
+        if name == "raw":
+            raise AttributeError(name)
+        return getattr(self.raw, name)
+
+    def __repr__(self) -> str:
+        return (f"{self.summary}\n\nEffect ranking (held-out nrmse without → with each "
+                f"effect):\n{self.ranking_table()}\n\nLadder:\n{self.ladder_table()}")
+
+
+def diagnose(runs: Sequence[Run] | Run, model: str = "bouc-wen", **kwargs) -> DiagnosisResult:
+    """Diagnose ``model`` on ``runs`` (see :func:`pmalab.identify.diagnosis.diagnose` for the
+    options: ``validate``, ``effects``, ``effects_files``, ``max_steps``, ``jobs``,
+    ``progress``, ``whole_run``) and return the notebook view of the result."""
+    from pmalab.identify.diagnosis import diagnose as _diagnose
+
+    runs_l = [runs] if isinstance(runs, Run) else list(runs)
+    return DiagnosisResult(_diagnose(runs_l, model=model, **kwargs))

@@ -25,6 +25,7 @@ from tqdm import tqdm
 from pmalab import __version__
 from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
+from pmalab.identify.messages import is_note
 from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
@@ -188,6 +189,10 @@ def plan_pages(data: ReportData) -> list[Page]:
             warnings += [f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): {w}"
                          for w in r.get("warnings") or []
                          if not any(g.endswith(w) for g in warnings)]
+        # what to check first, then what was done (the terminal's warning:/note: split)
+        warnings = ([f"warning: {w}" for w in warnings if not is_note(w)]
+                    + [f"note: {w}" for w in warnings if is_note(w)])
+        fixed_all = [n for n in names if all(n in (r.get("fixed") or []) for r in id_rows)]
         tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
         for i, chunk in enumerate(tc):
             title = "Identified parameters (value ± standard error) and identifiability" + _part(
@@ -195,7 +200,7 @@ def plan_pages(data: ReportData) -> list[Page]:
             pages.append(Page(title, f"parameter-table-{i + 1}", lambda c=chunk, t=title:
                               parameter_table_figure(names, c, fits, stats, units=units,
                                                      warnings=warnings, state_parameters=states,
-                                                     title=t)))
+                                                     fixed_all=fixed_all, title=t)))
         # warnings that do not fit under the tables get pages of their own
         if len(bullet_lines(warnings)) > table_page_warning_capacity(len(names), bool(fits)):
             per_page, groups, cur, n = 2 * WARNINGS_LINES_PER_COLUMN, [], [], 0
@@ -342,7 +347,9 @@ def _parameter_page(doc: dict, rows: list[dict], names: Sequence[str], vps: list
         {n: [(r.get("stderr") or {}).get(n) for r in rows] for n in names},
         doc.get("pressure_fits") or {}, {n: (stats.get(n) or {}) for n in names},
         units=_units(doc), validation_pressures=vps,
-        state_parameters=list(doc.get("state_parameters") or ["h0"]), title=title)
+        state_parameters=list(doc.get("state_parameters") or ["h0"]),
+        fixed=[n for n in names if rows and all(n in (r.get("fixed") or []) for r in rows)],
+        title=title)
 
 
 def _final_model_name(diag: dict) -> str | None:
@@ -404,6 +411,13 @@ def _slug(s: str) -> str:
 
 def _names(data: ReportData) -> str:
     return " + ".join(d.name for d in data.directories or [data.directory])
+
+
+def draw_page(page: Page, data: ReportData, i: int, n: int) -> Figure:
+    """Page ``i`` of ``n`` as it goes into the PDF (with its footer)."""
+    fig = page.make()
+    _footer(fig, data, i, n)
+    return fig
 
 
 def _footer(fig: Figure, data: ReportData, i: int, n: int) -> None:
@@ -481,8 +495,7 @@ def build_report(
                 leave=False, dynamic_ncols=True) as pbar:
             for i, page in enumerate(pages, 1):
                 pbar.set_postfix_str(page.title[:48], refresh=True)
-                fig = page.make()
-                _footer(fig, data, i, n)
+                fig = draw_page(page, data, i, n)
                 with mpl.rc_context(style.RC):
                     pdf.savefig(fig)
                 for d, ext in exports:

@@ -28,7 +28,7 @@ BINNED_VARIABLES = {
     "velocity": "Velocity ẋ",
     "velocity_sign": "Direction sign(ẋ)",
     "acceleration": "Acceleration ẍ",
-    "pressure_deviation": "Pressure deviation p − p_nom",
+    "pressure_deviation": "Pressure p − p_nom",
     "time": "Time t",
     "branch": "Branch",
 }
@@ -92,7 +92,7 @@ def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
         ax.axhspan(-b, b, color="0.85", alpha=0.7, zorder=0, label=f"95 % bound ±{b:.3g}")
         ax.legend(loc="best")
         outside = int(np.sum(np.abs(vals[lags != 0]) > b))
-        title += f"\n{outside} of {int(np.sum(lags != 0))} lags outside the bound"
+        title += f"\n{outside}/{int(np.sum(lags != 0))} lags outside the bound"
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlabel("Lag (s)")
     ax.set_ylabel("correlation")
@@ -190,7 +190,9 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
         elif kind == "acf":
             plot_correlation(ax, diag["acf"], title="Residual autocorrelation")
         else:
-            plot_correlation(ax, diag["ccf_input"], title="Residual–input cross-correlation")
+            what = str(diag["ccf_input"].get("input") or "input")
+            what = "contraction x" if what == "position" else what
+            plot_correlation(ax, diag["ccf_input"], title=f"Correlation with {what}")
     worst = diag.get("worst_region")
     if worst:
         wrapped = "\n".join(textwrap.wrap(f"worst region: {worst}", 115))

@@ -97,6 +97,7 @@ def plot_parameter_vs_pressure(
     unit: str = "",
     validation_pressures: Sequence[float] = (),
     state: bool = False,
+    fixed: bool = False,
 ) -> None:
     """One parameter: each run's own fit ± stderr at its pressure (points) and the pressure
     law θ(p) = q0 + q1·p + q2·p² the predictions use (line).
@@ -105,7 +106,8 @@ def plot_parameter_vs_pressure(
     law was refined on all runs at once and need not pass through the per-run points (those
     trade off among collinear parameters run by run); the seeds' quadratic through the
     points is then drawn dashed for reference.  ``state``: a per-run start state (h0), for
-    which no law is drawn (each prediction estimates its own).
+    which no law is drawn (each prediction estimates its own); ``fixed``: held at a value on
+    every run (not fitted).
     """
     p = np.asarray(pressures, dtype=float)
     v = np.asarray(values, dtype=float)
@@ -148,7 +150,8 @@ def plot_parameter_vs_pressure(
         ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
                    label="validation p" if i == 0 else None)
     title = f"{name} ({unit})" if unit and unit not in ("–", "-") else name
-    ax.set_title(f"{title}\n{law_text(st, state=state)}", fontsize=9)
+    law = f"fixed at {_fmt(v[0])} (not fitted)" if fixed and v.size else law_text(st, state=state)
+    ax.set_title(f"{title}\n{law}", fontsize=9)
     ax.set_xlabel(style.PRESSURE)
     ax.set_ylabel(f"{name} ({unit})" if unit and unit not in ("–", "-") else name)
     ax.yaxis.set_major_locator(MaxNLocator(6))
@@ -166,6 +169,7 @@ def parameters_vs_pressure_figure(
     units: Mapping[str, str] | None = None,
     validation_pressures: Sequence[float] = (),
     state_parameters: Sequence[str] = ("h0",),
+    fixed: Sequence[str] = (),
     title: str = "Parameters against muscle pressure: per-run fits and the pressure laws",
 ) -> Figure:
     """Up to nine parameters (3 × 3 grid), one panel each (:func:`plot_parameter_vs_pressure`);
@@ -183,14 +187,29 @@ def parameters_vs_pressure_figure(
             None if pressure_fits is None else pressure_fits.get(name),
             stat=None if stats is None else stats.get(name), unit=unit_of(name, units),
             validation_pressures=validation_pressures, state=name in state_parameters,
+            fixed=name in fixed,
         )
     if axes:
         handles: dict[str, Any] = {}
         for ax in axes:
             for h, lab in zip(*ax.get_legend_handles_labels()):
                 handles.setdefault(lab, h)
-        fig.legend(handles.values(), handles.keys(), loc="outside lower center",
-                   ncols=len(handles), frameon=False)
+        joint = any(((stats or {}).get(n) or {}).get("method") == "joint"
+                    for n in parameter_names)
+        caption = ("The joint law is refined on the free-run error of all runs at once, so "
+                   "it need not pass through the per-run points (collinear parameters trade "
+                   "off run by run)." if joint else "")
+        spare = [ax for ax in fig.axes if not ax.get_visible()]
+        if spare:  # an empty grid cell holds the legend and the caption
+            box = spare[0]
+            box.set_visible(True)
+            box.axis("off")
+            leg = box.legend(handles.values(), handles.keys(), loc="center", frameon=False,
+                             title="\n".join(textwrap.wrap(caption, 52)) or None,
+                             title_fontsize=8.5, fontsize=8.5)
+            leg.get_title().set_color("0.3")
+        else:
+            axes[0].legend(handles.values(), handles.keys(), loc="best")
     return fig
 
 
@@ -272,6 +291,7 @@ def parameter_table_figure(
     units: Mapping[str, str] | None = None,
     warnings: Sequence[str] = (),
     state_parameters: Sequence[str] = ("h0",),
+    fixed_all: Sequence[str] = (),
     title: str = "Identified parameters (value ± standard error) and identifiability",
 ) -> Figure:
     """Table of parameter values ± standard errors per run (≤ 7 runs per page), the
@@ -319,12 +339,17 @@ def parameter_table_figure(
             q = list((pressure_fits or {}).get(name) or [])
             q = ([*q, None, None, None])[:3]
             st = None if stats is None else stats.get(name)
-            cells2.append([name, unit_of(name, units), *coef_text(q),
-                           law_text(st, state=name in state_parameters)])
+            if name in state_parameters:
+                law, q = law_text(st, state=True), [None, None, None]
+            elif name in fixed_all:
+                law = "fixed (not fitted)"
+            else:
+                law = law_text(st)
+            cells2.append([name, unit_of(name, units), *coef_text(q), law])
         _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.14, 0.14, 0.14, 0.3])
     else:
         axes[1].axis("off")
-    _text_block(axes[2], "Identifiability and fit warnings", list(warnings),
+    _text_block(axes[2], "Warnings and notes of the identification", list(warnings),
                 max_lines=table_page_warning_capacity(len(parameter_names), has_fits),
                 more="more lines: all warnings are on the next page")
     return fig

@@ -8,6 +8,7 @@ tension in N; in an F–x loop the tension is higher while the muscle is being s
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -198,8 +199,11 @@ def before_after_figure(
         for i, (t, name) in enumerate(((base, base_name), (final, final_name))):
             ax = axes[i, j]
             lc = error_loop(ax, t.position, t.force, t.force_model, norm=norm)
-            ax.set_title(f"{name}\n{t.run or t.label}: {t.describe()}\nfit {t.fit_percent:.1f} %",
-                         fontsize=9)
+            # the run heads its column; each panel names its model and fit (titles no wider
+            # than the panel, so they stay clear of the next column's colour bar)
+            head = f"{t.run or t.label}\n{t.describe()}\n" if i == 0 else ""
+            label = "\n".join(textwrap.wrap(name, 36))
+            ax.set_title(f"{head}{label}\nfit {t.fit_percent:.1f} %", fontsize=9)
             if i == 0 and j == 0:
                 ax.legend(loc="best")
         fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import textwrap
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -117,9 +119,12 @@ def title_page_figure(
     for n_lines in (sum_lines, head_lines):
         if n_lines:
             below += 0.032 + _LINE[9.0] * n_lines + 0.022
-    if contents:
-        below += 0.032 + _LINE[8.5] * math.ceil(len(contents) / 2)
+    entries = contents_entries(contents)
+    if entries:
+        below += 0.032 + _LINE[8.5] * math.ceil(len(entries) / 2)
     if datasets:
+        # the table's own margins: heading, the "more runs" line and the gaps after it
+        below += 0.012 + _LINE[8.5] + 0.02
         fit = int((y - 0.032 - below) / 0.027) - 1  # rows of 0.027 under a header row
         rows = list(datasets)[:max(fit, TITLE_MIN_RUNS)]
         h = 0.027 * (len(rows) + 1)
@@ -154,14 +159,14 @@ def title_page_figure(
             wrapped = wrapped[:TITLE_MAX_SUMMARY_LINES]
             wrapped[-1] = wrapped[-1][:146] + " …"
         block(wrapped)
-    if contents:
+    if entries:
         heading("Contents")
         room = max(int((y - 0.07) / _LINE[8.5]), 3)  # lines left above the footer notes
-        cols = 2 if len(contents) <= 2 * room else 3
-        width = 85 if cols == 2 else 55
+        cols = 2 if len(entries) <= 2 * room else 3
+        width = 76 if cols == 2 else 50
         items = []
-        for i, c in enumerate(contents):
-            t = f"{i + 2:>2}. {c}"
+        for pages, c in entries:
+            t = f"{pages:>5}. {c}"
             items.append(t if len(t) <= width else t[: width - 1] + "…")
         per = -(-len(items) // cols)
         if per > room:
@@ -176,6 +181,29 @@ def title_page_figure(
              "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
              ha="center", fontsize=8, color="0.3")
     return fig
+
+
+_PART = re.compile(r" \(\d+/\d+\)$")
+
+
+def contents_entries(titles: Sequence[str], first_page: int = 2) -> list[tuple[str, str]]:
+    """The contents as ``(pages, title)``: consecutive pages of one kind are one entry
+    (``"4–6"``, ``"Time histories — identification, bouc-wen"``); pages that differ only
+    after `` — `` (one per run) are listed as ``"Residual diagnostics (4 runs)"``."""
+    out: list[tuple[str, str]] = []
+    i = 0
+    while i < len(titles):
+        full = _PART.sub("", titles[i])
+        head = full.split(" — ")[0]
+        j = i + 1
+        while j < len(titles) and _PART.sub("", titles[j]).split(" — ")[0] == head:
+            j += 1
+        fulls = {_PART.sub("", t) for t in titles[i:j]}
+        pages = str(first_page + i) if j == i + 1 else f"{first_page + i}–{first_page + j - 1}"
+        text = full if len(fulls) == 1 else f"{head} ({j - i} runs)"
+        out.append((pages, text))
+        i = j
+    return out
 
 
 FILE_KEYS = (
@@ -249,7 +277,8 @@ def summarize_provenance(
                 continue
             tm = a.get("timing") if isinstance(a.get("timing"), Mapping) else {}
             rows.append({
-                "run": f"{file}:{name}", "role": a.get("role", ""), "status": a.get("status", ""),
+                "run": f"{Path(file).name}:{name}", "role": a.get("role", ""),
+                "status": a.get("status", ""),
                 "p": a.get("muscle_pressure_MPa"), "f": a.get("frequency_Hz"),
                 "waveform": a.get("waveform", ""), "cycles": a.get("cycles"),
                 "duration_s": tm.get("duration_s"), "samples": tm.get("n_samples"),

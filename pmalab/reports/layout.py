@@ -102,6 +102,29 @@ def _overlap(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
     return True
 
 
+def _owner(t: Text):
+    """The axes a text belongs to (None: the figure's own text)."""
+    return t.axes
+
+
+def _related(ax) -> list:
+    """Axes drawn as one with ``ax``: its colour bar's parent, twins, insets."""
+    if ax is None:
+        return []
+    out = list(ax.child_axes)
+    parent = getattr(ax, "_colorbar_parent", None)
+    if parent is not None:
+        out.append(parent)
+    return out
+
+
+def _axes_name(ax) -> str:
+    title = " ".join(ax.get_title().split())
+    if ax.get_label() == "<colorbar>":
+        return "a colour bar"
+    return repr(title[:30]) if title else "an axes"
+
+
 def _name(t: Text) -> str:
     s = " ".join(t.get_text().split())
     return repr(s if len(s) <= 40 else s[:37] + "…")
@@ -122,6 +145,20 @@ def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX)
         if c[:, 0].min() < -tol or c[:, 1].min() < -tol or c[:, 0].max() > W + tol \
                 or c[:, 1].max() > H + tol:
             out.append(f"{_name(t)} leaves the page")
+    # the plot areas of drawn axes (colour bars included): a text of another axes (or of
+    # the figure) must not run into them, as a long title into the next column's colour bar
+    areas = [(ax, ax.patch.get_window_extent(renderer)) for ax in fig.axes
+             if ax.get_visible() and ax.axison]
+    for t, c in zip(texts, boxes):
+        own = _owner(t)
+        for ax, area in areas:
+            if ax is own or ax in _related(own):
+                continue
+            quad = np.array([[area.x0, area.y0], [area.x1, area.y0], [area.x1, area.y1],
+                             [area.x0, area.y1]])
+            if _overlap(c, quad, tol):
+                out.append(f"{_name(t)} runs into the plot area of "
+                           f"{_axes_name(ax)}")
     lo, hi = np.array([c.min(axis=0) for c in boxes]), np.array([c.max(axis=0) for c in boxes])
     for i in range(len(texts)):
         for j in range(i + 1, len(texts)):
@@ -134,13 +171,15 @@ def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX)
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m pmalab.reports.layout DIR...``: check every page of the report of DIRs."""
-    from pmalab.reports.build import plan_pages
+    from pmalab.reports.build import draw_page, plan_pages
     from pmalab.reports.data import load_report_dir
 
     dirs = list(sys.argv[1:] if argv is None else argv)
     bad = 0
-    for i, page in enumerate(plan_pages(load_report_dir(dirs)), 1):
-        probs = text_problems(page.make())
+    data = load_report_dir(dirs)
+    pages = plan_pages(data)
+    for i, page in enumerate(pages, 1):
+        probs = text_problems(draw_page(page, data, i, len(pages)))
         bad += bool(probs)
         for p in probs:
             print(f"page {i} ({page.title}): {p}")
