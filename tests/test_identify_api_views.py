@@ -16,8 +16,8 @@ from pmalab.identify.diagnosis import Diagnosis
 
 def _diagnosis() -> Diagnosis:
     doc = rf.diagnosis_doc()
-    ranking = [{**r, "fall_percent": 100 * (1 - r["nrmse_after"] / r["nrmse_before"])}
-               for r in doc["ranking"]]
+    ranking = [{**r, "fall_percent": 100 * (1 - r["nrmse_after"] / r["nrmse_before"]),
+                "fall_se_percent": 2.0} for r in doc["ranking"]]
     return Diagnosis(model="bouc-wen", ranking=ranking, ambiguous=["sensor-delay"],
                      suggested_experiment="two frequencies", ladder=doc["ladder"],
                      diagnostics=doc["diagnostics"], campaign=doc["campaign_diagnostics"],

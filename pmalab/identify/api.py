@@ -334,21 +334,24 @@ class DiagnosisResult:
     def ranking(self):
         import pandas as pd
 
-        cols = ["effect", "nrmse_before", "nrmse_after", "fall_percent", "delta_aic",
-                "n_params", "significant"]
-        rows = [{c: r.get(c) for c in cols} | {"ambiguous": r["effect"] in self.raw.ambiguous}
+        rows = [_scalars(r) | {"ambiguous": r["effect"] in self.raw.ambiguous}
                 for r in self.raw.ranking]
-        return pd.DataFrame(rows, columns=[*cols, "ambiguous"]).set_index("effect")
+        first = ["effect", "nrmse_before", "nrmse_after", "fall_percent", "significant"]
+        df = pd.DataFrame(rows)
+        if df.empty:
+            return pd.DataFrame(columns=first).set_index("effect")
+        order = [c for c in first if c in df] + [c for c in df if c not in first]
+        return df[order].set_index("effect")
 
     @property
     def ladder(self):
         import pandas as pd
 
         rows = [{"step": s["step"], "model": "+".join([self.raw.model, *s.get("effects", [])]),
-                 "added": s.get("added"), "nrmse": s["nrmse"],
-                 "fit_percent": s.get("fit_percent")} for s in self.raw.ladder]
-        return pd.DataFrame(rows, columns=["step", "model", "added", "nrmse",
-                                           "fit_percent"]).set_index("step")
+                 "added": s.get("added"), "nrmse": s["nrmse"], "fit_percent": s.get("fit_percent")}
+                | {k: v for k, v in _scalars(s).items() if k not in ("model", "step")}
+                for s in self.raw.ladder]
+        return pd.DataFrame(rows).set_index("step")
 
     @property
     def worst(self):
@@ -390,6 +393,11 @@ class DiagnosisResult:
     def __repr__(self) -> str:
         return (f"{self.summary}\n\nEffect ranking (held-out nrmse without → with each "
                 f"effect):\n{self.ranking_table()}\n\nLadder:\n{self.ladder_table()}")
+
+
+def _scalars(row: dict) -> dict:
+    """The plain (str/number/bool/None) entries of a JSON row: the DataFrame columns."""
+    return {k: v for k, v in row.items() if v is None or isinstance(v, str | int | float | bool)}
 
 
 def diagnose(runs: Sequence[Run] | Run, model: str = "bouc-wen", **kwargs) -> DiagnosisResult:
