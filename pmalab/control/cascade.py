@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from pmalab.control.controllers import CascadeSettings, make_loop
 from pmalab.control.model import HysteresisState, IdentifiedModel
+from pmalab.errors import PmalabError
 from pmalab.rig.manipulator import ManipulatorGeometry
 
 
@@ -32,6 +33,13 @@ class CascadeOutput:
     pressure_reference: float  # MPa, the inner loop's reference
     force_reference: float  # N (NaN in the pressure loop)
     hysteresis: float  # N (NaN in the pressure loop)
+
+
+class _NoModel:
+    """Stands in for the model of a pressure-loop-only cascade: the position loop refuses."""
+
+    def invert(self, *args: float) -> float:
+        raise PmalabError("the position loop needs an identified model (--model)")
 
 
 class Cascade:
@@ -50,6 +58,7 @@ class Cascade:
         self.hyst = hysteresis
         if model is not None and hysteresis is None:
             self.hyst = HysteresisState(model, geometry.home_contraction_mm)
+        self._model = model if model is not None else _NoModel()
         self._a = 1.0 - math.exp(-2.0 * math.pi * settings.position_filter_Hz
                                  * settings.outer.dt)
         self._xf: float | None = None
@@ -65,8 +74,7 @@ class Cascade:
         if self.settings.feedforward:
             ff = g.spring_force(g.home_contraction_mm + r) + g.moving_mass_kg * r_dd * 1e-3
         f_d = self.outer.step(r, x, ff)
-        assert self.model is not None, "the position loop needs an identified model"
-        p_d = self.model.invert(f_d, x_abs, h, self.p_max)
+        p_d = self._model.invert(f_d, x_abs, h, self.p_max)
         u = self.inner.step(p_d, p, p_d if self.settings.inner_feedforward else 0.0)
         return CascadeOutput(u, p_d, f_d, h)
 

@@ -429,6 +429,12 @@ class ManipulatorPhysics:
     def command(self) -> float:
         return self._command
 
+    def static_force(self, x: float, p: float) -> float:
+        """The truth's static tension F_s(x, p) (N) at absolute contraction ``x`` (mm) —
+        no friction, no dynamics (tests)."""
+        fs, _, _, _ = K._static_terms(self._par, float(x), float(p))
+        return float(fs)
+
     def truth_state(self) -> dict[str, Any]:
         """Noise-free values now (tests): position from home, velocity, pressures, tension."""
         st = self._st
