@@ -111,21 +111,34 @@ GAIN_LABELS = {
 
 @style.styled
 def gains_figure(f: ControlFileData) -> Figure:
-    """Every controller's six gains over time (adaptive ones move, the classic is flat)."""
-    fig = style.new_figure(f"{f.title}: controller gains over time")
-    axes = style.panel_axes(fig, 6, 2, 3)
-    for ax, (key, label) in zip(axes, GAIN_LABELS.items()):
+    """Every controller's gains over time (adaptive ones move, the classic is flat).
+
+    A pressure-loop experiment shows the inner loop's three only (the outer loop does not
+    run).  Each panel spans at least ±5 % of its gain, so round-off never looks like
+    adaptation.
+    """
+    pressure = bool(f.runs) and f.runs[0].loop == "pressure"
+    keys = [k for k in GAIN_LABELS if not (pressure and k.startswith("outer"))]
+    title = f"{f.title}: controller gains over time"
+    fig = style.new_figure(title + (" (pressure loop: inner gains only)" if pressure else ""))
+    axes = style.panel_axes(fig, len(keys), 2 if len(keys) > 3 else 1, 3)
+    for ax, key in zip(axes, keys):
+        lo, hi = math.inf, -math.inf
         for r in f.runs:
             g = r.data.get(f"gains/{key}")
-            if g is None or "time" not in r.data:
+            if g is None or "time" not in r.data or g.size == 0:
                 continue
             _plot(ax, r.data["time"], g, color=_colour(r.controller), label=r.controller)
-        ax.set_title(label)
+            lo, hi = min(lo, float(np.nanmin(g))), max(hi, float(np.nanmax(g)))
+        if math.isfinite(lo):
+            mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+            half = max(half * 1.1, 0.05 * abs(mid), 1e-12)
+            ax.set_ylim(mid - half, mid + half)
+        ax.ticklabel_format(axis="y", useOffset=False, style="plain")
+        ax.set_title(GAIN_LABELS[key])
         ax.set_xlabel(style.TIME)
-    axes[0].legend(loc="best")
-    if f.runs and f.runs[0].loop == "pressure":
-        fig.text(0.5, 0.5, "pressure loop: only the inner gains act", ha="center",
-                 color="0.5", fontsize=9)
+    if axes:
+        axes[0].legend(loc="best")
     return fig
 
 
