@@ -83,6 +83,13 @@ def cmd_control(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, old)
 
 
+def _note_ignored(model) -> None:
+    if model is not None and model.ignored_effects:
+        print(f"note: {model.source}: the controller inverts the base {model.law} law; the "
+              f"identified effects ({', '.join(model.ignored_effects)}) are not inverted",
+              file=sys.stderr)
+
+
 def _sigterm(signum, frame):  # SIGTERM ends a run like Ctrl-C: vent, keep the samples
     raise KeyboardInterrupt
 
@@ -105,6 +112,7 @@ def _run_one(args, check_duration, metrics_line) -> int:
     duration = check_duration(args.duration, "--duration")
     check_output(args.out, args.force)  # before anything runs
     model = IdentifiedModel.load(args.model) if loop == "position" else None
+    _note_ignored(model)
     make = _make_rig_factory(args.truth, args.seed or 0)
     rig = make()
     progress = None
@@ -138,6 +146,7 @@ def _run_experiments(args) -> int:
 
     es = load_experiments(args.experiments)
     model = IdentifiedModel.load(args.model or es.model)
+    _note_ignored(model)
     truth = args.truth or (str(es.truth) if es.truth else None)
     seed = args.seed if args.seed is not None else es.seed
     doc = run_experiments(es, args.out, force=args.force, model=model,
