@@ -124,3 +124,15 @@ def test_an_experiments_file_mistake_names_the_field(tmp_path):
     exp.write_text('[[experiment]]\nname = "a"\nreference = "square:0.1Hz:15mm"\nspeed = 2\n')
     with pytest.raises(ConfigError, match=r"experiment\[0\]\.speed: unknown key"):
         load_experiments(exp)
+
+
+def test_an_identification_missing_a_law_parameter_is_refused(tmp_path, capsys):
+    doc = json.loads((SEED_EXPERIMENTS.parent / "identification-bouc-wen.json").read_text())
+    del doc["pressure_fits"]["beta"]
+    bad = tmp_path / "identification.json"
+    bad.write_text(json.dumps(doc))
+    rc = main(["control", "--controller", "pid", "--reference", "square:0.1Hz:15mm",
+               "--duration", "1", "--model", str(bad), "--out", str(tmp_path / "x.h5")])
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert "pressure_fits.beta': missing (the bouc-wen law needs it)" in err

@@ -65,6 +65,11 @@ class IdentifiedModel:
         for name in _LINEAR:
             if name not in coef:
                 raise ConfigError(f"{source}: field 'pressure_fits.{name}': missing")
+        law_obj = _law(law)  # an unknown law is one line naming the valid ones
+        for lp in law_obj.params:
+            if lp.name not in _STATE and lp.name not in coef:
+                raise ConfigError(f"{source}: field 'pressure_fits.{lp.name}': missing "
+                                  f"(the {law} law needs it)")
         self.law = law
         self.coef = coef
         effects = doc.get("effects") or []
