@@ -447,3 +447,33 @@ def test_run_with_a_bad_live_address_fails_before_anything_is_created(tmp_path, 
                  "--live", "nope"]) == 2
     assert "--live: port must be an integer" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_view_of_a_file_still_being_written_quits_cleanly(tmp_path):
+    rec, w = _record_partial(tmp_path / "growing.h5", 600)  # held open for writing (SWMR)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    proc = subprocess.Popen([sys.executable, "-m", "pmalab.cli", "view",
+                             str(tmp_path / "growing.h5"), "--no-browser"],
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = ""
+        while "viewing" not in line and proc.poll() is None:
+            line = proc.stderr.readline()
+        port = int(line.split("http://127.0.0.1:", 1)[1].split("/", 1)[0])
+        text = _events(port, until="status")
+        assert '"phase":"recording"' in text
+        for k in range(600, 900):  # it grows while the page is open
+            w.add(k / 500, 20.0, 310.0, 0.4, 0.2, 0.2, 0.0)
+        w.commit()
+        deadline = time.monotonic() + 20
+        while '"samples":900' not in text and time.monotonic() < deadline:
+            time.sleep(0.2)
+            text = _events(port, until="status")
+        assert '"samples":900' in text  # the page saw the file grow
+    finally:
+        proc.send_signal(signal.SIGTERM)  # quits while its follower polls a growing file
+        proc.communicate(timeout=20)
+        w.finish("completed")
+        rec.writer("b").set_status("not run: campaign aborted")
+        rec.close()
+    assert proc.returncode == 0

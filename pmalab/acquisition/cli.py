@@ -312,6 +312,7 @@ def cmd_view(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGTERM, old)
         follower.close()
+        follower.join(5.0)  # never leave it inside HDF5 while the interpreter exits
         server.close(grace_s=0.2)
     return 0
 

@@ -1,6 +1,6 @@
 """``pmalab view FILE.h5``: the live page on a finished or still-recording run file.
 
-A :class:`FileFollower` thread re-opens the file every ``poll_s`` (SWMR read, so a file
+A :class:`FileFollower` thread re-opens the file every ``poll_s`` = 0.2 s (SWMR read, so a file
 whose recorder is still writing is read consistently), reads the samples each run gained
 since the last poll, converts them to the canonical units (s, mm, N, MPa) and publishes
 them to the :class:`Hub` exactly as the live pump does.  When every run has a final status
@@ -26,7 +26,7 @@ from pmalab.runfile import FORMAT, UNIT_FACTORS, decode_attr
 CHANNELS = (("t", "time"), ("x", "position"), ("f", "force"), ("pm", "muscle_pressure"),
             ("pc", "cylinder_pressure"), ("cmd", "cylinder_pressure_command"))
 DIGITS = {"t": 4, "x": 3, "f": 2, "pm": 4, "pc": 4, "cmd": 4}
-POLL_S = 0.5
+POLL_S = 0.2  # the recorder flushes every 0.25 s: polling faster shows nothing new
 
 
 def open_run_file(path: Path) -> h5py.File:
@@ -177,7 +177,8 @@ class FileFollower(threading.Thread):
         t = float(g["time"][-1]) - self.t0.get(i, 0.0) if g["time"].shape[0] else 0.0
         dur = info.get("duration_s") or t or 1.0
         phase = "recording" if status == "running" else status
-        return {"run": info["name"], "index": i, "n_runs": n_runs, "t": t, "duration_s": dur,
+        return {"run": info["name"], "index": i, "n_runs": n_runs, "t": round(t, 3),
+                "duration_s": dur,
                 "progress_run": min(1.0, t / dur),
                 "progress_protocol": min(1.0, (i + min(1.0, t / dur)) / n_runs),
                 "samples": self.done.get(i, 0), "late": int(timing.get("late", 0)),
