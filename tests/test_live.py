@@ -477,3 +477,21 @@ def test_view_of_a_file_still_being_written_quits_cleanly(tmp_path):
         rec.writer("b").set_status("not run: campaign aborted")
         rec.close()
     assert proc.returncode == 0
+
+
+def test_run_events_never_block_the_runner_when_the_display_stops_reading():
+    from pmalab.acquisition.live.process import DisplayProcess
+
+    d = DisplayProcess({}, 16, on_stop=lambda: None)
+    d.proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                              stdin=subprocess.PIPE)  # a display that hangs
+    os.set_blocking(d.proc.stdin.fileno(), False)
+    try:
+        t0 = time.monotonic()
+        for k in range(2000):  # ~1 MB of run events: far more than a pipe holds
+            d.send(("end", k, "aborted: " + "x" * 5000, "message " * 100))
+        assert time.monotonic() - t0 < 5 and d.lost_events > 0
+    finally:
+        d.proc.kill()
+        d.proc.wait()
+        d.close("")

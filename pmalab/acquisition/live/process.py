@@ -26,6 +26,7 @@ import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -113,6 +114,7 @@ class DisplayProcess:
         self.on_stop = on_stop
         self.proc: subprocess.Popen | None = None
         self.port: int | None = None
+        self.lost_events = 0
         self._watcher: threading.Thread | None = None
 
     def start(self) -> int:
@@ -140,6 +142,7 @@ class DisplayProcess:
                 f" within {START_TIMEOUT_S:g} s" if not line else f" ({line})"))
             raise ConfigError(why)
         self.port = int(rest)
+        os.set_blocking(self.proc.stdin.fileno(), False)
         self._watcher = threading.Thread(target=self._watch, name="pmalab-live-control",
                                          daemon=True)
         self._watcher.start()
@@ -153,17 +156,31 @@ class DisplayProcess:
                 self.on_stop()
 
     def send(self, msg: tuple) -> None:
-        """A run event to the page (a few small lines per run: the pipe never fills)."""
-        if self.proc is not None and self.proc.stdin is not None:
-            self.proc.stdin.write(json.dumps(msg).encode() + b"\n")
-            self.proc.stdin.flush()
+        """A run event to the page, never blocking the runner: the pipe is non-blocking
+        and a line is at most ``PIPE_BUF`` bytes (written whole or not at all), so a
+        display process that stopped reading loses the event (counted), not the run."""
+        if self.proc is None or self.proc.stdin is None:
+            return
+        line = json.dumps(msg).encode() + b"\n"
+        if len(line) > select.PIPE_BUF:
+            short = tuple(m[:200] if isinstance(m, str) else m for m in msg)
+            line = json.dumps(short).encode()[: select.PIPE_BUF - 1] + b"\n"
+        try:
+            os.write(self.proc.stdin.fileno(), line)
+        except BlockingIOError:
+            self.lost_events += 1
 
     def close(self, message: str, timeout_s: float = 3.0) -> None:
         """Tell the page how the recording ended, let it deliver that, and stop."""
         proc = self.proc
         if proc is not None:
+            lost, deadline = self.lost_events, time.monotonic() + 1.0
             with contextlib.suppress(Exception):
                 self.send(("finish", message))
+                while self.lost_events > lost and time.monotonic() < deadline:
+                    time.sleep(0.05)  # the last line may wait a moment for room
+                    lost = self.lost_events
+                    self.send(("finish", message))
             with contextlib.suppress(Exception):
                 proc.stdin.close()
             try:

@@ -144,8 +144,9 @@ class Pump(threading.Thread):
             "run": self._info.get("name", str(i)), "t": round(self._t, 3), "duration_s": dur,
             "progress_run": min(1.0, self._t / dur) if dur else 0.0,
             "progress_protocol": min(1.0, (self._before[i] + self._t) / total),
-            "samples": samples if self._status != "waiting" else 0,
-            "late": late, "missed": missed,
+            # the ring's counters are the last tapped run's until this one records
+            **({"samples": 0, "late": 0, "missed": 0} if self._status == "waiting" else
+               {"samples": samples, "late": late, "missed": missed}),
             "phase": self._status, "message": self._message,
             "safety": safety_text(self._status, self.stop_requested),
             "margins": self.margins.rows() if self.margins is not None else [],
