@@ -28,8 +28,17 @@ VERB_MODULES = (
 )
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's parser, but a mistake on the command line is one line (the quality bar:
+    one line naming the option), with a pointer to ``--help`` instead of the usage block.
+    Sub-command parsers inherit the class."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="pmalab",
         description="Pneumatic muscle workbench: run protocols, identify, diagnose, report.",
     )
@@ -48,7 +57,10 @@ OUTPUT_ARGS = ("out", "png", "svg", "plot")
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # --help, --version, or one line for a command-line mistake
+        return exc.code if isinstance(exc.code, int) else 2
     outputs = [v for k in OUTPUT_ARGS if isinstance(v := getattr(args, k, None), str) and v]
     created = missing_roots(outputs)
     rc = 1

@@ -183,6 +183,13 @@ CASES = [
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--header-rows", "-2"],
      "--header-rows: must be ≥ 0, got -2"),
     (["import", "{d}/good.csv", "--out", "{d}/good.h5"], "good.h5: already exists (use --force"),
+    (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--decimal", ";"],
+     "pmalab import: error: argument --decimal: invalid choice: ';'"),
+    (["identify", "{d}/good.h5", "--out", "{d}/new/id"],
+     "pmalab identify: error: the following arguments are required: --model (see pmalab "
+     "identify --help)"),
+    (["diagnose", "{d}/good.h5", *DG, "--jobs", "two"],
+     "argument --jobs: invalid int value: 'two'"),
     # --- TOML protocol and rig files
     (["run", "--rig", "sim", "--protocol", "{d}/unknown_key.toml", "--out", "{d}/new/o.h5"],
      "unknown_key.toml: run[0] 'a': unknown field 'frequncy'"),

@@ -89,10 +89,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--pressure", type=float, metavar="MPA",
                    help="nominal muscle pressure in MPa (required without a pressure column)")
     q.add_argument("--run", metavar="NAME", help="run name (default: the CSV's stem)")
-    q.add_argument("--delimiter", default=",",
+    q.add_argument("--delimiter", default=",", metavar="D",
                    help="field separator: ',' (default), ';', '\\t' (tab) or any one character")
-    q.add_argument("--decimal", default=".", choices=(".", ","),
-                   help="decimal mark of the numbers (default '.')")
+    q.add_argument("--decimal", default=".", choices=(".", ","), metavar="MARK",
+                   help="decimal mark of the numbers: '.' (default) or ','")
     q.add_argument("--header-rows", type=int, default=0, metavar="N",
                    help="lines before the row of column names (a metadata block; default 0)")
     q.add_argument("--units-row", action="store_true",
