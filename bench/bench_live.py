@@ -4,13 +4,14 @@ A real-time sine run on the simulated rig (RealClock, the runner's SCHED_FIFO sc
 of ``PMALAB_BENCH_LIVE_SECONDS`` (default 12) s is recorded without the live view and with
 it and two clients connected, in ``PMALAB_BENCH_LIVE_REPS`` (default 4) interleaved pairs
 (the first of each pair alternates), so both modes see the same background load of a
-shared machine.  Clients (``PMALAB_BENCH_LIVE_CLIENTS``): ``sse`` (default) — two separate processes
-reading the event stream as a browser does, counting page updates (``points`` events) per
-second and the longest gap; ``chromium`` — two headless Chromium pages of the real page,
-counting the redraws the page made (``pmalabStats.draws``).  Lateness (actual − scheduled
-time of each sample, the runner's ``lateness`` dataset) is pooled over the pairs of each
-mode; on a busy machine the p99 is set by the other processes as much as by pmalab, so
-look at the per-pair values too.  Goals: ≥ 10 updates/s per client; p99 lateness with --live ≤ 1.1 × without.
+shared machine.  Clients (``PMALAB_BENCH_LIVE_CLIENTS``): ``sse`` (default) — two separate
+processes reading the event stream as a browser does, counting page updates (``points``
+events) per second and the longest gap; ``chromium`` — two headless Chromium pages of the
+real page, counting its redraws while points flowed (``pmalabStats.pointDraws``).
+Lateness (actual − scheduled time of each sample, the runner's ``lateness`` dataset) is
+pooled over the pairs of each mode; on a busy machine the p99 is set by the other
+processes as much as by pmalab, so look at the per-pair values too.  Goals: ≥ 10 updates/s
+per client; p99 lateness with --live ≤ 1.1 × without.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ import shutil
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import h5py
@@ -114,24 +114,21 @@ class _Browsers:
         self.pages = [Browser(exe, 1400, 1000) for _ in range(2)]
         for b in self.pages:
             b.navigate(url)
-        self.t0 = time.monotonic()
-        self.d0 = [0, 0]
 
     def start(self) -> None:
-        for i, b in enumerate(self.pages):
+        for b in self.pages:
             b.wait_for("window.pmalabStats !== undefined && "
                        "document.getElementById('conn').textContent === 'connected'", 60,
                        "the page connected")
-            self.d0[i] = b.evaluate("pmalabStats.draws")
-        self.t0 = time.monotonic()
 
     def rates(self) -> list[tuple[float, float, int]]:
-        """Redraws per second of each page over the recording."""
-        dt = time.monotonic() - self.t0
+        """Redraws per second of each page while the points flowed (first to last draw)."""
         out = []
-        for i, b in enumerate(self.pages):
-            draws = b.evaluate("pmalabStats.draws") - self.d0[i]
-            out.append((draws / dt, float("nan"), int(b.evaluate("pmalabStats.points"))))
+        for b in self.pages:
+            s = b.evaluate("({n: pmalabStats.pointDraws, a: pmalabStats.firstDrawAt, "
+                           "z: pmalabStats.lastDrawAt, p: pmalabStats.points})")
+            rate = (s["n"] - 1) / ((s["z"] - s["a"]) / 1e3) if (s["n"] or 0) > 1 else 0.0
+            out.append((rate, float("nan"), int(s["p"])))
             b.close()
         return out
 

@@ -32,8 +32,9 @@
     mode: 2, ...size(loopEl, 460), legend: { live: false }, cursor: { show: false },
     scales: { x: { time: false }, y: {} },
     axes: [{ label: "contraction x (mm)" }, { label: "tension F (N)" }],
-    series: [{}, facet("older cycles", COLORS.old, 1), facet("previous cycle", COLORS.prev, 1.5),
-             facet("current cycle", COLORS.cur, 2.5)],
+    // integer line widths: a software-rasterised canvas (no GPU) strokes them far faster
+    series: [{}, facet("older cycles", COLORS.old, 1), facet("previous cycle", COLORS.prev, 1),
+             facet("current cycle", COLORS.cur, 2)],
   }, [null, [[], []], [[], []], [[], []]], loopEl);
 
   function timeChart(el, yLabel, series, h) {
@@ -42,7 +43,7 @@
       scales: { x: { time: false } },
       axes: [{ label: "t (s)" }, { label: yLabel }],
       series: [{ label: "t (s)" }, ...series.map(([label, stroke, dash]) =>
-        ({ label, stroke, width: 1.5, dash, points: { show: false } }))],
+        ({ label, stroke, width: 1, dash, points: { show: false } }))],
     }, [[], ...series.map(() => [])], el);
   }
   const tf = timeChart($("tf"), "F (N)", [["tension F (N)", COLORS.force]], 150);
@@ -108,9 +109,19 @@
   function frame() {
     if (dirty) {
       dirty = false;
+      const t0 = performance.now();
       drawLoop();
+      const t1 = performance.now();
       drawTime();
+      const t2 = performance.now();
+      stats.loopMs = 0.9 * (stats.loopMs || 0) + 0.1 * (t1 - t0);  // moving averages, ms
+      stats.timeMs = 0.9 * (stats.timeMs || 0) + 0.1 * (t2 - t1);
       stats.draws++; drawsThisSecond++;
+      if (D.t.length) {  // redraws with points on the page: the update rate a user sees
+        stats.pointDraws = (stats.pointDraws || 0) + 1;
+        stats.lastDrawAt = t2;
+        if (stats.firstDrawAt === undefined) stats.firstDrawAt = t0;
+      }
     }
     requestAnimationFrame(frame);
   }
