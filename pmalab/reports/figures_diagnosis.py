@@ -360,7 +360,7 @@ def campaign_figure(
         ax.bar(xs + w / 2, fin, width=w, color=style.SIGNIFICANT, label=f"final: {final_model}")
     ax.set_xticks(xs, [str(r["label"]) for r in rows], rotation=20, ha="right")
     ax.set_ylabel("NRMSE")
-    ax.set_title("NRMSE per run (whole run, each run's own fit), highest first")
+    ax.set_title("NRMSE per diagnosed run (its held-out prediction), highest first")
     ax.grid(axis="x", visible=False)
     top = np.nanmax([*base, *(fin if has_final else []), 1e-9])
     ax.set_ylim(0.0, 1.3 * top)  # headroom: the legend sits above the bars

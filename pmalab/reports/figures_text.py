@@ -50,6 +50,8 @@ def flatten(d: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str]]:
 _LINE = {8.5: 8.5 * 1.35 / 72 / 8.27, 9.0: 9.0 * 1.4 / 72 / 8.27}
 #: the runs table shows at least this many rows (more when the page has room)
 TITLE_MIN_RUNS = 4
+#: height of one runs-table row (figure fraction: 8.5 pt text with a little padding)
+TITLE_ROW = 0.0215
 TITLE_MAX_SUMMARY_LINES = 3
 
 
@@ -115,7 +117,7 @@ def title_page_figure(
     # room the blocks under the runs table need (figure fraction), so the table can grow
     sum_lines = min(len(textwrap.wrap(summary, 150)), TITLE_MAX_SUMMARY_LINES) if summary else 0
     head_lines = len(textwrap.wrap(headline, 150)) if headline else 0
-    below = 0.07 + 0.02
+    below = 0.07
     for n_lines in (sum_lines, head_lines):
         if n_lines:
             below += 0.032 + _LINE[9.0] * n_lines + 0.022
@@ -123,11 +125,14 @@ def title_page_figure(
     if entries:
         below += 0.032 + _LINE[8.5] * math.ceil(len(entries) / 2)
     if datasets:
-        # the table's own margins: heading, the "more runs" line and the gaps after it
-        below += 0.012 + _LINE[8.5] + 0.02
-        fit = int((y - 0.032 - below) / 0.027) - 1  # rows of 0.027 under a header row
+        # the table's own margins: heading and the gaps after it (and, when not every run
+        # fits, the "more runs" line)
+        below += 0.012 + 0.02
+        fit = int((y - 0.032 - below) / TITLE_ROW) - 1  # rows under a header row
+        if fit < len(datasets):
+            fit = int((y - 0.032 - below - _LINE[8.5]) / TITLE_ROW) - 1
         rows = list(datasets)[:max(fit, TITLE_MIN_RUNS)]
-        h = 0.027 * (len(rows) + 1)
+        h = TITLE_ROW * (len(rows) + 1)
         heading("Runs and sampling (from the prediction files)")
         ax = fig.add_axes((0.05, y - h, 0.9, h))
         head = ["role", "run", "p (MPa)", "f (Hz)", "waveform", "duration (s)", "samples",
@@ -141,7 +146,7 @@ def title_page_figure(
                           f"{r['rate_Hz']:.1f}", f"{r['jitter_ms']:.3f}",
                           f"{r['max_dt_ms']:.2f}"])
         _table(ax, cells, head, col_widths=[0.1, 0.2, 0.07, 0.06, 0.08, 0.09, 0.08, 0.08,
-                                            0.12, 0.09], row_height=1.3)
+                                            0.12, 0.09], row_height=1.05)
         y -= h + 0.012
         extra = len(datasets) - len(rows)
         if extra > 0:
