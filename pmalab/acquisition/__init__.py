@@ -14,7 +14,9 @@ run's time zero), ``sample_rate_Hz`` as recorded (lower than
 ``requested_sample_rate_Hz`` on a reduced-rate rig) and, via
 :func:`pmalab.runfile.read_runs`, ``status``, ``timing`` and ``device_stats`` (dict).
 Modules: :mod:`.protocol` (TOML), :mod:`.waveforms` (commands), :mod:`.safety`,
-:mod:`.recorder` (SWMR HDF5 writer), :mod:`.runner`, :mod:`.csv_import`, :mod:`.recover`.
+:mod:`.recorder` (SWMR HDF5 writer), :mod:`.runner`, :mod:`.csv_import`, :mod:`.recover`,
+:mod:`.live` (``run --live`` and ``view``: the live page; the runner sees it only as a
+``RunnerOptions.observer``).
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ def safety_text(status: str, stop_requested: bool) -> dict[str, str]:
     if status.startswith("aborted"):
         return {"state": "aborted", "text": status}
     if status == "completed":
-        return {"state": "completed", "text": "completed; regulator commanded to 0 MPa"}
+        return {"state": "completed", "text": "run completed"}
     if stop_requested:
         return {"state": "stopping", "text": "stop requested: the runner vents and closes "
                 "the run at its next sample"}
