@@ -52,6 +52,7 @@ from threadpoolctl import threadpool_limits
 
 from pmalab.identify.estimation.basis import PressureBasis, fit_polynomial, weights
 from pmalab.identify.estimation.problem import Problem, Record
+from pmalab.identify.estimation.records import fit_record_params
 from pmalab.identify.estimation.solver import solve, uncertainty
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
@@ -143,41 +144,6 @@ def _problem(model: ForceModel, runs: Sequence[Record], basis: PressureBasis,
                    run_params=run_params, cap=RESID_CAP, basis=basis)
 
 
-def fit_record_params(prob: Problem, z: np.ndarray) -> np.ndarray:
-    """z with every run's record parameters (h0, nuisances) fitted for the given laws.
-
-    First the initial-condition estimate (median force error over the first 50 ms with
-    h0 = 0; nuisance parameters keep their values in ``z``), then a few least-squares
-    steps on the per-run parameters alone.
-    """
-    z = np.array(z, dtype=float)
-    if not prob.run_params:
-        return z
-    k = prob.n_coef
-    lo, hi = prob.z_bounds()
-    if "h0" in prob.run_params:
-        blk = prob.block(prob.run_params.index("h0"))
-        z[blk] = 0.0
-        for i, th in enumerate(prob.thetas(z)):
-            r = prob.records[i]
-            with np.errstate(all="ignore"):
-                pred = prob.model.predict(r.sig, th)
-            dt = float(np.median(np.diff(r.sig.t)))
-            m = max(1, min(r.n, int(round(0.05 / dt))))
-            est = float(np.median(r.force[:m] - pred[:m]))
-            z[blk.start + i] = est if np.isfinite(est) else 0.0
-
-    def f(h: np.ndarray) -> np.ndarray:
-        return prob.residual(np.concatenate([z[:k], h]))
-
-    def jf(h: np.ndarray) -> np.ndarray:
-        return prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
-
-    sol = solve(f, jf, z[k:], lo[k:], hi[k:], max_nfev=10)
-    z[k:] = sol.x
-    return z
-
-
 def _solve(prob: Problem, z0: np.ndarray, max_nfev: int):
     lo, hi = prob.z_bounds()
     return solve(prob.residual, prob.jac, z0, lo, hi, max_nfev=max_nfev)
@@ -237,7 +203,7 @@ def refine(
         pr = build(deg_c)
         z = pr.z_from({n: basis.from_monomial(st[n], deg_c[n]) for n in free}, run_start)
         with threadpool_limits(limits=1, user_api="blas"):
-            z = fit_record_params(pr, z)  # the start laws' own start states
+            z = fit_record_params(pr, z, max_nfev=10)  # the start laws' own start states
         e = pr.residual(z)
         cands.append((float(e @ e), deg_c, pr, z))
     nr_start = cands[0][2].per_run_nrmse(cands[0][3])
@@ -319,7 +285,7 @@ def evaluate(model: ForceModel, runs: Sequence[Record], coef: dict[str, Sequence
                     run_params)
     z = prob.z_from({n: basis.from_monomial(coef[n], 2) for n in free}, nuis)
     with threadpool_limits(limits=1, user_api="blas"):
-        z = fit_record_params(prob, z)  # each run's best start state for these laws
+        z = fit_record_params(prob, z, max_nfev=10)  # each run's best start state
     return prob.per_run_nrmse(z)
 
 
