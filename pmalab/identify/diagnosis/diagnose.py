@@ -368,16 +368,32 @@ def diagnose(
 
 # --------------------------------------------------------------------------- writing
 def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
-    """DIR/diagnosis.json and DIR/predictions.h5 (refuses to overwrite without ``force``)."""
-    import h5py
+    """DIR/diagnosis.json and DIR/predictions.h5 (refuses to overwrite without ``force``).
 
+    Both are written under temporary names before either is renamed: a failure (a full
+    disk) leaves neither behind."""
     from pmalab.paths import check_output
 
     d = Path(out_dir)
     jpath = check_output(d / "diagnosis.json", force)
     hpath = check_output(d / "predictions.h5", force)
     d.mkdir(parents=True, exist_ok=True)
-    jpath.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False))
+    jtmp, htmp = jpath.with_suffix(".json.tmp"), hpath.with_suffix(".h5.tmp")
+    try:
+        jtmp.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False))
+        _write_predictions(diag, htmp)
+    except BaseException:
+        jtmp.unlink(missing_ok=True)
+        htmp.unlink(missing_ok=True)
+        raise
+    jtmp.replace(jpath)
+    htmp.replace(hpath)
+    return jpath, hpath
+
+
+def _write_predictions(diag: Diagnosis, hpath: Path) -> None:
+    import h5py
+
     final_name = "+".join([diag.model, *diag.final_effects])
     with h5py.File(hpath, "w") as f:
         f.attrs["format"] = PREDICTIONS_FORMAT
@@ -398,7 +414,6 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> 
                                 "muscle_pressure_MPa": run.nominal_pressure,
                                 "frequency_Hz": run.frequency if run.frequency else np.nan,
                                 "waveform": str(run.attrs.get("waveform", "")), "model": name})
-    return jpath, hpath
 
 
 def _unique(key: str, used: set[str]) -> str:
