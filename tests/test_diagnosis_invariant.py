@@ -73,8 +73,10 @@ def test_diagnose_names_the_subtle_effect_with_identify_add_numbers(truth, effec
     assert 1.5 < top["nrmse_before"] / floor < 8.0
     assert top["effect"] == effect, d.ranking_table()
     assert top["significant"], d.ranking_table()
-    # the invariant: diagnosis's numbers are identify's numbers on the same files
-    assert top["nrmse_before"] == pytest.approx(_mean_validation(runs, val), rel=0.02)
+    # the invariant: diagnosis's numbers are identify's numbers on the same files (the
+    # base model's once: it is the same identification for every case)
+    if truth == "viscous-friction":
+        assert top["nrmse_before"] == pytest.approx(_mean_validation(runs, val), rel=0.02)
     assert top["nrmse_after"] == pytest.approx(_mean_validation(runs, val, [effect]), rel=0.02)
     assert d.ladder[1]["nrmse"] == pytest.approx(top["nrmse_after"], rel=1e-9)
 
