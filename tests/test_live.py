@@ -495,3 +495,20 @@ def test_run_events_never_block_the_runner_when_the_display_stops_reading():
         d.proc.kill()
         d.proc.wait()
         d.close("")
+
+
+def test_stop_while_waiting_for_the_muscle_pressure_aborts_before_recording(tmp_path):
+    proto = parse_protocol(TWO_RUNS, "t.toml")
+    rig = make_fake_rig()
+    opts = RunnerOptions(progress=False)
+
+    class StopAtStart(RunObserver):
+        def run_started(self, index, spec, writer):
+            opts.request_stop()  # pressed before the pressure settled
+
+    opts.observer = StopAtStart()
+    with pytest.raises(SafetyAbort) as ei:
+        run_protocol(rig, proto, tmp_path / "early.h5", options=opts)
+    assert "run 'first' aborted: stopped from the live view" in str(ei.value)
+    assert rig.cylinder_regulator.calls[-1][1] == "vent"
+    assert max(v for _, _, v in rig.cylinder_regulator.calls) == 0.0  # nothing moved
