@@ -23,8 +23,9 @@ Method (:func:`noise_sigma`)
    with ``a = exp(−Δt/τ)``: neighbouring samples correlate and the third difference
    under-reads σ (by 30 % at τ = Δt).  The third difference taken at a stride of two
    samples tells which: its variance equals the stride-one variance for white noise and
-   approaches twice it as ``a`` grows.  The measured ratio is inverted for ``a`` (tabulated
-   up to a = 0.8, τ ≈ 4.5 Δt: slower noise cannot be told from the signal this way) and
+   approaches twice it as ``a`` grows.  When the measured ratio exceeds 1 by more than two
+   standard errors (its scatter over eight pieces of the record), it is inverted for ``a``
+   (tabulated up to a = 0.8, τ ≈ 4.5 Δt: slower noise cannot be told from the signal) and
    σ² = var(Δ³F) / g(a), where g(a) is the variance gain of the third difference on a
    unit-variance AR(1) process (20 for white noise).  σ is the rms of the noise as it is
    *in the record* (after the lag): the floor a model of that record faces.  A lag applied
@@ -61,6 +62,8 @@ _TRUNC_VAR = 1.0 - 2.0 * _CLIP * math.exp(-0.5 * _CLIP**2) / math.sqrt(2.0 * mat
 _A_GRID = np.linspace(0.0, 0.8, 401)
 #: fewest third differences for an estimate
 MIN_SAMPLES = 16
+#: pieces of the record over which the scatter of the colour ratio is measured
+_CHUNKS = 8
 
 
 def _ar1_gain(a: float, stride: int = 1) -> float:
@@ -111,6 +114,25 @@ def _robust_var(d: np.ndarray) -> float:
     return float(np.mean(d[keep] ** 2)) / _TRUNC_VAR
 
 
+def _colour_ratio(d1: np.ndarray, d2: np.ndarray, v1: float) -> float:
+    """var(Δ³ at stride 2) / var(Δ³ at stride 1), or exactly 1 (white) unless the ratio is
+    clear of its own scatter.
+
+    On white noise the measured ratio scatters by ±10 % on a 1–4 s record; inverting that
+    scatter would only ever *raise* σ (a ratio below 1 already means white), a bias of a few
+    per cent.  The scatter is measured on ``_CHUNKS`` contiguous pieces of the record, and
+    the colour correction applies only when the ratio exceeds 1 by more than two standard
+    errors.
+    """
+    if v1 <= 0 or d2.size < _CHUNKS * MIN_SAMPLES:
+        return 1.0
+    ratio = _robust_var(d2) / v1
+    pieces = [_robust_var(b) / max(_robust_var(a), 1e-300)
+              for a, b in zip(np.array_split(d1, _CHUNKS), np.array_split(d2, _CHUNKS), strict=True)]
+    se = float(np.std(pieces, ddof=1)) / math.sqrt(_CHUNKS)
+    return ratio if ratio > 1.0 + 2.0 * se else 1.0
+
+
 def noise_sigma(force: np.ndarray, t: np.ndarray | None = None) -> float:
     """Rms of the measurement noise of a force record (N, the unit of ``force``).
 
@@ -132,7 +154,7 @@ def noise_sigma(force: np.ndarray, t: np.ndarray | None = None) -> float:
     v1 = _robust_var(d1)
     d2 = _third_differences(segs, 2)
     # colour: white noise has the same Δ³ variance at strides 1 and 2, AR(1) noise more at 2
-    ratio = _robust_var(d2) / v1 if d2.size >= MIN_SAMPLES and v1 > 0 else 1.0
+    ratio = _colour_ratio(d1, d2, v1)
     i = min(int(np.searchsorted(_RATIO, ratio)), len(_A_GRID) - 1)
     return math.sqrt(v1 / _G1[i])
 
