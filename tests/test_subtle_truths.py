@@ -3,7 +3,7 @@ validates near the noise floor on clean data, and at 2–4× the floor with an e
 which ``identify --add`` brings back near the floor.
 
 The floor is estimated from each validation record (pmalab.identify.noise).  Sizes were
-chosen with sensor seeds 5 and 7; this test records with seed 13.  (`python -m bench
+chosen with sensor seed 5 (checked with 7); this test records with seed 13.  (`python -m bench
 subtle` measures every subtle file; this test keeps to two so the suite stays fast.)
 """
 
