@@ -13,6 +13,7 @@ from matplotlib.figure import Figure
 from pmalab.identify.headline import error_fall
 from pmalab.reports import ReportError, load_report_dir, plan_pages
 from pmalab.reports.build import draw_page
+from pmalab.reports.figures_signals import LOOP_MAX_POINTS
 from pmalab.reports.layout import text_problems
 
 COMPARE_PAGES = [
@@ -106,7 +107,7 @@ def test_hysteretic_component_subtracts_the_base_linear_part(pages, dirs):
     fig = page.make()
     ax = fig.axes[0]
     measured = ax.lines[0]
-    stride = -(-len(t.position) // 1200)  # the loop's decimation (style.decimate)
+    stride = -(-len(t.position) // LOOP_MAX_POINTS)  # the loop's decimation (style.decimate)
     np.testing.assert_allclose(measured.get_xdata(), t.position[::stride])
     np.testing.assert_allclose(measured.get_ydata(),
                                (t.force - (k * t.position + c0))[::stride], rtol=1e-9)

@@ -21,7 +21,9 @@ from matplotlib.lines import Line2D
 from pmalab.reports import style
 from pmalab.reports.data import Trace
 
-LOOP_MAX_POINTS = 1200
+#: samples drawn per loop: each is a separately coloured PDF path, so this sets the page
+#: weight (600 keeps ~200 per cycle on a 3-cycle run, smooth at print size)
+LOOP_MAX_POINTS = 600
 ERROR_PERCENTILE = 98.0
 TIME_MAX_POINTS = 2000
 #: line widths (pt) of a loop: the measurement wide underneath, the model thinner on top
