@@ -10,6 +10,7 @@ them to the :class:`Hub` exactly as the live pump does.  When every run has a fi
 from __future__ import annotations
 
 import json
+import sys
 import threading
 from pathlib import Path
 from typing import Any
@@ -101,8 +102,13 @@ class FileFollower(threading.Thread):
         while not self._quit.is_set():
             try:
                 self.poll()
+                self.error = None
             except (OSError, KeyError, RunFileError) as exc:  # mid-write or vanished: retry
-                self.error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                if error != self.error:  # say it once, not at every poll
+                    print(f"pmalab view: warning: {self.path}: {error} (retrying)",
+                          file=sys.stderr, flush=True)
+                self.error = error
             if self.complete:
                 return
             self._quit.wait(self.poll_s)

@@ -68,7 +68,6 @@ class Hub:
         self._status = b""
         self._status_version = 0
         self.end_message: str | None = None
-        self.frames_published = 0
         #: browsers connected now (event streams open)
         self.clients = 0
 
@@ -97,7 +96,6 @@ class Hub:
             run.n_points += n
             if run.status == "waiting":
                 run.status = "recording"
-            self.frames_published += 1
             self._changed()
 
     def end_run(self, index: int, status: str) -> None:
