@@ -25,7 +25,7 @@ from tqdm import tqdm
 from pmalab import __version__
 from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
-from pmalab.identify.messages import is_note
+from pmalab.identify.messages import cli_text, is_note
 from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
@@ -190,8 +190,8 @@ def plan_pages(data: ReportData) -> list[Page]:
                          for w in r.get("warnings") or []
                          if not any(g.endswith(w) for g in warnings)]
         # what to check first, then what was done (the terminal's warning:/note: split)
-        warnings = ([f"warning: {w}" for w in warnings if not is_note(w)]
-                    + [f"note: {w}" for w in warnings if is_note(w)])
+        warnings = ([f"warning: {cli_text(w)}" for w in warnings if not is_note(w)]
+                    + [f"note: {cli_text(w)}" for w in warnings if is_note(w)])
         fixed_all = [n for n in names if all(n in (r.get("fixed") or []) for r in id_rows)]
         tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
         for i, chunk in enumerate(tc):

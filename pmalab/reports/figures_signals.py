@@ -135,7 +135,9 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
         a1.plot(tt, t.force[s], color=style.MEASURED, label="measured")
         a1.plot(tt, t.force_model[s], color=style.MODEL, lw=1.0, alpha=0.9, label="model")
         a1.set_ylabel(style.FORCE)
-        a1.legend(loc="best", ncols=2)
+        # above the panel: a legend inside would cover the periodic curves
+        a1.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
+                  borderaxespad=0.1)
         a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
@@ -172,7 +174,9 @@ def validation_figure(
         a1.plot(t.time[s], t.force_model[s], color=style.VALIDATION, alpha=0.9,
                 label="predicted")
         a1.set_ylabel(style.FORCE)
-        a1.legend(loc="best", ncols=2)
+        # above the panel: a legend inside would cover the periodic curves
+        a1.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
+                  borderaxespad=0.1)
         a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
