@@ -45,6 +45,8 @@ POOR_FIT_PERCENT = 90.0
 #: how far (MPa) outside the identified pressure range a prediction may go before it counts
 #: as extrapolation
 EXTRAPOLATION_TOLERANCE_MPa = 0.005
+#: campaigns with fewer samples than this fit a base law in this process (see fit_runs)
+PARALLEL_MIN_SAMPLES = 400_000
 #: pressure-law methods: "joint" (refined, the default) or "per-run" (the seeds' quadratics)
 PRESSURE_MODELS = ("joint", "per-run")
 
@@ -226,6 +228,10 @@ def fit_runs(
         except Exception:
             jobs, scheduler = 1, None  # a user model that cannot be shipped: run here
     kw = per_run_kwargs or [{} for _ in runs]
+    if not scheduler and sum(len(r) for r in runs) < PARALLEL_MIN_SAMPLES and not fm.effects:
+        # the base law fits a decimated record in tens of ms: starting worker processes
+        # (and shipping the runs to them) costs more than it saves
+        jobs = 1
     tasks = [(r, ship, {**kwargs, **k}) for r, k in zip(runs, kw)]
     out = map_tasks(_fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress,
                     desc="identify")
