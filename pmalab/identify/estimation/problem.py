@@ -34,6 +34,8 @@ from pmalab.identify.estimation.basis import PressureBasis
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 
+#: an unweighted residual beyond this (N) is a runaway prediction; it is clipped here
+RUNAWAY_N = 1e9
 #: parameters whose residual derivative is known in closed form (F = k·x + c0 + ...)
 LINEAR = ("k", "c0")
 
@@ -158,8 +160,10 @@ class Problem:
             if not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > self.cap:
                 e = np.clip(np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
                             -self.cap, self.cap)
-        elif not np.all(np.isfinite(e)):
-            e = np.nan_to_num(e, nan=1e9, posinf=1e9, neginf=-1e9)
+        elif not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > RUNAWAY_N:
+            # a runaway state: large and finite (squares stay representable)
+            e = np.clip(np.nan_to_num(e, nan=RUNAWAY_N, posinf=RUNAWAY_N, neginf=-RUNAWAY_N),
+                        -RUNAWAY_N, RUNAWAY_N)
         return e
 
     def residual(self, z: np.ndarray) -> np.ndarray:
