@@ -448,8 +448,3 @@ def pressure_fits(rfs: Sequence[RunFit]) -> dict[str, PressureFit]:
         ses = [r.result.params[name].stderr for r in rfs]
         out[name] = fit_quadratic(name, pressures, vals, ses)
     return out
-
-
-def with_model(cf: CampaignFit, model: ForceModel) -> CampaignFit:
-    """A copy bound to another (equivalent) model object."""
-    return replace(cf, model=model)
