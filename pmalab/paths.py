@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 from pmalab.errors import OutputError, OutputExistsError
@@ -93,3 +94,19 @@ def remove_empty_dirs(roots: list[Path]) -> None:
                 os.rmdir(dirpath)  # only succeeds when empty
             except OSError:
                 pass
+
+
+def write_together(writers: dict[Path, Callable[[Path], None]]) -> None:
+    """Write several outputs as one: each writer fills a temporary ``NAME.tmp`` next to its
+    path, and only when all succeeded is each renamed into place — a failure (a full disk)
+    leaves none of them behind."""
+    tmps = {p: p.with_name(p.name + ".tmp") for p in writers}
+    try:
+        for p, write in writers.items():
+            write(tmps[p])
+    except BaseException:
+        for t in tmps.values():
+            t.unlink(missing_ok=True)
+        raise
+    for p, t in tmps.items():
+        t.replace(p)

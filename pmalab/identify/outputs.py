@@ -49,7 +49,7 @@ import numpy as np
 from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.estimation.solver import STDERR_METHOD
-from pmalab.paths import check_output
+from pmalab.paths import check_output, write_together
 from pmalab.runfile import Run, decode_attr
 
 if TYPE_CHECKING:
@@ -285,15 +285,8 @@ def write_outputs(res: Identification, out_dir: str | Path, force: bool = False)
     hpath = check_output(out / "predictions.h5", force)
     doc = identification_dict(res)
     out.mkdir(parents=True, exist_ok=True)
-    tmp = jpath.with_suffix(".json.tmp")
-    htmp = hpath.with_suffix(".h5.tmp")
-    try:  # both written before either is renamed: a failure leaves neither behind
-        tmp.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")
-        write_predictions(res, htmp)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        htmp.unlink(missing_ok=True)
-        raise
-    tmp.replace(jpath)
-    htmp.replace(hpath)
+    write_together({
+        jpath: lambda p: p.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n"),
+        hpath: lambda p: write_predictions(res, p),
+    })
     return jpath, hpath

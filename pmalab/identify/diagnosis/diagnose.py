@@ -372,22 +372,16 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> 
 
     Both are written under temporary names before either is renamed: a failure (a full
     disk) leaves neither behind."""
-    from pmalab.paths import check_output
+    from pmalab.paths import check_output, write_together
 
     d = Path(out_dir)
     jpath = check_output(d / "diagnosis.json", force)
     hpath = check_output(d / "predictions.h5", force)
     d.mkdir(parents=True, exist_ok=True)
-    jtmp, htmp = jpath.with_suffix(".json.tmp"), hpath.with_suffix(".h5.tmp")
-    try:
-        jtmp.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False))
-        _write_predictions(diag, htmp)
-    except BaseException:
-        jtmp.unlink(missing_ok=True)
-        htmp.unlink(missing_ok=True)
-        raise
-    jtmp.replace(jpath)
-    htmp.replace(hpath)
+    write_together({
+        jpath: lambda p: p.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False)),
+        hpath: lambda p: _write_predictions(diag, p),
+    })
     return jpath, hpath
 
 
