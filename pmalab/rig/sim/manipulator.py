@@ -42,14 +42,13 @@ from pmalab.rig.base import (
     Block,
     Clock,
     Limits,
-    PressureRegulator,
     Sampler,
-    VentResult,
     VirtualClock,
 )
 from pmalab.rig.manipulator import ManipulatorGeometry, ManipulatorRig
 from pmalab.rig.sim import kernel as K
 from pmalab.rig.sim.physics import build_params
+from pmalab.rig.sim.regulator import SimulatedRegulator
 from pmalab.rig.sim.truth import Truth, default_truth, load_truth
 
 _NOISE_BLOCK = 4096
@@ -471,28 +470,11 @@ class ManipulatorSampler(Sampler):
         return self.physics.advance_and_sample(self.clock.now())
 
 
-class ManipulatorRegulator(PressureRegulator):
+class ManipulatorRegulator(SimulatedRegulator):
     """The simulated ITV-class regulator feeding the muscle (0..rated pressure)."""
 
     def __init__(self, physics: ManipulatorPhysics, clock: Clock) -> None:
-        self.physics = physics
-        self.clock = clock
-        self.max_pressure_MPa = physics.max_MPa
-
-    def set_pressure(self, mpa: float) -> None:
-        self.physics.advance_to(self.clock.now())
-        self.physics.set_command(mpa)
-
-    def vent(self) -> VentResult:
-        try:
-            self.physics.advance_to(self.clock.now())
-        except Exception:  # a diverged integration must not stop the vent
-            pass
-        try:
-            self.physics.set_command(0.0)
-        except Exception as exc:  # vent must never raise
-            return VentResult.failed(f"simulated regulator: {exc}")
-        return VentResult.confirmed("simulated regulator commanded to 0 MPa")
+        super().__init__(physics, clock, physics.max_MPa, physics.set_command)
 
 
 def make_sim_manipulator(

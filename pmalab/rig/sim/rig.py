@@ -15,13 +15,13 @@ from pmalab.rig.base import (
     Block,
     Clock,
     MusclePressureSupply,
-    PressureRegulator,
     Rig,
     Sampler,
     VentResult,
     VirtualClock,
 )
 from pmalab.rig.sim.physics import RigPhysics
+from pmalab.rig.sim.regulator import SimulatedRegulator
 
 
 class SimSampler(Sampler):
@@ -39,28 +39,11 @@ class SimSampler(Sampler):
         return Block(o[0:1], o[1:2], o[2:3], o[3:4], o[4:5])
 
 
-class SimCylinderRegulator(PressureRegulator):
+class SimCylinderRegulator(SimulatedRegulator):
     """The simulated ITV1050-class regulator driving the cylinder (0–0.9 MPa)."""
 
     def __init__(self, physics: RigPhysics, clock: Clock) -> None:
-        self.physics = physics
-        self.clock = clock
-        self.max_pressure_MPa = physics.cylinder_max_MPa
-
-    def set_pressure(self, mpa: float) -> None:
-        self.physics.advance_to(self.clock.now())
-        self.physics.set_cylinder_command(mpa)
-
-    def vent(self) -> VentResult:
-        try:
-            self.physics.advance_to(self.clock.now())
-        except Exception:  # a diverged integration must not stop the vent
-            pass
-        try:
-            self.physics.set_cylinder_command(0.0)
-        except Exception as exc:  # vent must never raise
-            return VentResult.failed(f"simulated regulator: {exc}")
-        return VentResult.confirmed("simulated regulator commanded to 0 MPa")
+        super().__init__(physics, clock, physics.cylinder_max_MPa, physics.set_cylinder_command)
 
 
 class SimMuscleSupply(MusclePressureSupply):
