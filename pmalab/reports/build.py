@@ -8,21 +8,15 @@ PNG/SVG files), writing to a temporary file that replaces ``out`` only when comp
 from __future__ import annotations
 
 import math
-import os
 import re
-import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import matplotlib as mpl
-from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
-from tqdm import tqdm
 
-from pmalab import __version__
 from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
 from pmalab.identify.messages import cli_text, is_note
@@ -62,6 +56,7 @@ from pmalab.reports.figures_text import (
     timing_stats,
     title_page_figure,
 )
+from pmalab.reports.pdf import PageSpec, write_pdf
 
 TIME_PER_PAGE = 3
 LOOPS_PER_PAGE = 6
@@ -469,44 +464,8 @@ def build_report(
         raise ReportError(str(exc)) from None
     data = load_report_dir(directory)
     pages = plan_pages(data)
-    exports: list[tuple[Path, str]] = []
-    for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
-        if d is None:
-            continue
-        d = Path(d)
-        if d.exists() and not d.is_dir():
-            raise ReportError(f"{d}: not a directory")
-        for i, p in enumerate(pages, 1):
-            check_output(d / f"{i:02d}-{_slug(p.slug)}.{ext}", force)
-        exports.append((d, ext))
-    tmp = out.with_name(f".{out.name}.part")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.touch()
-    except OSError as exc:
-        raise ReportError(f"{out}: cannot write ({exc.strerror or exc})") from None
-    n = len(pages)
-    try:
-        meta = {"Title": f"pmalab report: {data.model} ({_names(data)})",
-                "Creator": f"pmalab {__version__}", "Subject": "pneumatic muscle identification",
-                "CreationDate": datetime.now(UTC)}
-        with PdfPages(tmp, metadata=meta) as pdf, tqdm(
-                total=n, desc="report", unit="page", file=sys.stderr, disable=not bar,
-                leave=False, dynamic_ncols=True) as pbar:
-            for i, page in enumerate(pages, 1):
-                pbar.set_postfix_str(page.title[:48], refresh=True)
-                fig = draw_page(page, data, i, n)
-                with mpl.rc_context(style.RC):
-                    pdf.savefig(fig)
-                for d, ext in exports:
-                    style.save_figure(fig, d / f"{i:02d}-{_slug(page.slug)}.{ext}", force=True,
-                                      dpi=150)
-                if progress is not None:
-                    progress(f"page {i}/{n}: {page.title}")
-                pbar.update(1)
-                del fig
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return out
+    specs = [PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n))
+             for p in pages]
+    return write_pdf(out, specs, title=f"pmalab report: {data.model} ({_names(data)})",
+                     subject="pneumatic muscle identification", force=force, png_dir=png_dir,
+                     svg_dir=svg_dir, progress=progress, bar=bar)

@@ -8,18 +8,11 @@ response page (position or pressure, error, pressures) and a gains page.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Sequence
-from datetime import UTC, datetime
 from pathlib import Path
 
-import matplotlib as mpl
-from matplotlib.backends.backend_pdf import PdfPages
-
-from pmalab import __version__
 from pmalab.errors import OutputError, OutputExistsError, PmalabError
 from pmalab.paths import check_output
-from pmalab.reports import style
 from pmalab.reports.errors import ReportError
 from pmalab.reports.figures_control import (
     ControlFileData,
@@ -28,6 +21,7 @@ from pmalab.reports.figures_control import (
     metrics_table_figure,
     response_figure,
 )
+from pmalab.reports.pdf import PageSpec, write_pdf
 from pmalab.runfile import decode_attr, open_h5, read_run_datasets, read_runs
 
 
@@ -90,35 +84,11 @@ def build_control_report(
     for f in files:
         pages.append((f"{f.title}-response", lambda f=f: response_figure(f)))
         pages.append((f"{f.title}-gains", lambda f=f: gains_figure(f)))
-    exports = []
-    for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
-        if d is not None:
-            for i, (slug, _) in enumerate(pages, 1):
-                check_output(Path(d) / f"{i:02d}-{slug}.{ext}", force)
-            exports.append((Path(d), ext))
-    tmp = out.with_name(f".{out.name}.part")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        tmp.touch()
-    except OSError as exc:
-        raise ReportError(f"{out}: cannot write ({exc.strerror or exc})") from None
-    n = len(pages)
-    try:
-        meta = {"Title": "pmalab control report", "Creator": f"pmalab {__version__}",
-                "CreationDate": datetime.now(UTC)}
-        with PdfPages(tmp, metadata=meta) as pdf:
-            for i, (slug, make) in enumerate(pages, 1):
-                fig = make()
-                with mpl.rc_context(style.RC):
-                    fig.text(0.99, 0.005, f"pmalab control report · page {i}/{n}", ha="right",
-                             va="bottom", fontsize=8, color="0.4")
-                    pdf.savefig(fig)
-                for d, ext in exports:
-                    style.save_figure(fig, d / f"{i:02d}-{slug}.{ext}", force=True, dpi=150)
-                if progress is not None:
-                    progress(f"page {i}/{n}: {slug}")
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return out
+    specs = [PageSpec(slug, slug, lambda i, n, make=make: make()) for slug, make in pages]
+
+    def footer(fig, i: int, n: int) -> None:
+        fig.text(0.99, 0.005, f"pmalab control report · page {i}/{n}", ha="right",
+                 va="bottom", fontsize=8, color="0.4")
+
+    return write_pdf(out, specs, title="pmalab control report", force=force, png_dir=png_dir,
+                     svg_dir=svg_dir, progress=progress, footer=footer)
