@@ -26,11 +26,9 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.campaign import ModelSpec
 from pmalab.identify.diagnosis.diagnostics import campaign_diagnostics, run_diagnostics
 from pmalab.identify.diagnosis.heldout import choose
 from pmalab.identify.diagnosis.ladder import LadderStep, Round, run_ladder
-from pmalab.identify.diagnosis.ranking import score
 from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
 from pmalab.identify.noise import noise_floor_nrmse
@@ -266,14 +264,6 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
     return " ".join(parts), verdict
 
 
-def _traces(law: str, effects: Sequence[str], files: Sequence[str], train: Sequence[Run],
-            held: Sequence[Run]) -> list[np.ndarray]:
-    """Validation predictions (full rate) of an identification on the held-out runs."""
-    sc = score(train, held, ModelSpec(law, tuple(effects), tuple(files)), keep=True)
-    _, vals = sc.identification
-    return [np.asarray(v.force_model, dtype=np.float64) for v in vals]
-
-
 def diagnose(
     runs: Sequence[Run],
     model: str = "bouc-wen",
@@ -322,9 +312,7 @@ def diagnose(
     final = steps[-1].effects
 
     # the base and final identifications' predictions of the held-out runs → diagnostics
-    base_pred = [np.asarray(v.force_model, dtype=np.float64)
-                 for v in steps[0].scored.identification[1]]
-    final_pred = base_pred if not final else _traces(model, final, files, split.train, split.held)
+    base_pred, final_pred = steps[0].scored.predictions, steps[-1].scored.predictions
     diagnostics: dict[str, Any] = {}
     traces: list[tuple[Run, np.ndarray, np.ndarray]] = []
     camp_items = []

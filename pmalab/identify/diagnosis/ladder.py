@@ -62,7 +62,7 @@ def run_ladder(
 ) -> tuple[list[LadderStep], list[Round]]:
     """Climb the ladder; returns the steps (0 = base) and the ranking round of each step."""
     files = tuple(str(f) for f in effects_files)
-    base = score(train, held, ModelSpec(law, (), files), keep=True)
+    base = score(train, held, ModelSpec(law, (), files))
     steps = [LadderStep(0, [], None, base)]
     rounds: list[Round] = []
     current: tuple[str, ...] = ()

@@ -50,7 +50,8 @@ class Scored:
     nrmse: list[float]  # per held-out run
     diverged: list[str] = field(default_factory=list)
     n_params: int = 0
-    identification: Any = None  # (CampaignFit, validations) when kept in-process
+    #: the free-run force predictions (N, full rate) of the held-out runs, in their order
+    predictions: list[np.ndarray] = field(default_factory=list, repr=False)
 
     @property
     def mean(self) -> float:
@@ -62,8 +63,7 @@ class Scored:
 _CONTEXT: dict[str, Any] = {}
 
 
-def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec,
-          keep: bool = False) -> Scored:
+def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     """Identify ``spec`` on ``train`` and validate on ``held`` — ``pmalab identify``'s path."""
     cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
     nr, div = [], []
@@ -74,7 +74,8 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec,
             x = DIVERGED_NRMSE
         nr.append(min(x, DIVERGED_NRMSE))
     n_params = sum(1 for p in cf.runs[0].result.params if p.vary) if cf.runs else 0
-    return Scored(tuple(spec.effects), nr, div, n_params, (cf, vals) if keep else None)
+    preds = [np.asarray(v.force_model, dtype=np.float64) for v in vals]
+    return Scored(tuple(spec.effects), nr, div, n_params, preds)
 
 
 def _task(spec: ModelSpec) -> Scored:
