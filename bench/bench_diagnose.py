@@ -34,7 +34,7 @@ def main() -> None:
             t0 = time.perf_counter()
             d = diagnose(runs, model="bouc-wen", jobs=2)
             dt = time.perf_counter() - t0
-            n_fits = sum(len(r["candidates"]) for r in d.to_json()["rounds"]) + 1 + bool(d.winner)
+            n_fits = sum(len(r["candidates"]) for r in d.to_json()["rounds"]) + 1
             rows.append((effect, len(runs), 7, len(d.ladder) - 1, d.winner or "none",
                          d.ladder[0]["nrmse"], d.ladder[-1]["nrmse"], n_fits, dt,
                          "yes" if dt <= 30.0 else "NO"))
