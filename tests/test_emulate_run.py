@@ -15,6 +15,7 @@ from pmalab.acquisition.protocol import load_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
 from pmalab.errors import SafetyAbort
 from pmalab.paths import RIGS_DIR
+from pmalab.rig.drivers.modbus_daq import FALLBACK_RATES_HZ
 from pmalab.rig.drivers.rigfile import build_modbus_rig, read_modbus_rig_file
 from pmalab.rig.emulators.launcher import free_tcp_port, start_emulators
 from pmalab.rig.loader import load_rig
@@ -69,8 +70,12 @@ def test_emulated_t7_records_the_same_loops_as_the_in_process_sim(tmp_path):
     try:
         spec = read_modbus_rig_file(RIGS_DIR / "labjack-t7.toml")
         spec.transport.port = port
+        # the loops are the point: on a loaded 2-core machine the probe may measure a link
+        # too slow for 500 Hz, and the rig then records at the reduced rate it announces
+        spec.allow_reduced_rate = True
         with build_modbus_rig(spec) as rig:
-            assert rig.info["timing"]["sample_rate_Hz"] == 500.0
+            rate = float(rig.info["timing"]["sample_rate_Hz"])
+            assert rate in FALLBACK_RATES_HZ
             res = run_protocol(rig, protocol, emu_out, options=RunnerOptions(progress=False))
             stats = rig.sampler.stats()["modbus"]
     finally:
@@ -82,12 +87,12 @@ def test_emulated_t7_records_the_same_loops_as_the_in_process_sim(tmp_path):
     with h5py.File(emu_out) as f:
         g = f["runs"][run]
         t = g["time"][:]
-        assert g.attrs["sample_rate_Hz"] == 500.0
-    # real timestamps at 500 Hz: median period 2 ms; most deadlines kept (on a machine
-    # shared with other work a few are missed, and counted as such by the runner)
+        assert g.attrs["sample_rate_Hz"] == rate
+    # real timestamps at the announced rate: median period 1/rate; most deadlines kept (on a
+    # machine shared with other work a few are missed, and counted as such by the runner)
     dt = np.diff(t)
-    assert np.median(dt) == pytest.approx(2e-3, abs=5e-5)
-    assert len(t) >= 0.6 * (t[-1] - t[0]) * 500
+    assert np.median(dt) == pytest.approx(1.0 / rate, rel=0.03)
+    assert len(t) >= 0.6 * (t[-1] - t[0]) * rate
     # the same loop shapes: branch-wise mean force per position bin agree
     with h5py.File(sim_out) as f:
         xs = f["runs"][run]["position"][:]

@@ -202,11 +202,20 @@ class ModbusSampler(Sampler):
     def check_rate(self, rate_Hz: float | None = None, n: int = 300) -> ProbeResult:
         """Probe, then accept ``rate_Hz``, lower it (``allow_reduced_rate``) or refuse.
 
-        Raises :class:`RigError` with one line when the link cannot sustain the rate and a
+        A probe that falls short is repeated once and the faster of the two kept.  Raises
+        :class:`RigError` with one line when the link cannot sustain the rate and a
         reduced rate was not allowed.  Sets :attr:`sample_rate_Hz` to the rate to run at.
         """
         rate = float(rate_Hz or self.requested_rate_Hz)
         res = self.probe_rate(n, rate)
+        if res.sustainable_Hz < rate and n > 0:
+            # one more probe before refusing or lowering the rate: a stall of the host
+            # (another process, a hypervisor pause) during the first one says nothing
+            # about the link; the faster of the two medians is the link's
+            again = self.probe_rate(n, rate)
+            if again.p50_ms < res.p50_ms:
+                res = again
+            self.last_probe = res
         if res.sustainable_Hz >= rate:
             self.sample_rate_Hz = rate
             return res
