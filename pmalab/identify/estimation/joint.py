@@ -48,12 +48,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from pmalab.identify.estimation.basis import PressureBasis, fit_polynomial, weights
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import fit_record_params
-from pmalab.identify.estimation.solver import solve, uncertainty
+from pmalab.identify.estimation.solver import one_blas_thread, solve, uncertainty
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
@@ -202,7 +201,7 @@ def refine(
         deg_c = {n: (0 if n in fixed_order else int(dg.get(n, 2))) for n in free}
         pr = build(deg_c)
         z = pr.z_from({n: basis.from_monomial(st[n], deg_c[n]) for n in free}, run_start)
-        with threadpool_limits(limits=1, user_api="blas"):
+        with one_blas_thread():
             z = fit_record_params(pr, z, max_nfev=10)  # the start laws' own start states
         e = pr.residual(z)
         cands.append((float(e @ e), deg_c, pr, z))
@@ -284,7 +283,7 @@ def evaluate(model: ForceModel, runs: Sequence[Record], coef: dict[str, Sequence
     prob = _problem(model, runs, basis, free, dict.fromkeys(free, 2), constants, bounds,
                     run_params)
     z = prob.z_from({n: basis.from_monomial(coef[n], 2) for n in free}, nuis)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         z = fit_record_params(prob, z, max_nfev=10)  # each run's best start state
     return prob.per_run_nrmse(z)
 

@@ -42,12 +42,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from pmalab.errors import PmalabError
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import predict_record
-from pmalab.identify.estimation.solver import STDERR_METHOD, solve, uncertainty
+from pmalab.identify.estimation.solver import STDERR_METHOD, one_blas_thread, solve, uncertainty
 from pmalab.identify.metrics import loop_direction, metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.params import Params
@@ -391,7 +390,7 @@ def fit_run(
     BLAS runs single-threaded inside (tall-skinny 20 000 × 6 products are slower threaded,
     and batches parallelise across runs instead).
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         return _fit_run(data, model, fixed=fixed, init=init, free=free, auto_fix=auto_fix)
 
 

@@ -14,18 +14,45 @@ summed over the runs of the problem.  The same N_eff enters every information cr
 
 from __future__ import annotations
 
+import contextlib
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 STDERR_METHOD = (
     "Jacobian covariance s^2 (J^T J)^-1 inflated by N/N_eff, N_eff = N(1-r1)/(1+r1) "
     "from the lag-1 residual autocorrelation r1 of each run (AR(1) effective sample size)"
 )
+
+
+_BLAS: ThreadpoolController | None = None
+_BLAS_DEPTH = 0
+
+
+@contextlib.contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS limited to one thread inside the block (small dense problems run slower on
+    several threads; batches parallelise across runs instead).
+
+    The libraries are looked up once per process (``threadpoolctl`` scans the loaded
+    shared objects each time it is asked, 4 ms a call), and nested blocks cost nothing.
+    """
+    global _BLAS, _BLAS_DEPTH
+    if _BLAS_DEPTH:
+        yield
+        return
+    if _BLAS is None:
+        _BLAS = ThreadpoolController()
+    _BLAS_DEPTH += 1
+    try:
+        with _BLAS.limit(limits=1, user_api="blas"):
+            yield
+    finally:
+        _BLAS_DEPTH -= 1
 
 
 def inside(z0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -38,7 +65,7 @@ def solve(residual: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarra
           z0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, max_nfev: int,
           tol: float = 1e-8) -> OptimizeResult:
     """Bounded nonlinear least squares from ``z0`` (see the module docstring)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         return least_squares(residual, inside(np.asarray(z0, float), lo, hi), jac=jac,
                              bounds=(lo, hi), method="trf", x_scale="jac", ftol=tol,
                              xtol=tol, gtol=tol, max_nfev=max_nfev)
