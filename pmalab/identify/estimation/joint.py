@@ -62,7 +62,7 @@ SAMPLES_PER_CYCLE = 200
 #: at most this many samples of one run enter the joint fit
 MAX_SAMPLES = 2500
 #: limit on function evaluations of one joint least-squares
-MAX_NFEV = 60
+MAX_NFEV = 120
 #: cap of one weighted residual (≈ 1e3 × the run's own rmse·√N: a runaway prediction)
 RESID_CAP = 1e3
 #: a run's |ρ| above this with another parameter (or a bound hit) counts as "not determined"
