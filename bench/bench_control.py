@@ -43,11 +43,11 @@ def _step_times(controller: str, model: IdentifiedModel, n: int = 20000) -> np.n
     out = np.empty(n)
     step = c.position_step
     for k in range(200):  # warm caches
-        step(float(r[k]), 0.0, float(x[k]), float(p[k]))
+        step(float(r[k]), 0.0, 0.0, float(x[k]), float(p[k]))
     pc = time.perf_counter
     for k in range(n):
         a = pc()
-        step(float(r[k]), 0.0, float(x[k]), float(p[k]))
+        step(float(r[k]), 0.0, 0.0, float(x[k]), float(p[k]))
         out[k] = pc() - a
     return out
 

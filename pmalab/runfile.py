@@ -354,7 +354,8 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
     ("completed", "aborted: <reason>", or "running" for a file whose writer was killed),
     ``attrs["timing"]`` (lateness statistics) and ``attrs["device_stats"]`` (the devices'
     link/fault counters at the run's end, a dict; {} when the rig reports none); runs
-    never started are skipped.
+    never started are skipped.  A run's ``summary`` dataset (JSON written at its end:
+    ``pmalab control``'s metrics, vent outcome) is merged into its attrs.
 
     ``skip_incomplete`` (what analysis wants): runs that were aborted or interrupted
     (:func:`run_state`) are left out with one :class:`~pmalab.errors.RunFileWarning` each
@@ -504,6 +505,14 @@ def _recording_state(g: Any) -> dict[str, Any]:
             out["timing"] = {k: v for k, v in zip(fields, vals) if v == v}
         except (ValueError, TypeError):
             pass
+    if "summary" in g:  # end-of-run facts of a control run (JSON bytes; empty until its end)
+        raw = bytes(np.asarray(g["summary"][()], dtype=np.uint8))
+        try:
+            doc = json.loads(raw.decode("utf-8")) if raw else {}
+        except (UnicodeDecodeError, json.JSONDecodeError):
+            doc = {}
+        if isinstance(doc, dict):
+            out.update({k: v for k, v in doc.items() if k not in ("status", "timing")})
     if "device_stats" in g:
         text = decode_attr(g["device_stats"][()]).rstrip("\x00 ")
         try:
@@ -577,7 +586,8 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
     """Every 1-D dataset of run ``run`` that carries a ``units`` attr, subgroups included
     (``"gains/outer_kp"``), as ``{name: (values, units)}`` in the units stored — the
     channels :func:`read_runs` does not know (references, commands, a controller's gains).
-    One-line :class:`RunFileError` naming file and run on any problem."""
+    A run whose writer was killed (status ``running``) is cut to the samples every dataset
+    holds.  One-line :class:`RunFileError` naming file and run on any problem."""
     path = Path(path)
     f = open_h5(path)
     out: dict[str, tuple[np.ndarray, str]] = {}
@@ -590,7 +600,12 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
                 out[name] = (np.asarray(obj[()], dtype=np.float64),
                              str(decode_attr(obj.attrs["units"])))
 
-        f["runs"][run].visititems(visit)
+        g = f["runs"][run]
+        g.visititems(visit)
+        if out and _recording_state(g).get("status") == "running":
+            # a writer killed mid-append: every channel up to what all of them hold
+            n = min(v.shape[0] for v, _ in out.values())
+            out = {k: (v[:n], u) for k, (v, u) in out.items()}
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise _fail(path, run, None, f"damaged file ({_short(exc)})") from None
     finally:

@@ -33,8 +33,10 @@ def test_one_run_writes_a_contract_run_file_with_units_gains_and_metrics(tmp_pat
                                    "inner_kd"}
         assert g["gains/outer_kp"].attrs["units"] == "N/mm"
         assert g.attrs["controller"] == "sn-pid" and g.attrs["loop"] == "position"
-        metrics = json.loads(g.attrs["metrics"])
         settings = json.loads(g.attrs["settings"])
+        assert g["status"][()].rstrip(b"\x00") == b"completed"
+    metrics = run.attrs["metrics"]  # the run's summary (written at its end), as attrs
+    assert run.attrs["vent_confirmed"] is True and run.attrs["n_samples"] == 1001
     assert metrics["kind"] == "square" and len(metrics["steps"]) == 2
     assert settings["outer"]["kp"] > 0
     ref = np.asarray(h5py.File(out)["runs/sn-pid/position_reference"])

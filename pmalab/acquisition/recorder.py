@@ -28,7 +28,12 @@ Design (why it survives ``kill -9`` at any moment):
    skipped, and a run cut mid-way reads as status ``running`` with its samples.
 
 Channel units are the canonical ones (s, mm, N, MPa); ``lateness`` (s, per sample) is an
-extra dataset the reader ignores.
+extra dataset the reader ignores.  Other writers (``pmalab control``) give their own
+``channels`` (dataset path in the run's group → units; a path like ``gains/outer_kp``
+makes the group) and append blocks with :meth:`RunWriter.extend`; their end-of-run facts
+(metrics, the vent's outcome) go, as JSON, into the pre-created, resizable ``summary``
+byte dataset (:meth:`RunWriter.set_summary`), which :func:`pmalab.runfile.read_runs`
+merges into the run's attrs.
 """
 
 from __future__ import annotations
@@ -39,7 +44,7 @@ import math
 import os
 import shutil
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -109,12 +114,15 @@ class RunWriter:
         self._rec = rec
         self.name = name
         g = rec.file["runs"][name]
-        self._ds = [g[c] for c in RECORDED]
+        self.channels = tuple(rec.channels)
+        self._ds = [g[c] for c in self.channels]
+        self._fi = self.channels.index("force") if "force" in self.channels else None
+        self._summary = g["summary"] if "summary" in g else None
         self._late_ds = g["lateness"]
         self._status = g["status"]
         self._timing = g["timing"]
         self._device_stats = g["device_stats"]
-        self._buf: list[list[float]] = [[] for _ in RECORDED]
+        self._buf: list[list[float]] = [[] for _ in self.channels]
         self._late_buf: list[float] = []
         self.n = 0  # samples written to the file
         self.n_late = 0
@@ -129,6 +137,7 @@ class RunWriter:
         self._fmin, self._fmax = math.inf, -math.inf
 
     # hot path: plain list appends (called 500×/s in real time, as fast as possible virtually)
+    # of the acquisition's channels (:data:`RECORDED`, in that order)
     def add(self, t: float, x: float, f: float, pm: float, pc: float, cmd: float,
             lateness: float) -> None:
         b = self._buf
@@ -139,6 +148,23 @@ class RunWriter:
         b[4].append(pc)
         b[5].append(cmd)
         self._late_buf.append(lateness)
+
+    def extend(self, columns: Sequence[np.ndarray], lateness: np.ndarray) -> None:
+        """Buffer a block of samples: one array per channel (in :attr:`channels` order, equal
+        lengths) and the samples' lateness (s)."""
+        for buf, col in zip(self._buf, columns, strict=True):
+            buf.extend(np.asarray(col, dtype=np.float64).tolist())
+        self._late_buf.extend(np.asarray(lateness, dtype=np.float64).tolist())
+
+    def set_summary(self, doc: dict[str, Any]) -> None:
+        """Write the run's end-of-run facts (JSON) into its ``summary`` dataset and flush."""
+        if self._summary is None:
+            raise ValueError(f"run '{self.name}' has no summary dataset")
+        raw = np.frombuffer(json.dumps(doc, sort_keys=True, allow_nan=False, default=str)
+                            .encode("utf-8"), dtype=np.uint8)
+        self._summary.resize((raw.size,))
+        self._summary[:] = raw
+        self._rec.file.flush()
 
     @property
     def force_range(self) -> tuple[float, float]:
@@ -187,9 +213,10 @@ class RunWriter:
             if not self.n:
                 self._t_first = self._buf[0][0]
             self._t_last = self._buf[0][-1]
-            fb = self._buf[2]
-            self._fmin = min(self._fmin, min(fb))
-            self._fmax = max(self._fmax, max(fb))
+            if self._fi is not None:
+                fb = self._buf[self._fi]
+                self._fmin = min(self._fmin, min(fb))
+                self._fmax = max(self._fmax, max(fb))
             for buf in self._buf:
                 buf.clear()
             self._late_buf.clear()
@@ -230,6 +257,9 @@ class Recorder:
     """The output file of one ``pmalab run``: every run's group made before SWMR starts.
 
     ``runs`` is a list of ``(name, attrs)``; ``root_attrs`` are written on ``/``.
+    ``channels``: the per-sample datasets (path in the run's group → units; default the
+    acquisition's :data:`RECORDED` in canonical units); ``summary``: also make each run's
+    resizable ``summary`` byte dataset (JSON written at the run's end).
     """
 
     def __init__(
@@ -239,11 +269,15 @@ class Recorder:
         root_attrs: dict[str, Any],
         *,
         flush_interval_s: float = 0.25,
+        channels: Mapping[str, str] | None = None,
+        summary: bool = False,
     ) -> None:
         import h5py
 
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
+        self.channels = dict(channels) if channels is not None else {
+            c: CANONICAL_UNITS[c] for c in RECORDED}
         tmp = self.path.with_name(self.path.name + ".partial")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -260,10 +294,15 @@ class Recorder:
                 g = grp.create_group(name)
                 for k, v in attrs.items():
                     g.attrs[k] = _attr(v)
-                for c in RECORDED:
+                for c, units in self.channels.items():
                     ds = g.create_dataset(c, shape=(0,), maxshape=(None,), chunks=(CHUNK,),
                                           dtype=np.float64)
-                    ds.attrs["units"] = CANONICAL_UNITS[c]
+                    ds.attrs["units"] = units
+                if summary:
+                    ds = g.create_dataset("summary", shape=(0,), maxshape=(None,),
+                                          chunks=(CHUNK,), dtype=np.uint8)
+                    ds.attrs["description"] = ("UTF-8 JSON: the run's end-of-run facts "
+                                               "(empty until the run ends)")
                 ds = g.create_dataset("lateness", shape=(0,), maxshape=(None,),
                                       chunks=(CHUNK,), dtype=np.float32)
                 ds.attrs["units"] = "s"

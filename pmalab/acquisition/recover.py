@@ -50,6 +50,40 @@ def is_healthy(path: Path) -> bool:
         f.close()
 
 
+def _is_channel(obj) -> bool:
+    """A per-sample dataset: 1-D, resizable, with units (subgroups' too: ``gains/...``)."""
+    import h5py
+
+    return (isinstance(obj, h5py.Dataset) and obj.ndim == 1 and obj.maxshape == (None,)
+            and "units" in obj.attrs)
+
+
+def _samples(g) -> int:
+    """The samples every channel of run group ``g`` holds (a killed writer may have cut one
+    channel's last append)."""
+    lengths: list[int] = []
+    g.visititems(lambda _n, o: lengths.append(o.shape[0]) if _is_channel(o) else None)
+    return min(lengths, default=0)
+
+
+def _copy_group(src, dst, n: int) -> None:
+    """Copy ``src``'s datasets and subgroups into ``dst``; channels cut to ``n`` samples."""
+    import h5py
+
+    for c in src:
+        obj = src[c]
+        if isinstance(obj, h5py.Group):
+            sub = dst.create_group(c)
+            for k, v in obj.attrs.items():
+                sub.attrs[k] = v
+            _copy_group(obj, sub, n)
+            continue
+        data = obj[:n] if _is_channel(obj) else obj[()]
+        new = dst.create_dataset(c, data=data, dtype=obj.dtype)
+        for k, v in obj.attrs.items():
+            new.attrs[k] = v
+
+
 def recover(path: str | Path, out: str | Path | None = None, *,
             force: bool = False) -> list[str] | None:
     """Rewrite ``path`` (or into ``out``) as a closed file; return the runs marked aborted,
@@ -85,14 +119,7 @@ def recover(path: str | Path, out: str | Path | None = None, *,
                 d = runs.create_group(name)
                 for k, v in g.attrs.items():
                     d.attrs[k] = v
-                lengths = [g[c].shape[0] for c in g if g[c].ndim == 1 and g[c].maxshape == (None,)]
-                n = min(lengths, default=0)
-                for c in g:
-                    ds = g[c]
-                    data = ds[:n] if ds.maxshape == (None,) else ds[()]
-                    new = d.create_dataset(c, data=data, dtype=ds.dtype)
-                    for k, v in ds.attrs.items():
-                        new.attrs[k] = v
+                _copy_group(g, d, _samples(g))
                 if "status" in g:
                     status = g["status"][()].decode("utf-8", "replace").rstrip("\x00 ")
                     if status == "running":

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 from pmalab.control.controllers import CascadeSettings, make_loop
 from pmalab.control.model import HysteresisState, IdentifiedModel
+from pmalab.control.reference import ReferenceShaper
 from pmalab.errors import PmalabError
 from pmalab.rig.manipulator import ManipulatorGeometry
 
@@ -33,6 +34,7 @@ class CascadeOutput:
     pressure_reference: float  # MPa, the inner loop's reference
     force_reference: float  # N (NaN in the pressure loop)
     hysteresis: float  # N (NaN in the pressure loop)
+    setpoint: float = math.nan  # mm, the shaped position set point (NaN in the pressure loop)
 
 
 class _NoModel:
@@ -62,10 +64,24 @@ class Cascade:
         self._a = 1.0 - math.exp(-2.0 * math.pi * settings.position_filter_Hz
                                  * settings.outer.dt)
         self._xf: float | None = None
+        self.shaper = None
+        self.hyst_ref = None
+        self._p_ff = 0.0
+        if model is not None and settings.reference_feedforward:
+            self.hyst_ref = HysteresisState(model, geometry.home_contraction_mm)
+        if settings.shaping_velocity_mm_s > 0 and settings.shaping_accel_mm_s2 > 0:
+            self.shaper = ReferenceShaper(settings.shaping_velocity_mm_s,
+                                          settings.shaping_accel_mm_s2, settings.outer.dt)
 
-    def position_step(self, r: float, r_dd: float, x: float, p: float) -> CascadeOutput:
-        """One sample of the position loop (see the module docstring)."""
+    def position_step(self, r: float, r_d: float, r_dd: float, x: float, p: float
+                      ) -> CascadeOutput:
+        """One sample of the position loop (see the module docstring); ``r`` mm, ``r_d``
+        mm/s, ``r_dd`` mm/s² (the reference and its derivatives)."""
         g = self.geometry
+        if self.shaper is not None:
+            if self.shaper.s is None:  # the first sample: start where the link is
+                self.shaper.start(x)
+            r, r_d, r_dd = self.shaper.step(r, r_d)
         xf = x if self._xf is None else self._xf + self._a * (x - self._xf)
         self._xf = xf
         x_abs = g.home_contraction_mm + xf
@@ -75,8 +91,16 @@ class Cascade:
             ff = g.spring_force(g.home_contraction_mm + r) + g.moving_mass_kg * r_dd * 1e-3
         f_d = self.outer.step(r, x, ff)
         p_d = self._model.invert(f_d, x_abs, h, self.p_max)
-        u = self.inner.step(p_d, p, p_d if self.settings.inner_feedforward else 0.0)
-        return CascadeOutput(u, p_d, f_d, h)
+        if self.hyst_ref is not None:
+            xr_abs = g.home_contraction_mm + r
+            h_r = self.hyst_ref.update(xr_abs, self._p_ff)
+            p_ff = self._model.invert(ff, xr_abs, h_r, self.p_max)
+            lead = self.settings.feedforward_lead_s * (p_ff - self._p_ff) / self.settings.outer.dt
+            self._p_ff = p_ff
+            u = self.inner.step(p_d, p, p_ff + lead)
+        else:
+            u = self.inner.step(p_d, p, p_d if self.settings.inner_feedforward else 0.0)
+        return CascadeOutput(u, p_d, f_d, h, r)
 
     def pressure_step(self, p_ref: float, p: float) -> CascadeOutput:
         """One sample of the pressure loop alone."""

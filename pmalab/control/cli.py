@@ -49,17 +49,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
                    "for a plant/model mismatch; default: every effect off)")
     p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.add_argument("--real-time", action="store_true",
+                   help="run the simulation at the wall clock's pace (the loop timing of a "
+                   "real rig; default: a virtual clock, as fast as it computes)")
     p.set_defaults(func=cmd_control)
 
 
-def _make_rig_factory(truth: str | None, seed: int):
+def _make_rig_factory(truth: str | None, seed: int, real_time: bool = False):
+    from pmalab.rig.base import RealClock
     from pmalab.rig.sim.manipulator import make_sim_manipulator
     from pmalab.rig.sim.truth import load_truth
 
     t = load_truth(truth) if truth else None  # checked once, before anything runs
 
     def make():
-        return make_sim_manipulator(t, seed=seed)
+        return make_sim_manipulator(t, seed=seed, clock=RealClock() if real_time else None)
     return make
 
 
@@ -97,7 +101,7 @@ def _sigterm(signum, frame):  # SIGTERM ends a run like Ctrl-C: vent, keep the s
 def _run_one(args, check_duration, metrics_line) -> int:
     from pmalab.control.controllers import default_settings
     from pmalab.control.model import IdentifiedModel
-    from pmalab.control.record import run_metrics, write_control_file
+    from pmalab.control.record import ControlRecording, planned_attrs, run_metrics
     from pmalab.control.reference import parse_reference
     from pmalab.control.runner import run_control
     from pmalab.errors import SafetyAbort
@@ -113,22 +117,26 @@ def _run_one(args, check_duration, metrics_line) -> int:
     check_output(args.out, args.force)  # before anything runs
     model = IdentifiedModel.load(args.model) if loop == "position" else None
     _note_ignored(model)
-    make = _make_rig_factory(args.truth, args.seed or 0)
+    make = _make_rig_factory(args.truth, args.seed or 0, args.real_time)
     rig = make()
     progress = None
     if sys.stderr.isatty():  # a long run shows where it is (simulated seconds)
         def progress(t: float) -> None:
             print(f"\r{args.controller}: {t:5.0f} / {duration:g} s", end="", file=sys.stderr,
                   flush=True)
-    with rig:
-        run = run_control(rig, args.controller, ref, duration, default_settings(), model,
-                          name=args.controller, progress=progress)
+    settings = default_settings()
+    cmd = " ".join(sys.argv)
+    attrs = planned_attrs(args.controller, ref, duration, settings, model, command_line=cmd,
+                          truth=str(rig.info.get("truth", "")))
+    with rig:  # the file is live before the first sample: a crash leaves what was recorded
+        with ControlRecording(args.out, [(args.controller, attrs)], loop, force=args.force,
+                              root_attrs={"command_line": cmd}) as rec:
+            w = rec.writer(args.controller)
+            run = run_control(rig, args.controller, ref, duration, settings, model,
+                              name=args.controller, progress=progress, sink=w)
+            w.finish(run)
     if progress is not None:
         print(file=sys.stderr)
-    run.attrs["command_line"] = " ".join(sys.argv)
-    run.attrs["truth"] = str(rig.info.get("truth", ""))
-    write_control_file(args.out, [run], force=args.force,
-                       root_attrs={"command_line": " ".join(sys.argv)})
     m = run_metrics(run)
     print(f"{args.out}: {args.controller} {ref.text} ({loop} loop), {run.n} samples, "
           f"{duration / max(run.wall_s, 1e-9):.0f}× real time; {run.status}")
@@ -150,7 +158,7 @@ def _run_experiments(args) -> int:
     truth = args.truth or (str(es.truth) if es.truth else None)
     seed = args.seed if args.seed is not None else es.seed
     doc = run_experiments(es, args.out, force=args.force, model=model,
-                          make_rig=_make_rig_factory(truth, seed))
+                          make_rig=_make_rig_factory(truth, seed, args.real_time))
     bad = [r for r in doc["results"] if r["status"] != "completed"]
     print(f"{args.out}: {len(doc['results'])} runs, metrics in {args.out}/metrics.json")
     if bad:

@@ -49,6 +49,10 @@ class CascadeSettings:
     position_filter_Hz: float = 15.0
     feedforward: bool = True
     inner_feedforward: bool = False
+    reference_feedforward: bool = True
+    feedforward_lead_s: float = 0.25
+    shaping_velocity_mm_s: float = 30.0
+    shaping_accel_mm_s2: float = 100.0
 
     def to_dict(self) -> dict[str, Any]:
         def loop(s: LoopSettings) -> dict[str, Any]:
@@ -59,7 +63,11 @@ class CascadeSettings:
                     "max_rate": s.max_rate}
         return {"outer": loop(self.outer), "inner": loop(self.inner),
                 "position_filter_Hz": self.position_filter_Hz, "feedforward": self.feedforward,
-                "inner_feedforward": self.inner_feedforward}
+                "inner_feedforward": self.inner_feedforward,
+                "reference_feedforward": self.reference_feedforward,
+                "feedforward_lead_s": self.feedforward_lead_s,
+                "shaping_velocity_mm_s": self.shaping_velocity_mm_s,
+                "shaping_accel_mm_s2": self.shaping_accel_mm_s2}
 
 
 #: the adaptive laws' learning rates per controller, tuned once: the inner loop's on the

@@ -42,9 +42,9 @@ from pmalab.control.controllers import (
     settings_from_table,
 )
 from pmalab.control.model import IdentifiedModel
-from pmalab.control.record import run_metrics, write_control_file
+from pmalab.control.record import ControlRecording, planned_attrs, run_metrics
 from pmalab.control.reference import Reference, parse_reference
-from pmalab.control.runner import ControlRun, run_control
+from pmalab.control.runner import run_control
 from pmalab.errors import ConfigError, OutputError
 from pmalab.paths import DATA_DIR
 
@@ -171,8 +171,9 @@ def run_experiments(
     ``DIR/metrics.json``; return the metrics document.
 
     ``make_rig()`` gives a fresh manipulator per run (every controller starts from the
-    same state and noise seed).  A run that aborts is written with what it recorded, and
-    the remaining runs are not started.
+    same state and noise seed).  Each file is written while its runs go (a crash leaves
+    what was recorded); a run that aborts keeps what it recorded, and the remaining runs
+    are not started (their groups stay ``pending``).
     """
     from pmalab.paths import check_output
 
@@ -188,26 +189,29 @@ def run_experiments(
     total = len(es.experiments) * len(es.controllers)
     done = 0
     for e in es.experiments:
-        runs: list[ControlRun] = []
         stop = False
-        for c in es.controllers:
-            done += 1
-            rig = make_rig()
-            with rig:
-                run = run_control(rig, c, e.reference, e.duration_s, es.settings, model,
-                                  name=c)
-            runs.append(run)
-            m = run_metrics(run)
-            doc["results"].append({"experiment": e.name, "reference": e.reference.text,
-                                   "controller": c, "status": run.status, "metrics": m,
-                                   "seeds": e.seeds})
-            report(f"[{done}/{total}] {e.name} {c}: {run.status}; " + metrics_line(m))
-            if not run.completed:
-                stop = True
-                break
-        write_control_file(out / f"{e.name}.h5", runs, force=force,
-                           root_attrs={"experiment": e.name, "experiments_file": es.path,
+        planned = [(c, planned_attrs(c, e.reference, e.duration_s, es.settings, model))
+                   for c in es.controllers]
+        with ControlRecording(out / f"{e.name}.h5", planned, e.reference.quantity,
+                              force=force, root_attrs={"experiment": e.name,
+                                                       "experiments_file": es.path,
+                                                       "seeds": e.seeds}) as rec:
+            for c in es.controllers:
+                done += 1
+                rig = make_rig()
+                w = rec.writer(c)
+                with rig:
+                    run = run_control(rig, c, e.reference, e.duration_s, es.settings, model,
+                                      name=c, sink=w)
+                w.finish(run)
+                m = run_metrics(run)
+                doc["results"].append({"experiment": e.name, "reference": e.reference.text,
+                                       "controller": c, "status": run.status, "metrics": m,
                                        "seeds": e.seeds})
+                report(f"[{done}/{total}] {e.name} {c}: {run.status}; " + metrics_line(m))
+                if not run.completed:
+                    stop = True
+                    break
         if stop:
             break
     (out / "metrics.json").write_text(json.dumps(doc, indent=1, allow_nan=False,

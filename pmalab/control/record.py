@@ -1,23 +1,38 @@
-"""Control runs → an HDF5 run file (contract ``pmalab.run`` v1, DESIGN.md) plus metrics.
+"""Control runs → an HDF5 run file (contract ``pmalab.run`` v1, DESIGN.md) plus metrics,
+written WHILE the run goes, so a crash, ``kill -9`` or Ctrl-C leaves a readable file.
 
-One group per run (``/runs/<controller>``), every dataset 1-D with a ``units`` attr:
+One group per run (``/runs/<controller>``), every per-sample dataset 1-D with a ``units``
+attr:
 
 * the contract's channels ``time`` (s), ``position`` (mm, from home), ``force`` (N, load
   cell in series with the muscle), ``muscle_pressure`` (MPa), so ``pmalab identify`` and
   every run-file reader open it;
-* ``position_reference`` (mm), ``muscle_pressure_command`` (MPa, to the regulator),
+* ``position_reference`` (mm), ``position_setpoint`` (mm: the shaped set point the
+  cascade follows), ``muscle_pressure_command`` (MPa, to the regulator),
   ``muscle_pressure_reference`` (MPa: the pressure loop's reference, or the cascade's
-  desired pressure p_d), ``force_reference`` (N, F_d), ``hysteresis_force`` (N, h);
+  desired pressure p_d), ``force_reference`` (N, F_d), ``hysteresis_force`` (N, h)
+  (a pressure-loop run has no position-only ones);
 * ``gains/<loop>_<kp|ki|kd>`` — the gains over time (units in their attrs);
-* ``status`` ("completed" or "aborted: <reason>", as recorded runs carry it).
+* ``lateness`` (s): how late each sample was read after its deadline (0 on the virtual
+  clock);
+* ``status``: "pending" (not started), "running" (started; a file left so was cut by a
+  crash or ``kill -9``: :func:`pmalab.runfile.read_runs` reads the samples every channel
+  holds), "completed" or "aborted: <reason>";
+* ``summary`` (bytes of JSON, written when the run ends, completed or aborted):
+  ``metrics`` (:mod:`pmalab.control.metrics`), ``vent``, ``vent_confirmed``,
+  ``wall_time_s``, ``muscle_pressure_MPa`` (the run's mean pressure: a control run has no
+  nominal one), ``n_samples``; :func:`pmalab.runfile.read_runs` merges it into the run's
+  attrs.  ``timing`` as the acquisition's runs.
 
-Run attrs: ``controller``, ``loop``, ``reference``, ``waveform``, ``frequency_Hz``,
-``settings`` (JSON), ``model``, ``vent``, ``metrics`` (JSON, :mod:`pmalab.control.metrics`)
-and the contract's ``muscle_pressure_MPa`` (the run's mean pressure: a control run has no
-nominal one), ``sample_rate_Hz``, ``protocol``.  Root attrs add ``kind = "control"``.
+Run attrs (known before the run starts): ``controller``, ``loop``, ``reference``,
+``waveform``, ``frequency_Hz``, ``settings`` (JSON), ``model``, ``model_law``,
+``sample_rate_Hz``, ``protocol``, and what the caller adds (``command_line``, ``truth``).
+Root attrs add ``kind = "control"``.
 
-The file is written under ``OUT.partial`` and renamed when complete, so the output name
-never holds half a file; an aborted run is written with what it recorded.
+The writer is the acquisition's SWMR recorder (:mod:`pmalab.acquisition.recorder`):
+every group, dataset and attr is made before the file is switched to SWMR mode and
+renamed from ``OUT.partial`` to ``OUT``; samples are appended and flushed every 0.25 s
+of wall time, so a kill loses at most that much.
 """
 
 from __future__ import annotations
@@ -25,7 +40,6 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
-import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,12 +47,12 @@ from typing import Any
 import numpy as np
 
 from pmalab import __version__
+from pmalab.control.controllers import CascadeSettings
 from pmalab.control.metrics import summarize
-from pmalab.control.runner import GAINS, SIGNALS, ControlRun
+from pmalab.control.model import IdentifiedModel
+from pmalab.control.reference import Reference
+from pmalab.control.runner import GAINS, ControlRun, run_attrs, signals_of
 from pmalab.paths import check_output, output_failure
-from pmalab.runfile import FORMAT, FORMAT_VERSION
-
-STATUS_LEN = 256
 
 
 def _clean(v: Any) -> Any:
@@ -70,62 +84,109 @@ def run_metrics(run: ControlRun) -> dict[str, Any]:
     return _clean(out)
 
 
-def write_control_file(path: str | Path, runs: Sequence[ControlRun], *, force: bool = False,
-                       root_attrs: Mapping[str, Any] | None = None) -> Path:
-    """Write ``runs`` to ``path`` (atomically: ``.partial`` then rename); return the path."""
-    import h5py
-
-    path = check_output(path, force)
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(tmp, "w")
-    except OSError as exc:
-        raise output_failure(path, exc) from None
-    try:
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["kind"] = "control"
-        f.attrs["pmalab_version"] = __version__
-        f.attrs["created"] = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-        for k, v in (root_attrs or {}).items():
-            f.attrs[k] = json.dumps(_clean(v)) if isinstance(v, dict | list) else v
-        grp = f.create_group("runs", track_order=True)
-        for run in runs:
-            _write_run(grp, run)
-        f.close()
-        os.replace(tmp, path)
-    except BaseException as exc:
-        f.close()
-        tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError | RuntimeError):
-            raise output_failure(path, exc) from None
-        raise
-    return path
+def control_channels(loop: str) -> dict[str, str]:
+    """The per-sample datasets (path in the run's group → units) of a ``loop`` run."""
+    return {**signals_of(loop), **{f"gains/{k}": u for k, u in GAINS.items()}}
 
 
-def _write_run(grp: Any, run: ControlRun) -> None:
-    g = grp.create_group(run.name)
-    metrics = run_metrics(run)
+def _attrs(d: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: (json.dumps(_clean(v)) if isinstance(v, dict | list) else v)
+            for k, v in d.items() if v is not None}
+
+
+class ControlRecording:
+    """The live output file of one ``pmalab control`` call (one experiment).
+
+    ``runs``: ``(name, attrs)`` of every run planned, in order (their groups are all made
+    up front; a run never started stays ``pending`` and readers skip it); all of one
+    ``loop``.  Use :meth:`writer` per run, then :meth:`close`.
+    """
+
+    def __init__(self, path: str | Path, runs: Sequence[tuple[str, Mapping[str, Any]]],
+                 loop: str, *, force: bool = False, root_attrs: Mapping[str, Any] | None = None,
+                 flush_interval_s: float = 0.25) -> None:
+        from pmalab.acquisition.recorder import Recorder
+
+        path = check_output(path, force)
+        root = {"kind": "control", "pmalab_version": __version__,
+                "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+                **_attrs(root_attrs or {})}
+        self.path = path
+        self.rec = Recorder(path, [(n, _attrs(a)) for n, a in runs], root,
+                            flush_interval_s=flush_interval_s, channels=control_channels(loop),
+                            summary=True)
+
+    def writer(self, name: str) -> ControlRunWriter:
+        return ControlRunWriter(self, name)
+
+    def close(self) -> None:
+        try:
+            self.rec.close()
+        except (OSError, RuntimeError) as exc:
+            raise output_failure(self.path, exc) from None
+
+    def __enter__(self) -> ControlRecording:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ControlRunWriter:
+    """One run's sink (:class:`pmalab.control.runner.SampleSink`): appends blocks of
+    samples to the live file, then :meth:`finish` writes the rest, summary and status."""
+
+    def __init__(self, recording: ControlRecording, name: str) -> None:
+        self.recording = recording
+        self.w = recording.rec.writer(name)
+        self.sent = 0  # samples handed to the file so far
+        self._guard(lambda: (self.w.set_status("running"), recording.rec.file.flush()))
+
+    def due(self) -> bool:
+        return self.recording.rec.flush_due()
+
+    def _guard(self, fn: Any) -> None:
+        try:
+            fn()
+        except (OSError, RuntimeError) as exc:  # a full disk, a vanished directory
+            raise output_failure(self.recording.path, exc) from None
+
+    def write(self, signals: Mapping[str, np.ndarray], gains: Mapping[str, np.ndarray],
+              lateness: np.ndarray) -> None:
+        cols = [gains[c[6:]] if c.startswith("gains/") else signals[c] for c in self.w.channels]
+        n = len(lateness)
+        if not n:
+            return
+
+        def do() -> None:
+            self.w.extend(cols, lateness)
+            self.w.commit()
+        self._guard(do)
+        self.sent += n
+
+    def finish(self, run: ControlRun) -> None:
+        """The samples not yet written, the summary (metrics, vent) and the status."""
+        i = self.sent
+        self.write({k: v[i:] for k, v in run.signals.items()},
+                   {k: v[i:] for k, v in run.gains.items()}, run.lateness[i:])
+        self._guard(lambda: self.w.set_summary(_clean(run_summary(run))))
+        self._guard(lambda: self.w.finish(run.status))
+
+
+def run_summary(run: ControlRun) -> dict[str, Any]:
+    """The end-of-run facts of ``run`` (its ``summary`` dataset)."""
     p = run.signals["muscle_pressure"]
-    attrs = dict(run.attrs)
-    attrs.update(
-        muscle_pressure_MPa=float(np.mean(p)) if p.size else 0.0,
-        protocol={"kind": "control", "reference": run.reference.text,
-                  "controller": run.controller, "loop": run.loop},
-        metrics=metrics,
-        wall_time_s=run.wall_s,
-    )
-    for k, v in attrs.items():
-        if v is None:
-            continue
-        g.attrs[k] = json.dumps(_clean(v)) if isinstance(v, dict | list) else v
-    for name, values in run.signals.items():
-        ds = g.create_dataset(name, data=np.asarray(values, dtype=np.float64))
-        ds.attrs["units"] = SIGNALS[name]
-    gg = g.create_group("gains")
-    for name, values in run.gains.items():
-        ds = gg.create_dataset(name, data=np.asarray(values, dtype=np.float64))
-        ds.attrs["units"] = GAINS[name]
-    g.create_dataset("status", data=np.bytes_(run.status.encode("utf-8")[: STATUS_LEN - 1]),
-                     dtype=f"S{STATUS_LEN}")
+    return {"metrics": run_metrics(run), "vent": run.attrs.get("vent"),
+            "vent_confirmed": run.attrs.get("vent_confirmed"), "wall_time_s": run.wall_s,
+            "muscle_pressure_MPa": float(np.mean(p)) if p.size else 0.0, "n_samples": run.n}
+
+
+def planned_attrs(controller: str, reference: Reference, duration_s: float,
+                  settings: CascadeSettings, model: IdentifiedModel | None,
+                  **extra: Any) -> dict[str, Any]:
+    """A run group's attrs, written before it starts."""
+    a = run_attrs(controller, reference, duration_s, settings, model)
+    a["protocol"] = {"kind": "control", "reference": reference.text, "controller": controller,
+                     "loop": reference.quantity}
+    a.update(extra)
+    return a

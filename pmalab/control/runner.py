@@ -9,6 +9,11 @@ sample is checked against the rig's limits (muscle pressure, travel, force, NaN)
 a non-finite controller output, a device fault or Ctrl-C vents the regulator in the same
 sample period and ends the run as ``aborted: <reason>``; the samples recorded so far are
 kept.  ``rig.close()`` vents again on the way out.
+
+Recording while it runs: a ``sink`` (:class:`pmalab.control.record.ControlRunWriter`)
+gets the samples recorded since its last write whenever ``sink.due()`` (every 0.25 s of
+wall time), so a crash or ``kill -9`` loses at most that much; the caller writes the rest,
+the status and the metrics at the end.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -35,6 +40,7 @@ SIGNALS = {
     "time": "s",
     "position": "mm",
     "position_reference": "mm",
+    "position_setpoint": "mm",
     "force": "N",
     "muscle_pressure": "MPa",
     "muscle_pressure_command": "MPa",
@@ -46,6 +52,49 @@ GAINS = {
     "outer_kp": "N/mm", "outer_ki": "N/(mm*s)", "outer_kd": "N*s/mm",
     "inner_kp": "MPa/MPa", "inner_ki": "1/s", "inner_kd": "s",
 }
+#: signals only the position loop has (a pressure-loop run records the others)
+POSITION_ONLY = ("position_reference", "position_setpoint", "force_reference",
+                 "hysteresis_force")
+#: samples between two looks at ``sink.due()`` (0.05 s of the run)
+SINK_CHECK_EVERY = 25
+
+
+class SampleSink(Protocol):
+    """Where a run's samples go while it runs (the live run file)."""
+
+    def due(self) -> bool:
+        """True when the samples so far should be written now."""
+        ...
+
+    def write(self, signals: dict[str, np.ndarray], gains: dict[str, np.ndarray],
+              lateness: np.ndarray) -> None:
+        """Append these samples (one block per signal and gain, equal lengths)."""
+        ...
+
+
+def signals_of(loop: str) -> dict[str, str]:
+    """The signals (→ units) a run of ``loop`` ("position"/"pressure") records."""
+    return {k: u for k, u in SIGNALS.items() if loop == "position" or k not in POSITION_ONLY}
+
+
+def run_attrs(controller: str, reference: Reference, duration_s: float,
+              settings: CascadeSettings, model: IdentifiedModel | None) -> dict[str, Any]:
+    """A run's attrs known before it starts (the vent's outcome comes at its end)."""
+    is_pos = reference.quantity == "position"
+    return {
+        "controller": controller,
+        "loop": reference.quantity,
+        "reference": reference.text,
+        "waveform": reference.kind,
+        "frequency_Hz": reference.frequency_Hz,
+        "reference_magnitude": reference.magnitude,
+        "reference_unit": reference.unit,
+        "duration_s": duration_s,
+        "sample_rate_Hz": 1.0 / settings.outer.dt,
+        "settings": settings.to_dict(),
+        "model": (model.source if model is not None and is_pos else ""),
+        "model_law": (model.law if model is not None and is_pos else ""),
+    }
 
 
 @dataclass
@@ -61,6 +110,8 @@ class ControlRun:
     status: str
     attrs: dict[str, Any] = field(default_factory=dict)
     wall_s: float = 0.0
+    #: how late each sample was read after its deadline (s; 0 on a virtual clock)
+    lateness: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n(self) -> int:
@@ -81,13 +132,16 @@ def run_control(
     *,
     name: str | None = None,
     progress: Callable[[float], None] | None = None,
+    sink: SampleSink | None = None,
 ) -> ControlRun:
     """Run ``controller`` on ``rig`` following ``reference`` for ``duration_s`` seconds.
 
     The loop is the reference's quantity: a position reference runs the cascade (it needs
     the identified ``model``), a pressure reference the inner loop alone.  Never raises
     for a limit trip or Ctrl-C: the run comes back with ``status = "aborted: …"`` and the
-    regulator vented (check :attr:`ControlRun.completed`).
+    regulator vented (check :attr:`ControlRun.completed`).  ``sink`` receives the samples
+    while the run goes (see the module docstring); a failing write aborts the run (vented)
+    with the write's error as the reason.
     """
     dt = settings.outer.dt
     loop = reference.quantity
@@ -99,6 +153,8 @@ def run_control(
     n = int(round(duration_s / dt)) + 1
     sig = {k: np.full(n, np.nan) for k in SIGNALS}
     gains = {k: np.full(n, np.nan) for k in GAINS}
+    late = np.zeros(n)
+    written = 0
     monitor = SafetyMonitor(rig.limits)
     clock = rig.clock
     sampler = rig.sampler
@@ -106,7 +162,7 @@ def run_control(
     regulator = rig.muscle_regulator
     status = "completed"
     vent: VentResult | None = None
-    k = 0
+    done = 0  # samples recorded
     t_start = clock.now()
     wall0 = time.perf_counter()
     every = max(1, int(1.0 / dt))
@@ -115,11 +171,14 @@ def run_control(
                                 sig["force"], sig["muscle_pressure"])
     s_u, s_pr, s_fr, s_h = (sig["muscle_pressure_command"], sig["muscle_pressure_reference"],
                             sig["force_reference"], sig["hysteresis_force"])
+    s_sp = sig["position_setpoint"]
     gk = [gains[g] for g in GAINS]
     try:
         sampler.start()
         for k in range(n):
-            clock.sleep_until(t_start + k * dt)
+            deadline = t_start + k * dt
+            clock.sleep_until(deadline)
+            lk = clock.now() - deadline
             if read_now is not None:
                 t, x, f, p, _ = read_now()
             else:
@@ -132,9 +191,9 @@ def run_control(
                 status = f"aborted: {trip}"
                 break
             tr = t - t_start
-            r, _, r_dd = reference.value(tr)
+            r, r_d, r_dd = reference.value(tr)
             if is_pos:
-                out = cascade.position_step(r, r_dd, x, p)
+                out = cascade.position_step(r, r_d, r_dd, x, p)
             else:
                 out = cascade.pressure_step(r, p)
             u = out.command
@@ -153,12 +212,18 @@ def run_control(
             s_h[k] = out.hysteresis
             if is_pos:
                 s_xr[k] = r
+                s_sp[k] = out.setpoint
             for arr, v in zip(gk, cascade.gains()):
                 arr[k] = v
+            late[k] = lk
+            done = k + 1
             if progress is not None and k % every == 0:
                 progress(tr)
-        else:
-            k = n
+            if sink is not None and k % SINK_CHECK_EVERY == 0 and sink.due():
+                sink.write({kk: v[written:done] for kk, v in sig.items()},
+                           {kk: v[written:done] for kk, v in gains.items()},
+                           late[written:done])
+                written = done
     except KeyboardInterrupt:
         status = "aborted: interrupted (Ctrl-C)"
     except PmalabError as exc:
@@ -169,28 +234,10 @@ def run_control(
             sampler.stop()
         except Exception:  # the vent above is what matters; stop faults are secondary
             pass
-    keep = slice(0, k)
-    signals = {kk: v[keep] for kk, v in sig.items()}
-    if not is_pos:
-        signals.pop("force_reference")
-        signals.pop("hysteresis_force")
-        signals.pop("position_reference")
-    attrs = {
-        "controller": controller,
-        "loop": loop,
-        "reference": reference.text,
-        "waveform": reference.kind,
-        "frequency_Hz": reference.frequency_Hz,
-        "reference_magnitude": reference.magnitude,
-        "reference_unit": reference.unit,
-        "duration_s": duration_s,
-        "sample_rate_Hz": 1.0 / dt,
-        "settings": settings.to_dict(),
-        "model": (model.source if model is not None and is_pos else ""),
-        "model_law": (model.law if model is not None and is_pos else ""),
-        "vent": vent_phrase("muscle regulator", vent),
-        "vent_confirmed": vent.ok,
-    }
+    keep = slice(0, done)
+    signals = {kk: v[keep] for kk, v in sig.items() if kk in signals_of(loop)}
+    attrs = run_attrs(controller, reference, duration_s, settings, model)
+    attrs.update(vent=vent_phrase("muscle regulator", vent), vent_confirmed=vent.ok)
     return ControlRun(name or controller, controller, loop, reference, signals,
                       {kk: v[keep] for kk, v in gains.items()}, status, attrs,
-                      time.perf_counter() - wall0)
+                      time.perf_counter() - wall0, late[keep])
