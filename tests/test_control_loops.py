@@ -163,3 +163,55 @@ def test_ctrl_c_mid_run_vents_and_keeps_the_samples():
     assert run.n == 300 and np.all(np.isfinite(run.signals["position"]))
     assert run.attrs["vent_confirmed"] is True
     assert rig.info["physics"].command == 0.0
+
+
+#: the issue's targets for the adaptive controllers (15 mm square; 20 mm sine), asserted
+#: as they are: today's runs hold them with margin (overshoot ≈ 3 %, settling ≈ 2.5 s,
+#: steady-state error ≈ 0.1 mm, sine RMS ≈ 0.25 mm; README table)
+TARGETS = {"overshoot_pct": 5.0, "settling_time_s": 3.0, "steady_state_error": 0.3,
+           "sine_rms_mm": 1.0}
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+@pytest.mark.parametrize("controller", ["sn-pid", "rbf-pid"])
+def test_adaptive_controllers_meet_the_targets_on_the_square_and_the_sine(controller, seed):
+    """Full 20 s runs of the seed experiments (two noise seeds): the square's worst step
+    and the sine's RMS error against the raw reference."""
+    from pmalab.control.record import run_metrics
+
+    run, _ = _run(controller, "square:0.1Hz:15mm", 20.0, seed=seed)
+    m = run_metrics(run)
+    assert m["overshoot_pct"] <= TARGETS["overshoot_pct"], m
+    assert m["settled"] and m["settling_time_s"] <= TARGETS["settling_time_s"], m
+    assert m["steady_state_error"] <= TARGETS["steady_state_error"], m
+    run, _ = _run(controller, "sine:0.1Hz:20mm", 20.0, seed=seed)
+    assert run_metrics(run)["rms_error"] <= TARGETS["sine_rms_mm"]
+
+
+@pytest.mark.parametrize("hidden", ["hidden-viscous-friction.toml",
+                                    "hidden-nonlinear-stiffness.toml"])
+def test_sine_tracking_holds_under_a_plant_model_mismatch(hidden):
+    """The hidden effect is unknown to the model the feedforward inverts; the feedback
+    still keeps the 20 mm sine within 1 mm RMS (measured 0.5 / 0.75 mm)."""
+    from pmalab.control.record import run_metrics
+
+    run, _ = _run("rbf-pid", "sine:0.1Hz:20mm", 20.0, truth=TRUTH_DIR / hidden)
+    assert run.completed and run_metrics(run)["rms_error"] <= TARGETS["sine_rms_mm"]
+
+
+def test_reference_shaper_limits_a_step_and_passes_a_slow_sine():
+    from pmalab.control.reference import ReferenceShaper
+
+    sh = ReferenceShaper(30.0, 100.0, 0.002)
+    sh.start(0.0)
+    out = np.array([sh.step(15.0, 0.0) for _ in range(1500)])  # a 15 mm step, 3 s
+    s, v, a = out.T
+    assert s.max() <= 15.0 + 1e-9 and abs(s[-1] - 15.0) < 1e-6  # arrives, no overshoot
+    assert np.abs(v).max() <= 30.0 + 1e-9 and np.abs(a).max() <= 100.0 + 1e-6
+    assert np.argmax(s > 14.7) * 0.002 < 0.9  # trapezoid: 0.3 + 0.2 + 0.3 s ≈ 0.8 s
+    ref = parse_reference("sine:0.1Hz:20mm")
+    sh = ReferenceShaper(30.0, 100.0, 0.002)
+    sh.start(0.0)
+    err = [abs(sh.step(*ref.value(k * 0.002)[:2])[0] - ref.value(k * 0.002)[0])
+           for k in range(10000)]
+    assert max(err) < 1e-3  # within the limits: the sine passes unchanged

@@ -10,9 +10,11 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 import pytest
 
+from pmalab.acquisition.recover import recover
 from pmalab.reports.control import load_control_file
 from pmalab.runfile import read_run_datasets, read_runs
 
@@ -76,6 +78,12 @@ def test_kill_9_mid_run_leaves_the_samples_so_far(tmp_path):
     assert {len(v) for v, _ in data.values()} == {n}
     f = load_control_file(out)  # what `pmalab report` reads
     assert f.runs[0].status == "running" and f.runs[0].data["position"].size == n
+    # `pmalab recover` closes it for other HDF5 tools, gains/ subgroup included
+    assert recover(out) == ["sn-pid"]
+    with h5py.File(out, "r") as h:
+        g = h["runs/sn-pid"]
+        assert g["gains/outer_kp"].shape == g["time"].shape == (n,)
+        assert g["status"][()].startswith(b"aborted: recording interrupted")
 
 
 def test_ctrl_c_mid_run_vents_and_the_file_says_aborted(tmp_path):

@@ -3,13 +3,18 @@
 Per sample (T = 2 ms), with x the measured position from home (mm), p the measured muscle
 pressure (MPa) and r, r̈ the position reference and its acceleration::
 
+    (r, ṙ, r̈) → set point (s, ṡ, s̈)                   rate/acceleration-limited (shaping)
     x̃      = low-pass(x)                              (drives the model, not the PID)
     h      = law.step(h, x_abs(k−1), x_abs(k), θ(p))   x_abs = x_home + x̃ (the identified
                                                        model is in absolute contraction)
-    F_ff   = F_spring(x_home + r) + m·r̈               (the manipulator's known dynamics)
-    F_d    = outer(r, x, F_ff)                         ∈ [0, F_max]  (a muscle only pulls)
+    F_ff   = F_spring(x_home + s) + m·s̈               (the manipulator's known dynamics)
+    F_d    = outer(s, x, F_ff)                         ∈ [0, F_max]  (a muscle only pulls)
     p_d    = model⁻¹(F_d; x_abs, h)                    ∈ [0, p_max]
-    u      = inner(p_d, p)                             ∈ [0, p_max]  → regulator command
+    h_s    = law.step(h_s, x_home + s(k−1), x_home + s(k), θ(p_ff))   (h along the set point)
+    p_ff   = model⁻¹(F_ff; x_home + s, h_s)            (what the model needs to hold s)
+    u      = p_ff + τ_lead·ṗ_ff + inner(p_d, p)        ∈ [0, p_max]  → regulator command
+
+Without shaping s = r; without ``reference_feedforward`` u = inner(p_d, p) (the seeds').
 
 The pressure-loop experiment uses the inner loop alone: u = inner(p_ref, p).
 """
@@ -91,7 +96,9 @@ class Cascade:
             ff = g.spring_force(g.home_contraction_mm + r) + g.moving_mass_kg * r_dd * 1e-3
         f_d = self.outer.step(r, x, ff)
         p_d = self._model.invert(f_d, x_abs, h, self.p_max)
-        if self.hyst_ref is not None:
+        if self.settings.inner_feedforward:  # the regulator gets p_d itself (an option)
+            u = self.inner.step(p_d, p, p_d)
+        elif self.hyst_ref is not None:
             xr_abs = g.home_contraction_mm + r
             h_r = self.hyst_ref.update(xr_abs, self._p_ff)
             p_ff = self._model.invert(ff, xr_abs, h_r, self.p_max)
@@ -99,7 +106,7 @@ class Cascade:
             self._p_ff = p_ff
             u = self.inner.step(p_d, p, p_ff + lead)
         else:
-            u = self.inner.step(p_d, p, p_d if self.settings.inner_feedforward else 0.0)
+            u = self.inner.step(p_d, p)
         return CascadeOutput(u, p_d, f_d, h, r)
 
     def pressure_step(self, p_ref: float, p: float) -> CascadeOutput:

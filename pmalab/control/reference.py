@@ -126,7 +126,9 @@ class ReferenceShaper:
             return r, r_d, 0.0
         e = r - self.s
         ae = abs(e)
-        rel = min(math.sqrt(2.0 * self.a_max * ae), ae / self.tau)
+        # braking velocity one sample early (the discrete loop would otherwise overrun)
+        rel = min(max(math.sqrt(2.0 * self.a_max * ae) - self.a_max * self.dt, 0.0),
+                  ae / self.tau)
         v_des = r_d + (rel if e >= 0.0 else -rel)
         if v_des > self.v_max:
             v_des = self.v_max
