@@ -42,7 +42,7 @@ def _wait_for_samples(proc: subprocess.Popen, out: Path, n_min: int, timeout: fl
         if out.exists():
             try:
                 n = len(read_runs(out)[0])
-            except Exception:  # noqa: BLE001 — not yet readable (first flush pending)
+            except Exception:  # not yet readable (first flush pending)
                 n = 0
             if n >= n_min:
                 return n
@@ -91,7 +91,7 @@ def test_ctrl_c_mid_run_vents_and_the_file_says_aborted(tmp_path):
     proc = _start(out)
     _wait_for_samples(proc, out, 250)
     proc.send_signal(signal.SIGINT)
-    stdout, stderr = proc.communicate(timeout=30)
+    _stdout, stderr = proc.communicate(timeout=30)
     assert proc.returncode != 0
     assert "aborted: interrupted (Ctrl-C)" in stderr and "vented" in stderr, stderr
     assert "Traceback" not in stderr

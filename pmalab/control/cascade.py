@@ -52,6 +52,9 @@ class _NoModel:
 class Cascade:
     """Both loops of one controller kind (``pid``, ``sn-pid`` or ``rbf-pid``)."""
 
+    #: low-pass (Hz) on the feedforward pressure's rate of change that the lead multiplies
+    LEAD_FILTER_HZ = 20.0
+
     def __init__(self, controller: str, settings: CascadeSettings, model: IdentifiedModel | None,
                  geometry: ManipulatorGeometry, p_max: float, hysteresis: HysteresisState | None
                  = None) -> None:
@@ -72,6 +75,9 @@ class Cascade:
         self.shaper = None
         self.hyst_ref = None
         self._p_ff = 0.0
+        self._dp_ff = 0.0
+        self._first_ff = True
+        self._a_lead = 1.0 - math.exp(-2.0 * math.pi * self.LEAD_FILTER_HZ * settings.outer.dt)
         if model is not None and settings.reference_feedforward:
             self.hyst_ref = HysteresisState(model, geometry.home_contraction_mm)
         if settings.shaping_velocity_mm_s > 0 and settings.shaping_accel_mm_s2 > 0:
@@ -102,9 +108,15 @@ class Cascade:
             xr_abs = g.home_contraction_mm + r
             h_r = self.hyst_ref.update(xr_abs, self._p_ff)
             p_ff = self._model.invert(ff, xr_abs, h_r, self.p_max)
-            lead = self.settings.feedforward_lead_s * (p_ff - self._p_ff) / self.settings.outer.dt
+            # ṗ_ff through a 20 Hz low-pass: h along the set point is advanced with θ bound
+            # per 1 kPa (HysteresisState), so p_ff moves in small jumps a raw difference
+            # would turn into one-sample spikes of the lead
+            if self._first_ff:  # no history yet: no rate of change
+                self._p_ff, self._first_ff = p_ff, False
+            dp = (p_ff - self._p_ff) / self.settings.outer.dt
+            self._dp_ff += self._a_lead * (dp - self._dp_ff)
             self._p_ff = p_ff
-            u = self.inner.step(p_d, p, p_ff + lead)
+            u = self.inner.step(p_d, p, p_ff + self.settings.feedforward_lead_s * self._dp_ff)
         else:
             u = self.inner.step(p_d, p)
         return CascadeOutput(u, p_d, f_d, h, r)
