@@ -94,6 +94,9 @@ def test_identify_writes_the_contract(files, capsys) -> None:
     [
         (["--fix", "k"], "NAME=VALUE"),
         (["--fix", "nosuch=1"], "nosuch"),
+        # a typo or an already fitted parameter is refused, not ignored
+        (["--free", "nosuch"], "--free nosuch: model duhem fixes only a by default"),
+        (["--free", "k"], "--free k: model duhem fixes only a by default"),
         (["--jobs", "0"], "--jobs"),
         (["--add", "no-such-effect"], "no-such-effect"),
         (["--effects", "/nonexistent/eff.py"], "eff.py"),

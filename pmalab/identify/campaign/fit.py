@@ -86,6 +86,17 @@ def _as_model(model: ForceModel | ModelSpec | str) -> ForceModel:
     return ForceModel(model)
 
 
+def check_free(model: ForceModel, free: Sequence[str]) -> None:
+    """Refuse a ``free`` (``--free``) name the model does not hold fixed by default: a typo
+    or an already fitted parameter would otherwise be ignored without a word."""
+    held = model.held_fixed()
+    for name in free:
+        if name not in held:
+            fixes = f"fixes only {', '.join(held)}" if held else "fixes no parameter"
+            raise PmalabError(f"--free {name}: model {model.name} {fixes} by default; "
+                              "every other parameter is fitted already")
+
+
 # --------------------------------------------------------------------------- results
 @dataclass
 class RunFit:
@@ -265,6 +276,7 @@ def fit_campaign(
     if not runs:
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
+    check_free(fm, free)
     kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings = list(default_fixed_notes(fm, free))
