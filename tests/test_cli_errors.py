@@ -110,6 +110,14 @@ def _disk_full(*args, **kwargs):
     raise OSError(errno.ENOSPC, "Unable to synchronously create file (disk full)")
 
 
+def test_recover_out_may_name_a_new_directory(tmp_path, capsys):
+    """`recover --out new/dir/x.h5` creates the directory, like every other verb's --out."""
+    good = _run_file(tmp_path / "good.h5")
+    out = tmp_path / "new" / "dir" / "x.h5"
+    assert main(["recover", str(good), "--out", str(out), "--force"]) == 0, capsys.readouterr()
+    assert [r.name for r in read_runs(out)] == ["a"]
+
+
 def test_run_on_a_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path, capsys,
                                                                     monkeypatch):
     _setup(tmp_path)

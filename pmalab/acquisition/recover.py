@@ -106,6 +106,11 @@ def recover(path: str | Path, out: str | Path | None = None, *,
     # writer leaves (a damaged file opened in SWMR mode makes HDF5 retry its reads forever)
     src = open_h5(src_path)
     tmp = dst_path.with_name(dst_path.name + ".recovering")
+    try:  # --out may name a new directory, as every other verb's output may
+        dst_path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        src.close()
+        raise output_failure(dst_path, exc, f"be written from {src_path}") from None
     fixed: list[str] = []
     try:
         if src.attrs.get("format") not in (FORMAT, FORMAT.encode()):
