@@ -370,6 +370,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
     f = open_h5(path)
     killed = bool(getattr(f, "swmr_mode", False))  # opened only in SWMR-read mode
     skipped: list[tuple[str, str]] = []
+    never: list[str] = []  # runs of a recorder's file that hold no samples (never started)
     try:
         fmt = decode_attr(f.attrs.get("format"))
         if fmt != FORMAT:
@@ -407,6 +408,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
                 # is truncated to the samples every channel has
                 n = min((len(v) for v, _ in raw.values()), default=0)
                 if n < 2 and runs is None:
+                    never.append(name)
                     continue
                 if extra.get("status") == "running":
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
@@ -433,7 +435,8 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
         if not out:
             raise _fail(path, None, None, "no run holds recorded samples (statuses: "
                         + ", ".join(f"{n}={_recording_state(f['runs'][n]).get('status')}"
-                                    for n in names) + ")")
+                                    for n in names) + ")"
+                        + (f"; {recover_hint(path)}" if killed else ""))
     except (OSError, KeyError) as exc:
         raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
     finally:
@@ -443,6 +446,14 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             f"{path}: run '{name}' skipped: {_state_words(status)} ({INCLUDE_HINT})"
             + (f"; {recover_hint(path)}" if killed and status == "running" else "")),
             stacklevel=2)
+    if killed and not any(status == "running" for _, status in skipped):
+        # killed between runs (waiting for a pressure, or before closing): no cut run
+        # carries the hint, yet other tools cannot open the file
+        unrecorded = (f" ({len(never)} run(s) never recorded: {', '.join(never)})"
+                      if never else "")
+        warnings.warn(RunFileWarning(
+            f"{path}: its recording did not close the file (killed, or still running){unrecorded}; "
+            f"{recover_hint(path)}"), stacklevel=2)
     return out
 
 

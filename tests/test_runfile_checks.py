@@ -134,6 +134,38 @@ def test_an_interrupted_file_names_recover_and_h5clear(tmp_path):
         pass
 
 
+KILLED_BETWEEN_RUNS = """
+import os, sys
+from pmalab.acquisition.recorder import Recorder
+rec = Recorder(sys.argv[1], [("a", {"muscle_pressure_MPa": 0.4}), ("b", {})], {})
+w = rec.writer("a")
+w.set_status("running")
+for i in range(300):
+    w.add(i * 0.002, 10.0, 400.0, 0.4, 0.1, 0.1, 0.0)
+w.finish("completed")
+os._exit(0)  # killed while run 'b' waited for its pressure: no run is cut mid-recording
+"""
+
+
+def test_a_file_killed_between_runs_still_names_recover(tmp_path):
+    """No cut run carries the recover hint, yet h5dump cannot open the file: one warning
+    says so and names the runs never recorded."""
+    out = tmp_path / "between.h5"
+    subprocess.run([sys.executable, "-c", KILLED_BETWEEN_RUNS, str(out)], check=True, cwd=REPO,
+                   env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=120)
+    with pytest.warns(RunFileWarning) as rec:
+        (r,) = read_many([out])
+    assert r.name == "a" and len(r) == 300
+    (msg,) = [str(w.message) for w in rec]
+    assert msg == (f"{out}: its recording did not close the file (killed, or still running) (1 run(s) "
+                   f"never recorded: b); h5dump/HDFView cannot open this file until "
+                   f"'pmalab recover {out}' (or 'h5clear -s {out}')")
+    assert main(["recover", str(out)]) == 0
+    with warnings.catch_warnings():  # a recovered file reads without a word
+        warnings.simplefilter("error")
+        assert [r.name for r in read_many([out])] == ["a"]
+
+
 # --------------------------------------------------------------------------- item 4
 @pytest.mark.parametrize("channel, values, units, likely", [
     ("muscle_pressure", np.full(50, 400.0), "MPa", "kPa"),

@@ -296,7 +296,7 @@ def identify(
     notes = [f"{r.label}: role 'validation' in the run file, held out for validation"
              for r in held]
     if not ident:
-        raise PmalabError("no identification runs: every given run has role 'validation'")
+        raise PmalabError("no identification runs: every run read from the files has role 'validation'")
     if isinstance(model, ForceModel):
         spec = None
         fm: ForceModel | ModelSpec = model
