@@ -58,9 +58,14 @@ OUTPUT_ARGS = ("out", "png", "svg", "plot")
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
     except SystemExit as exc:  # --help, --version, or one line for a command-line mistake
         return exc.code if isinstance(exc.code, int) else 2
+    if extra:  # argparse would blame `pmalab`; the option belongs to the verb's --help
+        prog = f"{parser.prog} {args.verb}"
+        print(f"{prog}: error: unrecognized arguments: {' '.join(extra)} (see {prog} --help)",
+              file=sys.stderr)
+        return 2
     outputs = [v for k in OUTPUT_ARGS if isinstance(v := getattr(args, k, None), str) and v]
     created = missing_roots(outputs)
     rc = 1

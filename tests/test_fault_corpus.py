@@ -175,7 +175,12 @@ CASES = [
      "where the rows before have 4; wrong --delimiter or --header-rows?"),
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--delimiter", "\\t"],
      "good.csv: run 'good': channel 'time': no column 'time' (columns: "
-     "time,position,force,muscle_pressure)"),
+     "time,position,force,muscle_pressure); the names are separated by ',': use "
+     "--delimiter ','"),
+    (["import", "{d}/comma.csv", "--out", "{d}/new/c.h5", "--decimal", "."],
+     "comma.csv: run 'comma': channel 'time': no column 'time' (columns: "
+     "time;position;force;muscle_pressure); the names are separated by ';': use "
+     "--delimiter ';'"),
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--delimiter", "ab"],
      "--delimiter: 'ab' is not one character"),
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--encoding", "klingon"],
@@ -190,6 +195,9 @@ CASES = [
      "identify --help)"),
     (["diagnose", "{d}/good.h5", *DG, "--jobs", "two"],
      "argument --jobs: invalid int value: 'two'"),
+    # an option the verb does not have: the verb's --help, not pmalab's
+    (["diagnose", "{d}/good.h5", *DG, "--free", "n"],
+     "pmalab diagnose: error: unrecognized arguments: --free n (see pmalab diagnose --help)"),
     # --- TOML protocol and rig files
     (["run", "--rig", "sim", "--protocol", "{d}/unknown_key.toml", "--out", "{d}/new/o.h5"],
      "unknown_key.toml: run[0] 'a': unknown field 'frequncy'"),

@@ -239,7 +239,8 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
             raise RunFileError(f"{path}: run '{run}': channel '{ch}': no column '{name}' "
                                f"(columns: {', '.join(n for n in names if n)}"
                                + (f" on line {names_line})" if names_line != 1 else ")")
-                               + _header_hint(lines, needed, names_line, d))
+                               + (_header_hint(lines, needed, names_line, d)
+                                  or _delimiter_hint(names, d)))
         return None
 
     wanted: dict[str, int] = {}
@@ -338,6 +339,16 @@ def _header_hint(lines: list[str], needed: list[str], names_line: int, delimiter
         have |= {m.group(1).lower() for f in fields if (m := _NAME_UNIT.match(f)) and m.group(1)}
         if want <= have:
             return f"; the names look like line {k + 1}: use --header-rows {k}"
+    return ""
+
+
+def _delimiter_hint(names: list[str], delimiter: str) -> str:
+    """The names row read as one field that another separator would split: say which."""
+    if len(names) != 1:
+        return ""
+    for sep, typed in (("\t", "'\\t'"), (";", "';'"), (",", "','")):
+        if sep != delimiter and sep in names[0]:
+            return f"; the names are separated by {typed}: use --delimiter {typed}"
     return ""
 
 
