@@ -79,7 +79,7 @@ def test_run_refuses_to_overwrite_without_force(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc != 0 and out.read_bytes() == b"old"
     assert err.count("\n") == 0 and "already exists (use --force" in err
-    assert main([*args, "--force"]) == 0
+    assert main([*args[:-1], "-q", "--force"]) == 0  # -q as for every long verb
     (r,) = read_runs(out)
     assert r.name == "quick-400kPa" and len(r) == int(r.attrs["protocol"]["cycles"] / 0.5
                                                        * 500 + 1.5 * 500) + 1

@@ -2,7 +2,7 @@
 ``pmalab view``.
 
 ``pmalab run --rig sim|RIG.toml --protocol P.toml --out F.h5 [--force] [--seed N]
-[--realtime] [--quiet] [--only ROLE_OR_RUN ...] [--host H] [--port P] [--live [HOST:]PORT]``
+[--realtime] [-q] [--only ROLE_OR_RUN ...] [--host H] [--port P] [--live [HOST:]PORT]``
 records a protocol (the simulated rig runs on its virtual clock unless ``--realtime``;
 ``--host/--port`` override a Modbus TCP rig file's endpoint; ``--live`` serves the live
 page while it runs); ``pmalab import CSV --out F.h5 ...`` converts another DAQ's CSV into
@@ -38,7 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)")
     p.add_argument("--realtime", action="store_true",
                    help="simulated rig: run on the real clock instead of the virtual one")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--host", default=None,
                    help="Modbus TCP rig: connect to this host instead of the rig file's")
     p.add_argument("--port", type=int, default=None,
