@@ -501,7 +501,21 @@ def open_h5(path: Path):
             return h5py.File(path, "r", swmr=True)
         except OSError:
             pass
-    raise _fail(path, None, None, f"not a readable HDF5 file ({_short(first)})") from None
+    raise _fail(path, None, None, f"not a readable HDF5 file ({_short(first)})"
+                + _text_hint(path)) from None
+
+
+def _text_hint(path: Path) -> str:
+    """A text file (no NUL byte at its start) given where a run file belongs is most
+    likely a CSV export: name the verb that converts it."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return ""
+    if not head or b"\0" in head:
+        return ""
+    return f"; it is text: a CSV export? convert it with 'pmalab import {path} --out RUN.h5'"
 
 
 def _recording_state(g: Any) -> dict[str, Any]:

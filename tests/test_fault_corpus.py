@@ -142,6 +142,8 @@ CASES = [
     (["identify", "{d}/short.h5", *ID], "short.h5: run 'r': channel 'time': channels have "
      "unequal lengths"),
     (["identify", "{d}/trunc.h5", *ID], "trunc.h5: not a readable HDF5 file"),
+    (["identify", "{d}/good.csv", *ID], "(file signature not found)); it is text: a CSV "
+     "export? convert it with 'pmalab import {d}/good.csv --out RUN.h5'"),
     (["diagnose", "{d}/foreign.h5", *DG], "foreign.h5: not a pmalab run file"),
     (["identify", "{d}/missing.h5", *ID], "missing.h5: no such file"),
     (["identify", "{d}/good.h5", "--model", "duhem", "--out", "{d}/done"],
@@ -250,7 +252,7 @@ def test_bad_input_is_one_line_and_leaves_everything_as_it_was(corpus, tmp_path,
     err = capsys.readouterr().err
     assert rc != 0
     assert err.count("\n") == 1 and "Traceback" not in err, err
-    assert needle in err, err
+    assert needle.replace("{d}", str(d)) in err, err
     assert _snapshot(d) == before  # nothing overwritten, nothing (not even a dir) left behind
 
 
