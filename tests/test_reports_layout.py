@@ -122,3 +122,25 @@ def test_a_third_identification_is_refused(tmp_path, dirs):
     with pytest.raises(ReportError, match=r"third/identification\.json: a third "
                                           r"identification\.json"):
         load_report_dir([dirs[0], dirs[1], third])
+
+
+def test_directories_of_other_recordings_or_given_twice_are_refused(tmp_path, dirs):
+    """A wrong directory must not be drawn side by side as if it were the same campaign."""
+    with pytest.raises(ReportError, match=r"base: directory given twice: give each once"):
+        load_report_dir([dirs[0], dirs[0]])
+    other = rf.write_improved_dir(tmp_path / "other")
+    doc = json.loads((other / "identification.json").read_text())
+    for row in [*doc["runs"], *doc["validation"]]:
+        row["file"] = "another-campaign.h5"
+    (other / "identification.json").write_text(json.dumps(doc))
+    with pytest.raises(ReportError, match=r"other: its identification shares no run with "
+                                          r".*base's \(files another-campaign\.h5 against "):
+        load_report_dir([dirs[0], other])
+    diag = rf.write_diagnosis_dir(tmp_path / "diag", with_predictions=False)
+    doc = json.loads((diag / "diagnosis.json").read_text())
+    doc["diagnostics"] = {k.replace(k.split(":")[0], "another-campaign.h5"): v
+                          for k, v in doc["diagnostics"].items()}
+    (diag / "diagnosis.json").write_text(json.dumps(doc))
+    with pytest.raises(ReportError, match=r"diag: its diagnosis shares no run with "):
+        load_report_dir([dirs[0], diag])
+    load_report_dir([dirs[0], dirs[1]])  # the same runs: accepted

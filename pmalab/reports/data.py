@@ -21,6 +21,7 @@ their pages or cells are then skipped.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -416,11 +417,17 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
         raise ReportError("no result directory given")
     data = ReportData(directory=dirs[0], directories=dirs)
     seen: dict[str, Path] = {}
+    given: dict[Path, Path] = {}
     for d in dirs:
         if not d.exists():
             raise ReportError(f"{d}: no such directory")
         if not d.is_dir():
             raise ReportError(f"{d}: not a directory")
+        if d.resolve() in given:
+            first = given[d.resolve()]
+            same = "" if str(first) == str(d) else f" (the same directory as {first})"
+            raise ReportError(f"{d}: directory given twice{same}: give each once")
+        given[d.resolve()] = d
         ident, diag = d / IDENTIFICATION_JSON, d / DIAGNOSIS_JSON
         if not ident.exists() and not diag.exists():
             raise ReportError(f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
@@ -454,4 +461,42 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
                 for t in traces:
                     t.role = IMPROVED + t.role
             data.traces.extend(traces)
+    _check_same_runs(data, seen)
     return data
+
+
+def _ident_runs(doc: dict) -> set[tuple[str, str]]:
+    """(file name, run) of every identification and validation row of a document."""
+    return {(Path(str(r.get("file", ""))).name, str(r.get("run", "")))
+            for r in [*doc.get("runs", []), *doc.get("validation", [])]}
+
+
+def _check_same_runs(data: ReportData, seen: dict[str, Path]) -> None:
+    """Refuse directories that describe different recordings: an improved identification
+    or a diagnosis sharing no run with the base identification would be drawn side by side
+    with it as if they were one campaign (most likely a wrong directory was given)."""
+    base = data.identification
+    if base is None:
+        return
+    keys = _ident_runs(base)
+    where = seen[IDENTIFICATION_JSON]
+    if data.improved is not None and not keys & _ident_runs(data.improved):
+        other = next(d for d in data.directories if d != where and
+                     (d / IDENTIFICATION_JSON).exists())
+        raise ReportError(
+            f"{other}: its identification shares no run with {where}'s (files "
+            f"{', '.join(sorted({f for f, _ in _ident_runs(data.improved)}))} against "
+            f"{', '.join(sorted({f for f, _ in keys}))}): BASE_DIR and IMPROVED_DIR must "
+            "identify the same runs")
+    diag = (data.diagnosis or {}).get("diagnostics") or {}
+    if diag:
+        dkeys = set()
+        for label in diag:
+            file, _, run = str(label).partition(":")
+            dkeys.add((file, re.sub(r"\[held-out\]$", "", run)))
+        if not keys & dkeys:
+            raise ReportError(
+                f"{seen[DIAGNOSIS_JSON]}: its diagnosis shares no run with {where}'s "
+                f"identification (files {', '.join(sorted({f for f, _ in dkeys}))} against "
+                f"{', '.join(sorted({f for f, _ in keys}))}): give directories of the same "
+                "runs")
