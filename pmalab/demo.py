@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from pmalab.console import add_verbosity
-from pmalab.errors import OutputExistsError, PmalabError
+from pmalab.errors import OutputError, OutputExistsError, PmalabError
 from pmalab.paths import PROTOCOLS_DIR, RIGS_DIR, TRUTH_DIR
 
 #: hidden effects a demo can use (each has data/rigs/sim-<id>.toml)
@@ -33,6 +33,11 @@ DEMO_EFFECTS = (
     "inertia",
     "sensor-drift",
 )
+
+
+#: what a demo writes into --out (all that --force may delete)
+DEMO_OUTPUTS = frozenset({"rig", "campaign.h5", "identify", "diagnose", "identify-improved",
+                          "report.pdf", "report.pdf.part"})
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -112,6 +117,14 @@ def run_demo(args: argparse.Namespace) -> int:
     if out.exists():
         if not args.force:
             raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
+        if not out.is_dir():
+            raise OutputError(f"{out}: is not a directory (give a directory for --out)")
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in DEMO_OUTPUTS)
+        if foreign:  # --force replaces a demo's output, never a directory of other work
+            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more"
+                                              if len(foreign) > 3 else "")
+            raise OutputError(f"{out}: holds files the demo did not write ({shown}); --force "
+                              "replaces only a demo output directory: give another --out")
         shutil.rmtree(out)
     out.mkdir(parents=True)
     t0 = time.perf_counter()

@@ -33,3 +33,16 @@ def test_demo_finds_the_hidden_effect_and_writes_the_report(tmp_path, capsys):
     assert "asymmetric" not in (out / "rig" / "rig.toml").read_text()
     # never overwrite without --force
     assert main(["demo", "--out", str(out)]) != 0
+
+
+def test_force_never_deletes_a_directory_of_other_work(tmp_path, capsys):
+    """`demo --out DIR --force` replaces a demo's output; a directory holding anything else
+    (a typo'd --out pointing at a results folder) is refused and left as it was."""
+    out = tmp_path / "results"
+    out.mkdir()
+    (out / "thesis.tex").write_text("months of work\n")
+    (out / "report.pdf").write_bytes(b"%PDF-")  # a demo name among them does not matter
+    assert main(["demo", "--out", str(out), "--force"]) != 0
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds files the demo did not write (thesis.tex)" in err
+    assert (out / "thesis.tex").read_text() == "months of work\n"
