@@ -243,3 +243,21 @@ def test_contents_group_consecutive_pages_of_one_kind():
     assert contents_entries(titles) == [
         ("2", "Fit quality table"), ("3–4", "Time histories — identification"),
         ("5–6", "Residual diagnostics (2 runs)"), ("7", "Effect ranking and ladder")]
+
+
+def test_contents_titles_are_cut_only_when_they_do_not_fit_their_column():
+    """The demo's longest contents titles fit a half-page column in full (a count of
+    characters cut them two letters short); a title too long for its column is cut at a
+    word, and no contents text overlaps another or leaves the page."""
+    from pmalab.reports.layout import text_problems
+
+    long_ok = ["Parameters against muscle pressure: per-run fits and the pressure laws",
+               "Added effect (asymmetric-hysteresis): parameters ± s.e. against pressure"]
+    too_long = "Residual diagnostics, " + "and very long words " * 8 + "end"
+    fig = F.title_page_figure(model="bouc-wen", contents=[*long_ok, too_long])
+    texts = "\n".join(t.get_text() for t in fig.texts)
+    assert all(t in texts for t in long_ok), texts
+    cut = next(ln for ln in texts.splitlines() if "Residual diagnostics" in ln)
+    assert cut.endswith("…") and "end" not in cut
+    assert too_long.startswith(cut[:-1].split(". ", 1)[1] + " ")  # cut between words
+    assert text_problems(fig) == []

@@ -168,11 +168,10 @@ def title_page_figure(
         heading("Contents")
         room = max(int((y - 0.07) / _LINE[8.5]), 3)  # lines left above the footer notes
         cols = 2 if len(entries) <= 2 * room else 3
-        width = 76 if cols == 2 else 50
-        items = []
-        for pages, c in entries:
-            t = f"{pages:>5}. {c}"
-            items.append(t if len(t) <= width else t[: width - 1] + "…")
+        # a column's width less a gap, in points: an entry is cut (at a word, with "…")
+        # only when its drawn text is wider, not by a worst-case count of characters
+        width_pt = (0.9 / cols - 0.015) * fig.get_figwidth() * 72
+        items = [_fit_text(f"{pages:>5}. {c}", width_pt, 8.5) for pages, c in entries]
         per = -(-len(items) // cols)
         if per > room:
             per = room
@@ -186,6 +185,29 @@ def title_page_figure(
              "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
              ha="center", fontsize=8, color="0.3")
     return fig
+
+
+def _text_width_pt(text: str, size: float) -> float:
+    """Drawn width of ``text`` (points) in the report's font at ``size`` pt."""
+    from matplotlib.font_manager import FontProperties
+    from matplotlib.textpath import TextToPath
+
+    w, _, _ = TextToPath().get_text_width_height_descent(text, FontProperties(size=size),
+                                                         ismath=False)
+    return float(w)
+
+
+def _fit_text(text: str, width_pt: float, size: float) -> str:
+    """``text`` as it is when it fits ``width_pt``, else cut at a word and ended by "…"."""
+    if _text_width_pt(text, size) <= width_pt:
+        return text
+    words = text.split(" ")
+    while len(words) > 1:
+        words.pop()
+        cut = " ".join(words).rstrip(" ,;:—-") + "…"
+        if _text_width_pt(cut, size) <= width_pt:
+            return cut
+    return text
 
 
 _PART = re.compile(r" \(\d+/\d+\)$")
