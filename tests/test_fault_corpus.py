@@ -190,6 +190,8 @@ CASES = [
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--header-rows", "-2"],
      "--header-rows: must be ≥ 0, got -2"),
     (["import", "{d}/good.csv", "--out", "{d}/good.h5"], "good.h5: already exists (use --force"),
+    (["import", "{d}/good.csv", "--out", "{d}/good.csv", "--force"],
+     "good.csv: is the input CSV itself (--force would replace your data"),
     (["import", "{d}/good.csv", "--out", "{d}/new/g.h5", "--decimal", ";"],
      "pmalab import: error: argument --decimal: invalid choice: ';'"),
     (["identify", "{d}/good.h5", "--out", "{d}/new/id"],

@@ -30,13 +30,14 @@ import csv
 import io
 import json
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from pmalab.errors import RunFileError
+from pmalab.errors import OutputError, RunFileError
 from pmalab.runfile import (
     CANONICAL_UNITS,
     PLAUSIBLE,
@@ -366,6 +367,9 @@ def import_csv(csv: str | Path, out: str | Path, opts: CsvImportOptions, *,
     """Import ``csv`` into a new contract file ``out`` (refuses to overwrite without force)."""
     from pmalab.paths import check_output
 
+    if Path(out).exists() and Path(csv).exists() and os.path.samefile(out, csv):
+        raise OutputError(f"--out {out}: is the input CSV itself (--force would replace your "
+                          "data with the run file): give the run file another name")
     check_output(out, force)
     run = read_csv_run(csv, opts)
     write_runs(out, [run], force=force)
