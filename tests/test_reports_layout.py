@@ -144,3 +144,20 @@ def test_directories_of_other_recordings_or_given_twice_are_refused(tmp_path, di
     with pytest.raises(ReportError, match=r"diag: its diagnosis shares no run with "):
         load_report_dir([dirs[0], diag])
     load_report_dir([dirs[0], dirs[1]])  # the same runs: accepted
+
+
+def test_runs_that_never_were_in_a_file_still_pair_up(tmp_path):
+    """Results saved from Python on in-memory runs ("file": "", diagnosis labels without
+    "file:"): the same runs, so the report takes them together."""
+    ident = rf.write_identification_dir(tmp_path / "ident")
+    doc = json.loads((ident / "identification.json").read_text())
+    for row in [*doc["runs"], *doc["validation"]]:
+        row["file"] = ""
+    (ident / "identification.json").write_text(json.dumps(doc))
+    diag = rf.write_diagnosis_dir(tmp_path / "diag", with_predictions=False)
+    ddoc = json.loads((diag / "diagnosis.json").read_text())
+    ddoc["diagnostics"] = {k.split(":", 1)[1] + "[held-out]": v
+                           for k, v in ddoc["diagnostics"].items()}
+    (diag / "diagnosis.json").write_text(json.dumps(ddoc))
+    data = load_report_dir([ident, diag])
+    assert data.diagnosis is not None

@@ -467,7 +467,7 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
 
 def _ident_runs(doc: dict) -> set[tuple[str, str]]:
     """(file name, run) of every identification and validation row of a document."""
-    return {(Path(str(r.get("file", ""))).name, str(r.get("run", "")))
+    return {(Path(str(r.get("file") or "")).name, str(r.get("run", "")))
             for r in [*doc.get("runs", []), *doc.get("validation", [])]}
 
 
@@ -491,8 +491,10 @@ def _check_same_runs(data: ReportData, seen: dict[str, Path]) -> None:
     diag = (data.diagnosis or {}).get("diagnostics") or {}
     if diag:
         dkeys = set()
-        for label in diag:
-            file, _, run = str(label).partition(":")
+        for label in diag:  # "file:run", or "run" for a run that was never in a file
+            file, sep, run = str(label).partition(":")
+            if not sep:
+                file, run = "", file
             dkeys.add((file, re.sub(r"\[held-out\]$", "", run)))
         if not keys & dkeys:
             raise ReportError(
