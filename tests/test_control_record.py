@@ -20,8 +20,9 @@ from pmalab.runfile import read_run_datasets, read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 #: samples a kill may lose: the 0.25 s flush interval, plus the 25-sample (0.05 s) check
-#: granularity and scheduling slack on a loaded 2-core machine
-MAX_LOSS_S = 0.6
+#: granularity and scheduling slack on a loaded 2-core machine (a run that falls behind
+#: the wall clock counts as loss here); the isobaric runner's kill test allows the same
+MAX_LOSS_S = 1.0
 
 
 def _start(out: Path) -> subprocess.Popen:
