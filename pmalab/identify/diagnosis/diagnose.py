@@ -255,7 +255,9 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
                      "noise floor: nothing structured is left to explain.")
     else:
         verdict = "unexplained"
-        where = f", worst on {worst[0]}: {worst[1]}" if worst else ""
+        # the worst place of the FINAL model (the base model's worst runs are listed apart)
+        whose = "the final model's" if len(ladder) > 1 else "the model's"
+        where = f"; {whose} largest residual is on {worst[0]}: {worst[1]}" if worst else ""
         parts.append(f"Unexplained structured residual, {ratio:.1f}× the noise floor{where} "
                      "(a hysteresis law of another shape or an effect not in the catalogue).")
     if ambiguous:
