@@ -211,3 +211,22 @@ def test_modbus_rig_file_limits_are_validated_like_the_loader_does(tmp_path):
     p.write_text(text.replace("max_position_mm = 35.0", "max_position_mm = -10.0", 1))
     with pytest.raises(ConfigError, match=r"limits\.min_position_mm: must be < limits\.max"):
         read_modbus_rig_file(p)
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["identify", "--help"], ["run", "--help"]])
+def test_cli_start_up_imports_no_numerical_library(argv):
+    # every verb registers its options at start-up: none of them may pull numpy, h5py,
+    # scipy or numba in before the chosen verb runs (`pmalab --help` stays ~0.1 s)
+    code = (
+        "import sys\n"
+        "from pmalab.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "heavy = sorted(m for m in ('numpy', 'h5py', 'scipy', 'numba', 'matplotlib') if m in sys.modules)\n"
+        "print('HEAVY', ','.join(heavy))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=Path(__file__).resolve().parents[1]).stdout
+    assert out.strip().splitlines()[-1] == "HEAVY", out

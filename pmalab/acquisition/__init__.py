@@ -21,8 +21,27 @@ Modules: :mod:`.protocol` (TOML), :mod:`.waveforms` (commands), :mod:`.safety`,
 
 from __future__ import annotations
 
-from pmalab.acquisition.protocol import Protocol, RunSpec, load_protocol, parse_protocol
-from pmalab.acquisition.runner import RunnerOptions, RunResult, run_protocol
+import importlib
+from typing import Any
 
-__all__ = ["Protocol", "RunResult", "RunSpec", "RunnerOptions", "load_protocol",
-           "parse_protocol", "run_protocol"]
+# names are imported on first use: every ``pmalab`` verb registers its options through
+# ``pmalab.acquisition.cli``, and ``pmalab identify`` should not pay for the runner (numpy,
+# h5py, the rig interface) before it starts
+_EXPORTS = {
+    "Protocol": "pmalab.acquisition.protocol",
+    "RunSpec": "pmalab.acquisition.protocol",
+    "load_protocol": "pmalab.acquisition.protocol",
+    "parse_protocol": "pmalab.acquisition.protocol",
+    "RunnerOptions": "pmalab.acquisition.runner",
+    "RunResult": "pmalab.acquisition.runner",
+    "run_protocol": "pmalab.acquisition.runner",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'pmalab.acquisition' has no attribute {name!r}")
+    return getattr(importlib.import_module(mod), name)

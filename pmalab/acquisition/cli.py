@@ -18,7 +18,6 @@ import sys
 import time
 
 from pmalab.errors import ConfigError, PmalabError, SafetyAbort
-from pmalab.runfile import recover_hint
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -220,6 +219,8 @@ def _with_recover_hint(exc: PmalabError, out: str) -> PmalabError:
     """An error after which the process ends without closing the run file (``hard_exit``:
     HDF5 could not flush it) leaves HDF5's "open for write" flag: say what opens it."""
     if exc.hard_exit:
+        from pmalab.runfile import recover_hint
+
         exc.args = (f"{exc}; {recover_hint(out)}",)
     return exc
 
