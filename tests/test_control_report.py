@@ -28,7 +28,7 @@ def test_report_of_control_files_has_a_page_per_experiment_part(control_dir, tmp
     pdf = pdfium.PdfDocument(str(out))
     assert len(pdf) == 5  # metrics + (response, gains) × 2
     text = pdf[0].get_textpage().get_text_range()
-    assert "sn-pid" in text and "classic overshoot pct 31" in text
+    assert "sn-pid" in text and "classic overshoot 31 %" in text
     assert "report written" in capsys.readouterr().out
 
 

@@ -172,6 +172,18 @@ def metrics_rows(files: Sequence[ControlFileData]) -> list[list[str]]:
     return rows
 
 
+#: unit suffixes of the papers' figure keys in the experiments file
+_SEED_UNITS = {"_pct": " %", "_s": " s", "_mm": " mm", "_MPa": " MPa"}
+
+
+def _seed_figure(key: str, value: float) -> str:
+    """``classic_overshoot_pct = 31`` → ``"classic overshoot 31 %"``."""
+    for suffix, unit in _SEED_UNITS.items():
+        if key.endswith(suffix):
+            return f"{key[: -len(suffix)].replace('_', ' ')} {value:g}{unit}"
+    return f"{key.replace('_', ' ')} {value:g}"
+
+
 def seed_rows(files: Sequence[ControlFileData]) -> list[str]:
     """The papers' figures stored with each experiment, as text lines."""
     lines = []
@@ -181,7 +193,7 @@ def seed_rows(files: Sequence[ControlFileData]) -> list[str]:
             continue
         for paper, figs in seeds.items():
             if isinstance(figs, dict) and figs:
-                txt = ", ".join(f"{k.replace('_', ' ')} {v:g}" for k, v in figs.items()
+                txt = ", ".join(_seed_figure(k, v) for k, v in figs.items()
                                 if isinstance(v, int | float))
                 lines.append(f"{f.title} — {paper}: {txt}")
     return lines
