@@ -21,13 +21,12 @@ Modules: :mod:`.protocol` (TOML), :mod:`.waveforms` (commands), :mod:`.safety`,
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from pmalab.lazy import lazy_exports
 
 # names are imported on first use: every ``pmalab`` verb registers its options through
 # ``pmalab.acquisition.cli``, and ``pmalab identify`` should not pay for the runner (numpy,
 # h5py, the rig interface) before it starts
-_EXPORTS = {
+__getattr__, __all__ = lazy_exports(__name__, {
     "Protocol": "pmalab.acquisition.protocol",
     "RunSpec": "pmalab.acquisition.protocol",
     "load_protocol": "pmalab.acquisition.protocol",
@@ -35,13 +34,4 @@ _EXPORTS = {
     "RunnerOptions": "pmalab.acquisition.runner",
     "RunResult": "pmalab.acquisition.runner",
     "run_protocol": "pmalab.acquisition.runner",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'pmalab.acquisition' has no attribute {name!r}")
-    return getattr(importlib.import_module(mod), name)
+})

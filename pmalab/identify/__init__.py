@@ -19,10 +19,9 @@ laws, validation) → ``diagnosis/`` (ranking and ladder through the same identi
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from pmalab.lazy import lazy_exports
 
-_EXPORTS = {
+__getattr__, __all__ = lazy_exports(__name__, {
     "load": "pmalab.identify.api",
     "identify": "pmalab.identify.api",
     "Identification": "pmalab.identify.api",
@@ -36,13 +35,4 @@ _EXPORTS = {
     "metrics": "pmalab.identify.metrics",
     "ForceModel": "pmalab.identify.model",
     "Signals": "pmalab.identify.signals",
-}
-
-__all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str) -> Any:
-    mod = _EXPORTS.get(name)
-    if mod is None:
-        raise AttributeError(f"module 'pmalab.identify' has no attribute {name!r}")
-    return getattr(importlib.import_module(mod), name)
+})

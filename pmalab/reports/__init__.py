@@ -13,24 +13,13 @@ Never imports ``pmalab.rig`` or ``pmalab.acquisition`` (import-linter contract).
 
 from __future__ import annotations
 
-from typing import Any
-
+from pmalab.lazy import lazy_exports
 from pmalab.reports.errors import ReportError
 
-__all__ = ["ReportError", "build_report", "load_report_dir", "plan_pages", "save_figure"]
-
-
-def __getattr__(name: str) -> Any:
-    if name in ("build_report", "plan_pages"):
-        from pmalab.reports import build
-
-        return getattr(build, name)
-    if name == "save_figure":
-        from pmalab.reports.style import save_figure
-
-        return save_figure
-    if name == "load_report_dir":
-        from pmalab.reports.data import load_report_dir
-
-        return load_report_dir
-    raise AttributeError(f"module 'pmalab.reports' has no attribute {name!r}")
+__getattr__, _names = lazy_exports(__name__, {
+    "build_report": "pmalab.reports.build",
+    "plan_pages": "pmalab.reports.build",
+    "save_figure": "pmalab.reports.style",
+    "load_report_dir": "pmalab.reports.data",
+})
+__all__ = ["ReportError", *_names]
