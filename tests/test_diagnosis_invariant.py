@@ -73,6 +73,8 @@ def test_diagnose_names_the_subtle_effect_with_identify_add_numbers(truth, effec
     assert 1.5 < top["nrmse_before"] / floor < 8.0
     assert top["effect"] == effect, d.ranking_table()
     assert top["significant"], d.ranking_table()
+    # k: the parameters the effect adds to the model (free on at least one run)
+    assert top["n_params"] >= 1, d.ranking_table()
     # the invariant: diagnosis's numbers are identify's numbers on the same files (the
     # base model's once: it is the same identification for every case)
     if truth == "viscous-friction":

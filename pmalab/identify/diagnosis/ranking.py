@@ -73,7 +73,9 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
             div.append(v.run.label)
             x = DIVERGED_NRMSE
         nr.append(min(x, DIVERGED_NRMSE))
-    n_params = sum(1 for p in cf.runs[0].result.params if p.vary) if cf.runs else 0
+    # the model's free parameters: free on at least one run (a parameter the fit fixes on
+    # one run only, e.g. a collinear gamma, still belongs to the model)
+    n_params = len({p.name for rf in cf.runs for p in rf.result.params if p.vary})
     preds = [np.asarray(v.force_model, dtype=np.float64) for v in vals]
     return Scored(tuple(spec.effects), nr, div, n_params, preds)
 
