@@ -37,13 +37,14 @@ def _campaign(name: str, out: Path) -> list[object]:
             n, "-", missed, "-", "-", "-"]
 
 
-def _realtime(seconds: float, out: Path) -> list[object]:
-    # one sine run whose recorded length is ~`seconds` (settle 0.5 s, ramps 1 s each)
+def sine_protocol(seconds: float, name: str):
+    """One 0.4 MPa sine run whose recorded length is ~``seconds`` (settle 0.5 s, ramps 1 s
+    each): the real-time benches' load."""
     cycles = max(1.0, (seconds - 2.5) * 0.5)
-    proto = parse_protocol(
+    return parse_protocol(
         f"""
 [[run]]
-name = "realtime"
+name = "{name}"
 muscle_pressure_MPa = 0.4
 waveform = "sine"
 frequency_Hz = 0.5
@@ -52,8 +53,12 @@ cycles = {cycles:g}
 ramp_s = 1.0
 settle_s = 0.5
 """,
-        "realtime-bench",
+        name,
     )
+
+
+def _realtime(seconds: float, out: Path) -> list[object]:
+    proto = sine_protocol(seconds, "realtime")
     rig = load_rig("sim", seed=2, clock=RealClock())
     t0 = time.perf_counter()
     with rig:

@@ -27,9 +27,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from bench.bench_acquisition import sine_protocol
 from bench.table import print_table
 from pmalab.acquisition.live.session import LiveSession
-from pmalab.acquisition.protocol import parse_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
 from pmalab.rig.base import RealClock
 from pmalab.rig.loader import load_rig
@@ -60,18 +60,7 @@ print(json.dumps({"times": times, "points": points}), flush=True)
 
 
 def _protocol(seconds: float):
-    cycles = max(1.0, (seconds - 2.5) * 0.5)
-    return parse_protocol(f"""
-[[run]]
-name = "live-bench"
-muscle_pressure_MPa = 0.4
-waveform = "sine"
-frequency_Hz = 0.5
-magnitude_MPa = 0.3
-cycles = {cycles:g}
-ramp_s = 1.0
-settle_s = 0.5
-""", "live-bench")
+    return sine_protocol(seconds, "live-bench")
 
 
 def _lateness(out: Path) -> np.ndarray:
