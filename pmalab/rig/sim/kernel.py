@@ -188,6 +188,17 @@ def _friction_terms(par, st, q, v, s):
 
 
 @njit(cache=True)
+def _end_stop(x, v, xlo, xhi, kstop, cstop):
+    """Travel end stops as stiff damped springs outside [xlo, xhi] (mm): (force N, ∂F/∂x,
+    ∂F/∂v) for the semi-implicit step; zeros inside the travel."""
+    if x > xhi:
+        return -kstop * (x - xhi) - cstop * v, -kstop, -cstop
+    if x < xlo:
+        return kstop * (xlo - x) - cstop * v, -kstop, -cstop
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
 def forces(st, par):
     """(static, friction, viscous, tension) at the current state, N."""
     fs, _, q, xm = _static_terms(par, st[S_X], st[S_PM])
@@ -269,17 +280,9 @@ def _advance(st, par, pend, ptr, hist, t_target):
         fslip = fc + fsx * math.exp(-rv * rv)
         fseal = fslip * th + bseal * v
         dseal = fslip * (1.0 - th * th) / eps + bseal
-        fstop = 0.0
-        jx = dfs + dff
-        jv = -cv - dseal
-        if x > xhi:
-            fstop = -kstop * (x - xhi) - cstop * v
-            jx -= kstop
-            jv -= cstop
-        elif x < xlo:
-            fstop = kstop * (xlo - x) - cstop * v
-            jx -= kstop
-            jv -= cstop
+        fstop, sjx, sjv = _end_stop(x, v, xlo, xhi, kstop, cstop)
+        jx = dfs + dff + sjx
+        jv = -cv - dseal + sjv
         if jx > 0.0:
             jx = 0.0
         net = tension - st[S_PC] * area - fseal + fstop

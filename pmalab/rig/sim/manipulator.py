@@ -212,17 +212,9 @@ def _advance(st, par, mq, pend, ptr, hist, t_target):
         th = math.tanh(v / eps)
         fbear = fcb * th + bv * v
         dbear = fcb * (1.0 - th * th) / eps + bv
-        fstop = 0.0
-        jx = dfs + dff - ks
-        jv = -cv - dbear
-        if x > xhi:
-            fstop = -kstop * (x - xhi) - cstop * v
-            jx -= kstop
-            jv -= cstop
-        elif x < xlo:
-            fstop = kstop * (xlo - x) - cstop * v
-            jx -= kstop
-            jv -= cstop
+        fstop, sjx, sjv = K._end_stop(x, v, xlo, xhi, kstop, cstop)
+        jx = dfs + dff - ks + sjx
+        jv = -cv - dbear + sjv
         if jx > 0.0:
             jx = 0.0
         net = tension - (fs0 + ks * x) - fbear + fstop
