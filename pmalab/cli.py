@@ -22,6 +22,7 @@ VERB_MODULES = (
     "pmalab.acquisition.cli",  # run, import, recover, view
     "pmalab.rig.cli",  # emulate
     "pmalab.identify.cli",  # identify, diagnose
+    "pmalab.active.cli",  # diagnose --rig RIG --run-suggested (after identify.cli)
     "pmalab.reports.cli",  # report
     "pmalab.control.cli",  # control
     "pmalab.demo",  # demo
