@@ -307,7 +307,7 @@ def design(runs: Sequence[Run], law: str, base_effects: Sequence[str], ambiguous
 
 
 def _name(i: int, w: str, f: float, s: float, t: Run) -> str:
-    return (f"active{i}-{w}-{f:g}Hz-{1000 * t.nominal_pressure:.0f}kPa"
+    return (f"r{i}-{w[:3]}{f:g}Hz-{1000 * t.nominal_pressure:.0f}kPa"
             + ("" if s == 1.0 else f"-x{s:g}"))
 
 

@@ -112,14 +112,22 @@ class ActiveResult:
 
 
 def verdict_of(d: Any) -> dict[str, Any]:
-    """The part of a diagnosis a round's outcome is judged by."""
+    """The part of a diagnosis a round's outcome is judged by: the ranking's summary, and
+    each candidate's held-out nrmse per run (``per_run[effect][run label]``), so a round can
+    be judged on the runs it recorded."""
     first = d.ranking[0] if d.ranking else {}
+    held = list(d.settings.get("held_out", []))
+    per_run = {r["effect"]: dict(zip(held, (float(v) for v in r.get("per_run_after") or [])))
+               for r in d.ranking}
+    base = d.ladder[0] if d.ladder else {}
+    per_run["base"] = dict(zip(held, (float(v) for v in base.get("per_run") or [])))
     return {"first": first.get("effect"), "significant": bool(first.get("significant")),
             "ambiguous": list(d.ambiguous), "final_model": "+".join([d.model, *d.final_effects]),
             "verdict": d.verdict,
             "ranking": [{"effect": r["effect"], "nrmse_after": r["nrmse_after"],
                          "fall_percent": r["fall_percent"], "significant": r["significant"]}
-                        for r in d.ranking]}
+                        for r in d.ranking],
+            "per_run": per_run}
 
 
 Recorder = Callable[[str, Path, int], list[str]]

@@ -24,6 +24,7 @@ from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
 from pmalab.reports.errors import ReportError
+from pmalab.reports.figures_active import active_figure, has_active_rounds
 from pmalab.reports.figures_compare import (
     compare_figure,
     hysteresis_component_figure,
@@ -269,6 +270,9 @@ def plan_pages(data: ReportData) -> list[Page]:
                 diag["ranking"], diag.get("ladder") or [], ambiguous=diag.get("ambiguous") or [],
                 suggested_experiment=diag.get("suggested_experiment"),
                 summary=diag.get("summary"), model=diag["model"])))
+        if has_active_rounds(diag):
+            pages.append(Page("Active identification: experiments run and the ranking after each",
+                              "active", lambda: active_figure(diag)))
 
     if ident and data.improved:
         pages += _comparison_pages(data)
