@@ -15,7 +15,8 @@ the error falls on every held-out run, or the fall stays above ``MIN_CLEAR_FALL`
 by two standard errors.  (With two or three held-out runs a standard error from their
 spread is itself very uncertain — a drift that is large in one run and small in the other
 gives falls of 90 % and 40 %, both real — so "falls on every run" is the test there.)  Two significant effects are *ambiguous* when
-the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall.
+the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall and the winner's
+held-out errors are not clearly lower, run by run (:func:`clearly_better`).
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ MIN_FALL = 0.30
 MIN_CLEAR_FALL = 0.10
 #: runner-up / winner fall ratio above which two significant effects are ambiguous
 AMBIGUITY_RATIO = 0.85
+#: held-out runs a paired "every run" comparison of two effects needs (see clearly_better)
+MIN_PAIRED_RUNS = 4
 #: a diverged validation counts with this nrmse (it is then never significant)
 DIVERGED_NRMSE = 10.0
 
@@ -160,6 +163,26 @@ def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
     cands.sort(key=lambda c: -c.fall)
     sig = [c for c in cands if c.significant]
     amb: list[str] = []
-    if len(sig) >= 2 and sig[1].fall >= AMBIGUITY_RATIO * sig[0].fall:
-        amb = [c.effect for c in sig if c.fall >= AMBIGUITY_RATIO * sig[0].fall]
+    if len(sig) >= 2:
+        close = [c for c in sig[1:] if c.fall >= AMBIGUITY_RATIO * sig[0].fall
+                 and not clearly_better(sig[0], c)]
+        if close:
+            amb = [sig[0].effect, *(c.effect for c in close)]
     return cands, amb
+
+
+def clearly_better(a: Candidate, b: Candidate) -> bool:
+    """``a``'s held-out errors beat ``b``'s beyond chance, paired run by run.
+
+    d_i = nrmse_after(b)_i − nrmse_after(a)_i over the held-out runs: ``a`` is clearly better
+    when d_i > 0 on every one of ≥ ``MIN_PAIRED_RUNS`` runs (a sign test: p ≤ 1/16), or when
+    mean(d) exceeds two standard errors on ≥ 3 runs.  Two runs never decide (p = 1/4): two
+    effects that explain the residual about equally there stay ambiguous.
+    """
+    d = np.asarray(b.after.nrmse, dtype=float) - np.asarray(a.after.nrmse, dtype=float)
+    n = d.size
+    if n != len(a.after.nrmse) or n < 3 or not np.all(np.isfinite(d)):
+        return False
+    if n >= MIN_PAIRED_RUNS and bool(np.all(d > 0)):
+        return True
+    return bool(d.mean() - 2.0 * d.std(ddof=1) / math.sqrt(n) > 0)
