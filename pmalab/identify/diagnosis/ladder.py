@@ -61,7 +61,10 @@ def run_ladder(
     progress: bool = False,
 ) -> tuple[list[LadderStep], list[Round]]:
     """Climb the ladder; returns the steps (0 = base) and the ranking round of each step."""
+    from pmalab.identify.noise import noise_floor_nrmse
+
     files = tuple(str(f) for f in effects_files)
+    floors = [noise_floor_nrmse(r.force, r.time) for r in held]
     base = score(train, held, ModelSpec(law, (), files))
     steps = [LadderStep(0, [], None, base)]
     rounds: list[Round] = []
@@ -73,7 +76,8 @@ def run_ladder(
         specs = [ModelSpec(law, (*current, e), files) for e in remaining]
         outs = score_all(train, held, specs, jobs, progress,
                          f"step {len(steps)}: {len(remaining)} candidate effects")
-        cands, amb = judge([Candidate(e, steps[-1].scored, o) for e, o in zip(remaining, outs)])
+        cands, amb = judge([Candidate(e, steps[-1].scored, o, floors=floors)
+                            for e, o in zip(remaining, outs)])
         rounds.append(Round(len(steps), cands, amb))
         best = cands[0]
         if not best.significant:

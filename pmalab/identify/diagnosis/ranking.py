@@ -33,10 +33,14 @@ from pmalab.identify.campaign.batch import map_tasks
 from pmalab.identify.effects import EFFECTS
 from pmalab.runfile import Run
 
-#: an effect must cut the held-out nrmse by this fraction to be significant
-MIN_FALL = 0.30
-#: ... and the fall minus twice its standard error must stay above this
-MIN_CLEAR_FALL = 0.10
+#: an effect must cut the held-out nrmse by at least this many noise floors (absolute)
+MIN_GAIN_X_FLOOR = 0.25
+#: ... and its paired block-by-block improvement must exceed this many standard errors (a
+#: consistency check: a slow effect such as a drifting zero improves late blocks more than
+#: early ones, so blocks are not identical replicates and a strict t would miss it)
+MIN_BLOCK_T = 1.5
+#: blocks per held-out run at least (whole cycles, else equal pieces)
+MIN_BLOCKS = 4
 #: runner-up / winner fall ratio above which two significant effects are ambiguous
 AMBIGUITY_RATIO = 0.85
 #: held-out runs a paired "every run" comparison of two effects needs (see clearly_better)
@@ -55,6 +59,10 @@ class Scored:
     n_params: int = 0
     #: the free-run force predictions (N, full rate) of the held-out runs, in their order
     predictions: list[np.ndarray] = field(default_factory=list, repr=False)
+    #: per held-out run: the mean squared error (N²) of each block of whole cycles
+    block_mse: list[np.ndarray] = field(default_factory=list, repr=False)
+    #: per held-out run: std of the measured force (N), the nrmse normaliser
+    force_std: list[float] = field(default_factory=list, repr=False)
 
     @property
     def mean(self) -> float:
@@ -80,7 +88,34 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     # one run only, e.g. a collinear gamma, still belongs to the model)
     n_params = len({p.name for rf in cf.runs for p in rf.result.params if p.vary})
     preds = [np.asarray(v.force_model, dtype=np.float64) for v in vals]
-    return Scored(tuple(spec.effects), nr, div, n_params, preds)
+    blocks = [block_mse(v.run, p) for v, p in zip(vals, preds)]
+    sds = [float(np.std(v.run.force)) for v in vals]
+    return Scored(tuple(spec.effects), nr, div, n_params, preds, blocks, sds)
+
+
+def blocks_of(run: Run) -> list[slice]:
+    """The run cut into blocks of whole excitation cycles (one cycle each when the run holds
+    at least ``MIN_BLOCKS`` of them, else ``MIN_BLOCKS`` equal pieces).
+
+    Blocks are the within-run replicates of the paired comparison: with only 2–4 held-out
+    runs, the spread of the improvement over blocks says whether it is more than noise."""
+    n = len(run)
+    f = run.frequency or 0.0
+    per = 0
+    if f > 0 and n > 1:
+        dt = float(np.median(np.diff(run.time)))
+        per = int(round(1.0 / (f * dt))) if dt > 0 else 0
+    k = n // per if per > 0 else 0
+    if k < MIN_BLOCKS:
+        k, per = MIN_BLOCKS, n // MIN_BLOCKS
+    return [slice(i * per, (i + 1) * per) for i in range(k)] if per > 0 else [slice(0, n)]
+
+
+def block_mse(run: Run, pred: np.ndarray) -> np.ndarray:
+    """Mean squared error (N²) of ``pred`` against the measured force, per block."""
+    e = np.asarray(run.force, float) - np.asarray(pred, float)
+    with np.errstate(all="ignore"):
+        return np.array([float(np.mean(e[b] ** 2)) for b in blocks_of(run)])
 
 
 def _task(spec: ModelSpec) -> Scored:
@@ -105,6 +140,8 @@ class Candidate:
     before: Scored
     after: Scored
     significant: bool = False
+    #: noise floor (nrmse) of each held-out run, in the runs' order
+    floors: Sequence[float] = ()
 
     @property
     def nrmse_before(self) -> float:
@@ -130,6 +167,35 @@ class Candidate:
         return float(np.std(a / b, ddof=1) / math.sqrt(b.size))
 
     @property
+    def gain_x_floor(self) -> float:
+        """Mean absolute fall of the held-out nrmse in units of the runs' noise floor."""
+        b = np.asarray(self.before.nrmse, float)
+        a = np.asarray(self.after.nrmse, float)
+        fl = float(np.mean(self.floors)) if len(self.floors) else float("nan")
+        return float(np.mean(b - a) / fl) if b.size and fl > 0 else 0.0
+
+    @property
+    def block_t(self) -> float:
+        """The paired block-by-block improvement over its standard error.
+
+        Per block of whole cycles of every held-out run: d = (rms_before − rms_after) /
+        std(F) of that run (nrmse units); t = mean(d) / (std(d)/√n).  Blocks replicate the
+        comparison within a run, so 2–4 held-out runs still give a usable spread."""
+        if not self.before.block_mse or len(self.before.block_mse) != len(self.after.block_mse):
+            return 0.0
+        d = []
+        for mb, ma, sd in zip(self.before.block_mse, self.after.block_mse, self.after.force_std):
+            if mb.shape != ma.shape or sd <= 0:
+                return 0.0
+            d.append((np.sqrt(mb) - np.sqrt(ma)) / sd)
+        x = np.concatenate(d)
+        if x.size < 3 or not np.all(np.isfinite(x)):
+            return 0.0
+        se = float(np.std(x, ddof=1)) / math.sqrt(x.size)
+        m = float(np.mean(x))
+        return m / se if se > 0 else (math.inf if m > 0 else 0.0)
+
+    @property
     def runs_improved(self) -> float:
         b = np.asarray(self.before.nrmse, float)
         a = np.asarray(self.after.nrmse, float)
@@ -146,6 +212,8 @@ class Candidate:
             "significant": bool(self.significant),
             "n_params": int(self.after.n_params - self.before.n_params),
             "runs_improved": float(self.runs_improved),
+            "gain_x_floor": float(self.gain_x_floor),
+            "block_t": float(min(self.block_t, 1e6)),
             "per_run_before": [float(v) for v in self.before.nrmse],
             "per_run_after": [float(v) for v in self.after.nrmse],
             "diverged": list(self.after.diverged),
@@ -158,8 +226,7 @@ class Candidate:
 def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
     """Sort best first, mark significance (module docstring), find the ambiguous set."""
     for c in cands:
-        consistent = c.runs_improved == 1.0 or c.fall - 2.0 * c.fall_se >= MIN_CLEAR_FALL
-        c.significant = bool(not c.after.diverged and c.fall >= MIN_FALL and consistent)
+        c.significant = is_significant(c)
     cands.sort(key=lambda c: -c.fall)
     sig = [c for c in cands if c.significant]
     amb: list[str] = []
@@ -169,6 +236,14 @@ def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
         if close:
             amb = [sig[0].effect, *(c.effect for c in close)]
     return cands, amb
+
+
+def is_significant(c: Candidate) -> bool:
+    """The rule (module docstring): the held-out error falls on every held-out run, by at
+    least ``MIN_GAIN_X_FLOOR`` noise floors on average, and block by block beyond
+    ``MIN_BLOCK_T`` standard errors."""
+    return bool(not c.after.diverged and c.runs_improved == 1.0
+                and c.gain_x_floor >= MIN_GAIN_X_FLOOR and c.block_t >= MIN_BLOCK_T)
 
 
 def clearly_better(a: Candidate, b: Candidate) -> bool:
