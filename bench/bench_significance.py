@@ -60,7 +60,8 @@ def main() -> None:
             d = _diagnose(_campaign(SUBTLE / "clean.toml", seed, work))
             r0 = d.ranking[0]
             best_gain = max(r["gain_x_floor"] for r in d.ranking)
-            best_t = max(r["block_t"] for r in d.ranking)
+            ts = [r["block_t"] for r in d.ranking if r["block_t"] is not None]
+            best_t = max(ts) if ts else float("nan")
             gains.append(best_gain)
             sig = [r["effect"] for r in d.ranking if r["significant"]]
             claims += bool(sig)
@@ -78,7 +79,7 @@ def main() -> None:
                 d = _diagnose(_campaign(SUBTLE / f"{eff}.toml", seed, work))
                 row = next(r for r in d.ranking if r["effect"] == eff)
                 rows.append((eff, seed, f"{d.ladder[0]['nrmse'] / d.noise_floor['mean_nrmse']:.2f}",
-                             f"{row['gain_x_floor']:.2f}", f"{row['block_t']:.1f}",
+                             f"{row['gain_x_floor']:.2f}", "-" if row["block_t"] is None else f"{row['block_t']:.1f}",
                              f"{row['runs_improved']:.2f}", "yes" if row["significant"] else "NO",
                              d.ranking[0]["effect"]))
         print("\nSubtle hidden effects (2–4× the floor), the hidden effect's row:")

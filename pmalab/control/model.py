@@ -155,7 +155,11 @@ class HysteresisState:
         self.h = float(h0)
         self.x = float(x0)
         self._law = _law(model.law)
-        self._cache: dict[int, Callable[[float, float, float], float]] = {}
+        self._cache: dict[int, Callable[[Any, float, float], Any]] = {}
+        # the law's own state: h itself (Bouc-Wen, Duhem) or its elements' forces
+        # (Prandtl-Ishlinskii, Maxwell-slip), carried across pressure bins
+        self.state: Any = (float(h0) if self._law.state_size == 1 else
+                           [0.0] * self._law.state_size)
 
     def stepper(self, p: float) -> Callable[[float, float, float], float]:
         """``step(h, x_prev, x) -> h`` at pressure ``p`` (MPa, 1 kPa bins)."""
@@ -168,8 +172,9 @@ class HysteresisState:
 
     def update(self, x: float, p: float) -> float:
         """Move to contraction ``x`` (mm) at pressure ``p`` (MPa); return h (N)."""
-        h = self.stepper(p)(self.h, self.x, x)
+        state = self.stepper(p)(self.state, self.x, x)
+        h = self._law.output(state)
         if h == h and abs(h) < 1e6:  # a law driven far outside its data must not poison u
-            self.h = h
+            self.state, self.h = state, h
         self.x = x
         return self.h

@@ -177,7 +177,11 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--only", action="append", default=None, metavar="EFFECT",
                    help="rank only these effect ids (repeatable; default: all)")
     p.add_argument("--max-steps", type=int, default=3, metavar="N",
-                   help="most effects the ladder adds (default 3)")
+                   help="most steps the ladder takes (adding an effect or changing the law; "
+                   "default 3)")
+    p.add_argument("--laws", default=None, metavar="A,B|none",
+                   help="other hysteresis laws scored like effects (default: every law; "
+                   "'none' scores none)")
     p.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="parallel worker processes (default 2)")
     p.add_argument("--plot", default=None, metavar="FILE.png",
@@ -209,9 +213,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     runs = read_many(args.files, include_aborted=args.include_aborted)
     val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
     check_distinct_runs([*runs, *val])
+    laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
-                 progress=show_progress(args), whole_run=args.whole_run)
+                 progress=show_progress(args), whole_run=args.whole_run, laws=laws)
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
     print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
@@ -223,7 +228,14 @@ def run_diagnose(args: argparse.Namespace) -> int:
               f"{d.suggested_experiment}")
     print("\nLadder (the error falling step by step):")
     print(d.ladder_table())
-    hint = " ".join(["pmalab identify", *args.files, "--model", args.model,
+    if d.laws:
+        print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
+        print(_table([("law", "nrmse before", "nrmse after", "fall %", "× floor gain",
+                       "significant")] + [
+            (lw["law"], f"{lw['nrmse_before']:.4f}", f"{lw['nrmse_after']:.4f}",
+             f"{lw['fall_percent']:+.1f}", f"{lw['gain_x_floor']:+.2f}",
+             "yes" if lw["significant"] else "no") for lw in d.laws]))
+    hint = " ".join(["pmalab identify", *args.files, "--model", d.final_law or args.model,
                      *[f"--add {e}" for e in d.final_effects], *(["--validate", *args.validate]
                                                                   if args.validate else []),
                      *([st["identify_hint"]] if st.get("identify_hint") else []), "--out DIR"])
@@ -237,3 +249,13 @@ def run_diagnose(args: argparse.Namespace) -> int:
     print(f"wrote {jpath} and {hpath}")
     return 0
 
+
+
+def _table(rows: list[tuple[str, ...]]) -> str:
+    w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    out = []
+    for j, r in enumerate(rows):
+        out.append("  ".join(c.ljust(w[i]) if i == 0 else c.rjust(w[i]) for i, c in enumerate(r)))
+        if j == 0:
+            out.append("  ".join("-" * x for x in w))
+    return "\n".join(out)

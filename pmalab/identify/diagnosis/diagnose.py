@@ -36,8 +36,8 @@ from pmalab.identify.noise import noise_floor_nrmse
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
-#: the final model "reaches the noise floor" unless it exceeds it, on every held-out run, by
-#: at least what the significance rule requires of an effect (MIN_GAIN_X_FLOOR noise floors):
+#: the final model "reaches the noise floor" unless it exceeds it by at least what the
+#: significance rule requires of an effect (MIN_GAIN_X_FLOOR noise floors, mean held-out):
 #: a residual no significant effect could remove is not called structured.  A fixed ratio
 #: (1.5×) called a systematic 1.4 N misfit on four 20,000-sample runs "nothing to explain".
 UNEXPLAINED_RATIO = 1.0 + MIN_GAIN_X_FLOOR
@@ -92,6 +92,10 @@ class Diagnosis:
     #: per run: (run, base model force at full rate, final model force at full rate)
     traces: list[tuple[Run, np.ndarray, np.ndarray]] = field(default_factory=list, repr=False)
     final_effects: list[str] = field(default_factory=list)
+    #: the other laws scored against the base model (``identify --model X``), best first
+    laws: list[dict[str, Any]] = field(default_factory=list)
+    #: the law of the final ladder model (the base law unless a step changed it)
+    final_law: str = ""
 
     @property
     def winner(self) -> str | None:
@@ -108,7 +112,9 @@ class Diagnosis:
             "diagnostics": self.diagnostics,
             "campaign_diagnostics": self.campaign,
             "rounds": self.rounds,
-            "final_model": "+".join([self.model, *self.final_effects]),
+            "final_model": "+".join([self.final_law or self.model, *self.final_effects]),
+            "final_law": self.final_law or self.model,
+            "laws": self.laws,
             "settings": self.settings,
             "summary": self.summary,
             "noise_floor": self.noise_floor,
@@ -130,7 +136,9 @@ class Diagnosis:
     def ladder_table(self) -> str:
         rows = [("step", "model", "added", "nrmse", "fit %")]
         for s in self.ladder:
-            rows.append((str(s["step"]), "+".join([self.model, *s["effects"]]), s["added"] or "-",
+            rows.append((str(s["step"]), "+".join([s.get("law") or self.model, *s["effects"]]),
+                         s["added"] or (f"law {s['switched_law']}" if s.get("switched_law")
+                                        else "-"),
                          f"{s['nrmse']:.4f}", f"{s['fit_percent']:.2f}"))
         return _table(rows)
 
@@ -235,7 +243,8 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
 
 def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: list[str],
              floor: float, worst: tuple[str, str] | None, suggestion: str, scheme: str,
-             run_floors: Sequence[float] = ()) -> tuple[str, str]:
+             run_floors: Sequence[float] = (),
+             laws: Sequence[dict] = ()) -> tuple[str, str]:
     """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
     identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
     base, last = ladder[0], ladder[-1]
@@ -247,22 +256,34 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
                      + (f" (best: {best['effect']}, {best['nrmse_before']:.4f} → "
                         f"{best['nrmse_after']:.4f}, {best['fall_percent']:.0f} %)." if best else "."))
     else:
-        names = ", then ".join(s["added"] for s in ladder[1:])
+        names = ", then ".join(s["added"] or f"the {s['switched_law']} law" for s in ladder[1:])
         total = 100.0 * (1.0 - last["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
-        steps = " → ".join(f"+{s['added']} {s['nrmse']:.4f}" for s in ladder[1:])
-        parts.append(f"Missing effect{'s' if len(ladder) > 2 else ''}: {names} — validation "
+        steps = " → ".join(f"{'+' + s['added'] if s['added'] else '→ ' + s['switched_law']} "
+                           f"{s['nrmse']:.4f}" for s in ladder[1:])
+        what = ("Ladder" if any(s.get("switched_law") for s in ladder[1:])
+                else f"Missing effect{'s' if len(ladder) > 2 else ''}")
+        parts.append(f"{what}: {names} — validation "
                      f"nrmse {base['nrmse']:.4f} {steps} (−{total:.0f} %).")
+    switch = next((s for s in ladder[1:] if s.get("switched_law")), None)
+    if switch is not None:
+        prev = ladder[switch["step"] - 1]
+        fall = 100.0 * (1.0 - switch["nrmse"] / prev["nrmse"]) if prev["nrmse"] > 0 else 0.0
+        parts.append(f"The loop's shape is the {switch['switched_law']} law's: try `--model "
+                     f"{switch['switched_law']}`: {prev['nrmse']:.4f} → {switch['nrmse']:.4f} "
+                     f"(−{fall:.0f} %).")
+    else:
+        better = [lw for lw in laws if lw["significant"]]
+        if better:
+            b = better[0]
+            parts.append(f"Also significant: try `--model {b['law']}`: {b['nrmse_before']:.4f} → "
+                         f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %).")
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
-    per_run = list(last.get("per_run") or [])
-    above_everywhere = (len(per_run) == len(run_floors) and len(per_run) > 0
-                        and all(n - f >= MIN_GAIN_X_FLOOR * f
-                                for n, f in zip(per_run, run_floors)))
-    if ratio < UNEXPLAINED_RATIO or (run_floors and not above_everywhere):
+    if ratio < UNEXPLAINED_RATIO:
         verdict = "floor"
         parts.append(f"The {'final ' if len(ladder) > 1 else ''}model is at {ratio:.2f}× the "
                      "noise floor: what is left is less than any effect the significance rule "
-                     f"could call real (≥ {MIN_GAIN_X_FLOOR:g} noise floors on every held-out "
-                     "run), nothing structured is left to explain.")
+                     f"could call real (≥ {MIN_GAIN_X_FLOOR:g} noise floors), nothing "
+                     "structured is left to explain.")
     else:
         verdict = "unexplained"
         # the worst place of the FINAL model (the base model's worst runs are listed apart)
@@ -286,11 +307,13 @@ def diagnose(
     jobs: int = 1,
     progress: bool = False,
     whole_run: bool = False,
+    laws: Sequence[str] | None = None,
 ) -> Diagnosis:
     """Diagnose ``model`` on ``runs``: rank the effects, climb the ladder, localise the error.
 
     ``effects``: candidate ids (default: the whole catalogue, plus any user effects loaded
-    from ``effects_files``).  ``validate``: held-out runs (default: see
+    from ``effects_files``).  ``laws``: the other hysteresis laws scored like effects
+    (default: every registered law; ``()`` scores none).  ``validate``: held-out runs (default: see
     :mod:`pmalab.identify.diagnosis.heldout`).  ``whole_run``: use every sample instead of
     each recorded run's full-amplitude cycles (:meth:`~pmalab.runfile.Run.steady`).
     """
@@ -317,8 +340,13 @@ def diagnose(
         raise DiagnoseError("no identification runs left: every run is held out")
     floors = {r.label: noise_floor_nrmse(r.force, r.time) for r in split.held}
     floor = float(np.mean(list(floors.values())))
+    other_laws = [lw for lw in LAWS if lw != model] if laws is None else \
+        [lw for lw in laws if lw != model]
+    for lw in other_laws:
+        if lw not in LAWS:
+            raise DiagnoseError(f"unknown law '{lw}' (choose from {', '.join(LAWS)})")
     steps, rounds = run_ladder(split.train, split.held, model, cand, files, max_steps, jobs,
-                               progress)
+                               progress, laws=other_laws)
     amb = rounds[0].ambiguous if rounds else []
     suggestion = suggest_experiment(amb)
     final = steps[-1].effects
@@ -345,9 +373,17 @@ def diagnose(
         worst = (run.label, str(run_diagnostics(Signals.from_run(run), run.force, ff)
                                 .get("worst_region", "")))
     ladder = [s.as_json() for s in steps]
+    laws_json = [{"law": c.effect, "nrmse_before": float(c.nrmse_before),
+                  "nrmse_after": float(c.nrmse_after), "fall_percent": float(100.0 * c.fall),
+                  "gain_x_floor": float(c.gain_x_floor), "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
+                  "runs_improved": float(c.runs_improved), "significant": bool(c.significant),
+                  "per_run_after": [float(v) for v in c.after.nrmse]}
+                 for c in (rounds[0].laws if rounds else [])]
+    laws_json.sort(key=lambda d: -d["fall_percent"])
+    final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme,
-                                [floors[r.label] for r in split.held])
+                                [floors[r.label] for r in split.held], laws_json)
     rounds_json = [{"step": r.step, "ambiguous": r.ambiguous,
                     "candidates": [c.as_json() for c in r.candidates]} for r in rounds]
     settings = {"validation": split.scheme,
@@ -364,7 +400,7 @@ def diagnose(
                                   "method": "third differences of the measured force, robust "
                                             "scale (pmalab.identify.noise)"},
                      verdict=verdict, rounds=rounds_json, settings=settings, traces=traces,
-                     final_effects=list(final))
+                     final_effects=list(final), laws=laws_json, final_law=final_law)
 
 
 # --------------------------------------------------------------------------- writing
@@ -389,7 +425,7 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> 
 def _write_predictions(diag: Diagnosis, hpath: Path) -> None:
     import h5py
 
-    final_name = "+".join([diag.model, *diag.final_effects])
+    final_name = "+".join([diag.final_law or diag.model, *diag.final_effects])
     with h5py.File(hpath, "w") as f:
         f.attrs["format"] = PREDICTIONS_FORMAT
         f.attrs["format_version"] = 1

@@ -10,7 +10,7 @@ nrmse of every step is ``pmalab identify --add ...``'s validation nrmse of that 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pmalab.identify.campaign import ModelSpec
 from pmalab.identify.diagnosis.ranking import Candidate, Scored, judge, score, score_all
@@ -19,12 +19,17 @@ from pmalab.runfile import Run
 
 @dataclass
 class LadderStep:
-    """One rung: the effects in the model after this step and its held-out error."""
+    """One rung: the law and effects in the model after this step and its held-out error.
+
+    ``added`` is the effect this step added; a step that changed the law has ``added`` None
+    and ``switched`` the new law id."""
 
     step: int
     effects: list[str]
     added: str | None
     scored: Scored
+    law: str = ""
+    switched: str | None = None
 
     @property
     def nrmse(self) -> float:
@@ -36,6 +41,7 @@ class LadderStep:
 
     def as_json(self) -> dict:
         return {"step": self.step, "effects": list(self.effects), "added": self.added,
+                "law": self.law, "switched_law": self.switched,
                 "nrmse": float(self.nrmse), "fit_percent": float(self.fit_percent),
                 "per_run": [float(v) for v in self.scored.nrmse],
                 "model": "+".join(self.effects) or "base"}
@@ -43,11 +49,14 @@ class LadderStep:
 
 @dataclass
 class Round:
-    """The ranking of the remaining effects at one ladder step."""
+    """The ranking of the remaining effects (and of the other laws) at one ladder step."""
 
     step: int
     candidates: list[Candidate]
     ambiguous: list[str]
+    #: the other laws with the same effects, scored like effects (``Candidate.effect`` is
+    #: the law id)
+    laws: list[Candidate] = field(default_factory=list)
 
 
 def run_ladder(
@@ -59,29 +68,50 @@ def run_ladder(
     max_steps: int = 3,
     jobs: int = 1,
     progress: bool = False,
+    laws: Sequence[str] = (),
 ) -> tuple[list[LadderStep], list[Round]]:
-    """Climb the ladder; returns the steps (0 = base) and the ranking round of each step."""
+    """Climb the ladder; returns the steps (0 = base) and the ranking round of each step.
+
+    At every step each remaining effect is added to the current model and each law of
+    ``laws`` replaces the current law (same effects); all are scored by the same
+    identification on the same held-out runs and judged by the same rule.  The best
+    significant candidate — an effect or a law — is taken."""
     from pmalab.identify.noise import noise_floor_nrmse
 
     files = tuple(str(f) for f in effects_files)
     floors = [noise_floor_nrmse(r.force, r.time) for r in held]
     base = score(train, held, ModelSpec(law, (), files))
-    steps = [LadderStep(0, [], None, base)]
+    steps = [LadderStep(0, [], None, base, law)]
     rounds: list[Round] = []
     current: tuple[str, ...] = ()
-    while len(current) < max_steps:
+    cur_law = law
+    tried = {law}
+    while len(steps) <= max_steps:
         remaining = [e for e in effect_ids if e not in current]
-        if not remaining:
+        others = [lw for lw in laws if lw not in tried]
+        if not remaining and not others:
             break
-        specs = [ModelSpec(law, (*current, e), files) for e in remaining]
+        specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
+        specs += [ModelSpec(lw, current, files) for lw in others]
         outs = score_all(train, held, specs, jobs, progress,
-                         f"step {len(steps)}: {len(remaining)} candidate effects")
-        cands, amb = judge([Candidate(e, steps[-1].scored, o, floors=floors)
+                         f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws")
+        prev = steps[-1].scored
+        cands, amb = judge([Candidate(e, prev, o, floors=floors)
                             for e, o in zip(remaining, outs)])
-        rounds.append(Round(len(steps), cands, amb))
-        best = cands[0]
-        if not best.significant:
+        law_cands, _ = judge([Candidate(lw, prev, o, floors=floors)
+                              for lw, o in zip(others, outs[len(remaining):])])
+        rounds.append(Round(len(steps), cands, amb, law_cands))
+        pool = [c for c in [*cands, *law_cands] if c.significant]
+        if not pool:
             break
-        current = (*current, best.effect)
-        steps.append(LadderStep(len(steps), list(current), best.effect, best.after))
+        best = max(pool, key=lambda c: c.fall)
+        if best in law_cands:
+            cur_law = best.effect
+            tried.add(cur_law)
+            steps.append(LadderStep(len(steps), list(current), None, best.after, cur_law,
+                                    cur_law))
+        else:
+            current = (*current, best.effect)
+            steps.append(LadderStep(len(steps), list(current), best.effect, best.after,
+                                    cur_law))
     return steps, rounds

@@ -19,7 +19,9 @@ file in this folder) that owns all knowledge about itself, in the spirit of lmfi
 * ``state_params``: the internal state at the first sample (h0) — a property of the
   record, never of the muscle;
 * :meth:`h` (a whole trajectory) and :meth:`step` (one sample, for controllers that run
-  the law forward): the SAME integrator, one segment of position at a time.
+  the law forward): the SAME integrator, one segment of position at a time; a law with an
+  element state (``state_size`` > 1) steps that state, :meth:`initial_state` and
+  :meth:`output` map it from and to h.
 
 Units: x contraction in mm (positive = shorter), h in N.  A physical loop (tension higher
 while the muscle is stretched, x falling) needs h > 0 while dx < 0.
@@ -29,7 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -65,6 +67,12 @@ class HysteresisLaw:
     collinear_fixes: ClassVar[tuple[tuple[str, float], ...]] = ()
     #: the parameter h is linear in (state at zero, shape fixed); None: no such parameter
     scale_param: ClassVar[str | None] = None
+    #: a one-line title for tables and reports
+    title: ClassVar[str] = ""
+    #: size of the internal state the stepper carries: 1 for a law whose state is h itself
+    #: (Bouc-Wen, Duhem); n for laws of n elements (Prandtl-Ishlinskii, Maxwell-slip), whose
+    #: stepper takes and returns the element state and :meth:`output` sums it to h
+    state_size: ClassVar[int] = 1
 
     # ------------------------------------------------------------------ start values
     def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
@@ -93,6 +101,17 @@ class HysteresisLaw:
                 extras: Mapping[str, float] | None = None) -> Callable[[float, float, float], float]:
         """A fast ``step(h, x_prev, x) -> h`` with the parameters bound (for 500 Hz loops)."""
         raise NotImplementedError
+
+    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0,
+                      direction: float = 1.0) -> Any:
+        """The stepper's state at a record's start with hysteretic force ``h0`` (N) whose
+        first motion is toward contraction (``direction`` +1) or stretch (−1) — the state
+        :meth:`h` starts from."""
+        return float(h0)
+
+    def output(self, state: Any) -> float:
+        """h (N) of a stepper state (the state itself for a scalar-state law)."""
+        return float(state)
 
     def step(self, h: float, x_prev: float, x: float, theta: Mapping[str, float],
              extras: Mapping[str, float] | None = None) -> float:

@@ -1,0 +1,148 @@
+"""Elasto-slide elements: the one integrator of the Prandtl-Ishlinskii and Maxwell-slip laws.
+
+Element i is a spring of stiffness k_i (N/mm) in series with a slider that slips at
+±f_i (N).  Its force z_i follows the contraction x while it sticks and stays at the slip
+force while it slides:
+
+    z_i ← clip(z_i − k_i·Δx, −f_i, +f_i),     h = Σ z_i
+
+exactly, for a piecewise-linear x (one clip per segment: an element can only saturate once
+along a monotone segment).  The minus sign makes a physical loop: while the muscle is
+stretched (Δx < 0) the elements load toward +f_i, so the tension is higher than while it
+contracts.  A Prandtl-Ishlinskii play operator of threshold r_i and weight w_i is the same
+element with k_i = w_i, f_i = w_i·r_i (its output w_i·(y_i − x)); a Maxwell-slip element is
+it with (k_i, f_i) free.  The state is the vector z (N), its output h = Σ z_i; the record's
+start state is one number h0, spread over the elements in proportion to their slip forces
+(the state on the major loop's branch the record's first motion follows, :func:`slide_start`),
+so h[0] = h0 whenever |h0| ≤ Σ f_i.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, fastmath=False)
+def _branch(k, f, s, u, z):
+    """Element forces after a long move against ``s`` then ``u`` mm along ``s``; returns h."""
+    h = 0.0
+    for i in range(f.shape[0]):
+        fi = abs(f[i])
+        zi = s * fi - s * k[i] * u
+        if zi > fi:
+            zi = fi
+        elif zi < -fi:
+            zi = -fi
+        z[i] = zi
+        h += zi
+    return h
+
+
+@njit(cache=True, fastmath=False)
+def slide_start(k, f, h0, s=1.0):
+    """Element forces (N) on the major loop's branch with h = h0 (clipped to ±Σ f_i).
+
+    The record is taken to start on the branch its first motion follows: after a long move
+    in the other direction (every element slid), ``u`` mm along ``s`` (+1: contracting).
+    h(u) is monotone along a branch, so u is found by bisection; h[0] = h0 exactly when
+    |h0| ≤ Σ f_i.  One number thus sets every element, as a scalar-state law's h0 does."""
+    m = f.shape[0]
+    z = np.zeros(m)
+    tot = 0.0
+    umax = 0.0
+    for i in range(m):
+        fi = abs(f[i])
+        tot += fi
+        if k[i] > 0.0:
+            umax = max(umax, 2.0 * fi / k[i])
+    if tot <= 0.0:
+        return z
+    if s == 0.0:
+        s = 1.0
+    # h(0) = s·tot, h(umax) = −s·tot; find h(u) = h0
+    lo, hi = 0.0, umax
+    target = min(max(h0, -tot), tot)
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        hm = _branch(k, f, s, mid, z)
+        if (hm - target) * s > 0.0:
+            lo = mid
+        else:
+            hi = mid
+    _branch(k, f, s, 0.5 * (lo + hi), z)
+    return z
+
+
+@njit(cache=True, fastmath=False)
+def first_direction(x):
+    """+1 when the path first moves toward contraction, −1 toward stretch (0: no motion)."""
+    n = x.shape[0]
+    lo = x[0]
+    hi = x[0]
+    for j in range(n):
+        lo = min(lo, x[j])
+        hi = max(hi, x[j])
+    tol = 1e-3 * max(hi - lo, 1e-9)
+    for j in range(1, n):
+        d = x[j] - x[0]
+        if d > tol:
+            return 1.0
+        if d < -tol:
+            return -1.0
+    return 1.0
+
+
+@njit(cache=True, fastmath=False)
+def slide_segment(z, dx, k, f):
+    """Advance the element forces ``z`` (in place) along Δx (mm); returns h = Σ z_i (N)."""
+    h = 0.0
+    for i in range(z.shape[0]):
+        fi = abs(f[i])
+        zi = z[i] - k[i] * dx
+        if zi > fi:
+            zi = fi
+        elif zi < -fi:
+            zi = -fi
+        z[i] = zi
+        h += zi
+    return h
+
+
+@njit(cache=True, fastmath=False)
+def slide_h(x, k, f, h0):
+    """h[n] (N) of the elements driven by the contraction path ``x`` (mm)."""
+    n = x.shape[0]
+    h = np.empty(n)
+    z = slide_start(k, f, h0, first_direction(x))
+    s = 0.0
+    for i in range(z.shape[0]):
+        s += z[i]
+    h[0] = s
+    for j in range(n - 1):
+        h[j + 1] = slide_segment(z, x[j + 1] - x[j], k, f)
+    return h
+
+
+def slide_stepper(k: np.ndarray, f: np.ndarray):
+    """``step(z, x_prev, x) -> z'`` (a new array; ``z`` is left as it was)."""
+    k = np.ascontiguousarray(k, dtype=np.float64)
+    f = np.ascontiguousarray(f, dtype=np.float64)
+
+    def step(z, x_prev: float, x: float):
+        z2 = np.array(z, dtype=np.float64, copy=True)
+        slide_segment(z2, float(x) - float(x_prev), k, f)
+        return z2
+
+    return step
+
+
+def play_basis(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
+    """Columns (N per unit weight) of unit-weight play operators along ``x`` from a zero
+    state: column i is the element with k = 1, f = r_i (linear least-squares basis)."""
+    cols = np.empty((x.shape[0], thresholds.shape[0]))
+    one = np.ones(1)
+    for i, r in enumerate(thresholds):
+        cols[:, i] = slide_h(np.ascontiguousarray(x, dtype=np.float64), one,
+                             np.array([float(r)]), 0.0)
+    return cols

@@ -1,0 +1,75 @@
+"""Maxwell-slip hysteresis: parallel elasto-slide elements with free stiffness and slip force.
+
+    z_i ← clip(z_i − k_i·Δx, −f_i, +f_i),   h = Σ z_i,   f_i = k_i·d_i
+
+Four elements, each with a stiffness k_i (N/mm) and a slip displacement d_i (mm: how far the
+path must move after a reversal before the element slides; f_i = k_i·d_i is its slip force).
+This is the PMA friction model of Minh et al. (the seed papers' reference for braid
+friction): each fibre contact sticks, loads elastically and slips.  Compared with
+Prandtl-Ishlinskii (fixed thresholds, linear weights) the slip displacements are fitted, so
+four elements do what eight fixed operators do, at the price of a nonlinear fit (start:
+d_i on a geometric grid over the stroke, k_i by non-negative least squares).  Same
+integrator (:mod:`._slide`), same sign convention: tension higher while stretching.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+
+import numpy as np
+from scipy.optimize import nnls
+
+from pmalab.identify.laws._slide import play_basis, slide_h, slide_start, slide_stepper
+from pmalab.identify.laws.base import HysteresisLaw, LawParam
+
+ELEMENTS = 4
+_K = tuple(f"k{i + 1}" for i in range(ELEMENTS))
+_D = tuple(f"d{i + 1}" for i in range(ELEMENTS))
+
+
+def _kf(theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    k = np.array([max(float(theta[n]), 0.0) for n in _K])
+    d = np.array([max(float(theta[n]), 0.0) for n in _D])
+    return k, k * d
+
+
+class MaxwellSlip(HysteresisLaw):
+    name = "maxwell-slip"
+    title = "Maxwell-slip (elasto-slide elements)"
+    params = (
+        *(LawParam(n, 10.0, 0.0, 1e4, "N/mm", f"stiffness of element {i + 1}")
+          for i, n in enumerate(_K)),
+        *(LawParam(n, 0.5 * 3.0**i, 1e-3, 50.0, "mm", f"slip displacement of element {i + 1}")
+          for i, n in enumerate(_D)),
+        LawParam("h0", 0.0, -1e4, 1e4, "N", "initial hysteretic force"),
+    )
+    state_size = ELEMENTS
+    scale_param = None
+
+    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+        x = np.asarray(x, dtype=np.float64)
+        stroke = max(float(np.ptp(x)), 1e-3)
+        d = stroke * np.geomspace(0.01, 0.3, ELEMENTS)
+        B = play_basis(x, d)
+        M = np.column_stack([B, x, -x, np.ones_like(x), -np.ones_like(x)])
+        sc = np.maximum(np.abs(M).max(axis=0), 1e-12)
+        coef, _ = nnls(M / sc, np.asarray(force, dtype=np.float64), maxiter=2000)
+        k = coef[:ELEMENTS] / sc[:ELEMENTS]
+        out = {n: float(min(max(ki, 1e-3), 1e4)) for n, ki in zip(_K, k)}
+        out.update({n: float(di) for n, di in zip(_D, d)})
+        out["h0"] = 0.0
+        return out
+
+    def h(self, x, theta, extras=None):
+        k, f = _kf(theta)
+        return slide_h(np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]))
+
+    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
+        k, f = _kf(theta)
+        return slide_start(k, f, float(h0), float(direction))
+
+    def output(self, state) -> float:
+        return float(np.sum(state))
+
+    def stepper(self, theta, extras=None) -> Callable:
+        return slide_stepper(*_kf(theta))
