@@ -379,7 +379,7 @@ def diagnose(
                   "runs_improved": float(c.runs_improved), "significant": bool(c.significant),
                   "per_run_after": [float(v) for v in c.after.nrmse]}
                  for c in (rounds[0].laws if rounds else [])]
-    laws_json.sort(key=lambda d: -d["fall_percent"])
+    laws_json.sort(key=lambda d: (not d["significant"], -d["fall_percent"]))  # best first
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme,

@@ -159,9 +159,11 @@ def _grid_starts(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
     """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
     law = model.law
     base = {p.name: p.value for p in ps}
-    base.update({k: v for k, v in law.guess(sig.x, force, sig.v).items() if k in base})
-    (k, c0), _ = _lstsq([sig.x, np.ones_like(sig.x)], force)  # stage 1: centreline
-    base.update(k=float(k), c0=float(c0))
+    g = law.guess(sig.x, force, sig.v)
+    base.update({k: v for k, v in g.items() if k in base})
+    if "k" not in g or "c0" not in g:  # stage 1: centreline (a law's guess may fit k, c0 too)
+        (k, c0), _ = _lstsq([sig.x, np.ones_like(sig.x)], force)
+        base.update(k=float(k), c0=float(c0))
     scale = law.scale_param
     if scale is None or scale in fixed:
         return [base]

@@ -53,11 +53,13 @@ class MaxwellSlip(HysteresisLaw):
         B = play_basis(x, d)
         M = np.column_stack([B, x, -x, np.ones_like(x), -np.ones_like(x)])
         sc = np.maximum(np.abs(M).max(axis=0), 1e-12)
-        coef, _ = nnls(M / sc, np.asarray(force, dtype=np.float64), maxiter=2000)
-        k = coef[:ELEMENTS] / sc[:ELEMENTS]
+        coef, _ = nnls(M / sc, np.asarray(force, dtype=np.float64), maxiter=5000)
+        coef = coef / sc
+        k = coef[:ELEMENTS]
         out = {n: float(min(max(ki, 1e-3), 1e4)) for n, ki in zip(_K, k)}
         out.update({n: float(di) for n, di in zip(_D, d)})
-        out["h0"] = 0.0
+        out.update(k=float(coef[ELEMENTS] - coef[ELEMENTS + 1]),
+                   c0=float(coef[ELEMENTS + 2] - coef[ELEMENTS + 3]), h0=0.0)
         return out
 
     def h(self, x, theta, extras=None):

@@ -51,16 +51,24 @@ class PrandtlIshlinskii(HysteresisLaw):
     scale_param = None
 
     def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
-        """Non-negative least squares of F − (k·x + c0) on the play basis (k, c0 free)."""
+        """Non-negative least squares of F on the play basis with k and c0 (either sign).
+
+        Operators whose threshold the stroke never exceeds twice (2·r > stroke) never slide
+        here: they act as stiffness, collinear with k, so they start at 0."""
         x = np.asarray(x, dtype=np.float64)
-        B = play_basis(x, np.asarray(THRESHOLDS_MM))
-        # k and c0 enter with either sign: split them into ± columns for NNLS
+        r = np.asarray(THRESHOLDS_MM)
+        use = 2.0 * r < float(np.ptp(x))
+        B = play_basis(x, r[use]) if use.any() else np.zeros((x.shape[0], 0))
         M = np.column_stack([B, x, -x, np.ones_like(x), -np.ones_like(x)])
         sc = np.maximum(np.abs(M).max(axis=0), 1e-12)
-        coef, _ = nnls(M / sc, np.asarray(force, dtype=np.float64), maxiter=2000)
-        w = coef[: len(_W)] / sc[: len(_W)]
+        coef, _ = nnls(M / sc, np.asarray(force, dtype=np.float64), maxiter=5000)
+        coef = coef / sc
+        nb = B.shape[1]
+        w = np.zeros(len(_W))
+        w[use] = coef[:nb]
         out = {n: float(min(max(wi, 0.0), 1e4)) for n, wi in zip(_W, w)}
-        out["h0"] = 0.0
+        out.update(k=float(coef[nb] - coef[nb + 1]), c0=float(coef[nb + 2] - coef[nb + 3]),
+                   h0=0.0)
         return out
 
     def h(self, x, theta, extras=None):
