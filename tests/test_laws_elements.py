@@ -107,3 +107,30 @@ def test_controllers_run_with_element_laws(campaign, tmp_path, law):
         m = run.attrs["metrics"]
         # the law's hysteresis is inverted in the loop: the 20 mm sine is tracked to ~mm
         assert m["completed"] and m["rms_error"] < 3.0, m
+
+
+def test_identify_several_laws_ranks_them_and_writes_one_identification_each(campaign, tmp_path):
+    out = tmp_path / "laws"
+    rc, text = _cli(["identify", str(campaign), "--model",
+                     "bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip", "--out", str(out), "-q"])
+    assert rc == 0, text
+    table = json.loads((out / "laws.json").read_text())
+    names = [r["law"] for r in table["laws"]]
+    assert sorted(names) == ["bouc-wen", "duhem", "maxwell-slip", "prandtl-ishlinskii"]
+    vals = [r["validation_nrmse"] for r in table["laws"]]
+    assert vals == sorted(vals)  # best first
+    assert names.index("maxwell-slip") < names.index("bouc-wen")
+    for r in table["laws"]:
+        doc = json.loads((out / r["law"] / "identification.json").read_text())
+        assert doc["model"] == r["law"]
+        assert np.mean([v["nrmse"] for v in doc["validation"]]) == pytest.approx(
+            r["validation_nrmse"], rel=1e-9)
+    assert "× floor" in text and text.index("maxwell-slip") < text.index("bouc-wen")
+    # the same outputs again without --force: refused, nothing replaced
+    rc, text = _cli(["identify", str(campaign), "--model", "bouc-wen,duhem", "--out", str(out)])
+    assert rc != 0 and "--force" in text
+    # two laws' identifications side by side in one report (base vs improved pages)
+    pdf = tmp_path / "laws.pdf"
+    rc, text = _cli(["report", str(out / "bouc-wen"), str(out / "maxwell-slip"), "--out",
+                     str(pdf)])
+    assert rc == 0 and pdf.stat().st_size > 10_000, text

@@ -34,8 +34,10 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
-    p.add_argument("--model", required=True, metavar="LAW",
-                   help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)")
+    p.add_argument("--model", required=True, metavar="LAW[,LAW...]",
+                   help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
+                   "any law file in identify/laws/); several, comma-separated, identify each "
+                   "into OUT/LAW/ and print one table ranking them")
     p.add_argument("--add", action="append", default=[], metavar="EFFECT",
                    help="add an effect by id (repeatable), e.g. viscous-friction")
     p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
@@ -101,6 +103,8 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if "," in args.model:
+        return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
@@ -249,6 +253,75 @@ def run_diagnose(args: argparse.Namespace) -> int:
     print(f"wrote {jpath} and {hpath}")
     return 0
 
+
+
+def run_identify_many(args: argparse.Namespace) -> int:
+    """``--model a,b,c``: one identification per law into OUT/LAW/, one ranking table.
+
+    Every law is identified on the same runs and validated on the same held-out runs with
+    the same engine; the table ranks them by mean validation nrmse, with each validation
+    run's noise floor (:mod:`pmalab.identify.noise`) for scale.  OUT/laws.json holds the
+    table."""
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from pmalab.identify.api import identify, load
+    from pmalab.identify.laws import LAWS
+    from pmalab.identify.noise import noise_floor_nrmse
+    from pmalab.paths import check_output, prepare_output_dir
+    from pmalab.runfile import check_distinct, check_distinct_runs
+
+    laws = [m.strip() for m in args.model.split(",") if m.strip()]
+    for m in laws:
+        if m not in LAWS:
+            raise PmalabError(f"--model {m}: unknown law (choose from {', '.join(LAWS)})")
+    if len(set(laws)) != len(laws):
+        raise PmalabError(f"--model {args.model}: a law is named twice")
+    if args.hold_out or args.fix or args.free:
+        raise PmalabError("--hold-out, --fix and --free: give one --model at a time")
+    outs = {m: prepare_output_dir(str(Path(args.out) / m), ("identification.json",
+                                                            "predictions.h5"), args.force)
+            for m in laws}
+    table_path = check_output(Path(args.out) / "laws.json", args.force)
+    check_distinct(args.files, args.validate)
+    runs = load(args.files, include_aborted=args.include_aborted)
+    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    check_distinct_runs([*runs, *val])
+    rows = []
+    floors: list[float] = []
+    for m in laws:
+        res = identify(runs, m, effects=args.add, effects_files=args.effects, validate=val,
+                       jobs=args.jobs, scheduler=args.scheduler, initial=args.initial,
+                       progress=show_progress(args), pressure_model=args.pressure_model,
+                       whole_run=args.whole_run)
+        res.save(outs[m], force=args.force)
+        if not floors:
+            floors = [noise_floor_nrmse(v.run.force, v.run.time) for v in res.validation]
+        vn = [float(v.metrics["nrmse"]) for v in res.validation]
+        fit = [float(rf.result.metrics["nrmse"]) for rf in res.campaign.runs]
+        k = len({p.name for rf in res.campaign.runs for p in rf.result.params if p.vary
+                 and p.name not in res.model.state_params})
+        rows.append({"law": m, "validation_nrmse": float(np.mean(vn)) if vn else None,
+                     "validation_per_run": vn, "identification_nrmse": float(np.mean(fit)),
+                     "parameters_per_run": k, "directory": str(outs[m])})
+    floor = float(np.mean(floors)) if floors else None
+    for r in rows:
+        v = r["validation_nrmse"]
+        r["x_floor"] = (v / floor) if (v is not None and floor) else None
+    rows.sort(key=lambda r: (r["validation_nrmse"] is None, r["validation_nrmse"] or 0.0,
+                             r["identification_nrmse"]))
+    print(f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
+          + (f" (noise floor {floor:.4f})" if floor else "") + ", best first:")
+    print(_table([("law", "validation nrmse", "× floor", "fit nrmse (per run)",
+                   "parameters")] + [
+        (r["law"], "-" if r["validation_nrmse"] is None else f"{r['validation_nrmse']:.4f}",
+         "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
+         f"{r['identification_nrmse']:.4f}", str(r["parameters_per_run"])) for r in rows]))
+    table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
+    print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
+    return 0
 
 
 def _table(rows: list[tuple[str, ...]]) -> str:
