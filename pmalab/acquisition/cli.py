@@ -71,7 +71,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "(--encoding cp1252) are understood; values no PMA test can produce "
                        "(gauge pressure above 1.2 MPa, |force| above 20 kN, |position| above "
                        "500 mm) are refused with the unit they probably are in.")
-    q.add_argument("csv", help="input CSV file (a row of column names, then data rows)")
+    q.add_argument("csv", nargs="+", metavar="FILE",
+                   help="input text export(s): one run per file (a row of column names, then "
+                   "data rows; --no-header for a file of numbers only)")
     q.add_argument("--out", required=True, help="output HDF5 run file")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     for ch in ("time", "position", "force"):
@@ -100,8 +102,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="text encoding (default utf-8; cp1252 for most Windows exports)")
     q.add_argument("--negate", nargs="+", default=[], choices=["position", "force"],
                    help="flip the sign of these channels (e.g. a DAQ recording elongation)")
+    q.add_argument("--no-header", action="store_true",
+                   help="the file has no row of column names (LabVIEW's spreadsheet export): "
+                   "name the fields with --columns")
+    q.add_argument("--columns", metavar="F1,F2,...",
+                   help="the fields by position: time, position, force, pressure (or t, x, f, "
+                   "p), cylinder_pressure; '-' skips a field, e.g. time,-,-,-,position,"
+                   "pressure,force")
+    q.add_argument("--pressure-from-name", metavar="REGEX",
+                   help="nominal pressure from each file's name, the number in the first "
+                   "group and the unit after it, e.g. '(\\d+)bar' or '(\\d+)kPa'")
+    q.add_argument("--split-halves", action="store_true",
+                   help="each record becomes two runs: the first half for identification, "
+                   "the second held out for validation")
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
-    q.add_argument("--frequency", type=float, metavar="HZ", help="frequency tag (Hz)")
+    q.add_argument("--frequency", metavar="HZ|auto",
+                   help="excitation frequency tag (Hz), or 'auto': from the position's "
+                   "spectrum")
     q.set_defaults(func=cmd_import)
 
     r = sub.add_parser("recover", help="close a run file whose recording was killed",
@@ -238,8 +255,9 @@ def _select_either(protocol, roles, names):
 def cmd_import(args: argparse.Namespace) -> int:
     from pmalab.acquisition.csv_import import (
         CsvImportOptions,
-        import_csv,
+        import_files,
         parse_delimiter,
+        parse_layout,
         parse_units,
     )
 
@@ -249,17 +267,46 @@ def cmd_import(args: argparse.Namespace) -> int:
                     ("cylinder_pressure", args.cylinder_col)):
         if val:
             cols[ch] = val
+    auto = args.frequency is not None and args.frequency.strip().lower() == "auto"
+    freq = None
+    if args.frequency is not None and not auto:
+        try:
+            freq = float(args.frequency)
+        except ValueError:
+            raise ConfigError(f"--frequency: '{args.frequency}' is not a number of Hz "
+                              "or 'auto'") from None
+        if not (freq > 0 and freq < 1e4):
+            raise ConfigError(f"--frequency: must be > 0 Hz, got {args.frequency}")
     opts = CsvImportOptions(
         columns=cols, units=parse_units(args.units), pressure_MPa=args.pressure, run=args.run,
         delimiter=parse_delimiter(args.delimiter), negate=tuple(args.negate),
-        waveform=args.waveform, frequency_Hz=args.frequency, header_rows=args.header_rows,
+        waveform=args.waveform, frequency_Hz=freq, header_rows=args.header_rows,
         units_row=args.units_row, decimal=args.decimal, encoding=args.encoding,
+        no_header=args.no_header, layout=parse_layout(args.columns),
     )
     opts.check()  # option mistakes before the input is read
-    run = import_csv(args.csv, args.out, opts, force=args.force)
-    print(f"{args.out}: run '{run.name}', {len(run)} samples, "
-          f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
-          f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa")
+    many = len(args.csv) > 1
+
+    def progress(path, run) -> None:
+        if many:
+            print(f"  {path}: {len(run)} samples, {run.time[-1] - run.time[0]:.1f} s, "
+                  f"{run.nominal_pressure:.4g} MPa", file=sys.stderr)
+
+    runs = import_files(args.csv, args.out, opts, force=args.force,
+                        pressure_pattern=args.pressure_from_name, halves=args.split_halves,
+                        auto_frequency=auto, progress=progress)
+    if len(runs) == 1:
+        run = runs[0]
+        print(f"{args.out}: run '{run.name}', {len(run)} samples, "
+              f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
+              f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa")
+    else:
+        levels = sorted({round(r.nominal_pressure, 4) for r in runs})
+        held = sum(r.attrs.get("role") == "validation" for r in runs)
+        print(f"{args.out}: {len(runs)} runs from {len(args.csv)} file(s), "
+              f"{sum(len(r) for r in runs)} samples, pressures "
+              f"{', '.join(f'{p:g}' for p in levels)} MPa"
+              + (f", {held} held out for validation" if held else ""))
     return 0
 
 

@@ -19,6 +19,17 @@ unit they probably are in), each failure one line naming the file, run and colum
 without a pressure column needs ``--pressure MPa`` (the nominal muscle pressure, recorded as
 a constant).
 
+A file without a names row (LabVIEW's "write to spreadsheet file": tab-separated, CRLF,
+numbers from the first line) is read with ``--no-header --columns time,-,-,-,position,pressure,force``:
+one name per field, ``-`` for a field to skip.  ``--columns`` names the fields by position
+with or without ``--no-header`` (with a names row, the row is skipped and these names used).
+
+A whole campaign is one command (:func:`import_files`): one run per file, the nominal pressure
+from the pressure column, ``--pressure MPa`` or the file name (``--pressure-from-name
+'(\\d+)bar'``); ``--split-halves`` makes each record two runs, the first half for
+identification and the second held out for validation; ``--frequency auto`` reads the
+excitation frequency off the position's spectrum.
+
 Sign convention is the contract's: position = contraction (positive = shorter), force =
 tension.  A DAQ that records elongation can be flipped with ``--negate position``.
 """
@@ -70,6 +81,15 @@ _UNIT_KEYS = {
 #: ``--delimiter`` spellings of characters a shell makes awkward
 _DELIMITER_NAMES = {"\\t": "\t", "tab": "\t", "TAB": "\t", "semicolon": ";", "comma": ",",
                     "space": " ", "pipe": "|"}
+#: ``--columns`` names: a channel, or a short name for one; ``-`` skips a field
+LAYOUT_NAMES = {
+    "t": "time", "time": "time",
+    "x": "position", "position": "position",
+    "f": "force", "force": "force",
+    "p": "muscle_pressure", "pressure": "muscle_pressure", "muscle_pressure": "muscle_pressure",
+    "cylinder_pressure": "cylinder_pressure",
+    "cylinder_pressure_command": "cylinder_pressure_command",
+}
 #: a unit written after a column name: ``Position [mm]``, ``Force (kN)``, ``p {bar}``
 _NAME_UNIT = re.compile(r"^(.*?)\s*([\[\(\{][^\[\]\(\)\{\}]*[\]\)\}])\s*$")
 
@@ -93,6 +113,10 @@ class CsvImportOptions:
     #: decimal mark of the numbers, "." or ","
     decimal: str = "."
     encoding: str = "utf-8"
+    #: the data start on the first line (after ``header_rows``): no names row
+    no_header: bool = False
+    #: one channel (or ``None`` for a skipped field) per field, from ``--columns``
+    layout: list[str | None] | None = None
 
     def check(self) -> None:
         """Refuse inconsistent layout options (one line naming the option)."""
@@ -111,6 +135,39 @@ class CsvImportOptions:
         except LookupError:
             raise RunFileError(f"--encoding: unknown encoding '{self.encoding}' "
                                "(e.g. utf-8, cp1252, latin-1)") from None
+        if self.no_header and not self.layout:
+            raise RunFileError("--no-header: give the fields' meaning with --columns, e.g. "
+                               "--columns time,-,position,pressure,force ('-' skips a field)")
+        if self.layout is not None and self.columns:
+            raise RunFileError("--columns: names the fields by position; do not combine it "
+                               "with --time-col/--position-col/--force-col/--pressure-col")
+
+
+def parse_layout(text: str | None) -> list[str | None] | None:
+    """``--columns time,-,-,position,pressure,force`` → one channel (or None) per field.
+
+    Short names ``t x f p`` stand for time, position, force and muscle pressure; each
+    channel appears once and time, position and force must all be there.
+    """
+    if text is None:
+        return None
+    out: list[str | None] = []
+    for item in (s.strip() for s in text.split(",")):
+        if item in ("-", "_", ""):
+            out.append(None)
+            continue
+        ch = LAYOUT_NAMES.get(item.lower())
+        if ch is None:
+            raise RunFileError(f"--columns: unknown field '{item}' (use - to skip a field, "
+                               f"or one of {', '.join(sorted(LAYOUT_NAMES))})")
+        if ch in out:
+            raise RunFileError(f"--columns: '{item}' names {ch} twice")
+        out.append(ch)
+    missing = [c for c in ("time", "position", "force") if c not in out]
+    if missing:
+        raise RunFileError(f"--columns: no field for {', '.join(missing)} "
+                           f"(got {text!r}; '-' skips a field)")
+    return out
 
 
 def parse_delimiter(text: str) -> str:
@@ -153,8 +210,19 @@ def _csv_units_hint(channel: str, declared: str, unit: str | None) -> str:
 
 
 def _split(line: str, delimiter: str) -> list[str]:
-    """One row's fields (quotes honoured), stripped."""
+    """One row's fields (quotes honoured), stripped; a space delimiter takes any run of
+    blanks as one separator (column-aligned text)."""
+    if delimiter == " ":
+        return line.split()
     return [c.strip() for c in next(csv.reader([line], delimiter=delimiter))]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text.replace(",", "."))
+    except ValueError:
+        return False
+    return True
 
 
 def _read_text(path: Path, opts: CsvImportOptions) -> str:
@@ -206,14 +274,21 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     if i >= len(lines):
         raise RunFileError(f"{path}: not a readable CSV file (no row of column names)")
     names_line = i + 1  # 1-based, for messages
-    names = _split(lines[i], d)
+    if opts.no_header:
+        names_line = 0
+        names = []
+    else:
+        names = _split(lines[i], d)
+        i += 1
+    if opts.layout is not None:
+        # fields named by position: the channel's default column name, "" for a skipped one
+        names = [DEFAULT_COLUMNS[c] if c else "" for c in opts.layout]
     name_units: list[str | None] = []
     base_names: list[str] = []
     for n in names:
         m = _NAME_UNIT.match(n)
         base_names.append(m.group(1) if m and m.group(1) else n)
         name_units.append(m.group(2) if m and m.group(1) else None)
-    i += 1
     row_units: list[str] | None = None
     if opts.units_row:
         if i >= len(lines):
@@ -237,10 +312,17 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         if explicit:
             needed = [opts.columns.get(c, DEFAULT_COLUMNS[c]) for c in DEFAULT_COLUMNS
                       if c in opts.columns or c in ("time", "position", "force")]
+            if opts.layout is not None:
+                hint = ("; name the pressure field, or give --pressure MPA or "
+                        "--pressure-from-name" if ch == "muscle_pressure" else "")
+                raise RunFileError(f"{path}: run '{run}': channel '{ch}': not in --columns "
+                                   f"({', '.join(c or '-' for c in opts.layout)}){hint}")
             raise RunFileError(f"{path}: run '{run}': channel '{ch}': no column '{name}' "
-                               f"(columns: {', '.join(n for n in names if n)}"
+                               f"(columns: {', '.join(n for n in names[:8] if n)}"
+                               + (", …" if len(names) > 8 else "")
                                + (f" on line {names_line})" if names_line != 1 else ")")
-                               + (_header_hint(lines, needed, names_line, d)
+                               + (_headerless_hint(names, d)
+                                  or _header_hint(lines, needed, names_line, d)
                                   or _delimiter_hint(names, d)))
         return None
 
@@ -254,7 +336,8 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     # ---- the numbers: pandas' C parser makes every clean column float at once; a column
     # with a bad cell stays text and is converted cell by cell below to name the cell
     try:
-        df = pd.read_csv(io.StringIO("\n".join(ln for _, ln in data_rows)), sep=d, header=None,
+        df = pd.read_csv(io.StringIO("\n".join(ln for _, ln in data_rows)),
+                         sep=r"\s+" if d == " " else d, header=None,
                          decimal=opts.decimal, keep_default_na=False, na_values=[],
                          skipinitialspace=True)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
@@ -269,6 +352,10 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     if extra > 0:
         tail = df.iloc[:, len(names):]
         if not tail.astype(str).isin(["", "nan"]).all().all():  # a trailing delimiter is harmless
+            if opts.layout is not None:
+                raise RunFileError(f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
+                                   f"--columns names {len(names)}; name every field "
+                                   "('-' skips one) or check --delimiter")
             raise RunFileError(f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
                                f"{len(names)} column names (line {names_line}); wrong "
                                "--delimiter or --header-rows?")
@@ -318,7 +405,8 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
                                 "units": {c: u for c, (_, u) in raw.items()},
                                 "negate": list(opts.negate), "header_rows": opts.header_rows,
                                 "delimiter": opts.delimiter, "decimal": opts.decimal,
-                                "encoding": opts.encoding}),
+                                "encoding": opts.encoding, "no_header": opts.no_header,
+                                "layout": opts.layout}),
         "role": "identification",
         "source": "csv import",
         "status": "completed",
@@ -340,6 +428,24 @@ def _header_hint(lines: list[str], needed: list[str], names_line: int, delimiter
         have |= {m.group(1).lower() for f in fields if (m := _NAME_UNIT.match(f)) and m.group(1)}
         if want <= have:
             return f"; the names look like line {k + 1}: use --header-rows {k}"
+    return ""
+
+
+def _headerless_hint(names: list[str], delimiter: str) -> str:
+    """The 'names row' is numbers: a file without one (LabVIEW's spreadsheet export)."""
+    fields = names
+    if len(names) == 1:
+        for sep in ("\t", ";", ",", " "):
+            if sep != delimiter and sep in names[0]:
+                fields = names[0].split() if sep == " " else names[0].split(sep)
+                break
+    if fields and all(_is_number(f) for f in fields if f):
+        sep = "" if fields is names else {"\t": " --delimiter '\\t'", ";": " --delimiter ';'",
+                                          ",": " --delimiter ','", " ": " --delimiter space"}[
+            next(s for s in ("\t", ";", ",", " ") if s in names[0])]
+        layout = ",".join(["time"] + ["-"] * max(len(fields) - 1, 0))
+        return (f"; the first row is numbers, not names: a file without a names row? "
+                f"use --no-header{sep} --columns {layout} (name each field; '-' skips one)")
     return ""
 
 
@@ -374,3 +480,145 @@ def import_csv(csv: str | Path, out: str | Path, opts: CsvImportOptions, *,
     run = read_csv_run(csv, opts)
     write_runs(out, [run], force=force)
     return run
+
+
+def pressure_from_name(path: str | Path, pattern: str) -> float:
+    """The nominal muscle pressure in MPa read off a file name with ``pattern``.
+
+    The pattern's first group is the number; its unit is the text the pattern matches after
+    the group (``'(\\d+)bar'`` on ``NAPN_3bar.csv`` → 0.3 MPa).  Without a unit in the
+    pattern the number is taken as MPa.
+    """
+    try:
+        rx = re.compile(pattern)
+    except re.error as exc:
+        raise RunFileError(f"--pressure-from-name: not a regular expression ({exc})") from None
+    if rx.groups < 1:
+        raise RunFileError("--pressure-from-name: the pattern needs a group around the "
+                           "number, e.g. '(\\d+)bar'")
+    name = Path(path).name
+    m = rx.search(name)
+    if m is None:
+        raise RunFileError(f"{path}: --pressure-from-name {pattern!r} does not match "
+                           f"the file name '{name}'")
+    try:
+        value = float(m.group(1).replace(",", ".").replace("p", "."))
+    except ValueError:
+        raise RunFileError(f"{path}: --pressure-from-name: '{m.group(1)}' is not a "
+                           "number") from None
+    unit_text = name[m.end(1): m.end()].strip(" _-") or "MPa"
+    canon = normalize_unit("muscle_pressure", unit_text)
+    if canon is None:
+        raise RunFileError(f"{path}: --pressure-from-name: unknown pressure unit "
+                           f"'{unit_text}' after the number (write it in the pattern, "
+                           f"e.g. '(\\d+)bar', '(\\d+)kPa')")
+    mpa = value * UNIT_FACTORS["muscle_pressure"][canon]
+    hi = PLAUSIBLE["muscle_pressure"].hi
+    if not (math.isfinite(mpa) and 0 < mpa <= hi):
+        raise RunFileError(f"{path}: --pressure-from-name: {value:g} {canon} is not a muscle "
+                           f"pressure (> 0 and ≤ {hi:g} MPa)")
+    return mpa
+
+
+def excitation_frequency(run: Run) -> float:
+    """The motion's fundamental frequency in Hz: the largest peak of the position's spectrum
+    (mean and linear trend removed, Hann window), refined by parabolic interpolation."""
+    t, x = run.time, run.position
+    n = len(t)
+    if n < 16:
+        raise RunFileError(f"{run.file}: run '{run.name}': --frequency auto: only {n} samples")
+    tu = np.linspace(t[0], t[-1], n)
+    xu = np.interp(tu, t, x)
+    xu = xu - np.polyval(np.polyfit(tu - tu[0], xu, 1), tu - tu[0])
+    spec = np.abs(np.fft.rfft(xu * np.hanning(n)))
+    fs = (n - 1) / (tu[-1] - tu[0])
+    k = int(np.argmax(spec[2:])) + 2  # skip DC and the lowest bin (a window-length trend)
+    if k + 1 < len(spec):
+        a, b, c = spec[k - 1], spec[k], spec[k + 1]
+        den = a - 2 * b + c
+        k = k + (0.5 * (a - c) / den if den != 0 else 0.0)
+    f = float(k * fs / n)
+    if not (math.isfinite(f) and f > 0):
+        raise RunFileError(f"{run.file}: run '{run.name}': --frequency auto: no periodic "
+                           "motion in the position")
+    return f
+
+
+def split_halves(run: Run) -> list[Run]:
+    """A record → two runs at its middle sample: ``NAME-a`` (identification, first half) and
+    ``NAME-b`` (validation, second half); every sample is kept in exactly one of them."""
+    n = len(run.time)
+    if n < 40:
+        raise RunFileError(f"{run.file}: run '{run.name}': --split-halves: only {n} samples")
+    mid = n // 2
+    out = []
+    for tag, sl, role in (("a", slice(0, mid), "identification"),
+                          ("b", slice(mid, n), "validation")):
+        attrs = dict(run.attrs, role=role, split=f"half {tag} of '{run.name}'")
+        chans = {c: getattr(run, c)[sl] for c in ("time", "position", "force",
+                                                    "muscle_pressure")}
+        for c in ("cylinder_pressure", "cylinder_pressure_command"):
+            v = getattr(run, c, None)
+            if v is not None:
+                chans[c] = v[sl]
+        out.append(Run(name=f"{run.name}-{tag}", attrs=attrs, file=run.file, **chans))
+    return out
+
+
+def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
+                  pressure_pattern: str | None = None, halves: bool = False,
+                  auto_frequency: bool = False, progress=None) -> list[Run]:
+    """Read one run per file (``opts.run`` must be unset for several files), name each by its
+    stem (unique), and apply the nominal pressure from the name, ``--frequency auto`` and
+    ``--split-halves``."""
+    from dataclasses import replace
+
+    if len(paths) > 1 and opts.run:
+        raise RunFileError("--run: names one run; with several files each run is named "
+                           "by its file")
+    runs: list[Run] = []
+    seen: dict[str, Path] = {}
+    for p in paths:
+        p = Path(p)
+        if p.stem in seen and len(paths) > 1:
+            raise RunFileError(f"{p}: same run name '{p.stem}' as {seen[p.stem]} (rename one)")
+        seen[p.stem] = p
+        o = opts
+        nominal = None
+        if pressure_pattern:
+            nominal = pressure_from_name(p, pressure_pattern)
+            if opts.pressure_MPa is None:  # the constant pressure of a file without a column
+                o = replace(opts, pressure_MPa=nominal)
+        run = read_csv_run(p, o)
+        if nominal is not None:
+            run.attrs["muscle_pressure_MPa"] = nominal
+            run.attrs["pressure_from"] = f"file name ({pressure_pattern})"
+        if auto_frequency:
+            run.attrs["frequency_Hz"] = round(excitation_frequency(run), 4)
+            run.attrs["frequency_from"] = "position spectrum (--frequency auto)"
+        runs.extend(split_halves(run) if halves else [run])
+        if progress is not None:
+            progress(p, run)
+    return runs
+
+
+def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOptions, *,
+                 force: bool = False, pressure_pattern: str | None = None,
+                 halves: bool = False, auto_frequency: bool = False,
+                 progress=None) -> list[Run]:
+    """Import several exports (one run per file) into one new campaign file ``out``.
+
+    Every file is read and checked before anything is written: a mistake in the last file
+    leaves no output behind.
+    """
+    from pmalab.paths import check_output
+
+    for p in paths:
+        if Path(out).exists() and Path(p).exists() and os.path.samefile(out, p):
+            raise OutputError(f"--out {out}: is the input file {p} itself (--force would "
+                              "replace your data with the run file): give it another name")
+    check_output(out, force)
+    runs = read_campaign(paths, opts, pressure_pattern=pressure_pattern, halves=halves,
+                         auto_frequency=auto_frequency, progress=progress)
+    write_runs(out, runs, force=force)
+    return runs

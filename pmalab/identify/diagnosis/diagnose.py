@@ -26,7 +26,12 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.diagnosis.diagnostics import campaign_diagnostics, run_diagnostics
+from pmalab.identify.diagnosis.diagnostics import (
+    campaign_diagnostics,
+    residual_next_step,
+    residual_shares,
+    run_diagnostics,
+)
 from pmalab.identify.diagnosis.heldout import choose
 from pmalab.identify.diagnosis.ladder import LadderStep, Round, run_ladder
 from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
@@ -96,6 +101,9 @@ class Diagnosis:
     laws: list[dict[str, Any]] = field(default_factory=list)
     #: the law of the final ladder model (the base law unless a step changed it)
     final_law: str = ""
+    #: where the final model's held-out residual beyond the noise lies (loop / above the
+    #: motion band / session offset / other: shares of its power) and what to look at next
+    residual: dict[str, Any] = field(default_factory=dict)
 
     @property
     def winner(self) -> str | None:
@@ -115,6 +123,7 @@ class Diagnosis:
             "final_model": "+".join([self.final_law or self.model, *self.final_effects]),
             "final_law": self.final_law or self.model,
             "laws": self.laws,
+            "residual": self.residual,
             "settings": self.settings,
             "summary": self.summary,
             "noise_floor": self.noise_floor,
@@ -244,7 +253,7 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
 def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: list[str],
              floor: float, worst: tuple[str, str] | None, suggestion: str, scheme: str,
              run_floors: Sequence[float] = (),
-             laws: Sequence[dict] = ()) -> tuple[str, str]:
+             laws: Sequence[dict] = (), rest: dict | None = None) -> tuple[str, str]:
     """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
     identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
     base, last = ladder[0], ladder[-1]
@@ -291,6 +300,8 @@ def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: lis
         where = f"; {whose} largest residual is on {worst[0]}: {worst[1]}" if worst else ""
         parts.append(f"Unexplained structured residual, {ratio:.1f}× the noise floor{where} "
                      "(a hysteresis law of another shape or an effect not in the catalogue).")
+        if rest and rest.get("text"):
+            parts.append(rest["text"])
     if ambiguous:
         parts.append(f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
                      f"to separate them, {suggestion}.")
@@ -361,6 +372,9 @@ def diagnose(
         d = run_diagnostics(sig, run.force, fb)
         d["nrmse_final"] = float(np.sqrt(np.mean((run.force - ff) ** 2)) / np.std(run.force))
         d["noise_floor_nrmse"] = floors[run.label]
+        d["residual_shares"] = residual_shares(run.time, run.position, run.force - ff,
+                                               floors[run.label] * float(np.std(run.force)),
+                                               run.frequency)
         diagnostics[run.label] = d
         traces.append((run, fb, ff))
         camp_items.append((sig.p_nom, run.frequency, run.force - fb))
@@ -382,8 +396,10 @@ def diagnose(
     laws_json.sort(key=lambda d: (not d["significant"], -d["fall_percent"]))  # best first
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
+    rest = residual_next_step([d["residual_shares"] for d in diagnostics.values()])
     summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme,
-                                [floors[r.label] for r in split.held], laws_json)
+                                [floors[r.label] for r in split.held], laws_json, rest)
+    campaign = campaign_diagnostics(camp_items)
     rounds_json = [{"step": r.step, "ambiguous": r.ambiguous,
                     "candidates": [c.as_json() for c in r.candidates]} for r in rounds]
     settings = {"validation": split.scheme,
@@ -395,12 +411,13 @@ def diagnose(
                            "runs (one identification per candidate)"}
     return Diagnosis(model=model, ranking=ranking, ambiguous=list(amb),
                      suggested_experiment=suggestion, ladder=ladder, diagnostics=diagnostics,
-                     campaign=campaign_diagnostics(camp_items), summary=summary,
+                     campaign=campaign, summary=summary,
                      noise_floor={"mean_nrmse": floor, "per_run": floors,
                                   "method": "third differences of the measured force, robust "
                                             "scale (pmalab.identify.noise)"},
                      verdict=verdict, rounds=rounds_json, settings=settings, traces=traces,
-                     final_effects=list(final), laws=laws_json, final_law=final_law)
+                     final_effects=list(final), laws=laws_json, final_law=final_law,
+                     residual=rest)
 
 
 # --------------------------------------------------------------------------- writing

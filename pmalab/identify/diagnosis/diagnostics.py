@@ -239,3 +239,130 @@ def campaign_diagnostics(items: Sequence[tuple[float, float | None, np.ndarray]]
                       if len(per_run) > 1 else None)
         out[name] = {"centers": centers, "mean": mean, "rms": rms, "ci95_rms": ci, "unit": unit}
     return out
+
+
+# --------------------------------------------------------------- where the rest lies
+#: the "motion band" ends at this many times the motion's fundamental f0
+MOTION_HARMONICS = 10
+#: position bins per branch of the loop for the loop-locked part of the residual
+LOOP_BINS = 24
+
+
+def _fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
+    """The motion's fundamental (Hz) from the position's spectrum (mean and trend removed)."""
+    n = len(t)
+    if n < 32 or t[-1] <= t[0]:
+        return None
+    xs = x - np.polyval(np.polyfit(t - t[0], x, 1), t - t[0])
+    spec = np.abs(np.fft.rfft(xs * np.hanning(n)))
+    k = int(np.argmax(spec[2:])) + 2
+    return float(k * (n - 1) / ((t[-1] - t[0]) * n))
+
+
+def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: float,
+                    frequency_Hz: float | None = None) -> dict[str, Any]:
+    """Split a held-out run's residual power beyond the noise into where it lies.
+
+    ``r`` = measured − model force (N) of a free-run prediction, ``x`` the contraction
+    (mm), ``noise_sigma_N`` the record's own noise (pmalab.identify.noise),
+    ``frequency_Hz`` the motion's fundamental f0 (read off the position's spectrum when not
+    given).  Shares of the structured power P = mean(r²) − σ² (fractions in [0, 1] that
+    sum to ≤ 1), taken in this order:
+
+    * ``offset``: the residual's mean: a constant the model carries on the identification
+      runs but not on this one (a session offset: load-cell zero, temperature);
+    * ``loop``: the mean residual at each place of the loop (branch × position bin): an
+      error that repeats every cycle where the loop is, i.e. the loop's shape;
+    * ``above_band``: of what is left, the part above 10.5·f0: faster than the motion
+      (vibration, valve, mains pickup: the rig, not the muscle);
+    * ``other``: the rest, in the motion band but not tied to the loop (slow drift,
+      cycle-to-cycle change).
+
+    The white noise's expected share of each part (σ² spread evenly up to Nyquist, σ²·bins/n
+    for the binned means) is removed first, so a model at the noise floor has P ≈ 0.
+    """
+    t = np.asarray(t, float)
+    r = np.asarray(r, float)
+    x = np.asarray(x, float)
+    n = len(t)
+    mean_sq = float(np.mean(r**2)) if n else 0.0
+    sigma2 = float(noise_sigma_N) ** 2
+    structured = max(mean_sq - sigma2, 0.0)
+    f0 = frequency_Hz if frequency_Hz and frequency_Hz > 0 else (
+        _fundamental(np.linspace(t[0], t[-1], n), np.interp(np.linspace(t[0], t[-1], n), t, x))
+        if n >= 32 else None)
+    out: dict[str, Any] = {"structured_power_N2": structured, "rms_N": float(np.sqrt(mean_sq)),
+                           "noise_sigma_N": float(noise_sigma_N), "f0_Hz": f0,
+                           "offset": 0.0, "loop": 0.0, "above_band": 0.0, "other": 0.0}
+    if structured <= 0.0 or f0 is None or n < 4 * LOOP_BINS:
+        return out
+    mean = float(np.mean(r))
+    rc = r - mean
+    # loop-locked part: mean residual per (branch, position bin)
+    v = np.gradient(x, t)
+    edges = np.quantile(x, np.linspace(0.0, 1.0, LOOP_BINS + 1))
+    pos = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, LOOP_BINS - 1)
+    cell = pos + LOOP_BINS * (v > 0)
+    counts = np.bincount(cell, minlength=2 * LOOP_BINS)
+    sums = np.bincount(cell, weights=rc, minlength=2 * LOOP_BINS)
+    means = np.divide(sums, counts, out=np.zeros_like(sums), where=counts > 0)
+    locked = means[cell]
+    used = int(np.count_nonzero(counts))
+    loop_p = max(float(np.mean(locked**2)) - sigma2 * used / n, 0.0)
+    # what the loop does not explain: above the motion band, or in it
+    rest = rc - locked
+    tu = np.linspace(t[0], t[-1], n)
+    ru = np.interp(tu, t, rest)
+    spec = np.abs(np.fft.rfft(ru)) ** 2
+    spec[1:] *= 2.0
+    freqs = np.fft.rfftfreq(n, d=(tu[-1] - tu[0]) / (n - 1))
+    total = float(spec.sum())
+    rest_var = float(np.mean(ru**2))
+    above = freqs > (MOTION_HARMONICS + 0.5) * f0
+    nyq = float(freqs[-1]) if freqs[-1] > 0 else 1.0
+    frac_above = float(spec[above].sum()) / total if total > 0 else 0.0
+    width_above = max(nyq - (MOTION_HARMONICS + 0.5) * f0, 0.0) / nyq
+    noise_rest = sigma2 * (1.0 - used / n)
+    above_p = max(frac_above * rest_var - noise_rest * width_above, 0.0)
+    other_p = max((1.0 - frac_above) * rest_var - noise_rest * (1.0 - width_above), 0.0)
+    parts = {"offset": mean**2, "loop": loop_p, "above_band": above_p, "other": other_p}
+    s = sum(parts.values())
+    if s > 0:
+        scale = min(structured / s, 1.0) / structured  # shares of P, never above 1 in all
+        out.update({k: float(val * scale) for k, val in parts.items()})
+    return out
+
+
+#: what each share points at, in the summary's words
+RESIDUAL_NEXT = {
+    "loop": "where the loop is, the same every cycle: the loop's shape (try another law, "
+            "or an effect that changes the loop)",
+    "above_band": "above the motion band: a disturbance from the rig (vibration, valve, "
+                  "pickup), not the muscle",
+    "offset": "a constant offset between identification and validation sessions (a "
+              "systematic offset the pressure laws cannot carry: re-zero the load cell, "
+              "or identify on runs of the same session)",
+    "other": "in the motion band but off its harmonics: slow drift or non-periodic "
+             "behaviour within the run",
+}
+
+
+def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Campaign shares (weighted by each run's structured power) and the next thing to look
+    at: the largest share, when it holds at least a third of what is left."""
+    keys = ("loop", "above_band", "offset", "other")
+    w = np.array([d["structured_power_N2"] for d in per_run], float)
+    if not per_run or w.sum() <= 0:
+        return {**{k: 0.0 for k in keys}, "next": None, "text": ""}
+    shares = {k: float(np.sum([d[k] * wi for d, wi in zip(per_run, w)]) / w.sum())
+              for k in keys}
+    top = max(keys, key=lambda k: shares[k])
+    ordered = sorted(keys, key=lambda k: -shares[k])
+    names = {"loop": "tied to the loop", "above_band": "above the motion band",
+             "offset": "session offset", "other": "in band, not tied to the loop"}
+    listed = ", ".join(f"{100 * shares[k]:.0f} % {names[k]}" for k in ordered
+                       if shares[k] >= 0.05)
+    nxt = top if shares[top] >= 1 / 3 else None
+    text = (f"Where the rest lies ({listed}): mostly {RESIDUAL_NEXT[top]}."
+            if nxt else (f"Where the rest lies ({listed}): no single place." if listed else ""))
+    return {**shares, "next": nxt, "text": text}

@@ -1,0 +1,119 @@
+"""The whole chain on real measurements nobody on the team made (data/real/zillen-oring257:
+a 3D-printed pneumatic actuator's friction tests, CC0, see PROVENANCE.md there).
+
+Headerless LabVIEW-style text (tab, CRLF) → one campaign in one command (each record split
+in halves: identify on the first, validate on the second) → diagnose → identify with what
+the ladder added → report.  What pmalab says is checked here, not only by eye:
+
+* the import holds the file's numbers exactly (unit conversions only);
+* the base model sits far above the record's noise floor and the ladder climbs: every step
+  lowers the held-out error of every held-out run, and the last step ends ≥ 20 % below the
+  base model;
+* diagnose's final number is what `pmalab identify --add ...` reports on the same runs;
+* what is left is located (the share tied to the loop, above the band, offset).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmalab.cli import main as pmalab_main
+from pmalab.identify.api import load
+from pmalab.paths import DATA_DIR
+
+REAL = DATA_DIR / "real" / "zillen-oring257"
+FILES = sorted(REAL.glob("O-ring257_*bar.csv"))
+IMPORT = ["--no-header", "--delimiter", "\\t", "--columns", "time,-,-,-,position,pressure,force",
+          "--units", "time=ms,pressure=bar", "--negate", "position",
+          "--pressure-from-name", r"(\d+)bar", "--split-halves", "--frequency", "auto",
+          "--waveform", "triangle"]
+
+
+def _cli(args: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = pmalab_main(args)
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> Path:
+    assert len(FILES) == 4 and (REAL / "LICENSE").exists() and (REAL / "PROVENANCE.md").exists()
+    out = tmp_path_factory.mktemp("real") / "oring257.h5"
+    code, text, err = _cli(["import", *map(str, FILES), *IMPORT, "--out", str(out)])
+    assert code == 0, err
+    assert "8 runs from 4 file(s)" in text and "4 held out" in text
+    return out
+
+
+def test_import_keeps_the_files_numbers(campaign):
+    runs = {r.name: r for r in load(campaign)}
+    assert sorted(runs) == sorted(f"{f.stem}-{h}" for f in FILES for h in "ab")
+    for f in FILES:
+        raw = np.loadtxt(f, delimiter="\t")
+        a, b = runs[f"{f.stem}-a"], runs[f"{f.stem}-b"]
+        assert a.attrs["role"] == "identification" and b.attrs["role"] == "validation"
+        assert len(a) + len(b) == len(raw)  # every sample kept, in exactly one half
+        for run, rows in ((a, raw[: len(a)]), (b, raw[len(a):])):
+            np.testing.assert_allclose(run.time, rows[:, 0] / 1000.0, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(run.position, -rows[:, 4], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(run.force, rows[:, 6], rtol=0, atol=1e-12)
+            np.testing.assert_allclose(run.muscle_pressure, rows[:, 5] * 0.1, rtol=1e-12)
+        bar = int(f.stem.split("_")[1].removesuffix("bar"))
+        assert a.nominal_pressure == pytest.approx(bar * 0.1)
+        # the excitation frequency read off the spectrum: the tests ran at 0.1-0.2 Hz
+        assert 0.08 < a.frequency < 0.25
+
+
+@pytest.fixture(scope="module")
+def diagnosis(campaign, tmp_path_factory) -> dict:
+    out = tmp_path_factory.mktemp("diag") / "d"
+    code, _text, err = _cli(["diagnose", str(campaign), "--model", "bouc-wen", "--out", str(out),
+                            "--quiet"])
+    assert code == 0, err
+    d = json.loads((out / "diagnosis.json").read_text())
+    d["_dir"] = str(out)
+    return d
+
+
+def test_ladder_climbs_on_real_data_every_step_improving_every_held_out_run(diagnosis):
+    ladder = diagnosis["ladder"]
+    floor = diagnosis["noise_floor"]["mean_nrmse"]
+    base, last = ladder[0]["nrmse"], ladder[-1]["nrmse"]
+    assert base > 5 * floor  # a real device: far above its noise floor
+    assert len(ladder) >= 3, diagnosis["summary"]  # at least two modest effects added
+    assert ladder[1]["added"] == "pressure-variation"  # -44 % here, far beyond its ± 17
+    for prev, step in itertools.pairwise(ladder):
+        assert all(a < b for a, b in zip(step["per_run"], prev["per_run"])), step
+    assert last <= 0.8 * base
+    assert diagnosis["verdict"] == "unexplained"
+    rest = diagnosis["residual"]
+    assert rest["next"] == "loop" and "Where the rest lies" in diagnosis["summary"]
+
+
+def test_diagnose_numbers_are_identifys(diagnosis, campaign, tmp_path):
+    adds = [a for s in diagnosis["ladder"][1:] for a in ("--add", s["added"]) if s["added"]]
+    law = diagnosis["final_law"]
+    out = tmp_path / "ident"
+    code, _, err = _cli(["identify", str(campaign), "--model", law, *adds, "--out", str(out),
+                         "--quiet"])
+    assert code == 0, err
+    ident = json.loads((out / "identification.json").read_text())
+    got = float(np.mean([v["nrmse"] for v in ident["validation"]]))
+    assert got == pytest.approx(diagnosis["ladder"][-1]["nrmse"], rel=0.02)
+
+
+def test_report_of_the_real_diagnosis(diagnosis, tmp_path):
+    import pypdfium2
+
+    pdf = tmp_path / "real.pdf"
+    code, _, err = _cli(["report", diagnosis["_dir"], "--out", str(pdf)])
+    assert code == 0, err
+    assert len(pypdfium2.PdfDocument(str(pdf))) >= 2
