@@ -1,19 +1,50 @@
-"""Where shipped data lives (protocols, rig files, truth files)."""
+"""Where shipped data lives (protocols, rig files, truth files, the controllers'
+identifications, the real measurements), and the checks every output path goes through.
+
+The shipped data is package data (``pmalab/data``), found through
+:mod:`importlib.resources`, so an installed wheel has it; a clone also has ``data/`` at its
+top (a link to the same folder), so ``data/rigs/labjack-t7.toml`` typed there works, and
+:func:`shipped` lets the same text work anywhere else.
+"""
 
 from __future__ import annotations
 
 import os
 import re
 from collections.abc import Callable
+from importlib.resources import files
 from pathlib import Path
 
 from pmalab.errors import OutputError, OutputExistsError
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DATA_DIR = REPO_ROOT / "data"
+#: the shipped data (a real folder: wheels install unzipped)
+DATA_DIR = Path(str(files("pmalab") / "data"))
 PROTOCOLS_DIR = DATA_DIR / "protocols"
 RIGS_DIR = DATA_DIR / "rigs"
 TRUTH_DIR = DATA_DIR / "truth"
+
+
+def shipped(spec: str | Path, folder: Path, suffix: str = ".toml") -> Path:
+    """``spec`` as given when it exists; else the shipped file it names.
+
+    Accepted names: the bare name (``seed-bouc-wen``), with its suffix, or the path a clone
+    shows (``data/rigs/labjack-t7.toml``), so commands copied from the docs work outside
+    the repository too.  Returns ``spec`` unchanged when nothing matches (the caller's
+    reader then says "no such file" for the path the user typed).
+    """
+    p = Path(spec)
+    if p.exists():
+        return p
+    parts = p.parts
+    if len(parts) > 1 and parts[0] == "data":
+        cand = DATA_DIR.joinpath(*parts[1:])
+        if cand.exists():
+            return cand
+    if len(parts) == 1:
+        for cand in (folder / p, folder / f"{p}{suffix}"):
+            if cand.exists():
+                return cand
+    return p
 
 
 def check_output(path: str | Path, force: bool) -> Path:

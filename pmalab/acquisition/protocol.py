@@ -75,7 +75,7 @@ from typing import Any
 
 from pmalab.config import check_keys, parse_toml, read_text
 from pmalab.errors import ConfigError
-from pmalab.paths import PROTOCOLS_DIR
+from pmalab.paths import PROTOCOLS_DIR, shipped
 
 WAVEFORMS = ("sine", "triangle", "square")
 ROLES = ("identification", "validation", "other")
@@ -193,12 +193,9 @@ class Protocol:
 # --------------------------------------------------------------------------- loading
 def resolve_protocol_path(spec: str | Path) -> Path:
     """A path, or the bare name of a shipped protocol (``seed-bouc-wen``)."""
-    p = Path(spec)
+    p = shipped(spec, PROTOCOLS_DIR)
     if p.exists():
         return p
-    for cand in (PROTOCOLS_DIR / p, PROTOCOLS_DIR / f"{p}.toml"):
-        if cand.exists():
-            return cand
     raise ConfigError(f"{spec}: no such protocol file")
 
 

@@ -9,9 +9,21 @@ never touches the rig.
 
 from __future__ import annotations
 
-from pmalab.active.loop import ActiveResult, ActiveRound, diagnose_active, rig_recorder
+from typing import TYPE_CHECKING
 
-__all__ = ["ActiveResult", "ActiveRound", "diagnose", "diagnose_active", "rig_recorder"]
+from pmalab.lazy import lazy_exports
+
+if TYPE_CHECKING:
+    from pmalab.active.loop import ActiveResult
+
+# imported on first use: `pmalab --help` registers this package's options without numpy
+_getattr, _names = lazy_exports(__name__, {n: "pmalab.active.loop" for n in (
+    "ActiveResult", "ActiveRound", "diagnose_active", "rig_recorder")})
+__all__ = ["diagnose", *_names]
+
+
+def __getattr__(name: str):
+    return _getattr(name)
 
 
 def diagnose(campaign, *, rig, run_suggested: bool = True, model: str = "bouc-wen",
@@ -24,7 +36,7 @@ def diagnose(campaign, *, rig, run_suggested: bool = True, model: str = "bouc-we
     bool``: a lab's own confirmation dialog (None: run without asking).  With
     ``run_suggested=False`` no experiment is run (one diagnosis, no rounds).
     """
-    from pmalab.active.loop import protocol_duration
+    from pmalab.active.loop import diagnose_active, protocol_duration, rig_recorder
 
     record = rig if callable(rig) else rig_recorder(str(rig), seed=seed)
     return diagnose_active(campaign, record, model=model, budget_s=budget_s, confirm=confirm,

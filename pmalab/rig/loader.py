@@ -28,6 +28,7 @@ from typing import Any
 
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
+from pmalab.paths import RIGS_DIR, shipped
 from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig
 from pmalab.rig.drivers.rigfile import override_transport
@@ -102,7 +103,7 @@ def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None =
         rig = RIG_KINDS["sim"]({}, None, seed=seed, clock=clock)
         rig.info.setdefault("rig_file", "sim")
         return rig
-    path = Path(spec)
+    path = shipped(spec, RIGS_DIR)  # a shipped rig's name or clone path works anywhere
     where = str(spec)
     doc, text = load_toml(path, "rig file", hint=" (use 'sim' or a rig TOML file)")
     check_keys(

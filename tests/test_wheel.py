@@ -1,0 +1,94 @@
+"""The wheel is the product: built here, installed into a fresh virtual environment outside
+the repository, it runs ``pmalab --version``, ``pmalab demo`` to the end (the shipped
+protocols, rig files, truth files and controllers' identifications come from the wheel)
+and one ``identify``.
+
+The fresh environment gets pmalab only from the wheel (``pip install --no-deps``); its
+third-party dependencies are the project environment's, made visible with a ``.pth`` line
+(a path entry: the editable install's finder in that folder is NOT run), so the test needs
+no network.  The test checks that ``pmalab`` is imported from the fresh environment.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.slow
+
+
+def _run(cmd: list[str], cwd: Path, env: dict | None = None, timeout: int = 600) -> str:
+    p = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
+    assert p.returncode == 0, f"{' '.join(map(str, cmd))}\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}"
+    return p.stdout + p.stderr
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("dist")
+    # a copy of the tracked tree: the build must not write egg-info into the checkout
+    src = tmp_path_factory.mktemp("src") / "pmalab-src"
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True,
+                           check=True).stdout.decode().split("\0")
+    for f in filter(None, files):
+        s = ROOT / f
+        d = src / f
+        d.parent.mkdir(parents=True, exist_ok=True)
+        if s.is_symlink():
+            os.symlink(os.readlink(s), d)
+        elif s.is_file():
+            shutil.copy2(s, d)
+    _run([sys.executable, "-m", "build", "--wheel", "--no-isolation", "--outdir", str(out)],
+         cwd=src)
+    (whl,) = out.glob("pmalab-*-py3-none-any.whl")
+    return whl
+
+
+def test_wheel_holds_the_run_time_data(wheel):
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for must in ("pmalab/data/protocols/seed-bouc-wen.toml", "pmalab/data/rigs/sim.toml",
+                 "pmalab/data/truth/hidden-asymmetric-hysteresis.toml",
+                 "pmalab/data/control/identification-bouc-wen.json",
+                 "pmalab/data/real/zillen-oring257/LICENSE",
+                 "pmalab/acquisition/live/assets/index.html"):
+        assert must in names, must
+    assert not any(n.startswith(("data/", "tests/")) for n in names)
+
+
+def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=False).create(env_dir)
+    py = env_dir / "bin" / "python"
+    site = Path(_run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                     cwd=tmp_path).strip())
+    # the project's third-party packages, as a plain path entry
+    (site / "zz-deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    # the fresh environment's own interpreter installs it (pip itself comes via the .pth), so
+    # the console script runs that interpreter
+    _run([str(py), "-m", "pip", "install", "--no-deps", "--quiet", str(wheel)], cwd=tmp_path)
+    work = tmp_path / "lab"
+    work.mkdir()
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env['PATH']}"
+    where = _run([str(py), "-c", "import pmalab; print(pmalab.__file__)"], cwd=work, env=env)
+    assert str(env_dir) in where and str(ROOT) not in where, where
+    pmalab = str(env_dir / "bin" / "pmalab")
+    assert _run([pmalab, "--version"], cwd=work, env=env).strip().startswith("pmalab ")
+    text = _run([pmalab, "demo", "--out", "demo", "--quiet"], cwd=work, env=env)
+    assert (work / "demo").is_dir() and list((work / "demo").rglob("*.pdf")), text
+    # a shipped protocol by name and a clone-style rig path, then one identify
+    _run([pmalab, "run", "--rig", "data/rigs/sim.toml", "--protocol", "quick", "--out",
+          "q.h5", "--quiet"], cwd=work, env=env)
+    out = _run([pmalab, "identify", "q.h5", "--model", "bouc-wen", "--out", "ident", "--quiet"],
+               cwd=work, env=env)
+    assert (work / "ident" / "identification.json").exists(), out
