@@ -75,7 +75,9 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     (site / "zz-deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
     # the fresh environment's own interpreter installs it (pip itself comes via the .pth), so
     # the console script runs that interpreter
-    _run([str(py), "-m", "pip", "install", "--no-deps", "--quiet", str(wheel)], cwd=tmp_path)
+    # (--ignore-installed: pip must not touch the project environment's pmalab it can see)
+    _run([str(py), "-m", "pip", "install", "--no-deps", "--ignore-installed", "--quiet",
+          str(wheel)], cwd=tmp_path)
     work = tmp_path / "lab"
     work.mkdir()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}

@@ -63,8 +63,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="only print the address (default: open it where a desktop is running)")
     v.set_defaults(func=cmd_view)
 
-    q = sub.add_parser("import", help="convert a CSV from another DAQ into a run file",
-                       description="Convert a CSV (one run) into a pmalab HDF5 run file. "
+    q = sub.add_parser("import", help="convert other DAQs' exports (text, TDMS, .mat) into a run file",
+                       description="Convert exports of another DAQ into one pmalab HDF5 run "
+                       "file: text/CSV (one run per file), TDMS (.tdms: one run per group; "
+                       "units from unit_string, time from the waveform timing when there is "
+                       "no time channel) and MATLAB .mat v5/v7.3 (a struct per run, a vector "
+                       "per channel, or one matrix named by --columns). "
                        "Columns default to time, position, force, muscle_pressure.  Exports "
                        "with a metadata block (--header-rows), a units row (--units-row), "
                        "';' and a decimal comma (--delimiter ';' --decimal ,) or Windows text "
@@ -72,8 +76,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "(gauge pressure above 1.2 MPa, |force| above 20 kN, |position| above "
                        "500 mm) are refused with the unit they probably are in.")
     q.add_argument("csv", nargs="+", metavar="FILE",
-                   help="input text export(s): one run per file (a row of column names, then "
-                   "data rows; --no-header for a file of numbers only)")
+                   help="input export(s): .csv/.txt (a row of column names, then data rows; "
+                   "--no-header for numbers only), .tdms or .mat; several files make one "
+                   "campaign")
     q.add_argument("--out", required=True, help="output HDF5 run file")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     for ch in ("time", "position", "force"):

@@ -389,7 +389,21 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         if unit is None:
             unit = name_units[col]
         raw[ch] = (values, unit if unit is not None else CANONICAL_UNITS[ch])
+    return finish_run(path, run, raw, opts, "csv import", {
+        "header_rows": opts.header_rows, "delimiter": opts.delimiter, "decimal": opts.decimal,
+        "encoding": opts.encoding, "no_header": opts.no_header, "layout": opts.layout})
+
+
+def finish_run(path: str | Path, run: str, raw: dict[str, tuple[np.ndarray, str]],
+               opts: CsvImportOptions, source: str, details: dict) -> Run:
+    """Channels read from any export (values, unit as written) → a checked run in canonical
+    units: the constant pressure of a file without a pressure channel, the checks of
+    :func:`pmalab.runfile.validate_channels` (one line naming file, run and channel), and
+    the attributes every imported run carries."""
     if "muscle_pressure" not in raw:
+        if opts.pressure_MPa is None:
+            raise RunFileError(f"{path}: run '{run}': channel 'muscle_pressure': none found; "
+                               "give --pressure MPA or --pressure-from-name")
         n = len(raw["time"][0])
         raw["muscle_pressure"] = (np.full(n, float(opts.pressure_MPa)), "MPa")
     chans = validate_channels(path, run, raw, units_hint=_csv_units_hint)
@@ -403,12 +417,9 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         "sample_rate_Hz": float(1.0 / np.median(dt)),
         "protocol": json.dumps({"imported_from": str(path), "columns": opts.columns,
                                 "units": {c: u for c, (_, u) in raw.items()},
-                                "negate": list(opts.negate), "header_rows": opts.header_rows,
-                                "delimiter": opts.delimiter, "decimal": opts.decimal,
-                                "encoding": opts.encoding, "no_header": opts.no_header,
-                                "layout": opts.layout}),
+                                "negate": list(opts.negate), **details}),
         "role": "identification",
-        "source": "csv import",
+        "source": source,
         "status": "completed",
     }
     return Run(name=run, attrs=attrs, file=str(path), **chans)
@@ -565,6 +576,21 @@ def split_halves(run: Run) -> list[Run]:
     return out
 
 
+def read_export(path: str | Path, opts: CsvImportOptions) -> list[Run]:
+    """The runs of one export, by its kind: TDMS (``.tdms``: one run per group), MATLAB
+    (``.mat`` v5 or v7.3), else text (one run)."""
+    suffix = Path(path).suffix.lower()
+    if suffix == ".tdms":
+        from pmalab.acquisition.tdms_import import read_tdms_runs
+
+        return read_tdms_runs(path, opts)
+    if suffix == ".mat":
+        from pmalab.acquisition.mat_import import read_mat_runs
+
+        return read_mat_runs(path, opts)
+    return [read_csv_run(path, opts)]
+
+
 def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
                   pressure_pattern: str | None = None, halves: bool = False,
                   auto_frequency: bool = False, progress=None) -> list[Run]:
@@ -581,7 +607,7 @@ def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
     for p in paths:
         p = Path(p)
         if p.stem in seen and len(paths) > 1:
-            raise RunFileError(f"{p}: same run name '{p.stem}' as {seen[p.stem]} (rename one)")
+            raise RunFileError(f"{p}: same name '{p.stem}' as {seen[p.stem]} (rename one)")
         seen[p.stem] = p
         o = opts
         nominal = None
@@ -589,16 +615,24 @@ def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
             nominal = pressure_from_name(p, pressure_pattern)
             if opts.pressure_MPa is None:  # the constant pressure of a file without a column
                 o = replace(opts, pressure_MPa=nominal)
-        run = read_csv_run(p, o)
-        if nominal is not None:
-            run.attrs["muscle_pressure_MPa"] = nominal
-            run.attrs["pressure_from"] = f"file name ({pressure_pattern})"
-        if auto_frequency:
-            run.attrs["frequency_Hz"] = round(excitation_frequency(run), 4)
-            run.attrs["frequency_from"] = "position spectrum (--frequency auto)"
-        runs.extend(split_halves(run) if halves else [run])
-        if progress is not None:
-            progress(p, run)
+        got = read_export(p, o)
+        if len(paths) > 1 and not opts.run and p.suffix.lower() in (".tdms", ".mat"):
+            # several files: runs named by their file (and group/struct when a file has more)
+            for run in got:
+                run.name = p.stem if len(got) == 1 else f"{p.stem}-{run.name}"
+        for run in got:
+            if nominal is not None:
+                run.attrs["muscle_pressure_MPa"] = nominal
+                run.attrs["pressure_from"] = f"file name ({pressure_pattern})"
+            if auto_frequency:
+                run.attrs["frequency_Hz"] = round(excitation_frequency(run), 4)
+                run.attrs["frequency_from"] = "position spectrum (--frequency auto)"
+            if any(r.name == run.name for r in runs):
+                raise RunFileError(f"{p}: run '{run.name}': a run of that name was read from "
+                                   "another file already (rename one)")
+            runs.extend(split_halves(run) if halves else [run])
+            if progress is not None:
+                progress(p, run)
     return runs
 
 
@@ -622,3 +656,36 @@ def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOption
                          auto_frequency=auto_frequency, progress=progress)
     write_runs(out, runs, force=force)
     return runs
+
+
+def match_named(names: list[str], opts: CsvImportOptions, where: str,
+                what: str = "channel", need_time: bool = True) -> dict[str, str]:
+    """Channels of a self-describing export (TDMS channels, MATLAB variables) by name.
+
+    The names are the CSV importer's (``--time-col`` ... or the defaults), matched exactly,
+    then ignoring case, then without a unit in brackets.  Time, position and force are
+    required (time only when ``need_time``), the pressure unless ``--pressure`` is given.
+    Returns {channel: the export's name}; a missing one is one line listing what is there.
+    """
+    base = {}
+    for n in names:
+        m = _NAME_UNIT.match(n)
+        base[n] = m.group(1) if m and m.group(1) else n
+    out: dict[str, str] = {}
+    for ch in DEFAULT_COLUMNS:
+        want = opts.columns.get(ch, DEFAULT_COLUMNS[ch])
+        hit = next((n for n in names if n == want), None)
+        hit = hit or next((n for n in names if n.lower() == want.lower()), None)
+        hit = hit or next((n for n in names if base[n].lower() == want.lower()), None)
+        if hit is not None:
+            out[ch] = hit
+            continue
+        required = ch in ("position", "force") or (ch == "time" and need_time) or (
+            ch == "muscle_pressure" and opts.pressure_MPa is None) or ch in opts.columns
+        if required:
+            opt = {"muscle_pressure": "--pressure-col", "cylinder_pressure": "--cylinder-col"
+                   }.get(ch, f"--{ch}-col")
+            shown = ", ".join(names[:12]) + (", …" if len(names) > 12 else "")
+            raise RunFileError(f"{where}: {what} for '{ch}': no {what} '{want}' "
+                               f"({what}s: {shown or 'none'}); name it with {opt} NAME")
+    return out
