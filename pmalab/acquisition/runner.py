@@ -429,6 +429,9 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "limits": json.dumps(limits.__dict__, sort_keys=True),
         "clock": "virtual" if rig.clock.virtual else "real",
+        # what stamps each sample: the device's sample clock (t = k / rate) or the host's
+        "time_base": ("device sample clock" if rig.sampler.hardware_timed
+                      else "virtual clock" if rig.clock.virtual else "host clock"),
         "sample_rate_Hz": rate,
         "requested_sample_rate_Hz": protocol.sample_rate_Hz,
         **opts.extra_attrs,
@@ -447,6 +450,7 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                 try:
                     if i == 0:
                         rig.cylinder_regulator.set_pressure(0.0)
+                        getattr(rig.sampler, "configure", lambda _r: None)(rate)
                         rig.sampler.start()
                     _wait_for_muscle_pressure(rig, spec, rate, monitor, opts, pbar)
                     _record(rig, spec, rate, monitor, w, rec, opts, pbar)

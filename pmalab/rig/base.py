@@ -301,6 +301,11 @@ class Sampler(ABC):
     #: the rate the sampler was configured for (Hz)
     sample_rate_Hz: float = 500.0
 
+    def configure(self, rate_Hz: float) -> None:  # noqa: B027 - optional hook
+        """Set the rate (Hz) the next :meth:`start` samples at: the runner calls this with
+        the protocol's rate before starting (a hardware-timed sampler programs its sample
+        clock; a software-polled one is paced by the runner and may ignore it)."""
+
     def start(self) -> None:  # noqa: B027 - optional hook
         """Begin acquisition (hardware-timed samplers start their clock here)."""
 

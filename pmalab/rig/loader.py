@@ -30,7 +30,7 @@ from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
 from pmalab.paths import RIGS_DIR, shipped
 from pmalab.rig.base import Clock, Rig
-from pmalab.rig.drivers import make_modbus_rig
+from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig
 from pmalab.rig.drivers.rigfile import override_transport
 
 RigFactory = Callable[..., Rig]
@@ -80,6 +80,7 @@ def _make_sim(
 #: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
 RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
 RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
+RIG_KINDS["nidaqmx"] = make_nidaq_rig  # an NI DAQ card under NI-DAQmx (hardware-timed)
 
 
 #: rig kind → how ``--host/--port`` rewrite its ``[rig]`` table (kinds with a network link)

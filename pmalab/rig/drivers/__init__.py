@@ -9,6 +9,8 @@
 * :mod:`.loadcell_serial` — load-cell indicator streaming ASCII weight lines;
 * :mod:`.calibration` — register encodings and raw → engineering-unit calibrations;
 * :mod:`.rigfile` — ``kind = "modbus"`` rig files → a connected, checked :class:`Rig`;
+* :mod:`.nidaqmx_rig` — ``kind = "nidaqmx"``: an NI DAQ card, hardware-timed analog input
+  and analog-output regulators (on NI's ``nidaqmx`` package);
 * :mod:`.testing` — recorded request/reply checking (``expected_protocol``).
 
 Importing this package is cheap; pymodbus and pyserial load when a rig is built.
@@ -27,5 +29,15 @@ def make_modbus_rig(
 ) -> Rig:
     """``RIG_KINDS["modbus"]``: build a rig of Modbus/serial devices from a ``[rig]`` table."""
     from pmalab.rig.drivers.rigfile import make_modbus_rig as make
+
+    return make(section, rig_file, seed=seed, clock=clock)
+
+
+def make_nidaq_rig(
+    section: dict[str, Any], rig_file: Path | None = None, *, seed: int | None = None,
+    clock: Clock | None = None
+) -> Rig:
+    """``RIG_KINDS["nidaqmx"]``: an NI-DAQmx device (imported only when such a rig is built)."""
+    from pmalab.rig.drivers.nidaqmx_rig import make_nidaq_rig as make
 
     return make(section, rig_file, seed=seed, clock=clock)
