@@ -403,7 +403,8 @@ def _scalars(row: dict) -> dict:
 def diagnose(runs: Sequence[Run] | Run, model: str = "bouc-wen", **kwargs) -> DiagnosisResult:
     """Diagnose ``model`` on ``runs`` (see :func:`pmalab.identify.diagnosis.diagnose` for the
     options: ``validate``, ``effects``, ``effects_files``, ``max_steps``, ``jobs``,
-    ``progress``, ``whole_run``) and return the notebook view of the result."""
+    ``progress``, ``whole_run``, ``laws``, ``scheduler``) and return the notebook view of
+    the result."""
     from pmalab.identify.diagnosis import diagnose as _diagnose
 
     runs_l = [runs] if isinstance(runs, Run) else list(runs)

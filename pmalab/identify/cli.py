@@ -188,6 +188,9 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
                    "'none' scores none)")
     p.add_argument("--jobs", type=int, default=2, metavar="N",
                    help="parallel worker processes (default 2)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the candidates' identifications on a Dask distributed scheduler "
+                   "(tcp://host:port); the same numbers as locally")
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="also save the ranking/ladder figure")
     add_verbosity(p)
@@ -220,7 +223,8 @@ def run_diagnose(args: argparse.Namespace) -> int:
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     d = diagnose(runs, model=args.model, validate=val, effects=args.only,
                  effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
-                 progress=show_progress(args), whole_run=args.whole_run, laws=laws)
+                 progress=show_progress(args), whole_run=args.whole_run, laws=laws,
+                 scheduler=args.scheduler)
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
     print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")

@@ -319,6 +319,7 @@ def diagnose(
     progress: bool = False,
     whole_run: bool = False,
     laws: Sequence[str] | None = None,
+    scheduler: str | None = None,
 ) -> Diagnosis:
     """Diagnose ``model`` on ``runs``: rank the effects, climb the ladder, localise the error.
 
@@ -327,6 +328,8 @@ def diagnose(
     (default: every registered law; ``()`` scores none).  ``validate``: held-out runs (default: see
     :mod:`pmalab.identify.diagnosis.heldout`).  ``whole_run``: use every sample instead of
     each recorded run's full-amplitude cycles (:meth:`~pmalab.runfile.Run.steady`).
+    ``scheduler``: a Dask scheduler's address (``tcp://host:8786``): the candidates'
+    identifications run on its workers (the same numbers as locally).
     """
     if model not in LAWS:
         raise DiagnoseError(f"unknown model '{model}' (choose from {', '.join(LAWS)})")
@@ -357,7 +360,7 @@ def diagnose(
         if lw not in LAWS:
             raise DiagnoseError(f"unknown law '{lw}' (choose from {', '.join(LAWS)})")
     steps, rounds = run_ladder(split.train, split.held, model, cand, files, max_steps, jobs,
-                               progress, laws=other_laws)
+                               progress, laws=other_laws, scheduler=scheduler)
     amb = rounds[0].ambiguous if rounds else []
     suggestion = suggest_experiment(amb)
     final = steps[-1].effects

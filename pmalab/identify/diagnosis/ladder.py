@@ -69,6 +69,7 @@ def run_ladder(
     jobs: int = 1,
     progress: bool = False,
     laws: Sequence[str] = (),
+    scheduler: str | None = None,
 ) -> tuple[list[LadderStep], list[Round]]:
     """Climb the ladder; returns the steps (0 = base) and the ranking round of each step.
 
@@ -94,7 +95,8 @@ def run_ladder(
         specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
         specs += [ModelSpec(lw, current, files) for lw in others]
         outs = score_all(train, held, specs, jobs, progress,
-                         f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws")
+                         f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws",
+                         scheduler=scheduler)
         prev = steps[-1].scored
         cands, amb = judge([Candidate(e, prev, o, floors=floors)
                             for e, o in zip(remaining, outs)])

@@ -124,8 +124,17 @@ def _task(spec: ModelSpec) -> Scored:
 
 
 def score_all(train: Sequence[Run], held: Sequence[Run], specs: Sequence[ModelSpec],
-              jobs: int = 1, progress: bool = False, desc: str = "candidates") -> list[Scored]:
-    """Score every model spec (in parallel over candidates: one identification each)."""
+              jobs: int = 1, progress: bool = False, desc: str = "candidates",
+              scheduler: str | None = None) -> list[Scored]:
+    """Score every model spec (in parallel over candidates: one identification each).
+
+    Local processes share the runs through the fork (no copy); on a Dask cluster
+    (``scheduler``) each task carries them."""
+    if scheduler:
+        from functools import partial
+
+        return map_tasks(partial(score, list(train), list(held)), list(specs),
+                         scheduler=scheduler, progress=progress, desc=desc)
     _CONTEXT.update(train=list(train), held=list(held))
     try:
         return map_tasks(_task, list(specs), jobs=jobs, progress=progress, desc=desc)
