@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean chromium
+.PHONY: demo test bench lint clean chromium docs
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -17,7 +17,7 @@ demo: $(STAMP)
 	$(BIN)/pmalab demo --out demo-output --force
 
 test: $(STAMP) chromium
-	$(BIN)/ruff check pmalab tests bench
+	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/lint-imports
 	@echo "pytest: the whole suite takes ~6.5 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
 	$(BIN)/python -m pytest -q --durations=10
@@ -33,9 +33,15 @@ chromium:
 bench: $(STAMP)
 	$(BIN)/python -m bench
 
+# the documentation site: figures made by the code they document, then a strict build
+# (a broken link, reference or docstring fails); the result is in site/
+docs: $(STAMP)
+	$(BIN)/python docs/make_figures.py docs/assets
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 lint: $(STAMP)
-	$(BIN)/ruff check pmalab tests bench
+	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/lint-imports
 
 clean:
-	rm -rf $(VENV) demo-output .pytest_cache
+	rm -rf $(VENV) demo-output .pytest_cache site

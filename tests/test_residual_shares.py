@@ -69,3 +69,18 @@ def test_next_step_names_the_largest_share_and_weights_runs_by_their_power():
     assert "loop's shape" in nxt["text"]
     assert nxt["loop"] > nxt["above_band"] > 0.0
     assert residual_next_step([])["next"] is None
+
+
+def test_fast_content_of_the_models_own_is_told_from_the_rigs():
+    """A model term that differentiates a noisy position puts fast content into the
+    prediction; a rig disturbance puts it into the measurement.  Same residual, two sources."""
+    t, x = _motion()
+    smooth = 500 + 8 * x
+    hum = rig_hum(t, x)
+    model_noisy = residual_shares(t, x, -hum, SIGMA, F0, model_force=smooth + hum)
+    rig_noisy = residual_shares(t, x, hum, SIGMA, F0, model_force=smooth)
+    assert model_noisy["above_band"] > 0.8 and rig_noisy["above_band"] > 0.8
+    assert model_noisy["above_band_source"] == "model"
+    assert rig_noisy["above_band_source"] == "measurement"
+    assert "the model's own" in residual_next_step([model_noisy])["text"]
+    assert "from the rig" in residual_next_step([rig_noisy])["text"]

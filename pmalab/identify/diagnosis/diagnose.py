@@ -377,7 +377,7 @@ def diagnose(
         d["noise_floor_nrmse"] = floors[run.label]
         d["residual_shares"] = residual_shares(run.time, run.position, run.force - ff,
                                                floors[run.label] * float(np.std(run.force)),
-                                               run.frequency)
+                                               run.frequency, model_force=ff)
         diagnostics[run.label] = d
         traces.append((run, fb, ff))
         camp_items.append((sig.p_nom, run.frequency, run.force - fb))

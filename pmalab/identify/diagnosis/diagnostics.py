@@ -260,7 +260,8 @@ def _fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
 
 
 def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: float,
-                    frequency_Hz: float | None = None) -> dict[str, Any]:
+                    frequency_Hz: float | None = None,
+                    model_force: np.ndarray | None = None) -> dict[str, Any]:
     """Split a held-out run's residual power beyond the noise into where it lies.
 
     ``r`` = measured − model force (N) of a free-run prediction, ``x`` the contraction
@@ -280,6 +281,11 @@ def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: 
 
     The white noise's expected share of each part (σ² spread evenly up to Nyquist, σ²·bins/n
     for the binned means) is removed first, so a model at the noise floor has P ≈ 0.
+
+    With ``model_force`` (the prediction, N), ``above_band_source`` says whose the fast part
+    is: ``"model"`` when the prediction carries more power above the band than the
+    measurement (a model term differentiating a noisy position injects it), else
+    ``"measurement"`` (the rig).
     """
     t = np.asarray(t, float)
     r = np.asarray(r, float)
@@ -293,7 +299,8 @@ def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: 
         if n >= 32 else None)
     out: dict[str, Any] = {"structured_power_N2": structured, "rms_N": float(np.sqrt(mean_sq)),
                            "noise_sigma_N": float(noise_sigma_N), "f0_Hz": f0,
-                           "offset": 0.0, "loop": 0.0, "above_band": 0.0, "other": 0.0}
+                           "offset": 0.0, "loop": 0.0, "above_band": 0.0, "other": 0.0,
+                           "above_band_source": None}
     if structured <= 0.0 or f0 is None or n < 4 * LOOP_BINS:
         return out
     mean = float(np.mean(r))
@@ -325,6 +332,15 @@ def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: 
     noise_rest = sigma2 * (1.0 - used / n)
     above_p = max(frac_above * rest_var - noise_rest * width_above, 0.0)
     other_p = max((1.0 - frac_above) * rest_var - noise_rest * (1.0 - width_above), 0.0)
+    if model_force is not None and above_p > 0:
+        measured = np.interp(tu, t, r + np.asarray(model_force, float))
+        pred = np.interp(tu, t, np.asarray(model_force, float))
+
+        def fast(sig: np.ndarray) -> float:
+            sp = np.abs(np.fft.rfft(sig - sig.mean())) ** 2
+            return float(sp[above].sum())
+
+        out["above_band_source"] = "model" if fast(pred) > fast(measured) else "measurement"
     parts = {"offset": mean**2, "loop": loop_p, "above_band": above_p, "other": other_p}
     s = sum(parts.values())
     if s > 0:
@@ -339,6 +355,9 @@ RESIDUAL_NEXT = {
             "or an effect that changes the loop)",
     "above_band": "above the motion band: a disturbance from the rig (vibration, valve, "
                   "pickup), not the muscle",
+    "above_band_model": "above the motion band, and the model's own: its prediction carries "
+                        "more fast content than the measurement (a term differentiating a "
+                        "noisy position: smooth the velocity it uses)",
     "offset": "a constant offset between identification and validation sessions (a "
               "systematic offset the pressure laws cannot carry: re-zero the load cell, "
               "or identify on runs of the same session)",
@@ -357,12 +376,21 @@ def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
     shares = {k: float(np.sum([d[k] * wi for d, wi in zip(per_run, w)]) / w.sum())
               for k in keys}
     top = max(keys, key=lambda k: shares[k])
+    # whose the fast part is: the model's own when it is so on most of that power
+    src_w = {"model": 0.0, "measurement": 0.0}
+    for d, wi in zip(per_run, w):
+        if d.get("above_band_source") in src_w:
+            src_w[d["above_band_source"]] += d["above_band"] * wi
+    shares_src = max(src_w, key=lambda k: src_w[k]) if any(src_w.values()) else None
     ordered = sorted(keys, key=lambda k: -shares[k])
     names = {"loop": "tied to the loop", "above_band": "above the motion band",
              "offset": "session offset", "other": "in band, not tied to the loop"}
     listed = ", ".join(f"{100 * shares[k]:.0f} % {names[k]}" for k in ordered
                        if shares[k] >= 0.05)
     nxt = top if shares[top] >= 1 / 3 else None
-    text = (f"Where the rest lies ({listed}): mostly {RESIDUAL_NEXT[top]}."
+    why = RESIDUAL_NEXT[top]
+    if top == "above_band" and shares_src == "model":
+        why = RESIDUAL_NEXT["above_band_model"]
+    text = (f"Where the rest lies ({listed}): mostly {why}."
             if nxt else (f"Where the rest lies ({listed}): no single place." if listed else ""))
-    return {**shares, "next": nxt, "text": text}
+    return {**shares, "above_band_source": shares_src, "next": nxt, "text": text}
