@@ -1,6 +1,6 @@
 """The HDF5 run-file format (``format = "pmalab.run"``, ``format_version = 1``).
 
-This module is the one contract between acquisition and identification (DESIGN.md):
+This module is the one contract between acquisition and identification (docs/reference/run-file.md):
 
 * root attrs ``format``, ``format_version``;
 * one group per run, ``/runs/<name>``, attrs ``muscle_pressure_MPa`` (nominal),

@@ -208,7 +208,23 @@ def test_pressure_that_never_settles_aborts_with_vent(tmp_path):
                                          ("SIGTERM", "terminated (SIGTERM)")])
 def test_real_signal_is_acted_on_at_the_next_sample(tmp_path, sig, needle):
     """A real SIGINT/SIGTERM (not an exception injected by the sampler) is deferred to the
-    top of the sample loop, so the file stays consistent, and still vents within 1 sample."""
+    top of the sample loop, so the file stays consistent, and still vents within 1 sample.
+
+    The test sets the disposition it tests: a shell's background job inherits SIGINT
+    ignored (and the runner rightly keeps an ignored signal ignored)."""
+    import signal
+
+    saved = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        _signal_case(tmp_path, sig, needle)
+    finally:
+        for s, h in saved.items():
+            signal.signal(s, h)
+
+
+def _signal_case(tmp_path, sig, needle):
     import os
     import signal
 

@@ -31,7 +31,10 @@ def _start(out: Path) -> subprocess.Popen:
         [sys.executable, "-m", "pmalab.cli", "control", "--controller", "sn-pid",
          "--reference", "square:0.1Hz:15mm", "--duration", "30", "--real-time",
          "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True)
+        text=True,
+        # the disposition the test tests: a shell's background job would hand the child
+        # SIGINT ignored (Python then installs no Ctrl-C handler at all)
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _wait_for_samples(proc: subprocess.Popen, out: Path, n_min: int, timeout: float = 60.0

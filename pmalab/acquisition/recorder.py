@@ -1,4 +1,4 @@
-"""Crash-proof incremental HDF5 recording (contract ``pmalab.run`` v1, DESIGN.md).
+"""Crash-proof incremental HDF5 recording (contract ``pmalab.run`` v1, :mod:`pmalab.runfile`).
 
 Design (why it survives ``kill -9`` at any moment):
 

@@ -1,4 +1,4 @@
-"""Control runs → an HDF5 run file (contract ``pmalab.run`` v1, DESIGN.md) plus metrics,
+"""Control runs → an HDF5 run file (contract ``pmalab.run`` v1, :mod:`pmalab.runfile`) plus metrics,
 written WHILE the run goes, so a crash, ``kill -9`` or Ctrl-C leaves a readable file.
 
 One group per run (``/runs/<controller>``), every per-sample dataset 1-D with a ``units``

@@ -317,7 +317,7 @@ class DiagnosisResult:
     """:func:`diagnose` for notebooks: the ranking and the ladder as DataFrames.
 
     ``ranking``: one row per effect, best first (index ``effect``; held-out ``nrmse_before``,
-    ``nrmse_after``, ``fall_percent``, ``delta_aic``, ``n_params``, ``significant``,
+    ``nrmse_after``, ``fall_percent``, ``gain_x_floor``, ``n_params``, ``significant``,
     ``ambiguous``); ``ladder``: one row per step (index ``step``; ``model``, ``added``,
     ``nrmse``, ``fit_percent``); ``worst``: the runs where the base model fails worst
     (:func:`pmalab.identify.headline.worst_runs`).  ``summary`` is the sentence the CLI

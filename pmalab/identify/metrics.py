@@ -1,6 +1,6 @@
 """Validation metrics of a force prediction against a measurement.
 
-Definitions (DESIGN.md; MATLAB ``compare`` and the nonlinear-identification benchmarks):
+Definitions (docs/reference/json.md; MATLAB ``compare`` and the nonlinear-identification benchmarks):
 
 * ``rmse``  — RMS of (predicted − measured) force, N;
 * ``nrmse`` — rmse / standard deviation of the measured force (0 = perfect, 1 = no better

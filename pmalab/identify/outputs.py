@@ -1,6 +1,6 @@
 """Writing an identification: ``identification.json`` and ``predictions.h5``.
 
-``identification.json`` (DESIGN.md keys; more keys are welcome to readers)::
+``identification.json`` (the keys of docs/reference/json.md; more keys are welcome to readers)::
 
     {"model", "effects": [ids], "pmalab_version", "created",
      "inputs": [{"file", "runs": [...], "provenance": {...}}],

@@ -83,7 +83,7 @@ class Trace:
 
     @property
     def nrmse(self) -> float:
-        """RMS error / standard deviation of the measured force (DESIGN.md)."""
+        """RMS error / standard deviation of the measured force (docs/reference/json.md)."""
         sd = float(np.std(self.force))
         return float(np.sqrt(np.mean(self.error**2)) / sd) if sd > 0 else float("nan")
 
@@ -280,7 +280,7 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
         doc.get(r, "nrmse_before", w, "number")
         doc.get(r, "nrmse_after", w, "number")
         doc.get(r, "significant", w, "bool")
-        doc.get(r, "delta_aic", w, "number", required=False)
+        doc.get(r, "gain_x_floor", w, "number", required=False)
         doc.get(r, "explanation", w, "str", required=False)
     amb = doc.get(obj, "ambiguous", "", "list", required=False) or []
     for i, x in enumerate(amb):

@@ -222,8 +222,8 @@ def plot_ranking(ax: Axes, ranking: Sequence[Mapping[str, Any]],
     xmax = max([*before, *after, 1e-9])
     for yi, r in zip(y, ranking):
         txt = "significant" if r["significant"] else "not significant"
-        if r.get("delta_aic") is not None:
-            txt += f", ΔAIC {float(r['delta_aic']):.3g}"
+        if r.get("gain_x_floor") is not None:  # the rule's measure: held-out fall / floor
+            txt += f", {float(r['gain_x_floor']):.2g}× floor"
         if r.get("n_params") is not None:
             txt += f", +{int(r['n_params'])} par."
         ax.text(float(r["nrmse_after"]) + 0.01 * xmax, yi - h / 2, txt, va="center",

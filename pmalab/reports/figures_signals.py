@@ -1,7 +1,7 @@
 """Figures of measured vs modelled signals: time histories, error-coloured loops and
 validation overlays.
 
-Sign convention (DESIGN.md): x is the contraction in mm (positive = shorter), F the
+Sign convention (docs/explanation/physics.md): x is the contraction in mm (positive = shorter), F the
 tension in N; in an F–x loop the tension is higher while the muscle is being stretched
 (x decreasing) than while it contracts.  Residuals are ``F − F_model`` (measured − model) in N.
 """

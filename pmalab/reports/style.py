@@ -55,7 +55,7 @@ ERROR_CMAP = LinearSegmentedColormap.from_list(
     "pmalab_error", mpl.colormaps["plasma"](np.linspace(0.0, 0.85, 256))
 )
 
-# Axis labels, units in parentheses (DESIGN.md sign convention).
+# Axis labels, units in parentheses (the sign convention of docs/explanation/physics.md).
 TIME = "Time t (s)"
 POSITION = "Contraction x (mm)"
 FORCE = "Tension F (N)"

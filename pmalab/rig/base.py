@@ -1,6 +1,6 @@
 """The rig interface: what a test protocol needs from a rig, and no more.
 
-Units and signs (DESIGN.md): time s, position mm (contraction, positive = shorter than the
+Units and signs (docs/explanation/physics.md): time s, position mm (contraction, positive = shorter than the
 nominal length), force N (tension), pressures MPa gauge.
 
 A rig is four things:

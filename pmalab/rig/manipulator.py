@@ -3,7 +3,7 @@
 The seeds' manipulator: one pneumatic muscle pulls a link on a rotary base of radius r
 against a return spring; a proportional regulator (SMC ITV1050-class) sets the muscle's
 pressure; a position sensor reads the link (expressed as the muscle's contraction), a gauge
-the muscle pressure.  Units and signs as everywhere in pmalab (DESIGN.md): time s,
+the muscle pressure.  Units and signs as everywhere in pmalab (docs/explanation/physics.md): time s,
 position mm (contraction, positive = shorter), force N (tension), pressures MPa gauge.
 
 A :class:`ManipulatorRig` is a clock, a :class:`~pmalab.rig.base.Sampler` delivering the

@@ -30,7 +30,7 @@ for _m in pkgutil.iter_modules(__path__):
     if not _m.name.startswith("_") and _m.name != "base":
         importlib.import_module(f"{__name__}.{_m.name}")
 
-#: the catalogue's display order (DESIGN.md); effects in new files follow, by id
+#: the catalogue's display order (as docs/explanation/physics.md lists it); effects in new files follow, by id
 _ORDER = ("viscous-friction", "asymmetric-hysteresis", "nonlinear-stiffness",
           "pressure-variation", "sensor-delay", "inertia", "sensor-drift")
 

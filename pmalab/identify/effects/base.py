@@ -39,7 +39,7 @@ from pmalab.identify.signals import Signals
 class Effect:
     """A pluggable physical effect (subclass and set the class attributes)."""
 
-    #: the id users type (``--add viscous-friction``); DESIGN.md lists the built-in ids
+    #: the id users type (``--add viscous-friction``); docs/explanation/physics.md lists the built-in ids
     id: ClassVar[str] = ""
     #: one-line title
     title: ClassVar[str] = ""

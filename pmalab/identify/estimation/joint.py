@@ -4,8 +4,8 @@ Why.  Per-run fits of a model with many shape parameters (an asymmetric Bouc-Wen
 land in different, nearly equivalent optima on different runs: collinear parameters
 wander from run to run while each run's force is fitted to 99 %.  Independent quadratics
 through such values combine, at an intermediate pressure, into a parameter set that no run
-ever had — and the hysteretic state can run away on held-out data.  DESIGN.md: "fix or
-re-parametrize rather than fit noise into the quadratics".
+ever had — and the hysteretic state can run away on held-out data.  The rule: fix or
+re-parametrize rather than fit noise into the quadratics.
 
 What.  After the per-run fits and their stderr-weighted quadratics (the start), the
 coefficients of every θ_j(p) are refined *jointly*: one ``scipy.optimize.least_squares``

@@ -1,12 +1,12 @@
 """The simulated rig's truth file: every physical parameter of the rig, in TOML.
 
 A truth file is what the simulated rig *really* is — muscle characteristic, braid friction,
-cylinder, regulators, sensors — plus the hidden effects of DESIGN.md's catalogue, each
+cylinder, regulators, sensors — plus the hidden effects of the catalogue (pmalab.identify.effects), each
 switchable in ``[effects.<name>]`` with ``enabled`` and its physical size.  Identification
 never reads it; tests and benchmarks use it to know the right answer.
 
 Units are in the field names or documented in :data:`SCHEMA` (mm, N, MPa, s, ms, kg, cm³).
-Sign conventions (DESIGN.md): x = contraction in mm (positive = shorter than the nominal
+Sign conventions (docs/explanation/physics.md): x = contraction in mm (positive = shorter than the nominal
 length), force = tension in N.
 
 Every field has a default (``data/truth/default.toml`` spells them all out, every effect
@@ -28,7 +28,7 @@ from pmalab.paths import TRUTH_DIR
 
 DEFAULT_TRUTH = TRUTH_DIR / "default.toml"
 
-#: effect ids of DESIGN.md ↔ section names of the truth file
+#: effect ids of the catalogue ↔ section names of the truth file
 EFFECT_SECTIONS: dict[str, str] = {
     "viscous-friction": "viscous_friction",
     "asymmetric-hysteresis": "asymmetric_hysteresis",
