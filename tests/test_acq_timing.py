@@ -102,3 +102,24 @@ def test_hardware_timed_sampler_gaps_count_as_missed(tmp_path):
     expected = int(round(PROTO.runs[0].duration_s / DT)) + 1
     assert len(r) == expected - 7
     assert np.sum(np.diff(r.time) > 1.5 * DT) == 1
+
+
+def test_gaps_are_recorded_as_data_where_and_how_long(tmp_path):
+    """Each gap is a row of the run's ``gaps`` dataset (start s from the run's first
+    sample, samples missed); the samples on either side are the device's own, none invented."""
+    import h5py
+
+    rig = make_fake_rig()
+    hw = HardwareSampler(rig.clock, rig.cylinder_regulator, rig.muscle_supply, gap_at=2000,
+                         gap=5)
+    rig.sampler = hw
+    run_protocol(rig, PROTO, tmp_path / "g.h5", options=RunnerOptions(progress=False))
+    (r,) = read_runs(tmp_path / "g.h5")
+    with h5py.File(tmp_path / "g.h5") as f:
+        gaps = f["runs"][PROTO.runs[0].name]["gaps"][:]
+    assert gaps.shape == (1, 2) and gaps[0, 1] == 5
+    jump = int(np.flatnonzero(np.diff(r.time) > 1.5 * DT)[0])
+    # the first missing sample was due one period after the last one delivered
+    assert gaps[0, 0] == pytest.approx(r.time[jump] - r.time[0] + DT, abs=1e-9)
+    assert r.time[jump + 1] - r.time[jump] == pytest.approx(6 * DT, abs=1e-9)
+    assert r.attrs["timing"]["missed"] == 5

@@ -122,6 +122,8 @@ class RunWriter:
         self._status = g["status"]
         self._timing = g["timing"]
         self._device_stats = g["device_stats"]
+        self._gaps = g["gaps"] if "gaps" in g else None
+        self._gap_buf: list[tuple[float, float]] = []
         self._buf: list[list[float]] = [[] for _ in self.channels]
         self._late_buf: list[float] = []
         self.n = 0  # samples written to the file
@@ -223,8 +225,23 @@ class RunWriter:
             self._lateness_all.append(lat)
             self.n = n1
             self.max_lateness = max(self.max_lateness, float(lat.max()))
+        self._commit_gaps()
         self._timing[()] = self._timing_values(final=False)
         self._rec.file.flush()
+
+    def add_gap(self, t_s: float, n_missed: int) -> None:
+        """Record a gap: ``n_missed`` samples the device (or the schedule) did not deliver,
+        the first of which was due at ``t_s`` (s from the run's first sample).  Written with
+        the next commit into the run's ``gaps`` dataset (rows: start s, samples missed)."""
+        self._gap_buf.append((float(t_s), float(n_missed)))
+
+    def _commit_gaps(self) -> None:
+        if self._gaps is None or not self._gap_buf:
+            return
+        n0 = self._gaps.shape[0]
+        self._gaps.resize((n0 + len(self._gap_buf), 2))
+        self._gaps[n0:] = np.asarray(self._gap_buf, dtype=np.float64)
+        self._gap_buf.clear()
 
     def timing(self) -> dict[str, float]:
         """Timing statistics of what was recorded so far (lateness in s)."""
@@ -311,6 +328,13 @@ class Recorder:
                     "the start of its request minus its deadline; hardware-timed, its "
                     "timestamp minus its place on the nominal grid")
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
+                gp = g.create_dataset("gaps", shape=(0, 2), maxshape=(None, 2), chunks=(64, 2),
+                                      dtype=np.float64)
+                gp.attrs["fields"] = json.dumps(["start_s", "samples_missed"])
+                gp.attrs["description"] = (
+                    "samples the device or the schedule did not deliver: one row per gap, "
+                    "its first missing sample's time (s from the run's first sample) and "
+                    "how many; never filled with invented samples")
                 t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)
                 d = g.create_dataset("device_stats", data=np.bytes_(b""),

@@ -672,6 +672,7 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
                 elif t - last_t > 1.5 * dt:  # gap in a hardware-timed stream
                     gap = int(round((t - last_t) * rate)) - 1
                     w.n_missed += gap
+                    w.add_gap(last_t + dt - t0, gap)
                     k += gap
                     if k >= n_total:
                         break
@@ -708,6 +709,7 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
             if lag > dt:
                 skip = int(lag / dt)
                 w.n_missed += skip
+                w.add_gap(k * dt, skip)
                 k += skip
     reg.set_pressure(0.0)
     if pbar is not None and since_update:
