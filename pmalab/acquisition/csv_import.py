@@ -649,8 +649,9 @@ def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOption
 
     for p in paths:
         if Path(out).exists() and Path(p).exists() and os.path.samefile(out, p):
-            raise OutputError(f"--out {out}: is the input file {p} itself (--force would "
-                              "replace your data with the run file): give it another name")
+            what = "the input CSV" if len(paths) == 1 else f"the input file {p}"
+            raise OutputError(f"--out {out}: is {what} itself (--force would replace your "
+                              "data with the run file): give the run file another name")
     check_output(out, force)
     runs = read_campaign(paths, opts, pressure_pattern=pressure_pattern, halves=halves,
                          auto_frequency=auto_frequency, progress=progress)
