@@ -27,8 +27,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "adaptive PID, RBF-network-tuned PID) on the simulated 1-DOF manipulator driven by "
         "one DMSP-20-120 muscle, on a virtual clock; record a run file with the response, "
         "pressures and gains, and print step/tracking metrics.")
-    p.add_argument("--controller", choices=["pid", "sn-pid", "rbf-pid"],
-                   help="the controller (both loops use it)")
+    # no argparse choices: the registry (pmalab.control.pid.CONTROLLERS) is the list, and
+    # importing it here would load numpy at every start-up; an unknown id is one line
+    p.add_argument("--controller", metavar="ID",
+                   help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
+                   "built-ins; any registered controller's id)")
     p.add_argument("--reference", metavar="KIND:FHz:M",
                    help="square|sine, frequency, magnitude in mm (position loop) or MPa "
                    "(pressure loop), e.g. square:0.1Hz:15mm, sine:0.1Hz:20mm, "
@@ -99,7 +102,7 @@ def _sigterm(signum, frame):  # SIGTERM ends a run like Ctrl-C: vent, keep the s
 
 
 def _run_one(args, check_duration, metrics_line) -> int:
-    from pmalab.control.controllers import default_settings
+    from pmalab.control.controllers import CONTROLLERS, default_settings
     from pmalab.control.model import IdentifiedModel
     from pmalab.control.record import ControlRecording, planned_attrs, run_metrics
     from pmalab.control.reference import parse_reference
@@ -107,6 +110,9 @@ def _run_one(args, check_duration, metrics_line) -> int:
     from pmalab.errors import SafetyAbort
     from pmalab.paths import check_output
 
+    if args.controller not in CONTROLLERS:  # before any output exists
+        raise ConfigError(f"--controller: unknown '{args.controller}' (choose from "
+                          f"{', '.join(CONTROLLERS)})")
     ref = parse_reference(args.reference)
     loop = args.loop or ref.quantity
     if loop != ref.quantity:

@@ -9,27 +9,16 @@ were tuned once, by hand, on the simulated manipulator's 15 mm square with the c
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from pmalab.control.pid import Gains, IncrementalPID, LoopSettings
-from pmalab.control.rbf_pid import RbfPID
-from pmalab.control.single_neuron import SingleNeuronPID
+from pmalab.control import rbf_pid, single_neuron  # noqa: F401  (their controllers register)
+from pmalab.control.pid import CONTROLLERS, Gains, IncrementalPID, LoopSettings
 from pmalab.errors import ConfigError
 
-CONTROLLERS: dict[str, Callable[[LoopSettings], IncrementalPID]] = {
-    IncrementalPID.name: IncrementalPID,
-    SingleNeuronPID.name: SingleNeuronPID,
-    RbfPID.name: RbfPID,
-}
-
-#: what each controller is, for help texts and reports
-TITLES = {
-    "pid": "classic cascade PID (fixed gains)",
-    "sn-pid": "single-neuron adaptive PID (S1: supervised Hebb, normalised weights)",
-    "rbf-pid": "RBF-network-tuned PID (S2: 3-4-1 Gaussian Jacobian, momentum descent)",
-}
+#: what each controller is, for help texts and reports (declared by each controller)
+TITLES = {k: CONTROLLERS.title(k) for k in CONTROLLERS}
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
+
+from pmalab.errors import ConfigError
+from pmalab.registry import Registry
 
 
 @dataclass(frozen=True)
@@ -74,10 +78,22 @@ class LoopSettings:
         return min(max(v, 0.0), self.max_rate)
 
 
+#: every loop controller by the id users type (``--controller``), in declared order: a
+#: subclass of :class:`IncrementalPID` that sets ``name`` registers itself
+CONTROLLERS: Registry[type[IncrementalPID]] = Registry("controller", ConfigError)
+
+
 class IncrementalPID:
     """Classic incremental PID with fixed gains (``name = "pid"``)."""
 
     name = "pid"
+    title = "classic cascade PID (fixed gains)"
+    order = 1
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("name"):
+            CONTROLLERS.register(cls.name, cls, title=cls.title, order=cls.order)
 
     def __init__(self, settings: LoopSettings) -> None:
         self.s = settings
@@ -137,3 +153,7 @@ class IncrementalPID:
         self.yf2, self.yf1 = self.yf1, yf
         self.u = ff + v
         return self.u
+
+
+CONTROLLERS.register(IncrementalPID.name, IncrementalPID, title=IncrementalPID.title,
+                     order=IncrementalPID.order)

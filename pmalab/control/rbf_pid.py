@@ -103,6 +103,8 @@ class RbfPID(IncrementalPID):
     """S2's RBF-network-tuned PID (``name = "rbf-pid"``)."""
 
     name = "rbf-pid"
+    title = "RBF-network-tuned PID (S2: 3-4-1 Gaussian Jacobian, momentum descent)"
+    order = 3
 
     def __init__(self, settings: LoopSettings) -> None:
         super().__init__(settings)

@@ -37,6 +37,8 @@ class SingleNeuronPID(IncrementalPID):
     """S1's single-neuron PID (``name = "sn-pid"``)."""
 
     name = "sn-pid"
+    title = "single-neuron adaptive PID (S1: supervised Hebb, normalised weights)"
+    order = 2
 
     def __init__(self, settings: LoopSettings) -> None:
         super().__init__(settings)

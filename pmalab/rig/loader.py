@@ -14,7 +14,8 @@ A rig file::
 Each kind is a factory in :data:`RIG_KINDS`, ``factory(section, rig_file, *, seed, clock)
 -> Rig`` where ``section`` is the ``[rig]`` table (minus ``kind``) and ``rig_file`` the
 file's path (``None`` for the bare ``"sim"`` spec); the device-driver module registers its
-kinds ("modbus-tcp", ...) with one line: ``RIG_KINDS["modbus-tcp"] = make_modbus_rig``.
+kinds with one line: ``RIG_KINDS.register("modbus", make_modbus_rig, title=..., order=...)``
+(:class:`pmalab.registry.Registry`, the mechanism laws, effects and controllers use too).
 Factories report mistakes as one-line :class:`~pmalab.errors.ConfigError` naming the file
 and field.  :func:`load_rig` then applies ``[limits]`` and records the file's text in
 ``rig.info["rig_file_text"]``.
@@ -29,6 +30,7 @@ from typing import Any
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
 from pmalab.paths import RIGS_DIR, shipped
+from pmalab.registry import Registry
 from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig
 from pmalab.rig.drivers.rigfile import override_transport
@@ -78,9 +80,13 @@ def _make_sim(
 
 
 #: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
-RIG_KINDS: dict[str, RigFactory] = {"sim": _make_sim}
-RIG_KINDS["modbus"] = make_modbus_rig  # real devices: pmalab.rig.drivers (Modbus TCP/RTU, serial)
-RIG_KINDS["nidaqmx"] = make_nidaq_rig  # an NI DAQ card under NI-DAQmx (hardware-timed)
+#: every rig-file ``kind`` → its factory; a backend is one file plus one line here
+RIG_KINDS: Registry[RigFactory] = Registry("rig kind", ConfigError)
+RIG_KINDS.register("sim", _make_sim, title="the physics-based simulated rig", order=1)
+RIG_KINDS.register("modbus", make_modbus_rig, order=2,
+                   title="Modbus TCP/RTU analog I/O, SMC ITV on RS-232C, load-cell indicators")
+RIG_KINDS.register("nidaqmx", make_nidaq_rig, order=3,
+                   title="an NI DAQ card under NI-DAQmx (hardware-timed)")
 
 
 #: rig kind → how ``--host/--port`` rewrite its ``[rig]`` table (kinds with a network link)

@@ -14,14 +14,9 @@ import pkgutil
 import sys
 from pathlib import Path
 
-from pmalab.errors import PmalabError
-from pmalab.identify.effects.base import Effect
+from pmalab.identify.effects.base import EFFECTS, Effect, EffectError
 
 __all__ = ["BUILTIN_IDS", "EFFECTS", "Effect", "EffectError", "get_effect", "load_user_effects"]
-
-
-class EffectError(PmalabError):
-    """An unknown effect id or a broken user effects file."""
 
 
 # adding an effect is ONE new file in this folder: every module here is imported and every
@@ -30,29 +25,13 @@ for _m in pkgutil.iter_modules(__path__):
     if not _m.name.startswith("_") and _m.name != "base":
         importlib.import_module(f"{__name__}.{_m.name}")
 
-#: the catalogue's display order (as docs/explanation/physics.md lists it); effects in new files follow, by id
-_ORDER = ("viscous-friction", "asymmetric-hysteresis", "nonlinear-stiffness",
-          "pressure-variation", "sensor-delay", "inertia", "sensor-drift")
-
-
-def _builtin() -> list[type[Effect]]:
-    found = {c.id: c for c in Effect.__subclasses__() if c.id and c.__module__.startswith(__name__)}
-    return sorted(found.values(), key=lambda c: (_ORDER.index(c.id) if c.id in _ORDER else 99, c.id))
-
-
-#: the catalogue: id -> class (plus any user effects loaded with load_user_effects)
-EFFECTS: dict[str, type[Effect]] = {cls.id: cls for cls in _builtin()}
+#: the built-in catalogue's ids, in their declared order
 BUILTIN_IDS: tuple[str, ...] = tuple(EFFECTS)
 
 
 def get_effect(effect_id: str) -> Effect:
     """A fresh instance of the effect ``effect_id`` (PmalabError listing valid ids if unknown)."""
-    try:
-        return EFFECTS[effect_id]()
-    except KeyError:
-        raise EffectError(
-            f"unknown effect '{effect_id}' (choose from {', '.join(EFFECTS)})"
-        ) from None
+    return EFFECTS.lookup(effect_id)()
 
 
 def load_user_effects(path: str | Path) -> list[str]:
@@ -92,7 +71,7 @@ def load_user_effects(path: str | Path) -> list[str]:
             continue
         if obj.id in BUILTIN_IDS and EFFECTS[obj.id] is not obj:
             raise EffectError(f"{p}: effect class {obj.__name__} reuses the built-in id '{obj.id}'")
-        EFFECTS[obj.id] = obj
+        EFFECTS.register(obj.id, obj, title=obj.title, order=1000.0, replace=True)
         found.append(obj.id)
     if not found:
         raise EffectError(f"{p}: defines no Effect subclass with an 'id'")

@@ -30,6 +30,7 @@ from pmalab.identify.signals import Signals
 
 class AsymmetricHysteresis(Effect):
     id = "asymmetric-hysteresis"
+    order = 2
     title = "Asymmetric hysteresis (generalized Bouc-Wen / direction-dependent Duhem)"
     explanation = (
         "The braid and bladder do not load and unload symmetrically: friction and the "

@@ -32,17 +32,36 @@ from typing import ClassVar
 
 import numpy as np
 
+from pmalab.errors import PmalabError
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals
+from pmalab.registry import Registry
+
+
+class EffectError(PmalabError):
+    """An unknown effect id or a broken user effects file."""
+
+
+#: the catalogue, id -> class, in the effects' declared order: a subclass in this package
+#: that sets ``id`` registers itself (one file is a new effect); user files loaded with
+#: :func:`pmalab.identify.effects.load_user_effects` follow
+EFFECTS: Registry[type[Effect]] = Registry("effect", EffectError)
 
 
 class Effect:
     """A pluggable physical effect (subclass and set the class attributes)."""
 
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("id") and cls.__module__.startswith("pmalab.identify.effects."):
+            EFFECTS.register(cls.id, cls, title=cls.title, order=cls.order)
+
     #: the id users type (``--add viscous-friction``); docs/explanation/physics.md lists the built-in ids
     id: ClassVar[str] = ""
     #: one-line title
     title: ClassVar[str] = ""
+    #: place in the catalogue's lists (lower first)
+    order: ClassVar[float] = 100.0
     #: the physics in two or three sentences
     explanation: ClassVar[str] = ""
     #: the residual signature that points to this effect

@@ -27,6 +27,7 @@ def shift_in_time(t: np.ndarray, y: np.ndarray, tau: float) -> np.ndarray:
 
 class SensorDelay(Effect):
     id = "sensor-delay"
+    order = 5
     title = "Time skew between the position and force channels"
     explanation = (
         "If the position channel lags (or leads) the force channel by a few milliseconds, "

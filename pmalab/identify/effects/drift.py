@@ -21,6 +21,7 @@ from pmalab.identify.signals import Signals
 
 class SensorDrift(Effect):
     id = "sensor-drift"
+    order = 7
     title = "Slow drift of the force sensor's zero"
     explanation = (
         "Load-cell zeros drift as the cell warms (and position sensors creep), so a "

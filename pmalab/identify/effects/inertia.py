@@ -44,6 +44,7 @@ def smooth_acceleration(sig: Signals) -> np.ndarray:
 
 class Inertia(Effect):
     id = "inertia"
+    order = 6
     title = "Inertia of the moving mass in series with the load cell"
     explanation = (
         "The masses between muscle and load cell (end fitting, rod, part of the muscle) "

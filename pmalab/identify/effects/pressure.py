@@ -19,6 +19,7 @@ from pmalab.identify.signals import Signals
 
 class PressureVariation(Effect):
     id = "pressure-variation"
+    order = 4
     title = "Muscle pressure varying during the run (measured, not nominal)"
     explanation = (
         "An 'isobaric' test is held by a slow manual regulator while the muscle's volume "

@@ -18,6 +18,7 @@ from pmalab.identify.signals import Signals
 
 class NonlinearStiffness(Effect):
     id = "nonlinear-stiffness"
+    order = 3
     title = "Nonlinear (geometric / bladder) stiffness"
     explanation = (
         "The braid's fibre angle changes with contraction and the rubber bladder stiffens "

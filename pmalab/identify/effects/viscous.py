@@ -16,6 +16,7 @@ from pmalab.identify.signals import Signals
 
 class ViscousFriction(Effect):
     id = "viscous-friction"
+    order = 1
     title = "Viscous (velocity-proportional) friction"
     explanation = (
         "Friction between the braid fibres and between braid and bladder grows with the "

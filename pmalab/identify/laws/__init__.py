@@ -11,8 +11,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from pmalab.errors import PmalabError
-from pmalab.identify.laws.base import HysteresisLaw, LawParam
+from pmalab.identify.laws.base import LAWS, HysteresisLaw, LawParam
 from pmalab.identify.laws.bouc_wen import BoucWen
 from pmalab.identify.laws.duhem import Duhem
 
@@ -23,20 +22,6 @@ for _m in pkgutil.iter_modules(__path__):
         importlib.import_module(f"{__name__}.{_m.name}")
 
 
-def _all_laws(cls: type[HysteresisLaw]) -> list[type[HysteresisLaw]]:
-    out = []
-    for sub in cls.__subclasses__():
-        out += ([sub] if sub.name else []) + _all_laws(sub)
-    return out
-
-
-#: every law by the id users type (``--model``)
-LAWS: dict[str, type[HysteresisLaw]] = {cls.name: cls for cls in _all_laws(HysteresisLaw)}
-
-
 def get_law(name: str) -> HysteresisLaw:
     """A law instance by id (one clear line listing the valid ids if unknown)."""
-    try:
-        return LAWS[name]()
-    except KeyError:
-        raise PmalabError(f"unknown model '{name}' (choose from {', '.join(LAWS)})") from None
+    return LAWS.lookup(name)()

@@ -35,6 +35,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from pmalab.registry import Registry
+
 
 @dataclass(frozen=True)
 class LawParam:
@@ -48,8 +50,18 @@ class LawParam:
     doc: str
 
 
+#: every law by the id users type (``--model``), in its declared order: a subclass that
+#: sets ``name`` registers itself (one file in this folder is a new law)
+LAWS: Registry[type[HysteresisLaw]] = Registry("model")
+
+
 class HysteresisLaw:
     """Base class of a hysteresis law (subclass, set the class attributes, write the hooks)."""
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.__dict__.get("name"):
+            LAWS.register(cls.name, cls, title=cls.title or cls.name, order=cls.order)
 
     #: the id users type (``--model bouc-wen``)
     name: ClassVar[str] = ""
@@ -69,6 +81,8 @@ class HysteresisLaw:
     scale_param: ClassVar[str | None] = None
     #: a one-line title for tables and reports
     title: ClassVar[str] = ""
+    #: place in lists, tables and ``diagnose``'s scoring (lower first)
+    order: ClassVar[float] = 100.0
     #: size of the internal state the stepper carries: 1 for a law whose state is h itself
     #: (Bouc-Wen, Duhem); n for laws of n elements (Prandtl-Ishlinskii, Maxwell-slip), whose
     #: stepper takes and returns the element state and :meth:`output` sums it to h

@@ -156,6 +156,7 @@ def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tup
 
 class BoucWen(HysteresisLaw):
     name = "bouc-wen"
+    order = 1
     params = (
         LawParam("A", -50.0, -1e4, 1e4, "N/mm", "initial slope of h against x"),
         LawParam("beta", 0.1, -50.0, 50.0, "1/mm·N^(1-n)", "shape (with gamma): loop fullness"),

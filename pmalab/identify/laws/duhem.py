@@ -62,6 +62,7 @@ def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tup
 
 class Duhem(HysteresisLaw):
     name = "duhem"
+    order = 2
     params = (
         LawParam("alpha", 1.0, 1e-4, 100.0, "1/mm", "rate at which h approaches a·x (inverse memory length)"),
         LawParam("a", 0.0, -1e4, 1e4, "N/mm", "slope of the anhysteretic curve"),

@@ -35,6 +35,7 @@ def _kf(theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
 
 class MaxwellSlip(HysteresisLaw):
     name = "maxwell-slip"
+    order = 3
     title = "Maxwell-slip (elasto-slide elements)"
     params = (
         *(LawParam(n, 10.0, 0.0, 1e4, "N/mm", f"stiffness of element {i + 1}")

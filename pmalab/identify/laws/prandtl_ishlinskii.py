@@ -40,6 +40,7 @@ def _kf(theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
 
 class PrandtlIshlinskii(HysteresisLaw):
     name = "prandtl-ishlinskii"
+    order = 4
     title = "Prandtl-Ishlinskii (play operators)"
     params = (
         *(LawParam(n, 1.0, 0.0, 1e4, "N/mm",
