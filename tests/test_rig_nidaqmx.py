@@ -159,3 +159,20 @@ def test_rig_file_mistakes_are_one_line(fake, tmp_path):
     code, _, err = _run(["run", "--rig", bad, "--protocol", "quick", "--out", tmp_path / "x.h5"])
     assert code == 2 and "[rig.inputs.force].terminal" in err, err
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_the_sample_clock_follows_the_protocol_and_an_impossible_rate_is_refused(fake, tmp_path):
+    proto = tmp_path / "p.toml"
+    text = (RIGS_DIR.parent / "protocols" / "quick.toml").read_text()
+    proto.write_text(text.replace('name = "quick"\n', 'name = "quick"\nsample_rate_Hz = 2000\n', 1))
+    out = tmp_path / "fast.h5"
+    code, _, err = _run(["run", "--rig", RIG, "--protocol", proto, "--out", out, "--quiet"])
+    assert code == 0, err
+    with h5py.File(out) as f:
+        (g,) = f["runs"].values()
+        t = g["time"][:]
+    np.testing.assert_allclose(np.diff(t), 1 / 2000, rtol=0, atol=1e-12)
+    proto.write_text(text.replace('name = "quick"\n', 'name = "quick"\nsample_rate_Hz = 2e5\n', 1))
+    code, _, err = _run(["run", "--rig", RIG, "--protocol", proto, "--out", tmp_path / "x.h5"])
+    assert code == 2 and "outside the rig's 1–100000 Hz" in err and err.count("\n") == 1
+    assert not (tmp_path / "x.h5").exists()

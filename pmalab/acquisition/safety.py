@@ -46,7 +46,14 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
     lim = effective_limits(rig)
     where = protocol.path or protocol.name
     sampler = rig.sampler
-    if sampler.hardware_timed and abs(sampler.sample_rate_Hz - protocol.sample_rate_Hz) > 1e-9:
+    lo_hi = getattr(sampler, "rate_range_Hz", None)  # a sampler that programs its clock
+    if lo_hi is not None and not lo_hi[0] <= protocol.sample_rate_Hz <= lo_hi[1]:
+        raise ProtocolRefused(
+            f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz is "
+            f"outside the rig's {lo_hi[0]:g}–{lo_hi[1]:g} Hz"
+        )
+    if (lo_hi is None and sampler.hardware_timed
+            and abs(sampler.sample_rate_Hz - protocol.sample_rate_Hz) > 1e-9):
         raise ProtocolRefused(
             f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz but the "
             f"rig's hardware-timed sampler runs at {sampler.sample_rate_Hz:g} Hz"

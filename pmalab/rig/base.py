@@ -300,6 +300,9 @@ class Sampler(ABC):
     hardware_timed: bool = False
     #: the rate the sampler was configured for (Hz)
     sample_rate_Hz: float = 500.0
+    #: (low, high) Hz for a sampler that programs its own clock to the protocol's rate in
+    #: :meth:`configure`; None: a hardware-timed sampler runs at ``sample_rate_Hz`` only
+    rate_range_Hz: tuple[float, float] | None = None
 
     def configure(self, rate_Hz: float) -> None:  # noqa: B027 - optional hook
         """Set the rate (Hz) the next :meth:`start` samples at: the runner calls this with

@@ -233,6 +233,9 @@ class NidaqSampler(Sampler):
     """Hardware-timed sampler: one continuous AI task on the device's sample clock."""
 
     hardware_timed = True
+    #: the sample clock is programmed to the protocol's rate (the card's own maximum is
+    #: checked by DAQmx when the task starts)
+    rate_range_Hz = (1.0, 100_000.0)
 
     def __init__(self, spec: NidaqRigSpec) -> None:
         self.spec = spec
