@@ -123,3 +123,20 @@ def test_gaps_are_recorded_as_data_where_and_how_long(tmp_path):
     assert gaps[0, 0] == pytest.approx(r.time[jump] - r.time[0] + DT, abs=1e-9)
     assert r.time[jump + 1] - r.time[jump] == pytest.approx(6 * DT, abs=1e-9)
     assert r.attrs["timing"]["missed"] == 5
+
+
+def test_identification_says_where_a_gap_was_bridged(tmp_path):
+    """A recorded gap reaches the identification as a note (samples missing, where, how
+    long), not as silently interpolated data."""
+    from pmalab.identify.api import gap_notes
+
+    rig = make_fake_rig()
+    rig.sampler = HardwareSampler(rig.clock, rig.cylinder_regulator, rig.muscle_supply,
+                                  gap_at=2000, gap=5)
+    run_protocol(rig, PROTO, tmp_path / "g.h5", options=RunnerOptions(progress=False))
+    (r,) = read_runs(tmp_path / "g.h5")
+    (note,) = gap_notes([r])
+    assert "1 gap(s)" in note and "5 missing" in note and "bridged" in note
+    clean = make_fake_rig()
+    run_protocol(clean, PROTO, tmp_path / "c.h5", options=RunnerOptions(progress=False))
+    assert gap_notes(read_runs(tmp_path / "c.h5")) == []

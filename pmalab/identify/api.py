@@ -261,6 +261,37 @@ def split_roles(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
     return ident, val
 
 
+def gap_notes(runs: Sequence[Run]) -> list[str]:
+    """One note per run whose samples have gaps (time steps > 1.5× the median: samples the
+    device did not deliver, recorded as gaps, never filled in).
+
+    The laws integrate position segment by segment, so a gap is bridged by a straight
+    segment: exact for a hysteresis law while the motion does not reverse inside the gap,
+    and the velocity/acceleration effects see one longer step there.  A gap longer than
+    2 % of the motion's period may hide a reversal: the note says so.
+    """
+    out = []
+    for r in runs:
+        t = np.asarray(r.time, float)
+        if t.size < 3:
+            continue
+        dt = np.diff(t)
+        med = float(np.median(dt))
+        big = np.flatnonzero(dt > 1.5 * med)
+        if not big.size:
+            continue
+        missing = int(np.sum(np.round(dt[big] / med) - 1))
+        longest = float(dt[big].max())
+        period = 1.0 / r.frequency if r.frequency else None
+        risky = period is not None and longest > 0.02 * period
+        out.append(f"{r.label}: {big.size} gap(s) in the samples ({missing} missing, longest "
+                   f"{1e3 * longest:.1f} ms at t={t[big[np.argmax(dt[big])]] - t[0]:.3f} s), "
+                   "bridged by a straight position segment (the law integrates position)"
+                   + ("; the longest exceeds 2 % of the motion's period and may hide a "
+                      "reversal: check the fit there, or split the run" if risky else ""))
+    return out
+
+
 def identify(
     runs: Sequence[Run] | Run,
     model: str | ForceModel = "bouc-wen",
@@ -295,6 +326,7 @@ def identify(
     ident, held = split_roles(runs_l)
     notes = [f"{r.label}: role 'validation' in the run file, held out for validation"
              for r in held]
+    notes += gap_notes([*runs_l, *(validate or [])])
     if not ident:
         raise PmalabError("no identification runs: every run read from the files has role 'validation'")
     if isinstance(model, ForceModel):
