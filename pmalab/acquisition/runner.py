@@ -126,13 +126,21 @@ class RunResult:
     force_min: float
     force_max: float
     timing: dict[str, float] = field(default_factory=dict)
+    #: the samples were stamped by the device's clock (a gap is the device's, not ours)
+    hardware_timed: bool = False
 
     @property
     def warning(self) -> str | None:
         """One line when the run missed or was late on more than the warn fraction of its
-        samples (``timing_warning`` in its timing record), else None."""
+        samples (``timing_warning`` in its timing record), or when a device on its own
+        clock skipped any samples; else None."""
         t = self.timing
         if not t.get("timing_warning"):
+            missed = int(t.get("missed", 0))
+            if self.hardware_timed and missed:
+                return (f"run '{self.name}': the device skipped {missed} sample(s) (its "
+                        "buffer overflowed); recorded as gaps in the run's 'gaps' dataset, "
+                        "nothing filled in")
             return None
         late, missed = int(t.get("late", 0)), int(t.get("missed", 0))
         scheduled = self.n_samples + missed
@@ -476,7 +484,8 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     abort.hard_exit = rec.unclosed
                     _notify(opts, "run_ended", i, spec, f"aborted: {reason}", str(abort))
                     raise abort from (exc if isinstance(exc, Exception) else None)
-                results.append(_result(spec.name, "completed", w, timing))
+                results.append(_result(spec.name, "completed", w, timing,
+                                       rig.sampler.hardware_timed))
         except BaseException:
             with contextlib.suppress(Exception):  # never hide the reason of the abort
                 rec.close()
@@ -547,9 +556,11 @@ def _reason(exc: BaseException) -> str:
     return f"exception: {type(exc).__name__}" + (f": {msg}" if msg else "")
 
 
-def _result(name: str, status: str, w: RunWriter, timing: dict[str, float]) -> RunResult:
+def _result(name: str, status: str, w: RunWriter, timing: dict[str, float],
+            hardware_timed: bool = False) -> RunResult:
     fmin, fmax = w.force_range
-    return RunResult(name, status, w.n, float(timing.get("duration_s", 0.0)), fmin, fmax, timing)
+    return RunResult(name, status, w.n, float(timing.get("duration_s", 0.0)), fmin, fmax, timing,
+                     hardware_timed)
 
 
 def _progress(protocol: Protocol, enabled: bool):

@@ -32,7 +32,7 @@ from pmalab.errors import ConfigError
 from pmalab.paths import RIGS_DIR, shipped
 from pmalab.registry import Registry
 from pmalab.rig.base import Clock, Rig
-from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig
+from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig, make_t7_stream_rig
 from pmalab.rig.drivers.rigfile import override_transport
 
 RigFactory = Callable[..., Rig]
@@ -87,10 +87,13 @@ RIG_KINDS.register("modbus", make_modbus_rig, order=2,
                    title="Modbus TCP/RTU analog I/O, SMC ITV on RS-232C, load-cell indicators")
 RIG_KINDS.register("nidaqmx", make_nidaq_rig, order=3,
                    title="an NI DAQ card under NI-DAQmx (hardware-timed)")
+RIG_KINDS.register("labjack-t7-stream", make_t7_stream_rig, order=4,
+                   title="a LabJack T7 streaming on its own clock over Modbus TCP")
 
 
 #: rig kind → how ``--host/--port`` rewrite its ``[rig]`` table (kinds with a network link)
-TRANSPORT_OVERRIDES: dict[str, Callable[..., dict[str, Any]]] = {"modbus": override_transport}
+TRANSPORT_OVERRIDES: dict[str, Callable[..., dict[str, Any]]] = {
+    "modbus": override_transport, "labjack-t7-stream": override_transport}
 
 
 def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None = None,

@@ -33,6 +33,16 @@ def make_modbus_rig(
     return make(section, rig_file, seed=seed, clock=clock)
 
 
+def make_t7_stream_rig(
+    section: dict[str, Any], rig_file: Path | None = None, *, seed: int | None = None,
+    clock: Clock | None = None
+) -> Rig:
+    """``RIG_KINDS["labjack-t7-stream"]``: a LabJack T7 streaming over Modbus TCP."""
+    from pmalab.rig.drivers.t7_stream import make_t7_stream_rig as make
+
+    return make(section, rig_file, seed=seed, clock=clock)
+
+
 def make_nidaq_rig(
     section: dict[str, Any], rig_file: Path | None = None, *, seed: int | None = None,
     clock: Clock | None = None

@@ -141,8 +141,11 @@ def read_modbus_rig_file(path: str | Path) -> ModbusRigSpec:
         raise ConfigError(f"{path}: rig: must be a [rig] table")
     section = dict(section)
     kind = section.pop("kind", None)
-    if kind != "modbus":
-        raise ConfigError(f"{path}: rig.kind: {kind!r} is not 'modbus' (nothing to emulate)")
+    if kind not in ("modbus", "labjack-t7-stream"):
+        raise ConfigError(f"{path}: rig.kind: {kind!r} is not 'modbus' or "
+                          "'labjack-t7-stream' (nothing to emulate)")
+    for key in ("buffer_size_bytes", "ain_calibration"):  # stream-only keys
+        section.pop(key, None)
     rs = parse_modbus_rig(section, path)
     rs.text = text
     rs.limits = Limits().updated(doc.get("limits", {}), str(path))

@@ -22,7 +22,7 @@ from __future__ import annotations
 import threading
 from collections import Counter
 
-KINDS = ("drop", "garble", "exception", "disconnect", "out_of_range", "delay")
+KINDS = ("drop", "garble", "exception", "disconnect", "out_of_range", "delay", "stream_overflow")
 
 
 class FaultPlan:

@@ -47,6 +47,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.exceptions import NoSuchIdException
 from pymodbus.pdu import ExceptionResponse, ModbusPDU
@@ -127,6 +128,150 @@ def register_runs(addresses: set[int]) -> list[tuple[int, int]]:
     return runs
 
 
+class StreamEngine:
+    """The T7's stream mode in command-response, as :mod:`pmalab.rig.drivers.t7_stream` uses it.
+
+    Configuration registers are stored as written; ``STREAM_ENABLE`` = 1 starts the device's
+    scan clock at the written ``STREAM_SCANRATE_HZ``.  Each read of ``STREAM_DATA_CR`` first
+    takes every scan due by now (the simulated rig sampled at t0 + k/rate, each AIN's volts
+    as 16-bit codes) into a buffer of ``STREAM_BUFFER_SIZE_BYTES``; a scan that finds the
+    buffer full is skipped (auto-recovery, status 2940) and, once there is room, a dummy scan
+    of 0xFFFF codes marks the place and the read that returns it says 2941 with the number
+    skipped.  ``faults.arm("stream_overflow")`` makes the next 25 scans skip as if the host
+    had stalled.
+    """
+
+    CONFIG = (4002, 4024)
+    SCANLIST = (4100, 4100 + 2 * 128)
+    DATA = (4500, 4500 + 125)
+    ENABLE = (4990, 4992)
+    INJECTED_SKIP = 25
+
+    def __init__(self, model: ModbusDeviceModel) -> None:
+        self.model = model
+        self.words: dict[int, int] = {}
+        self.running = False
+        self.buffer: list[tuple[str, Any]] = []  # ("scan", codes) | ("dummy", skipped)
+        self.samples = 0  # samples held in the buffer
+        self.skipping = 0  # scans skipped in the current recovery
+        self.forced_skip = 0
+        self.t0 = 0.0
+        self.k = 0
+        self.rate = 0.0
+        self.addresses: list[int] = []
+        self.capacity = 0  # samples
+
+    def blocks(self) -> list[tuple[int, int, bool]]:
+        return [(self.CONFIG[0], self.CONFIG[1] - self.CONFIG[0], False),
+                (self.SCANLIST[0], self.SCANLIST[1] - self.SCANLIST[0], False),
+                (self.ENABLE[0], self.ENABLE[1] - self.ENABLE[0], False),
+                (self.DATA[0], self.DATA[1] - self.DATA[0], True)]
+
+    def owns(self, address: int) -> bool:
+        return any(lo <= address < hi for lo, hi in (self.CONFIG, self.SCANLIST, self.DATA,
+                                                     self.ENABLE))
+
+    def _u32(self, a: int) -> int:
+        return (self.words.get(a, 0) << 16) | self.words.get(a + 1, 0)
+
+    def _f32(self, a: int) -> float:
+        return struct.unpack(">f", struct.pack(">HH", self.words.get(a, 0),
+                                               self.words.get(a + 1, 0)))[0]
+
+    def action(self, fc: int, base: int, address: int, count: int, registers: list[int],
+               set_values: Any) -> ExcCodes | None:
+        """``registers`` is the device's register array starting at address ``base``."""
+        if fc in (6, 16) and set_values:
+            if self.DATA[0] <= address < self.DATA[1]:
+                return ExcCodes.ILLEGAL_ADDRESS
+            for i, v in enumerate(set_values):
+                self.words[address + i] = int(v)
+            if address <= self.ENABLE[0] < address + len(set_values) + 1:
+                self._enable(self._u32(self.ENABLE[0]) == 1)
+            return None
+        if fc == 3 and address == self.DATA[0]:
+            self._fill(registers, address - base, count)
+            return None
+        if fc in (3, 4) and self.DATA[0] < address < self.DATA[1]:
+            return ExcCodes.ILLEGAL_ADDRESS
+        return None
+
+    def _enable(self, on: bool) -> None:
+        from pmalab.rig.drivers.t7_stream import AUTO_TARGET_CR
+
+        if not on:
+            self.running = False
+            return
+        n = self._u32(4004)
+        rate = self._f32(4002)
+        if not (0 < n <= 128 and 0 < rate * n <= 100_000) or self._u32(4016) != AUTO_TARGET_CR:
+            raise ValueError(f"stream: bad configuration (addresses {n}, rate {rate}, "
+                             f"auto target {self._u32(4016)})")
+        self.addresses = [self._u32(self.SCANLIST[0] + 2 * i) for i in range(n)]
+        by_addr = {c.address: c for c in self.model.inputs}
+        missing = [a for a in self.addresses if a not in by_addr]
+        if missing:
+            raise ValueError(f"stream: scanlist address(es) {missing} are not inputs")
+        self.rate = rate
+        self.capacity = max(self._u32(4012), 256) // 2
+        self.t0 = self.model.plant.now()
+        self.k = 0
+        self.buffer, self.samples, self.skipping, self.running = [], 0, 0, True
+
+    def _acquire(self) -> None:
+        from pmalab.rig.drivers.t7_stream import volts_to_codes
+
+        if not self.running:
+            return
+        plant = self.model.plant
+        now = plant.now()
+        chans = [next(c for c in self.model.inputs if c.address == a) for a in self.addresses]
+        n = len(chans)
+        if self.model.faults.take("stream_overflow"):
+            self.forced_skip = self.INJECTED_SKIP
+        while self.t0 + self.k / self.rate <= now:
+            t = self.t0 + self.k / self.rate
+            self.k += 1
+            full = self.samples + 2 * n > self.capacity  # room for the scan and a marker
+            if full or self.forced_skip > 0:
+                self.forced_skip = max(self.forced_skip - 1, 0)
+                self.skipping += 1
+                continue
+            if self.skipping:
+                self.buffer.append(("dummy", self.skipping))
+                self.samples += n
+                self.skipping = 0
+            with plant.lock:
+                out = plant.physics.advance_and_sample(t)
+            values = {"position": out[1], "force": out[2], "muscle_pressure": out[3],
+                      "cylinder_pressure": out[4]}
+            volts = [c.calibration.inverse(float(values[c.name]), c.raw_range) for c in chans]
+            self.buffer.append(("scan", volts_to_codes(np.array(volts)).tolist()))
+            self.samples += n
+
+    def _fill(self, registers: list[int], at: int, count: int) -> None:
+        self._acquire()
+        n = max(len(self.addresses), 1)
+        room = (count - 4) // n
+        out: list[int] = []
+        status, info = (2940, 0) if self.skipping else (0, 0)
+        taken = 0
+        while taken < len(self.buffer) and len(out) // n < room:
+            kind, val = self.buffer[taken]
+            taken += 1
+            if kind == "dummy":
+                out += [0xFFFF] * n
+                status, info = 2941, min(int(val), 0xFFFF)
+                break  # one recovery per read: its count is in this header
+            out += val
+        del self.buffer[:taken]
+        self.samples -= len(out)
+        header = [len(out), min(2 * self.samples, 0xFFFF), status, info]
+        words = header + out
+        registers[at : at + len(words)] = words
+        registers[at + len(words) : at + count] = [0] * (count - len(words))
+
+
 class ModbusDeviceModel:
     """Register map + physics coupling of one emulated analog I/O module."""
 
@@ -160,6 +305,8 @@ class ModbusDeviceModel:
         self.last_request = time.perf_counter()
         self.outputs_live = False
         self.watchdog_trips = 0
+        self.stream = StreamEngine(self)
+        self.blocks += self.stream.blocks()
 
     def sim_device(self) -> SimDevice:
         """The pymodbus ``SimDevice``: inputs read-only, outputs writable; unit
@@ -184,6 +331,9 @@ class ModbusDeviceModel:
         try:
             if function_code in BIT_FUNCTIONS:
                 return ExcCodes.ILLEGAL_ADDRESS
+            if self.stream.owns(address):
+                return self.stream.action(function_code, start_address, address, count,
+                                          registers, set_values)
             if function_code in (3, 4) and address < self.in_hi and address + count > self.in_lo:
                 self.reads += 1
                 self._fill_inputs(start_address, registers)
