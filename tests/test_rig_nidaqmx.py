@@ -176,3 +176,25 @@ def test_the_sample_clock_follows_the_protocol_and_an_impossible_rate_is_refused
     code, _, err = _run(["run", "--rig", RIG, "--protocol", proto, "--out", tmp_path / "x.h5"])
     assert code == 2 and "outside the rig's 1–100000 Hz" in err and err.count("\n") == 1
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.slow
+def test_records_the_seed_protocol_with_the_simulated_rigs_contract(fake, tmp_path):
+    """The Bouc-Wen seed paper's campaign (9 runs, 225 s of rig time) through the NI backend:
+    the same runs, datasets, units and sample counts as the simulated rig's file."""
+    from pmalab.runfile import read_runs
+
+    ni, sim = tmp_path / "ni.h5", tmp_path / "sim.h5"
+    code, _, err = _run(["run", "--rig", RIG, "--protocol", "seed-bouc-wen", "--out", ni, "-q"])
+    assert code == 0, err
+    assert _run(["run", "--rig", "sim", "--protocol", "seed-bouc-wen", "--out", sim, "-q"])[0] == 0
+    a, b = read_runs(ni), read_runs(sim)
+    assert [r.name for r in a] == [r.name for r in b] and len(a) == 9
+    for ra, rb in zip(a, b):
+        assert ra.state == "completed" and len(ra) == len(rb)
+        assert ra.attrs["role"] == rb.attrs["role"]
+        assert ra.nominal_pressure == pytest.approx(rb.nominal_pressure)
+        np.testing.assert_allclose(np.diff(ra.time), 1 / 500, rtol=0, atol=1e-12)
+    with h5py.File(ni) as f, h5py.File(sim) as g:
+        for name in f["runs"]:
+            assert set(f["runs"][name]) == set(g["runs"][name])
