@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from pmalab.errors import ConfigError
+from pmalab.errors import ConfigError, RigError
 
 
 # --------------------------------------------------------------------------- calibration
@@ -50,6 +50,22 @@ class Calibration:
         for c in reversed(self.coefficients):  # Horner
             value = value * raw + c
         return value - self.tare
+
+    def apply(self, raw: np.ndarray, raw_range: tuple[float, float] | None, where: str
+              ) -> np.ndarray:
+        """A block of raw values (volts, of a hardware-timed stream) → values, refusing
+        the first raw value outside ``raw_range`` (a broken wire or an unpowered sensor)
+        with one :class:`~pmalab.errors.RigError` line naming ``where``."""
+        v = np.asarray(raw, dtype=float)
+        if raw_range is not None:
+            bad = np.flatnonzero((v < raw_range[0]) | (v > raw_range[1]))
+            if bad.size:
+                raise RigError(f"{where} reads {v[bad[0]]:.3f} V, outside raw_range "
+                               f"{list(raw_range)}: broken wire or sensor unpowered?")
+        c = self.coefficients
+        if len(c) == 2:
+            return c[0] + c[1] * v - self.tare
+        return np.polynomial.polynomial.polyval(v, np.asarray(c, dtype=float)) - self.tare
 
     def inverse(self, value: float, raw_range: tuple[float, float] | None = None) -> float:
         """The raw value giving ``value`` (for outputs and the emulators).

@@ -306,18 +306,8 @@ class NidaqSampler(Sampler):
     def _convert(self, volts: np.ndarray, check: bool = True) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
         for i, ai in enumerate(self.spec.inputs):
-            v = volts[i]
-            if check and ai.raw_range is not None:
-                bad = np.flatnonzero((v < ai.raw_range[0]) | (v > ai.raw_range[1]))
-                if bad.size:
-                    raise RigError(f"{self.spec.device}/{ai.channel} ({ai.name}) reads "
-                                   f"{v[bad[0]]:.3f} V, outside raw_range {list(ai.raw_range)}: "
-                                   "broken wire or sensor unpowered?")
-            c = ai.calibration.coefficients
-            if len(c) == 2:
-                val = c[0] + c[1] * v - ai.calibration.tare
-            else:
-                val = np.array([ai.calibration(float(x)) for x in v])
+            val = ai.calibration.apply(volts[i], ai.raw_range if check else None,
+                                       f"{self.spec.device}/{ai.channel} ({ai.name})")
             out[ai.name] = val
         return out
 

@@ -210,16 +210,8 @@ class T7StreamSampler(Sampler):
         volts = codes_to_volts(scans, self.cal)
         out: dict[str, np.ndarray] = {}
         for i, c in enumerate(self.channels):
-            v = volts[:, i]
-            if c.raw_range is not None:
-                bad = np.flatnonzero((v < c.raw_range[0]) | (v > c.raw_range[1]))
-                if bad.size:
-                    raise RigError(f"T7 stream: AIN at address {c.address} ({c.name}) reads "
-                                   f"{v[bad[0]]:.3f} V, outside raw_range {list(c.raw_range)}: "
-                                   "broken wire or sensor unpowered?")
-            coeffs = c.calibration.coefficients
-            out[c.name] = (coeffs[0] + coeffs[1] * v - c.calibration.tare if len(coeffs) == 2
-                           else np.array([c.calibration(float(x)) for x in v]))
+            out[c.name] = c.calibration.apply(volts[:, i], c.raw_range,
+                                              f"T7 stream: AIN at address {c.address} ({c.name})")
         m = len(scans)
         t = (self.k + np.arange(m)) / self.sample_rate_Hz
         self.k += m
