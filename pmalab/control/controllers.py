@@ -33,7 +33,7 @@ class CascadeSettings:
     outer loop).
 
     The 2-DOF part (ours, not the seeds'; it is what meets the issue's targets, see
-    README "Position control"): ``shaping_velocity_mm_s``/``shaping_accel_mm_s2`` limit
+    docs/guide/control.md): ``shaping_velocity_mm_s``/``shaping_accel_mm_s2`` limit
     the set point the cascade follows (:class:`~pmalab.control.reference.ReferenceShaper`;
     0 = follow the raw reference); ``reference_feedforward``: the regulator also gets the
     pressure the identified model needs to hold the *set point* (its spring force and

@@ -28,7 +28,7 @@ from typing import Any
 from pmalab.errors import ConfigError
 from pmalab.paths import DATA_DIR
 
-#: the shipped identification of the simulated muscle (see data/control/README.md)
+#: the shipped identification of the simulated muscle (pmalab/data/control/README.md says how it was made)
 SHIPPED_IDENTIFICATION = DATA_DIR / "control" / "identification-bouc-wen.json"
 #: parameters that are not the hysteresis law's
 _LINEAR = ("k", "c0")
