@@ -19,7 +19,7 @@ demo: $(STAMP)
 test: $(STAMP) chromium
 	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/lint-imports
-	@echo "pytest: the whole suite takes ~6.5 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
+	@echo "pytest: the whole suite takes ~9 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
 	$(BIN)/python -m pytest -q --durations=10
 
 # headless Chromium for the live-view browser test (Debian's package); never fails the
