@@ -21,6 +21,7 @@ each sample is the sign of its smoothed velocity.
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 
@@ -117,3 +118,16 @@ def loop_direction(force: np.ndarray, x: np.ndarray) -> float:
         if s.any() and r.any():
             diffs.append(float(np.mean(f[s]) - np.mean(f[r])))
     return float(np.mean(diffs)) if diffs else 0.0
+
+
+def information_criteria(rss: float, n: int, k: int, n_eff: float | None = None
+                         ) -> tuple[float, float]:
+    """(AIC, BIC) of a least-squares fit — the one definition every fit in pmalab uses.
+
+    ``N_eff·ln(RSS/N) + 2k`` and ``N_eff·ln(RSS/N) + k·ln N_eff``: ``rss`` the residual sum
+    of squares over ``n`` rows, ``k`` free parameters, ``n_eff`` the effective number of
+    independent rows (a free-run residual is autocorrelated; default ``n``).
+    """
+    ne = float(n if n_eff is None else n_eff)
+    ll = ne * math.log(max(rss / max(n, 1), 1e-300))
+    return ll + 2 * k, ll + k * math.log(max(ne, 2.0))

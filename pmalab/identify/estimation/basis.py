@@ -16,11 +16,12 @@ and order 1 on another.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from pmalab.identify.metrics import information_criteria
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ def fit_polynomial(p: Sequence[float], y: Sequence[float], w: np.ndarray | None 
             if d + 1 >= n:
                 break
             _, rss = solve(d)
-            b = n * math.log(max(rss, floor) / n) + (d + 1) * math.log(n)
+            b = information_criteria(max(rss, floor), n, d + 1)[1]
             if b < best - 1e-9:
                 best, deg = b, d
     c, rss = solve(deg)

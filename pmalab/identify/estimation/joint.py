@@ -53,6 +53,7 @@ from pmalab.identify.estimation.basis import PressureBasis, fit_polynomial, weig
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import fit_record_params
 from pmalab.identify.estimation.solver import one_blas_thread, solve, uncertainty
+from pmalab.identify.metrics import information_criteria
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
@@ -244,8 +245,9 @@ def refine(
         dropped = [f"{n} {deg[n]}->{deg2[n]}" for n in free if deg2[n] != deg[n]]
         # compare on a common N_eff (the richer model's) so the penalty is the same
         e1, e2 = prob.residual(sol.x), prob2.residual(sol2.x)
-        b1 = n_eff * math.log(max(float(e1 @ e1), 1e-300)) + prob.n_var * pen
-        b2 = n_eff * math.log(max(float(e2 @ e2), 1e-300)) + prob2.n_var * pen
+        rows = len(e1)
+        b1 = information_criteria(float(e1 @ e1), rows, prob.n_var, n_eff)[1]
+        b2 = information_criteria(float(e2 @ e2), rows, prob2.n_var, n_eff)[1]
         if b2 > b1:
             notes.append(f"joint fit: kept pressure orders (lowering {', '.join(dropped)} "
                          "raised the joint BIC)")

@@ -37,7 +37,6 @@ Nothing is excluded: every sample of the run enters the fit.
 from __future__ import annotations
 
 import hashlib
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -47,7 +46,7 @@ from pmalab.errors import PmalabError
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import predict_record
 from pmalab.identify.estimation.solver import STDERR_METHOD, one_blas_thread, solve, uncertainty
-from pmalab.identify.metrics import loop_direction, metrics
+from pmalab.identify.metrics import information_criteria, loop_direction, metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.params import Params
 from pmalab.identify.signals import Signals
@@ -493,12 +492,12 @@ def _fit_run(
     N = force.shape[0]
     p_free = len(names)
     sse = float(np.sum((pred - force) ** 2))
-    ll = n_eff * math.log(max(sse / N, 1e-300))
+    aic, bic = information_criteria(sse, N, p_free, n_eff)
     return FitResult(
         model=model, params=ps, names=list(names), correlation=corr, warnings=warnings,
         fixed=[p.name for p in ps if not p.vary], rmse=met["rmse"], nrmse=met["nrmse"],
         fit_percent=met["fit_percent"], cost=float(res.cost), n_free=p_free, n_samples=N,
-        n_eff=float(n_eff), aic=ll + 2 * p_free, bic=ll + p_free * math.log(n_eff),
+        n_eff=float(n_eff), aic=aic, bic=bic,
         condition_number=cond, metrics=met, label=label, notes=notes,
     )
 

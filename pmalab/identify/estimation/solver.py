@@ -15,13 +15,14 @@ summed over the runs of the problem.  The same N_eff enters every information cr
 from __future__ import annotations
 
 import contextlib
-import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import OptimizeResult, least_squares
 from threadpoolctl import ThreadpoolController
+
+from pmalab.identify.metrics import information_criteria
 
 STDERR_METHOD = (
     "Jacobian covariance s^2 (J^T J)^-1 inflated by N/N_eff, N_eff = N(1-r1)/(1+r1) "
@@ -99,9 +100,8 @@ class Uncertainty:
     n_eff: float
 
     def ic(self, rss: float, n: int, k: int) -> tuple[float, float]:
-        """(AIC, BIC) with N_eff: N_eff·ln(RSS/N) + penalty."""
-        ll = self.n_eff * math.log(max(rss / max(n, 1), 1e-300))
-        return ll + 2 * k, ll + k * math.log(max(self.n_eff, 2.0))
+        """(AIC, BIC) with this fit's N_eff (:func:`information_criteria`)."""
+        return information_criteria(rss, n, k, self.n_eff)
 
 
 def uncertainty(J: np.ndarray, r: np.ndarray, rows: Sequence[slice] | None = None) -> Uncertainty:
