@@ -433,6 +433,7 @@ def _fit_run(
     names = _names(prob)
     pred, met = full(prob, res)
 
+    auto_fixed: set[str] = set()  # what this fit fixed itself (kept as data, not parsed back)
     if auto_fix:
         pairs = _flag_pairs(names, _centred_corr(corr, names, se, float(np.mean(sig.x))))
         flagged = {a for a, b, _ in pairs} | {b for a, b, _ in pairs}
@@ -448,6 +449,7 @@ def _fit_run(
                     f"{partners}: not identifiable on this run; fixed {name} = {value:g} "
                     f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})")
                 fix, ps, prob, res, pred, met = fix2, ps2, prob2, res2, pred2, met2
+                auto_fixed.add(name)
                 se, corr, cond, n_eff = _uncertainty(prob, res)
                 names = _names(prob)
             else:
@@ -455,7 +457,7 @@ def _fit_run(
                     f"{partners}: kept {name} free — fixing it at {value:g} raised nrmse "
                     f"{met['nrmse']:.4f} -> {met2['nrmse']:.4f}; their stderrs are large")
 
-    done = {n for w in warnings for n in names if f"fixed {n} =" in w}
+    done = {n for n in auto_fixed if n in names}
     notes: list[str] = []
     xm = float(np.mean(sig.x))
     corr_c = _centred_corr(corr, names, se, xm)
