@@ -49,14 +49,18 @@ import numpy as np
 from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.estimation.solver import STDERR_METHOD
+from pmalab.identify.predictions import (  # noqa: F401  (the format's names, re-exported)
+    PREDICTIONS_FORMAT,
+    PREDICTIONS_VERSION,
+    PredictionItem,
+    write_predictions_file,
+)
 from pmalab.paths import check_output, write_together
 from pmalab.runfile import Run, decode_attr
 
 if TYPE_CHECKING:
     from pmalab.identify.api import Identification
 
-PREDICTIONS_FORMAT = "pmalab.predictions"
-PREDICTIONS_VERSION = 1
 
 
 def _clean(v: Any) -> Any:
@@ -243,37 +247,13 @@ def _unique_key(grp, base: str) -> str:
 
 
 def write_predictions(res: Identification, path: Path) -> None:
-    import h5py
-
+    """The identification's ``predictions.h5`` (:mod:`pmalab.identify.predictions`)."""
     cf = res.campaign
-    with h5py.File(path, "w") as f:
-        f.attrs["format"] = PREDICTIONS_FORMAT
-        f.attrs["format_version"] = PREDICTIONS_VERSION
-        f.attrs["model"] = cf.model.name
-        grp = f.create_group("runs")
-        items: list[tuple[Run, str, np.ndarray, np.ndarray | None]] = []
-        for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions()):
-            items.append((run, "identification", rf.result.predict(run), fq))
-        for v in res.validation:
-            items.append((v.run, "validation", v.force_model, None))
-        for run, role, fm, fq in items:
-            stem = Path(run.file).stem if run.file else "memory"
-            g = grp.create_group(_unique_key(grp, f"{stem}__{run.name}"))
-            for name, data, unit in (("time", run.time, "s"), ("position", run.position, "mm"),
-                                     ("muscle_pressure", run.muscle_pressure, "MPa"),
-                                     ("force", run.force, "N"), ("force_model", fm, "N")):
-                ds = g.create_dataset(name, data=np.asarray(data, dtype=np.float64))
-                ds.attrs["units"] = unit
-            if fq is not None:
-                ds = g.create_dataset("force_model_quadratic", data=np.asarray(fq, dtype=np.float64))
-                ds.attrs["units"] = "N"
-            g.attrs["role"] = role
-            g.attrs["file"] = run.file
-            g.attrs["run"] = run.name
-            g.attrs["muscle_pressure_MPa"] = float(run.nominal_pressure)
-            g.attrs["frequency_Hz"] = float(run.frequency) if run.frequency is not None else float("nan")
-            g.attrs["waveform"] = str(run.attrs.get("waveform", ""))
-            g.attrs["model"] = cf.model.name
+    name = cf.model.name
+    items = [PredictionItem(run, "identification", rf.result.predict(run), name, fq)
+             for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions())]
+    items += [PredictionItem(v.run, "validation", v.force_model, name) for v in res.validation]
+    write_predictions_file(path, items, name)
 
 
 def write_outputs(res: Identification, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:

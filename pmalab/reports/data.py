@@ -30,13 +30,13 @@ from typing import Any
 import numpy as np
 
 from pmalab.config import load_json
+from pmalab.identify.predictions import PREDICTIONS_FORMAT  # the one declaration
 from pmalab.reports.errors import ReportError
 from pmalab.runfile import decode_attr
 
 IDENTIFICATION_JSON = "identification.json"
 DIAGNOSIS_JSON = "diagnosis.json"
 PREDICTIONS_H5 = "predictions.h5"
-PREDICTIONS_FORMAT = "pmalab.predictions"
 TRACE_CHANNELS = ("time", "position", "muscle_pressure", "force", "force_model")
 #: roles the report draws; a trace with another (string) role is read but not drawn.
 #: ``diagnosis-final`` is the diagnosis's final model (base + the effects the ladder added).

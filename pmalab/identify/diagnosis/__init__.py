@@ -9,11 +9,11 @@ one identification), :mod:`.ladder`, :mod:`.diagnostics` (residual maps), :mod:`
 from __future__ import annotations
 
 from pmalab.identify.diagnosis.diagnose import (
-    PREDICTIONS_FORMAT,
     DiagnoseError,
     Diagnosis,
     diagnose,
     write_outputs,
 )
+from pmalab.identify.predictions import PREDICTIONS_FORMAT
 
 __all__ = ["PREDICTIONS_FORMAT", "DiagnoseError", "Diagnosis", "diagnose", "write_outputs"]

@@ -38,6 +38,7 @@ from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
 from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
 from pmalab.identify.noise import noise_floor_nrmse
+from pmalab.identify.predictions import PredictionItem, write_predictions_file
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
@@ -47,7 +48,6 @@ from pmalab.runfile import Run
 #: (1.5×) called a systematic 1.4 N misfit on four 20,000-sample runs "nothing to explain".
 UNEXPLAINED_RATIO = 1.0 + MIN_GAIN_X_FLOOR
 
-PREDICTIONS_FORMAT = "pmalab.predictions"
 
 #: what separates two look-alike effects (pairs not listed: each effect's own experiment)
 PAIR_EXPERIMENTS: dict[frozenset[str], str] = {
@@ -443,34 +443,12 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> 
 
 
 def _write_predictions(diag: Diagnosis, hpath: Path) -> None:
-    import h5py
-
+    """Each held-out run under the base and the final model (:mod:`pmalab.identify.predictions`)."""
     final_name = "+".join([diag.final_law or diag.model, *diag.final_effects])
-    with h5py.File(hpath, "w") as f:
-        f.attrs["format"] = PREDICTIONS_FORMAT
-        f.attrs["format_version"] = 1
-        grp = f.create_group("runs")
-        used: set[str] = set()
-        for run, fb, ff in diag.traces:
-            for role, pred, name in (("diagnosis", fb, diag.model),
-                                     ("diagnosis-final", ff, final_name)):
-                key = _unique(f"{Path(run.file).stem + '-' if run.file else ''}{run.name}"
-                              f"{'-final' if role != 'diagnosis' else ''}", used)
-                g = grp.create_group(key)
-                for ch, arr in (("time", run.time), ("position", run.position),
-                                ("muscle_pressure", run.muscle_pressure), ("force", run.force),
-                                ("force_model", pred)):
-                    g.create_dataset(ch, data=np.asarray(arr, dtype=np.float64))
-                g.attrs.update({"role": role, "file": run.file, "run": run.name,
-                                "muscle_pressure_MPa": run.nominal_pressure,
-                                "frequency_Hz": run.frequency if run.frequency else np.nan,
-                                "waveform": str(run.attrs.get("waveform", "")), "model": name})
+    items = []
+    for run, fb, ff in diag.traces:
+        items += [PredictionItem(run, "diagnosis", fb, diag.model),
+                  PredictionItem(run, "diagnosis-final", ff, final_name)]
+    write_predictions_file(hpath, items, final_name)
 
 
-def _unique(key: str, used: set[str]) -> str:
-    k, i = key.replace("/", "_"), 2
-    while k in used:
-        k = f"{key}-{i}"
-        i += 1
-    used.add(k)
-    return k
