@@ -41,26 +41,28 @@ import datetime as _dt
 import hashlib
 import json
 import math
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from pmalab import __version__
 from pmalab.errors import PmalabError
+from pmalab.identify.campaign import CampaignFit, ModelSpec, Validation, validate_runs
 from pmalab.identify.estimation.solver import STDERR_METHOD
+from pmalab.identify.metrics import metrics
+from pmalab.identify.model import ForceModel
 from pmalab.identify.predictions import (  # noqa: F401  (the format's names, re-exported)
     PREDICTIONS_FORMAT,
     PREDICTIONS_VERSION,
     PredictionItem,
     write_predictions_file,
 )
+from pmalab.identify.signals import Signals
 from pmalab.paths import check_output, write_together
 from pmalab.runfile import Run, decode_attr
-
-if TYPE_CHECKING:
-    from pmalab.identify.api import Identification
-
 
 
 def _clean(v: Any) -> Any:
@@ -270,3 +272,177 @@ def write_outputs(res: Identification, out_dir: str | Path, force: bool = False)
         hpath: lambda p: write_predictions(res, p),
     })
     return jpath, hpath
+
+
+# --------------------------------------------------------------------------- the result
+@dataclass
+class Identification:
+    """Result of :func:`identify`: per-run fits, pressure quadratics, validation."""
+
+    campaign: CampaignFit
+    runs: list[Run]
+    validation: list[Validation] = field(default_factory=list)
+    spec: ModelSpec | None = None
+    initial: str = "estimate"
+    notes: list[str] = field(default_factory=list)
+    #: warnings raised while validating (extrapolation, divergence)
+    validation_warnings: list[str] = field(default_factory=list)
+
+    # ---- model
+    @property
+    def model(self) -> ForceModel:
+        return self.campaign.model
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.campaign.warnings) + list(self.validation_warnings)
+
+    def theta(self, p_MPa: float) -> dict[str, float]:
+        """Parameters at nominal pressure ``p_MPa`` from the quadratics."""
+        return self.campaign.theta(p_MPa)
+
+    def predict(self, run: Run, p_MPa: float | None = None) -> np.ndarray:
+        """Free-run force prediction (N) of any run from its position and pressure."""
+        return self.campaign.predict(run, p_MPa, initial=self.initial)
+
+    def quadratic_predictions(self) -> list[tuple[np.ndarray, dict]]:
+        """(force N, metrics) of the pressure-quadratic model on each identification run."""
+        cache = getattr(self, "_quad_cache", None)
+        if cache is None:
+            cache = []
+            for run in self.runs:
+                sig = Signals.from_run(run)
+                fq = self.campaign.predict(sig, force=run.force, initial=self.initial)
+                cache.append((fq, metrics(run.force, fq, sig.x)))
+            self._quad_cache = cache
+        return cache
+
+    def validate(self, runs: Iterable[Run]) -> list[Validation]:
+        """Predict held-out runs and add them to :attr:`validation`."""
+        new, warns = validate_runs(self.campaign, runs, self.initial)
+        self.validation.extend(new)
+        self.validation_warnings.extend(warns)
+        return new
+
+    # ---- tables (pandas, imported lazily)
+    @property
+    def parameters(self):
+        """DataFrame: one row per identification run, parameters, fit % and stderr."""
+        import pandas as pd
+
+        rows = []
+        for rf in self.campaign.runs:
+            row = {"run": rf.label, "p_MPa": rf.p_nom, "f_Hz": rf.frequency_Hz,
+                   "fit_percent": rf.result.fit_percent, "nrmse": rf.result.nrmse}
+            for p in rf.result.params:
+                row[p.name] = p.value
+                row[f"{p.name}_stderr"] = p.stderr
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("run")
+
+    @property
+    def pressure_table(self):
+        """DataFrame: q0, q1, q2, order and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in
+        MPa; ``method`` "joint" = refined on all runs at once, see
+        :mod:`pmalab.identify.estimation.joint`)."""
+        import pandas as pd
+
+        return pd.DataFrame(
+            [{"parameter": n, "q0": pf.coef[0], "q1": pf.coef[1], "q2": pf.coef[2],
+              "degree": pf.degree, "r2": pf.r2, "method": pf.method}
+             for n, pf in self.campaign.pressure.items()]
+        ).set_index("parameter")
+
+    @property
+    def validation_table(self):
+        """DataFrame: validation metrics per held-out run."""
+        import pandas as pd
+
+        rows = []
+        for v in self.validation:
+            m = v.metrics
+            rows.append({"run": v.run.label, "p_MPa": v.run.nominal_pressure,
+                         "f_Hz": v.run.frequency, "status": v.status,
+                         "fit_percent": m["fit_percent"],
+                         "nrmse": m["nrmse"], "rmse_N": m["rmse"], "max_error_N": m["max_error"],
+                         "energy_error_percent": m["energy_error_percent"],
+                         "stretch_rmse_N": m["branch_rmse"]["stretch"],
+                         "release_rmse_N": m["branch_rmse"]["release"]})
+        return pd.DataFrame(rows).set_index("run") if rows else pd.DataFrame()
+
+    # ---- plots (matplotlib only)
+    def plot_loops(self, which: str = "all", ncols: int = 3):
+        """Measured (wide grey band) vs model (thin blue line over it) force–position loops;
+        returns the Figure.
+
+        ``which``: ``"identification"``, ``"validation"`` or ``"all"``.
+        """
+        import matplotlib.pyplot as plt
+
+        panels: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]] = []
+        if which in ("all", "identification"):
+            for rf, run in zip(self.campaign.runs, self.runs):
+                fm = rf.result.predict(run)
+                panels.append((f"{rf.label}\nfit {rf.result.fit_percent:.1f} %", run.position,
+                               run.force, fm))
+        if which in ("all", "validation"):
+            for v in self.validation:
+                panels.append((f"{v.run.label} (validation)\nfit {v.fit_percent:.1f} %",
+                               v.run.position, v.run.force, v.force_model))
+        n = max(len(panels), 1)
+        nc = min(ncols, n)
+        nr = int(np.ceil(n / nc))
+        fig, axes = plt.subplots(nr, nc, figsize=(4.2 * nc, 3.4 * nr), squeeze=False)
+        for ax, (title, x, f, fm) in zip(axes.flat, panels):
+            # the measurement as a wide band underneath, the model thinner on top: both
+            # stay visible where they agree, and the band shows where the model leaves it
+            ax.plot(x, f, color="0.55", lw=2.4, alpha=0.8, label="measured",
+                    solid_capstyle="round", zorder=1)
+            ax.plot(x, fm, color="#1f77b4", lw=0.9, label=self.model.name, zorder=2)
+            ax.set_title(title, fontsize=8)
+            ax.set_xlabel("contraction x (mm)")
+            ax.set_ylabel("tension F (N)")
+        for ax in list(axes.flat)[len(panels):]:
+            ax.set_visible(False)
+        if panels:
+            axes.flat[0].legend(fontsize=7)
+        fig.tight_layout()
+        return fig
+
+    def plot_parameters(self):
+        """Each parameter against pressure with ±stderr bars and its quadratic."""
+        import matplotlib.pyplot as plt
+
+        names = [n for n in self.campaign.parameter_names]
+        nc = 3
+        nr = int(np.ceil(len(names) / nc))
+        fig, axes = plt.subplots(nr, nc, figsize=(4.0 * nc, 3.0 * nr), squeeze=False)
+        for ax, name in zip(axes.flat, names):
+            pf = self.campaign.pressure[name]
+            se = [np.nan if s is None else s for s in pf.stderr]
+            ax.errorbar(pf.pressures, pf.values, yerr=se, fmt="o", ms=4)
+            pp = np.linspace(min(pf.pressures), max(pf.pressures), 50)
+            ax.plot(pp, pf(pp), lw=1)
+            ax.set_title(f"{name}  (R² {pf.r2:.3f})", fontsize=9)
+            ax.set_xlabel("muscle pressure (MPa)")
+        for ax in list(axes.flat)[len(names):]:
+            ax.set_visible(False)
+        fig.tight_layout()
+        return fig
+
+    # ---- output
+    def save(self, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+        """Write ``identification.json`` and ``predictions.h5`` into ``out_dir``."""
+        return write_outputs(self, out_dir, force=force)
+
+    def __repr__(self) -> str:
+        lines = [f"Identification({self.model.name}: {len(self.campaign.runs)} runs, "
+                 f"{len(self.validation)} validation)"]
+        for rf in self.campaign.runs:
+            lines.append(f"  identify  {rf.label:40s} p={rf.p_nom:.4g} MPa  fit {rf.result.fit_percent:6.2f} %")
+        for v in self.validation:
+            lines.append(f"  validate  {v.run.label:40s} p={v.run.nominal_pressure:.4g} MPa  "
+                         + ("DIVERGED" if v.diverged else f"fit {v.fit_percent:6.2f} %")
+                         + ("" if v.status == "ok" else f"  ({v.status})"))
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
