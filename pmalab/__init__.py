@@ -5,4 +5,10 @@ Areas (data flows one way): ``rig`` → ``acquisition`` → HDF5 (``runfile``) �
 (positive = shorter than nominal), force F is the tension in N.
 """
 
-__version__ = "0.1.0"
+from importlib.metadata import PackageNotFoundError, version
+
+try:
+    #: the installed distribution's version; its one source is pyproject.toml
+    __version__: str = version("pmalab")
+except PackageNotFoundError:  # a source tree on sys.path that was never installed
+    __version__ = "0+unknown"
