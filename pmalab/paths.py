@@ -27,9 +27,9 @@ TRUTH_DIR = DATA_DIR / "truth"
 def shipped(spec: str | Path, folder: Path, suffix: str = ".toml") -> Path:
     """``spec`` as given when it exists; else the shipped file it names.
 
-    Accepted names: the bare name (``seed-bouc-wen``), with its suffix, or the path a clone
-    shows (``data/rigs/labjack-t7.toml``), so commands copied from the docs work outside
-    the repository too.  Returns ``spec`` unchanged when nothing matches (the caller's
+    Accepted names: the name inside ``folder`` (``seed-bouc-wen``, ``subtle/clean``), with
+    or without its suffix, or the path a clone shows (``data/rigs/labjack-t7.toml``), so
+    commands copied from the docs work outside the repository too.  Returns ``spec`` unchanged when nothing matches (the caller's
     reader then says "no such file" for the path the user typed).
     """
     p = Path(spec)
@@ -40,9 +40,9 @@ def shipped(spec: str | Path, folder: Path, suffix: str = ".toml") -> Path:
         cand = DATA_DIR.joinpath(*parts[1:])
         if cand.exists():
             return cand
-    if len(parts) == 1:
+    if not p.is_absolute() and ".." not in parts:
         for cand in (folder / p, folder / f"{p}{suffix}"):
-            if cand.exists():
+            if cand.is_file():
                 return cand
     return p
 

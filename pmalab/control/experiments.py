@@ -46,7 +46,7 @@ from pmalab.control.record import ControlRecording, planned_attrs, run_metrics
 from pmalab.control.reference import Reference, parse_reference
 from pmalab.control.runner import run_control
 from pmalab.errors import ConfigError, OutputError
-from pmalab.paths import DATA_DIR
+from pmalab.paths import DATA_DIR, shipped
 
 SEED_EXPERIMENTS = DATA_DIR / "control" / "seed-experiments.toml"
 MAX_DURATION_S = 600.0
@@ -83,9 +83,8 @@ def check_duration(v: Any, where: str) -> float:
 
 def load_experiments(path: str | Path | None = None) -> ExperimentSet:
     """Read and check an experiments file (``None``: the seeds' set)."""
-    p = Path(path) if path is not None else SEED_EXPERIMENTS
-    if not p.exists() and path is not None and (DATA_DIR / "control" / f"{path}.toml").exists():
-        p = DATA_DIR / "control" / f"{path}.toml"
+    # a shipped set by name (seed-experiments) or clone path works from any directory
+    p = shipped(path, DATA_DIR / "control") if path is not None else SEED_EXPERIMENTS
     doc, text = load_toml(p, "experiments file", where=str(p))
     where = str(p)
     known = {"experiments", "settings", "experiment"}

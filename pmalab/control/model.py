@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from pmalab.errors import ConfigError
-from pmalab.paths import DATA_DIR
+from pmalab.paths import DATA_DIR, shipped
 
 #: the shipped identification of the simulated muscle (pmalab/data/control/README.md says how it was made)
 SHIPPED_IDENTIFICATION = DATA_DIR / "control" / "identification-bouc-wen.json"
@@ -86,7 +86,9 @@ class IdentifiedModel:
     @classmethod
     def load(cls, path: str | Path | None = None) -> IdentifiedModel:
         """Read an ``identification.json`` (``None``: the shipped one); one-line errors."""
-        p = Path(path) if path is not None else SHIPPED_IDENTIFICATION
+        # a shipped identification by name (identification-duhem) or clone path works anywhere
+        p = shipped(path, DATA_DIR / "control", ".json") if path is not None \
+            else SHIPPED_IDENTIFICATION
         if p.is_dir():
             p = p / "identification.json"
         try:

@@ -24,7 +24,7 @@ from typing import Any
 
 from pmalab.config import load_toml, unknown_keys
 from pmalab.errors import ConfigError
-from pmalab.paths import TRUTH_DIR
+from pmalab.paths import TRUTH_DIR, shipped
 
 DEFAULT_TRUTH = TRUTH_DIR / "default.toml"
 
@@ -379,10 +379,13 @@ def _cross_checks(v: dict[str, dict[str, Any]], source: str) -> list[str]:
 def load_truth(path: str | Path | None = None) -> Truth:
     """Read and validate a truth TOML file (``None`` → ``data/truth/default.toml``).
 
+    A shipped truth is found by name (``hidden-viscous-friction``, ``subtle/clean``) or by
+    its clone path (``data/truth/hidden-viscous-friction.toml``) from any directory.
+
     Raises :class:`ConfigError` with one line per mistake, each naming the file and field,
     e.g. ``truth.toml: effects.viscous_friction.c: must be ≥ 0``.
     """
-    p = DEFAULT_TRUTH if path is None else Path(path)
+    p = DEFAULT_TRUTH if path is None else shipped(path, TRUTH_DIR)
     source = str(path) if path is not None else str(p)
     doc, _ = load_toml(p, "truth file", where=source)
     return validate(doc, source)
