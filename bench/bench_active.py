@@ -21,10 +21,10 @@ import time
 from pathlib import Path
 
 from bench.table import print_table
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
-PROTOCOL = ROOT / "data" / "protocols" / "single-frequency.toml"
-SUBTLE = ROOT / "data" / "truth" / "subtle"
+PROTOCOL = PROTOCOLS_DIR / "single-frequency.toml"
+SUBTLE = TRUTH_DIR / "subtle"
 SEEDS = range(1, 11)
 CASES = (("sensor-delay", "sensor-delay"), ("viscous-friction", "viscous-friction"),
          ("clean", None))

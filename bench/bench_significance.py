@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.table import print_table
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 
-ROOT = Path(__file__).resolve().parents[1]
-SUBTLE = ROOT / "data" / "truth" / "subtle"
-PROTOCOL = ROOT / "data" / "protocols" / "diagnosis-test.toml"
+SUBTLE = TRUTH_DIR / "subtle"
+PROTOCOL = PROTOCOLS_DIR / "diagnosis-test.toml"
 EFFECTS = ("viscous-friction", "sensor-delay", "asymmetric-hysteresis", "pressure-variation",
            "inertia", "nonlinear-stiffness", "sensor-drift")
 

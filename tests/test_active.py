@@ -25,11 +25,11 @@ from pmalab.active.design import candidate_experiments, experiment_toml, synth_p
 from pmalab.active.loop import RoundAborted
 from pmalab.cli import main as pmalab_main
 from pmalab.errors import PmalabError
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 from pmalab.runfile import read_runs
 
-ROOT = Path(__file__).resolve().parents[1]
-PROTOCOL = ROOT / "data" / "protocols" / "single-frequency.toml"
-SUBTLE = ROOT / "data" / "truth" / "subtle"
+PROTOCOL = PROTOCOLS_DIR / "single-frequency.toml"
+SUBTLE = TRUTH_DIR / "subtle"
 SEED = 3  # a sensor seed whose single-frequency campaign starts ambiguous (checked below)
 
 

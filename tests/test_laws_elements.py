@@ -20,11 +20,11 @@ import pytest
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify import identify
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 from pmalab.runfile import read_runs
 
-ROOT = Path(__file__).resolve().parents[1]
-TRUTH = ROOT / "data" / "truth" / "hysteresis-maxwell-slip.toml"
-PROTOCOL = ROOT / "data" / "protocols" / "diagnosis-test.toml"
+TRUTH = TRUTH_DIR / "hysteresis-maxwell-slip.toml"
+PROTOCOL = PROTOCOLS_DIR / "diagnosis-test.toml"
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:
