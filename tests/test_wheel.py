@@ -12,10 +12,13 @@ no network.  The test checks that ``pmalab`` is imported from the fresh environm
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
 import sysconfig
+import tarfile
+import tomllib
 import venv
 import zipfile
 from pathlib import Path
@@ -48,10 +51,37 @@ def wheel(tmp_path_factory) -> Path:
             os.symlink(os.readlink(s), d)
         elif s.is_file():
             shutil.copy2(s, d)
-    _run([sys.executable, "-m", "build", "--wheel", "--no-isolation", "--outdir", str(out)],
-         cwd=src)
+    # both products, the wheel built from the sdist (so the sdist must hold the data too)
+    _run([sys.executable, "-m", "build", "--no-isolation", "--outdir", str(out)], cwd=src)
     (whl,) = out.glob("pmalab-*-py3-none-any.whl")
     return whl
+
+
+@pytest.fixture(scope="module")
+def sdist(wheel) -> Path:
+    (sd,) = wheel.parent.glob("pmalab-*.tar.gz")
+    return sd
+
+
+def test_the_version_has_one_source(wheel):
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert wheel.name == f"pmalab-{version}-py3-none-any.whl"
+    # pmalab/__init__.py writes no version of its own, only the not-installed fallback
+    init = (ROOT / "pmalab" / "__init__.py").read_text()
+    assert re.findall(r'__version__[^=\n]*=\s*"([^"]*)"', init) == ["0+unknown"]
+
+
+def test_sdist_holds_the_data_and_what_tests_need(sdist):
+    with tarfile.open(sdist) as tf:
+        names = {n.split("/", 1)[1] for n in tf.getnames() if "/" in n}
+        links = [m.name for m in tf.getmembers() if m.issym() or m.islnk()]
+    for must in ("pmalab/data/truth/subtle/clean.toml", "pmalab/data/rigs/labjack-t7.toml",
+                 "pmalab/data/control/seed-experiments.toml",
+                 "pmalab/acquisition/live/assets/index.html", "tests/test_wheel.py",
+                 "tests/fake_nidaqmx/nidaqmx/__init__.py", "CHANGELOG.md", "CONTRIBUTING.md",
+                 "pyproject.toml", "LICENSE"):
+        assert must in names, must
+    assert not links and "data" not in names  # the clone's data/ link is not shipped twice
 
 
 def test_wheel_holds_the_run_time_data(wheel):
@@ -85,7 +115,8 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     where = _run([str(py), "-c", "import pmalab; print(pmalab.__file__)"], cwd=work, env=env)
     assert str(env_dir) in where and str(ROOT) not in where, where
     pmalab = str(env_dir / "bin" / "pmalab")
-    assert _run([pmalab, "--version"], cwd=work, env=env).strip().startswith("pmalab ")
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert _run([pmalab, "--version"], cwd=work, env=env).strip() == f"pmalab {version}"
     text = _run([pmalab, "demo", "--out", "demo", "--quiet"], cwd=work, env=env)
     assert (work / "demo").is_dir() and list((work / "demo").rglob("*.pdf")), text
     # a shipped protocol by name and a clone-style rig path, then one identify
