@@ -114,6 +114,15 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env['PATH']}"
     where = _run([str(py), "-c", "import pmalab; print(pmalab.__file__)"], cwd=work, env=env)
     assert str(env_dir) in where and str(ROOT) not in where, where
+    # the live page and the shipped files by name, read from the installed package
+    probe = ("from pmalab.acquisition.live.server import ASSETS, asset\n"
+             "from pmalab.paths import DATA_DIR, TRUTH_DIR, shipped\n"
+             "from pmalab.rig.sim.truth import load_truth\n"
+             "assert all(asset(n) for n in [*ASSETS, 'index.html'])\n"
+             "assert load_truth('data/truth/subtle/clean.toml').values\n"
+             "print(DATA_DIR, shipped('subtle/clean', TRUTH_DIR))")
+    where = _run([str(py), "-c", probe], cwd=work, env=env)
+    assert where.count(str(env_dir)) == 2 and str(ROOT) not in where, where
     pmalab = str(env_dir / "bin" / "pmalab")
     version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
     assert _run([pmalab, "--version"], cwd=work, env=env).strip() == f"pmalab {version}"
