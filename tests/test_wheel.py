@@ -1,7 +1,7 @@
 """The wheel is the product: built here, installed into a fresh virtual environment outside
 the repository, it runs ``pmalab --version``, ``pmalab demo`` to the end (the shipped
 protocols, rig files, truth files and controllers' identifications come from the wheel)
-and one ``identify``.
+and one ``identify``; one ``control`` run on the shipped identification and a truth by path.
 
 The fresh environment gets pmalab only from the wheel (``pip install --no-deps``); its
 third-party dependencies are the project environment's, made visible with a ``.pth`` line
@@ -134,3 +134,9 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     out = _run([pmalab, "identify", "q.h5", "--model", "bouc-wen", "--out", "ident", "--quiet"],
                cwd=work, env=env)
     assert (work / "ident" / "identification.json").exists(), out
+    # the controllers' shipped identification and a truth, both by their clone paths
+    out = _run([pmalab, "control", "--controller", "pid", "--reference", "sine:0.1Hz:15mm",
+                "--truth", "data/truth/hidden-viscous-friction.toml", "--model",
+                "data/control/identification-duhem.json", "--duration", "2", "--out", "c.h5"],
+               cwd=work, env=env)
+    assert (work / "c.h5").is_file() and "completed" in out, out
