@@ -659,6 +659,21 @@ def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOption
     return runs
 
 
+def read_head(path: str | Path, what: str, n: int) -> bytes:
+    """The first ``n`` bytes of an export, or one line: no such file, a directory, or a
+    file that cannot be read (``what`` names the expected kind: "TDMS", "MATLAB")."""
+    p = Path(path)
+    if not p.exists():
+        raise RunFileError(f"{p}: no such file")
+    if p.is_dir():
+        raise RunFileError(f"{p}: is a directory, not a {what} file")
+    try:
+        with p.open("rb") as fh:
+            return fh.read(n)
+    except OSError as exc:
+        raise RunFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
+
+
 def match_named(names: list[str], opts: CsvImportOptions, where: str,
                 what: str = "channel", need_time: bool = True) -> dict[str, str]:
     """Channels of a self-describing export (TDMS channels, MATLAB variables) by name.

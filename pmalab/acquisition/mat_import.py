@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named
+from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named, read_head
 from pmalab.errors import RunFileError
 from pmalab.runfile import CANONICAL_UNITS, Run
 
@@ -34,12 +34,7 @@ _V73_TEXT = b"MATLAB 7.3 MAT-file"
 
 def _load(path: Path) -> dict[str, Any]:
     """{variable: numpy array or {field: array}} of a .mat file of any version."""
-    if not path.exists():
-        raise RunFileError(f"{path}: no such file")
-    if path.is_dir():
-        raise RunFileError(f"{path}: is a directory, not a MATLAB file")
-    with path.open("rb") as fh:
-        head = fh.read(128)
+    head = read_head(path, "MATLAB", 128)
     if head.startswith(_V73_TEXT) or head[:8] == b"\x89HDF\r\n\x1a\n":
         return _load_v73(path)
     if not head.startswith(b"MATLAB 5.0 MAT-file"):

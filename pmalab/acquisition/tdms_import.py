@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named
+from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named, read_head
 from pmalab.errors import RunFileError
 from pmalab.runfile import Run
 
@@ -24,12 +24,7 @@ from pmalab.runfile import Run
 def _open(path: Path):
     from nptdms import TdmsFile
 
-    if not path.exists():
-        raise RunFileError(f"{path}: no such file")
-    if path.is_dir():
-        raise RunFileError(f"{path}: is a directory, not a TDMS file")
-    with path.open("rb") as fh:
-        head = fh.read(4)
+    head = read_head(path, "TDMS", 4)
     if head != b"TDSm":
         raise RunFileError(f"{path}: not a TDMS file (no 'TDSm' lead-in; a .tdms_index file "
                            "or another format?)")
