@@ -127,6 +127,7 @@ def identify(
     progress: bool = False,
     pressure_model: str = "joint",
     whole_run: bool = False,
+    output: str = "force",
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
@@ -137,8 +138,13 @@ def identify(
     ``"joint"`` (default: the pressure laws refined on all runs at once,
     :mod:`pmalab.identify.estimation.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
     values).  ``whole_run``: use every sample instead of each recorded run's full-amplitude
-    cycles (:meth:`~pmalab.runfile.Run.steady`).
+    cycles (:meth:`~pmalab.runfile.Run.steady`).  ``output``: ``"force"`` (the model driven
+    by the measured position predicts the force) or ``"position"`` (output error: the model
+    driven by the measured force is integrated forward and its simulated position fitted,
+    :mod:`pmalab.identify.estimation.output_error`).
     """
+    if output not in ("force", "position"):
+        raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
     runs_l = [runs] if isinstance(runs, Run) else list(runs)
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
@@ -156,11 +162,16 @@ def identify(
             raise PmalabError("pass effects inside the ForceModel or as ids, not both")
     else:
         spec = ModelSpec(model, tuple(effects), tuple(str(f) for f in effects_files))
-        spec.build()  # fail early (unknown model/effect) before any work
+        built = spec.build()  # fail early (unknown model/effect) before any work
+        if output == "position":
+            from pmalab.identify.forward import plant_slots
+
+            plant_slots(built)  # an effect without a forward form, refused by name
         fm = spec
     cf, vals, warns = fit_and_validate(
         ident, fm, [*held, *(validate or [])], initial=initial, fixed=fixed, free=free,
-        jobs=jobs, scheduler=scheduler, progress=progress, pressure_model=pressure_model)
+        jobs=jobs, scheduler=scheduler, progress=progress, pressure_model=pressure_model,
+        output=output)
     return Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes,
                           validation=vals, validation_warnings=warns)
 

@@ -60,6 +60,11 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--initial", default="estimate", choices=("estimate", "burn-in", "zero"),
                    help="start state of validation predictions (default: estimate from the "
                         "first 50 ms of force)")
+    p.add_argument("--output", default="force", choices=("force", "position"),
+                   help="what the model is fitted to predict: force (from the measured "
+                        "position, default) or position (output error: the model driven by "
+                        "the measured force, simulated forward; needs a moving mass, e.g. "
+                        "--add inertia)")
     p.add_argument("--pressure-model", default="joint", choices=("joint", "per-run"),
                    help="pressure laws: refined jointly on all runs with chosen orders "
                         "(default) or the seeds' per-run quadratics")
@@ -121,15 +126,22 @@ def run_identify(args: argparse.Namespace) -> int:
     res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
                    jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
                    free=args.free, initial=args.initial, progress=show_progress(args),
-                   pressure_model=args.pressure_model, whole_run=args.whole_run)
+                   pressure_model=args.pressure_model, whole_run=args.whole_run,
+                   output=args.output)
     jpath, hpath = res.save(out, force=args.force)
 
     level = verbosity(args)
     w = max([len(rf.label) for rf in res.campaign.runs] + [len(v.run.label) for v in res.validation] + [10])
     print(f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
           f"{len(res.validation)} validation run(s)")
-    for rf in res.campaign.runs:
+    oe = res.campaign.output_error
+    for i, rf in enumerate(res.campaign.runs):
         r = rf.result
+        if oe is not None:
+            print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
+                  f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
+                  f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)")
+            continue
         print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
               f"rmse {r.rmse:7.3g} N")
     for v in res.validation:
@@ -137,6 +149,10 @@ def run_identify(args: argparse.Namespace) -> int:
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
         if getattr(v, "diverged", False):
             print(head + f"prediction DIVERGED ({v.message})")
+            continue
+        if "rmse_position_m" in m:
+            print(head + f"position rmse {m['rmse_position_m']:9.3g} m  "
+                  f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %")
             continue
         print(head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
               f"energy {m['energy_error_percent']:+.1f} %"

@@ -132,6 +132,34 @@ def _metric_block(m: dict) -> dict:
         "energy_measured_mJ_per_cycle": m.get("energy_measured_mJ_per_cycle"),
         "energy_model_mJ_per_cycle": m.get("energy_model_mJ_per_cycle"),
         "branch_rmse": dict(m["branch_rmse"]),
+        # output error (--output position): the simulated position's errors, in m and mm
+        **{k: m[k] for k in POSITION_KEYS if k in m},
+    }
+
+
+#: the position-error keys of a validation row when the model was fitted on position
+POSITION_KEYS = ("rmse_position_m", "rmse_position_mm", "nrmse_position", "fit_percent_position")
+
+
+def _output_error_block(cf) -> dict | None:
+    """The ``output_error`` JSON block (None when the model was fitted on force)."""
+    oe = cf.output_error
+    if oe is None:
+        return None
+    return {
+        "runs": list(oe.labels),
+        "rmse_position_m": [v * 1e-3 for v in oe.rmse_mm],
+        "nrmse_position": list(oe.nrmse),
+        "rmse_position_m_start": [v * 1e-3 for v in oe.rmse_mm_start],
+        "initial_state": {"x0_mm": oe.state["x0"], "v0_mm_per_s": oe.state["v0"],
+                          "h0_N": oe.state["h0"]},
+        "substeps_per_sample": list(oe.n_sub),
+        "orders": dict(oe.degree),
+        "stderr_at_mean_pressure": dict(oe.stderr),
+        "nfev": oe.nfev, "success": oe.success, "message": oe.message,
+        "note": ("free-run simulation of the position from the measured force and pressure "
+                 "(velocity Verlet, implicit damping, exact hysteresis segments, inputs "
+                 "linear between samples); start state estimated per run"),
     }
 
 
@@ -194,6 +222,9 @@ def identification_dict(res: Identification) -> dict:
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
         "pressure_range_MPa": list(cf.pressure_range),
         "joint_fit": _joint_block(cf),
+        "output": cf.output,
+        "output_error": _output_error_block(cf),
+        "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
         "warnings": warnings,
         "notes": list(res.notes),
@@ -254,7 +285,12 @@ def write_predictions(res: Identification, path: Path) -> None:
     name = cf.model.name
     items = [PredictionItem(run, "identification", rf.result.predict(run), name, fq)
              for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions())]
-    items += [PredictionItem(v.run, "validation", v.force_model, name) for v in res.validation]
+    oe = cf.output_error
+    if oe is not None:
+        for it, xm in zip(items, oe.positions):
+            it.position_model = xm
+    items += [PredictionItem(v.run, "validation", v.force_model, name,
+                             position_model=v.position_model) for v in res.validation]
     write_predictions_file(path, items, name)
 
 

@@ -4,7 +4,9 @@ Root attrs ``format = "pmalab.predictions"``, ``format_version = 1`` and ``model
 group ``/runs/<key>`` per (run, role) with 1-D datasets, each with a ``units`` attr:
 ``time`` (s), ``position`` (mm, measured, contraction positive), ``muscle_pressure``
 (MPa), ``force`` (N, measured tension), ``force_model`` (N) and, for identification runs,
-``force_model_quadratic`` (N: the pressure-quadratic model); attrs ``role``
+``force_model_quadratic`` (N: the pressure-quadratic model) and, for a model fitted on
+position (``identify --output position``), ``position_model`` (mm: the free-run simulated
+position, contraction positive); attrs ``role``
 (``identification``, ``validation``, ``diagnosis`` = the base model on a held-out run,
 ``diagnosis-final`` = the final ladder model), ``file``, ``run``, ``muscle_pressure_MPa``,
 ``frequency_Hz``, ``waveform``, ``model``.  ``pmalab identify`` and ``pmalab diagnose`` write
@@ -34,6 +36,7 @@ class PredictionItem:
     force_model: np.ndarray
     model: str
     force_model_quadratic: np.ndarray | None = None
+    position_model: np.ndarray | None = None
 
 
 def _key(run: Any, role: str, used: set[str]) -> str:
@@ -66,6 +69,8 @@ def write_predictions_file(path: str | Path, items: Iterable[PredictionItem], mo
                      ("force_model", it.force_model, "N")]
             if it.force_model_quadratic is not None:
                 chans.append(("force_model_quadratic", it.force_model_quadratic, "N"))
+            if it.position_model is not None:
+                chans.append(("position_model", it.position_model, "mm"))
             for name, data, unit in chans:
                 ds = g.create_dataset(name, data=np.asarray(data, dtype=np.float64))
                 ds.attrs["units"] = unit

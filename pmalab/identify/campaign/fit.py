@@ -33,6 +33,11 @@ from pmalab.errors import PmalabError
 from pmalab.identify.campaign.batch import map_tasks
 from pmalab.identify.campaign.pressure import PressureFit, fit_quadratic, weighted_r2
 from pmalab.identify.estimation.joint import JointFit, evaluate, prepare, refine, start_laws
+from pmalab.identify.estimation.output_error import (
+    OutputErrorFit,
+    fit_output_error,
+    position_data,
+)
 from pmalab.identify.estimation.records import TARE_NOTE, predict_record
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
 from pmalab.identify.metrics import metrics
@@ -132,6 +137,14 @@ class CampaignFit:
     per_run_pressure: dict[str, PressureFit] = field(default_factory=dict)
     #: the per-run-quadratic model's mean nrmse on the (subsampled) identification runs
     per_run_nrmse: list[float] = field(default_factory=list)
+    #: the output-error refinement on the simulated position (``identify --output
+    #: position``; :mod:`pmalab.identify.estimation.output_error`), None for force output
+    output_error: OutputErrorFit | None = None
+
+    @property
+    def output(self) -> str:
+        """The output the model was fitted on: ``"force"`` or ``"position"``."""
+        return "force" if self.output_error is None else "position"
 
     @property
     def parameter_names(self) -> list[str]:
@@ -460,3 +473,39 @@ def pressure_fits(rfs: Sequence[RunFit]) -> dict[str, PressureFit]:
         ses = [r.result.params[name].stderr for r in rfs]
         out[name] = fit_quadratic(name, pressures, vals, ses)
     return out
+
+
+# --------------------------------------------------------------------------- output error
+def refine_output_error(cf: CampaignFit, runs: Sequence[Run]) -> CampaignFit:
+    """``cf`` with its pressure laws refined on the simulated position of ``runs`` (the
+    identification runs, same order): :mod:`pmalab.identify.estimation.output_error`.  The
+    force-direction fit is the start; the orders in pressure stay the ones it chose."""
+    from pmalab.identify.forward import plant_slots
+
+    model = cf.model
+    plant_slots(model)  # refuses an effect without a forward form, by name
+    fixed = set(cf.runs[0].result.fixed) if cf.runs else set()
+    record = set(model.record_params)
+    free = {n: pf.coef for n, pf in cf.pressure.items() if n not in fixed and n not in record}
+    held = {n: pf.coef for n, pf in cf.pressure.items() if n in fixed and n not in record}
+    degree = {n: int(cf.pressure[n].degree) for n in free}
+    data = [position_data(r.label, Signals.from_run(r), r.force, r.position) for r in runs]
+    h0 = [float(rf.result.values.get("h0", 0.0)) for rf in cf.runs]
+    oe = fit_output_error(model, data, free, degree, held, h0, cf.bounds)
+    pressure = {}
+    for n, pf in cf.pressure.items():
+        if n not in oe.coef:
+            pressure[n] = pf
+            continue
+        q = oe.coef[n]
+        vals = [float(q[0] + q[1] * p + q[2] * p * p) for p in pf.pressures]
+        pressure[n] = replace(pf, coef=tuple(q), values=vals, method="output-error",
+                              stderr=[oe.stderr.get(n)] * len(vals),
+                              residuals=[0.0] * len(vals))
+    # the per-run force fits were the start: their warnings are about that start
+    tag = "force-direction start (refined by output error): "
+    runs_out = [replace(rf, result=replace(rf.result, warnings=[tag + w for w in rf.result.warnings]))
+                for rf in cf.runs]
+    return replace(cf, pressure=pressure, pressure_model="output-error", output_error=oe,
+                   runs=runs_out, warnings=[w if "pressure level" in w or "fixed at" in w
+                                            else tag + w for w in cf.warnings])

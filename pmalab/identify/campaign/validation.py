@@ -64,6 +64,9 @@ class Validation:
     x_drive: np.ndarray
     status: str = "ok"
     message: str = ""
+    #: the simulated position (mm) when the model was fitted on position (``--output
+    #: position``); its errors are in ``metrics`` (``rmse_position_m`` ...)
+    position_model: np.ndarray | None = None
 
     @property
     def fit_percent(self) -> float:
@@ -99,18 +102,45 @@ def validate_runs(cf: CampaignFit, runs: Iterable[Run],
             warnings.append(
                 f"{r.label}: the {cf.pressure_model} pressure-law model diverged on this "
                 f"validation run ({why}); its fit % is meaningless")
+        xm = None
+        if cf.output == "position":
+            xm, m = _position(cf, r, sig, m)
+            why = check_prediction(r.position, xm)
+            if why is not None and status != "diverged":
+                status, msg = "diverged", why
+                warnings.append(f"{r.label}: the simulated position diverged ({why})")
         out.append(Validation(run=r, force_model=fm, metrics=m, x_drive=sig.x,
-                              status=status, message=msg))
+                              status=status, message=msg, position_model=xm))
     return out, warnings
 
 
+def _position(cf: CampaignFit, r: Run, sig: Signals, m: dict) -> tuple[np.ndarray, dict]:
+    """The simulated position of a held-out run (start state estimated on its first
+    0.2 s) and the force metrics ``m`` with the position errors added."""
+    from pmalab.identify.estimation.output_error import (
+        position_data,
+        position_metrics,
+        predict_position,
+    )
+
+    d = position_data(r.label, sig, r.force, r.position)
+    th = cf.theta(float(r.nominal_pressure))
+    with np.errstate(all="ignore"):
+        xm, _ = predict_position(cf.model, th, d, cf.bounds)
+    return xm, {**m, **position_metrics(r.position, xm)}
+
+
 def fit_and_validate(train: list[Run], model, held_out: Iterable[Run], *, initial: str = "estimate",
-                     **fit_kwargs) -> tuple[CampaignFit, list[Validation], list[str]]:
+                     output: str = "force", **fit_kwargs) -> tuple[CampaignFit, list[Validation], list[str]]:
     """THE identification: :func:`~pmalab.identify.campaign.fit.fit_campaign` on ``train``,
     then :func:`validate_runs` on ``held_out``.  ``pmalab identify`` and every candidate
     that ``pmalab diagnose`` scores go through this one function."""
     from pmalab.identify.campaign.fit import fit_campaign
 
     cf = fit_campaign(train, model, **fit_kwargs)
+    if output == "position":
+        from pmalab.identify.campaign.fit import refine_output_error
+
+        cf = refine_output_error(cf, train)
     vals, warns = validate_runs(cf, held_out, initial)
     return cf, vals, warns

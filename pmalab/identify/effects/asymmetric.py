@@ -21,6 +21,8 @@ dependent, α·(1 + ψ_α·σ), b·(1 + ψ_b·σ), through the law's own extras.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -31,6 +33,7 @@ from pmalab.identify.signals import Signals
 class AsymmetricHysteresis(Effect):
     id = "asymmetric-hysteresis"
     order = 2
+    plant: ClassVar[dict[str, str] | None] = {"hx": "asym_g"}
     title = "Asymmetric hysteresis (generalized Bouc-Wen / direction-dependent Duhem)"
     explanation = (
         "The braid and bladder do not load and unload symmetrically: friction and the "

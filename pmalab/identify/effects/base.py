@@ -85,6 +85,14 @@ class Effect:
     #: every run of a campaign (pressure order 0 in the joint fit)
     campaign_shared: ClassVar[tuple[str, ...]] = ()
 
+    #: the effect in the forward (plant) model of :mod:`pmalab.identify.forward`: which term
+    #: of its force law each parameter is — ``mass`` (kg: the load cell reads F − m·ẍ),
+    #: ``damping`` (N·s/mm: −c·ẋ), ``k2``/``k3`` (+k2·x² + k3·x³), ``p0``/``p1``
+    #: ((p0 + p1·x)·(p − p_nom)), ``hx`` (h·hx·x); law extras come from :meth:`law_extras`.
+    #: None: the effect has no forward form (a sensor delay, a drifting zero) and a forward
+    #: simulation refuses it by name
+    plant: ClassVar[dict[str, str] | None] = None
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         """Parameters with start values and bounds sized from the data.
 

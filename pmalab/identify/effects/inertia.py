@@ -14,6 +14,8 @@ smoother acceleration, from the position low-passed (zero phase) at 6× the test
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -45,6 +47,7 @@ def smooth_acceleration(sig: Signals) -> np.ndarray:
 class Inertia(Effect):
     id = "inertia"
     order = 6
+    plant: ClassVar[dict[str, str] | None] = {"mass": "inertia_m"}
     title = "Inertia of the moving mass in series with the load cell"
     explanation = (
         "The masses between muscle and load cell (end fitting, rod, part of the muscle) "
@@ -62,8 +65,10 @@ class Inertia(Effect):
     )
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        amax = float(np.max(np.abs(smooth_acceleration(sig)))) * 1e-3 or 1e-3
-        lim = max(3.0 * force_scale / amax, 1.0)
+        # bound: a mass whose inertial force alone is 3× the force's spread at the rms
+        # acceleration (a broadband record above its resonance is mostly inertia)
+        arms = float(np.sqrt(np.mean(smooth_acceleration(sig) ** 2))) * 1e-3 or 1e-3
+        lim = max(3.0 * force_scale / arms, 1.0)
         return [Param("inertia_m", 0.0, -lim, lim, "kg",
                       doc="moving mass between muscle and load cell")]
 

@@ -10,6 +10,8 @@ stroke (x absolute, so runs of one pressure level share g₀, g₁).  Uses the m
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -20,6 +22,7 @@ from pmalab.identify.signals import Signals
 class PressureVariation(Effect):
     id = "pressure-variation"
     order = 4
+    plant: ClassVar[dict[str, str] | None] = {"p0": "pv_g0", "p1": "pv_g1"}
     title = "Muscle pressure varying during the run (measured, not nominal)"
     explanation = (
         "An 'isobaric' test is held by a slow manual regulator while the muscle's volume "

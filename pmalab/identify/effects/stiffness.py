@@ -9,6 +9,8 @@ same function of x in each of them).
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -19,6 +21,7 @@ from pmalab.identify.signals import Signals
 class NonlinearStiffness(Effect):
     id = "nonlinear-stiffness"
     order = 3
+    plant: ClassVar[dict[str, str] | None] = {"k2": "stiff_k2", "k3": "stiff_k3"}
     title = "Nonlinear (geometric / bladder) stiffness"
     explanation = (
         "The braid's fibre angle changes with contraction and the rubber bladder stiffens "

@@ -7,6 +7,8 @@ c ≥ 0 the term −c·ẋ is positive then and negative while the muscle contra
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
@@ -17,6 +19,7 @@ from pmalab.identify.signals import Signals
 class ViscousFriction(Effect):
     id = "viscous-friction"
     order = 1
+    plant: ClassVar[dict[str, str] | None] = {"damping": "visc_c"}
     title = "Viscous (velocity-proportional) friction"
     explanation = (
         "Friction between the braid fibres and between braid and bladder grows with the "

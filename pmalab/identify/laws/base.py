@@ -127,6 +127,14 @@ class HysteresisLaw:
         """h (N) of a stepper state (the state itself for a scalar-state law)."""
         return float(state)
 
+    def kernel(self) -> Callable[..., float] | None:
+        """A numba-compiled ``seg(state, x_prev, x, prm) -> state`` for scalar-state laws,
+        ``prm`` = the law's parameters in :attr:`params` order followed by :attr:`extras`
+        — the same segment :meth:`h` integrates, for compiled loops (the forward model of
+        :mod:`pmalab.identify.forward`).  None: the law has no compiled segment (its
+        :meth:`stepper` is used instead, at Python speed)."""
+        return None
+
     def step(self, h: float, x_prev: float, x: float, theta: Mapping[str, float],
              extras: Mapping[str, float] | None = None) -> float:
         """Advance the state h (N) along one position segment x_prev → x (mm).

@@ -147,6 +147,16 @@ def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0,
     return h
 
 
+@njit(cache=True, fastmath=False)
+def bw_kernel(hk, x0, x1, prm):
+    """One segment with prm = (A, beta, gamma, n, h0, psi_v, psi_h, psi_x, x_c, psi_a)."""
+    if prm[3] == 1.0:
+        return bw1_segment(hk, x0, x1, prm[0], prm[1], prm[2], prm[5], prm[6], prm[7],
+                           prm[8], prm[9])
+    return bw_segment(hk, x0, x1, prm[0], prm[1], prm[2], prm[3], prm[5], prm[6], prm[7],
+                      prm[8], prm[9])
+
+
 def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
     e = extras or {}
     return (float(theta["A"]), float(theta["beta"]), float(theta["gamma"]),
@@ -199,6 +209,9 @@ class BoucWen(HysteresisLaw):
             return bouc_wen_h1(x, A, beta, gamma, float(theta["h0"]), pv, ph, px, xc, pa)
         return bouc_wen_h(x, A, beta, gamma, float(theta["n"]), float(theta["h0"]),
                           pv, ph, px, xc, pa)
+
+    def kernel(self):
+        return bw_kernel
 
     def stepper(self, theta, extras=None) -> Callable[[float, float, float], float]:
         A, beta, gamma, pv, ph, px, xc, pa = _args(theta, extras)

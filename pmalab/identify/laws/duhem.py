@@ -42,6 +42,12 @@ def duhem_segment(hk, x0, x1, alpha, a, b, psi_alpha, psi_b):
 
 
 @njit(cache=True, fastmath=False)
+def duhem_kernel(hk, x0, x1, prm):
+    """One segment with prm = (alpha, a, b, h0, psi_alpha, psi_b)."""
+    return duhem_segment(hk, x0, x1, prm[0], prm[1], prm[2], prm[4], prm[5])
+
+
+@njit(cache=True, fastmath=False)
 def duhem_h(x, alpha, a, b, h0, psi_alpha=0.0, psi_b=0.0):
     """h[k] for the Coleman–Hodgdon Duhem law driven by ``x`` (mm); exact per segment."""
     N = x.shape[0]
@@ -89,6 +95,9 @@ class Duhem(HysteresisLaw):
         alpha, a, b, pa, pb = _args(theta, extras)
         return duhem_h(np.ascontiguousarray(x, dtype=np.float64), alpha, a, b,
                        float(theta["h0"]), pa, pb)
+
+    def kernel(self):
+        return duhem_kernel
 
     def stepper(self, theta, extras=None) -> Callable[[float, float, float], float]:
         alpha, a, b, pa, pb = _args(theta, extras)
