@@ -18,6 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add this area's verbs to the ``pmalab`` parser."""
     _register_identify(sub)
     _register_diagnose(sub)
+    _register_simulate(sub)
 
 
 # --------------------------------------------------------------------------- identify
@@ -352,3 +353,95 @@ def _table(rows: list[tuple[str, ...]]) -> str:
         if j == 0:
             out.append("  ".join("-" * x for x in w))
     return "\n".join(out)
+
+
+# --------------------------------------------------------------------------- simulate
+def _register_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="run an identified model forward on a recorded input (force->position and back)",
+        description=(
+            "Integrate the model of MODEL_DIR/identification.json on every run of INPUT.h5 "
+            "and write a run file with the simulated channel in place of the measured one. "
+            "--input position: measured position in, force out (what identify predicts); "
+            "--input force: measured force in, position out (needs a moving mass: the "
+            "inertia effect or --load-mass); --input pressure: the muscle moves a load "
+            "(--load-mass kg, --load-stiffness N/mm, --preload N) driven by the recorded "
+            "pressure.  Default: the direction the model was identified in."),
+    )
+    p.add_argument("model_dir", metavar="MODEL_DIR", help="directory of identification.json")
+    p.add_argument("input", metavar="INPUT.h5", help="run file giving the inputs")
+    p.add_argument("--out", required=True, metavar="SIM.h5", help="run file to write")
+    p.add_argument("--input", dest="direction", default=None,
+                   choices=("position", "force", "pressure"), help="which channel drives it")
+    p.add_argument("--load-mass", type=float, default=0.0, metavar="KG")
+    p.add_argument("--load-stiffness", type=float, default=0.0, metavar="N_PER_MM")
+    p.add_argument("--preload", type=float, default=0.0, metavar="N")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.add_argument("--whole-run", action="store_true",
+                   help="every sample (default: each run's full-amplitude window, as identify)")
+    add_verbosity(p)
+    p.set_defaults(func=run_simulate)
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    import time
+    from dataclasses import replace
+
+    import numpy as np
+
+    from pmalab.identify.estimation.output_error import (
+        position_data,
+        position_metrics,
+        predict_position,
+    )
+    from pmalab.identify.estimation.records import predict_record
+    from pmalab.identify.forward import IdentifiedPlant, Load, simulate
+    from pmalab.identify.signals import Signals
+    from pmalab.paths import check_output
+    from pmalab.runfile import read_runs, write_runs
+
+    for name in ("load_mass", "load_stiffness", "preload"):
+        v = getattr(args, name)
+        if not np.isfinite(v) or (name != "preload" and v < 0):
+            raise PmalabError(f"--{name.replace('_', '-')} {v}: must be a finite value >= 0")
+    check_output(args.out, args.force)
+    plant = IdentifiedPlant.read(args.model_dir)
+    direction = args.direction or ("force" if plant.output == "position" else "position")
+    runs = read_runs(args.input)
+    if not args.whole_run:
+        runs = [r.steady() for r in runs]
+    load = Load(args.load_mass, args.load_stiffness, args.preload)
+    out = []
+    for r in runs:
+        t0 = time.perf_counter()
+        sig = Signals.from_run(r)
+        th = plant.theta(float(r.nominal_pressure))
+        if direction == "position":
+            f = predict_record(plant.model, sig, th, force=r.force, initial=plant.initial,
+                               bounds=plant.bounds)
+            new = replace(r, force=f)
+            err = f"force rmse {float(np.sqrt(np.mean((f - r.force) ** 2))):.4g} N"
+        elif direction == "force":
+            xm, _ = predict_position(plant.model, th, position_data(r.label, sig, r.force,
+                                                                   r.position), plant.bounds)
+            new = replace(r, position=xm)
+            err = f"position rmse {position_metrics(r.position, xm)['rmse_position_m']:.4g} m"
+        else:
+            if load.mass_kg <= 0 and "inertia" not in [e.id for e in plant.model.effects]:
+                raise PmalabError("--input pressure: the muscle must move a mass: give "
+                                  "--load-mass KG")
+            s = simulate(plant.model, plant.free_laws(), r.time, 0.0, r.muscle_pressure,
+                         p_nom=float(r.nominal_pressure), load=load,
+                         x0=float(r.position[0]), bounds=plant.bounds)
+            new = replace(r, position=s.position, force=s.tension)
+            err = (f"position rmse {position_metrics(r.position, s.position)['rmse_position_m']:.4g}"
+                   f" m ({s.status})")
+        new.attrs = {**r.attrs, "simulated_by": "pmalab simulate", "simulated_input": direction,
+                     "simulated_model": plant.source}
+        out.append(new)
+        print(f"  {r.label}: {len(r)} samples, {direction} in, {time.perf_counter() - t0:.3f} s; "
+              f"vs measured: {err}")
+    path = write_runs(args.out, out, force=args.force)
+    print(f"wrote {path}")
+    return 0

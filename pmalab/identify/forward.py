@@ -33,8 +33,9 @@ the sample interval is split into ``n_sub`` sub-steps so that ω·Δt ≤ 0.05 (
 below 0.01 % per cycle of the fastest mode), at most 400.  The Bouc-Wen benchmark at 750 Hz
 (ω ≈ 224 rad/s) takes 6 sub-steps per sample.
 
-Laws with a compiled segment (``HysteresisLaw.kernel``: Bouc-Wen, Duhem) run in one numba
-loop (a 60 s, 500 Hz record in a few ms); the others (element laws) step in Python.
+Laws with a compiled segment (``HysteresisLaw.kernel``: Bouc-Wen, Duhem) run in one cached
+numba loop (a 60 s, 500 Hz record in ~20 ms); the others (element laws) step in Python
+(~1 s for the same record).
 """
 
 from __future__ import annotations
@@ -42,11 +43,14 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from pmalab.errors import PmalabError
+from pmalab.identify.laws.bouc_wen import bw_kernel
+from pmalab.identify.laws.duhem import duhem_kernel
 from pmalab.identify.model import ForceModel
 
 #: force-law terms of the forward model, in the order the compiled loop reads them
@@ -55,6 +59,9 @@ SLOTS = ("k", "c0", "mass", "damping", "k2", "k3", "p0", "p1", "hx")
 OMEGA_DT = 0.05
 #: ... and never more than this many per sample
 MAX_SUBSTEPS = 400
+#: compiled segments the cached loop knows (a law's ``kernel()``); another law's segment
+#: runs through the Python loop
+_KERNELS = {bw_kernel: 0, duhem_kernel: 1}
 #: a position beyond this (mm) is a runaway simulation
 RUNAWAY_MM = 1e6
 
@@ -197,8 +204,17 @@ def _static(c, x, h, p, p_nom, u, KL):
             + (c[6] + c[7] * x) * (p - p_nom) - u - KL * x)
 
 
-@njit(cache=False, fastmath=False)
-def _integrate(seg, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0, nsub,
+@njit(cache=True, fastmath=False)
+def _seg(law_id, h, x0, x1, prm):
+    """The compiled segment of a built-in law (a numba function argument would defeat the
+    on-disk cache and cost ~0.6 s of compilation in every new process)."""
+    if law_id == 0:
+        return bw_kernel(h, x0, x1, prm)
+    return duhem_kernel(h, x0, x1, prm)
+
+
+@njit(cache=True, fastmath=False)
+def _integrate(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0, nsub,
                xo, vo, ho, fo):
     N = t.shape[0]
     nq = Q.shape[0]
@@ -235,7 +251,7 @@ def _integrate(seg, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0, n
             _theta(Q, lo, hi, 0.5 * (pa + pb), cb)
             for i in range(nq - ns):
                 prm[i] = cb[ns + i]
-            h = seg(h, x, xn, prm)
+            h = _seg(law_id, h, x, xn, prm)
             x = xn
             _theta(Q, lo, hi, pb, cb)
             m = (cb[2] + ML) * 1e-3
@@ -281,9 +297,10 @@ def simulate(model: ForceModel, theta: Mapping[str, float | Sequence[float]], t:
     ns = n_sub or substeps(model, coef, p_a, dt, load)
     xo, vo, ho, fo = (np.full(N, np.nan) for _ in range(4))
     kern = model.law.kernel()
+    law_id = _KERNELS.get(kern) if kern is not None else None
     u_eff = u_a + load.preload_N
-    if kern is not None and model.law.state_size == 1:
-        code, k = _integrate(kern, t, u_eff, p_a, pn, coef.Q, coef.lo, coef.hi, coef.extras,
+    if law_id is not None and model.law.state_size == 1:
+        code, k = _integrate(law_id, t, u_eff, p_a, pn, coef.Q, coef.lo, coef.hi, coef.extras,
                              coef.n_slots, float(load.mass_kg), float(load.stiffness_N_per_mm),
                              float(x0), float(v0), float(h0), int(ns), xo, vo, ho, fo)
     else:
@@ -350,3 +367,64 @@ def _integrate_py(model: ForceModel, coef: Coefficients, t, u, p, p_nom, load: L
         xo[k + 1], vo[k + 1], ho[k + 1] = x, v, h
         fo[k + 1] = static(cb, x, h, p[k + 1], 0.0) + load.stiffness_N_per_mm * x - cb[3] * v
     return 0, t.shape[0]
+
+
+# --------------------------------------------------------------------------- identified plant
+class IdentifiedPlant:
+    """An ``identification.json`` as a plant: the law, its effects, the pressure laws
+    θ(p) = q0 + q1·p + q2·p² and their bounds — what ``pmalab simulate`` and the
+    model-in-the-loop controller integrate."""
+
+    def __init__(self, doc: Mapping, source: str = "<memory>") -> None:
+        from pmalab.identify.effects import get_effect
+
+        law = doc.get("model")
+        fits = doc.get("pressure_fits")
+        if not isinstance(law, str) or not isinstance(fits, Mapping):
+            raise ForwardError(f"{source}: not an identification.json (no 'model' and "
+                               "'pressure_fits')")
+        try:
+            self.model = ForceModel(law, [get_effect(e) for e in doc.get("effects") or []])
+        except (KeyError, ValueError, PmalabError) as exc:
+            raise ForwardError(f"{source}: {exc}") from None
+        self.laws = {n: tuple(float(v) for v in q) for n, q in fits.items()}
+        self.bounds = {n: (float(b[0]), float(b[1]))
+                       for n, b in (doc.get("parameter_bounds") or {}).items()}
+        self.output = str(doc.get("output") or "force")
+        self.initial = str((doc.get("method") or {}).get("initial_state_validation") or "estimate")
+        self.pressure_range = tuple(doc.get("pressure_range_MPa") or (float("nan"),) * 2)
+        self.source = source
+
+    @classmethod
+    def read(cls, path: str | Path) -> IdentifiedPlant:
+        """From a directory holding ``identification.json`` or the file itself."""
+        import json
+
+        p = Path(path)
+        f = p / "identification.json" if p.is_dir() else p
+        if not f.is_file():
+            raise ForwardError(f"{path}: no identification.json there (run pmalab identify)")
+        try:
+            doc = json.loads(f.read_text())
+        except (OSError, ValueError) as exc:
+            raise ForwardError(f"{f}: cannot read ({exc})") from None
+        return cls(doc, str(f))
+
+    def theta(self, p: float) -> dict[str, float]:
+        """Parameters at pressure ``p`` (MPa), clipped into their bounds, record
+        parameters at 0 — the same θ ``identify`` predicts held-out runs with."""
+        th = {}
+        for n, (q0, q1, q2) in self.laws.items():
+            v = q0 + q1 * p + q2 * p * p
+            lo, hi = self.bounds.get(n, (-np.inf, np.inf))
+            th[n] = float(min(max(v, lo), hi)) if np.isfinite(v) else v
+        for s in self.model.record_params:
+            th[s] = 0.0
+        return th
+
+    def free_laws(self) -> dict[str, tuple[float, float, float]]:
+        """The pressure laws as θ rows for a run whose pressure moves (record params 0)."""
+        out = dict(self.laws)
+        for s in self.model.record_params:
+            out[s] = (0.0, 0.0, 0.0)
+        return out

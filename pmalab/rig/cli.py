@@ -24,7 +24,8 @@ if TYPE_CHECKING:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add ``emulate`` to the ``pmalab`` parser."""
+    """Add ``emulate`` and ``benchmark`` to the ``pmalab`` parser."""
+    _register_benchmark(sub)
     p = sub.add_parser(
         "emulate",
         help="emulate a rig file's devices (Modbus, serial) on the simulated rig",
@@ -93,4 +94,40 @@ def run_emulate(args: argparse.Namespace) -> int:
         emus.stop()
         m = emus.modbus.model
         print(f"pmalab emulate: stopped ({m.reads} block reads, {m.writes} writes served)", file=sys.stderr, flush=True)
+    return 0
+
+
+# --------------------------------------------------------------------------- benchmark
+def _register_benchmark(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "benchmark",
+        help="write the Bouc-Wen benchmark's data (Noël & Schoukens 2016), regenerated",
+        description=(
+            "Integrate the Bouc-Wen benchmark system from its published equations and write "
+            "OUT/train.h5 (multisine, output noise 8e-6 m rms), OUT/test-multisine.h5 and "
+            "OUT/test-sweep.h5 (noise-free) as pmalab run files (contraction x = -y in mm, "
+            "tension = the input force u in N).  Then: pmalab identify OUT/train.h5 --output "
+            "position --model bouc-wen --add inertia --add viscous-friction --validate "
+            "OUT/test-multisine.h5 OUT/test-sweep.h5 --out DIR"),
+    )
+    p.add_argument("name", choices=("bouc-wen",), help="which benchmark")
+    p.add_argument("--out", required=True, metavar="DIR", help="directory for the three files")
+    p.add_argument("--seed", type=int, default=0, help="multisine phases and noise (default 0)")
+    p.add_argument("--force", action="store_true", help="overwrite existing files")
+    p.set_defaults(func=run_benchmark)
+
+
+def run_benchmark(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from pmalab.paths import check_output
+    from pmalab.rig.sim import bouc_wen_benchmark as bwb
+
+    out = Path(args.out)
+    for name in ("train.h5", "test-multisine.h5", "test-sweep.h5"):
+        check_output(out / name, args.force)  # refuse before any work
+    files = bwb.generate(out, seed=args.seed, force=args.force)
+    print(f"Bouc-Wen benchmark ({bwb.describe()})")
+    for what, path in files.items():
+        print(f"  {what:<15} {path}")
     return 0

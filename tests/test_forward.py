@@ -1,0 +1,173 @@
+"""The identified model as a plant: the forward integrator, output-error identification,
+``pmalab simulate`` and the regenerated Bouc-Wen benchmark (Noël & Schoukens 2016)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from pmalab.cli import main
+from pmalab.identify.effects import get_effect
+from pmalab.identify.forward import (
+    Coefficients,
+    ForwardError,
+    Load,
+    _integrate_py,
+    simulate,
+)
+from pmalab.identify.model import ForceModel
+from pmalab.rig.sim import bouc_wen_benchmark as bwb
+
+
+def _bench_model() -> ForceModel:
+    return ForceModel("bouc-wen", [get_effect("inertia"), get_effect("viscous-friction")])
+
+
+def _theta() -> dict[str, float]:
+    return {**bwb.AS_PMALAB, "h0": 0.0}
+
+
+def test_free_oscillation_period_matches_the_mass_spring_law():
+    # no hysteresis (A = 0), no damping: x(t) = x0·cos(ωt), ω² = −k/m (k N/mm, m kg -> ×1e3)
+    model = _bench_model()
+    th = {**_theta(), "A": 0.0, "visc_c": 0.0, "k": -20.0, "inertia_m": 0.5}
+    t = np.arange(3000) / 500.0
+    s = simulate(model, th, t, 0.0, 0.0, x0=1.0)
+    w = math.sqrt(20.0 / 0.5 * 1e3)
+    assert s.status == "ok"
+    # period from the downward zero crossings (linear interpolation): the integrator's
+    # stated accuracy, ω·Δt ≤ 0.05 per sub-step, is a frequency error ≤ (ω·Δt)²/24 ≈ 1e-4
+    x = s.position
+    i = np.flatnonzero((x[:-1] > 0) & (x[1:] <= 0))
+    tc = t[i] + x[i] / (x[i] - x[i + 1]) * (t[1] - t[0])
+    period = float(np.mean(np.diff(tc)))
+    assert abs(period * w / (2 * math.pi) - 1.0) < 3e-4
+    # no damping, no hysteresis: the amplitude stays (a symplectic integrator)
+    assert abs(np.max(x[-500:]) - 1.0) < 2e-3
+    # the stored tension is the muscle's: k·x (no hysteresis, no damping)
+    np.testing.assert_allclose(s.tension, -20.0 * s.position, atol=1e-9)
+
+
+def test_forward_model_matches_the_benchmark_equations_integrated_independently():
+    # the benchmark's own RK4 of m·ÿ + c·ẏ + k·y + z = u at 15 kHz vs the forward model at
+    # 750 Hz with its own sub-steps: a smooth 8 Hz input (linear interpolation exact enough)
+    fine = 2 * bwb.UPSAMPLE
+    n = 3000
+    tf = np.arange(n * fine + 1) / (bwb.FS_HZ * fine)
+    uf = 60.0 * np.sin(2 * np.pi * 8.0 * tf) * np.minimum(tf / 0.5, 1.0)
+    y = bwb.respond(uf, 1.0 / (bwb.FS_HZ * bwb.UPSAMPLE))[:: bwb.UPSAMPLE]
+    t = np.arange(n + 1) / bwb.FS_HZ
+    s = simulate(_bench_model(), _theta(), t, uf[::fine], 0.0)
+    x_true = -y * 1e3
+    err = np.sqrt(np.mean((s.position - x_true) ** 2))
+    assert err < 2e-3 * np.std(x_true), err
+
+
+def test_python_loop_equals_the_compiled_loop():
+    model = _bench_model()
+    rng = np.random.default_rng(3)
+    t = np.arange(2000) / 500.0
+    u = np.cumsum(rng.normal(0, 3.0, t.size)) * 0.2 + 30 * np.sin(2 * np.pi * 2 * t)
+    fast = simulate(model, _theta(), t, u, 0.0, x0=0.2, v0=1.0, h0=3.0)
+    coef = Coefficients(model, _theta())
+    xo, vo, ho, fo = (np.full(t.size, np.nan) for _ in range(4))
+    code, _ = _integrate_py(model, coef, t, u, np.zeros(t.size), 0.0, Load(), 0.2, 1.0, 3.0,
+                            fast.n_sub, xo, vo, ho, fo)
+    assert code == 0
+    np.testing.assert_allclose(xo, fast.position, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ho, fast.h, rtol=0, atol=1e-8)
+
+
+def test_a_model_without_a_forward_form_or_mass_is_refused_by_name():
+    t = np.arange(10) / 500.0
+    with pytest.raises(ForwardError, match="sensor-delay"):
+        simulate(ForceModel("bouc-wen", [get_effect("sensor-delay")]), {}, t, 0.0, 0.0)
+    th = {"k": -30.0, "c0": 0.0, "A": -40.0, "beta": 0.2, "gamma": 0.0, "n": 1.0, "h0": 0.0}
+    with pytest.raises(ForwardError, match="moving mass"):
+        simulate(ForceModel("bouc-wen"), th, t, 0.0, 0.0)
+    # a load mass makes the same model a plant (pressure in, position out)
+    s = simulate(ForceModel("bouc-wen"), th, t, 0.0, 0.3, load=Load(mass_kg=2.0, preload_N=10.0))
+    assert s.status == "ok" and np.all(np.isfinite(s.position))
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bwb")
+    bwb.generate(d)
+    return d
+
+
+def test_benchmark_files_follow_the_published_system(bench):
+    from pmalab.runfile import read_runs
+
+    tr = read_runs(bench / "train.h5")[0]
+    te = read_runs(bench / "test-multisine.h5")[0]
+    assert len(tr) == 2 * bwb.PERIOD and len(te) == bwb.PERIOD
+    assert abs(np.std(tr.force) - bwb.RMS_N) < 1e-6 * bwb.RMS_N
+    # steady state: the multisine test's output repeats (one period kept after one skipped)
+    u2 = bwb.multisine(1, 3, 2 * bwb.UPSAMPLE)
+    y = bwb.respond(u2, 1.0 / (bwb.FS_HZ * bwb.UPSAMPLE))[:: bwb.UPSAMPLE]
+    p1, p2 = y[bwb.PERIOD:2 * bwb.PERIOD], y[2 * bwb.PERIOD:3 * bwb.PERIOD]
+    assert np.sqrt(np.mean((p1 - p2) ** 2)) < 0.02 * np.std(p1)
+
+
+def test_output_error_identification_meets_the_benchmark_goal(bench, tmp_path, capsys):
+    out = tmp_path / "oe"
+    rc = main(["identify", str(bench / "train.h5"), "--output", "position", "--model",
+               "bouc-wen", "--add", "inertia", "--add", "viscous-friction", "--validate",
+               str(bench / "test-multisine.h5"), str(bench / "test-sweep.h5"), "--out", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "position rmse" in text
+    doc = json.loads((out / "identification.json").read_text())
+    assert doc["output"] == "position"
+    rows = {v["run"]: v for v in doc["validation"]}
+    # the issue's goal: ≤ 1.0e-5 m on the multisine test (published: PNLSS 1.2e-5 m)
+    assert rows["multisine-test"]["rmse_position_m"] <= 1.0e-5
+    assert rows["sweep-test"]["rmse_position_m"] <= 1.0e-5
+    # ≤ 10 parameters: k, c0, A, beta, gamma, inertia_m, visc_c (n held at 1)
+    fitted = [n for n in doc["parameter_names"] if n not in doc["runs"][0]["fixed"] and n != "h0"]
+    assert len(fitted) <= 10
+    # and they are the benchmark's own (noise 8e-6 m rms on the training output)
+    q = {n: v[0] for n, v in doc["pressure_fits"].items()}
+    for name, tol in (("k", 0.03), ("A", 0.03), ("beta", 0.03), ("gamma", 0.03),
+                      ("inertia_m", 0.03), ("visc_c", 0.1)):
+        truth = bwb.AS_PMALAB[name]
+        assert abs(q[name] - truth) <= tol * abs(truth), (name, q[name], truth)
+
+    # pmalab simulate, force in: the same integrator reproduces identify's position_model
+    sim = tmp_path / "sim.h5"
+    assert main(["simulate", str(out), str(bench / "test-multisine.h5"), "--out", str(sim)]) == 0
+    with h5py.File(sim) as f, h5py.File(out / "predictions.h5") as g:
+        xs = f["runs/multisine-test/position"][:]
+        key = next(k for k in g["runs"] if g["runs"][k].attrs["run"] == "multisine-test")
+        xm = g["runs"][key]["position_model"][:]
+        assert g["runs"][key]["position_model"].attrs["units"] == "mm"
+    np.testing.assert_array_equal(xs, xm)
+
+
+def test_simulate_position_in_reproduces_identify_force_predictions(bench, tmp_path):
+    out = tmp_path / "fd"
+    assert main(["identify", str(bench / "train.h5"), "--model", "bouc-wen", "--add",
+                 "inertia", "--validate", str(bench / "test-sweep.h5"), "--out", str(out)]) == 0
+    sim = tmp_path / "sim.h5"
+    assert main(["simulate", str(out), str(bench / "test-sweep.h5"), "--out", str(sim)]) == 0
+    with h5py.File(sim) as f, h5py.File(out / "predictions.h5") as g:
+        fs = f["runs/sweep-test/force"][:]
+        key = next(k for k in g["runs"] if g["runs"][k].attrs["role"] == "validation")
+        fm = g["runs"][key]["force_model"][:]
+    assert np.max(np.abs(fs - fm)) <= 1e-9 * np.max(np.abs(fm))
+    # outputs are never overwritten without --force
+    assert main(["simulate", str(out), str(bench / "test-sweep.h5"), "--out", str(sim)]) != 0
+
+
+def test_simulate_bad_model_dir_is_one_line(tmp_path, capsys, bench):
+    assert main(["simulate", str(tmp_path / "nothing"), str(bench / "train.h5"), "--out",
+                 str(tmp_path / "s.h5")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "identification.json" in err[0]
+    assert not (tmp_path / "s.h5").exists()
