@@ -72,7 +72,7 @@ def _blocks(text: str, lang: str) -> list[str]:
     return re.findall(rf"```{lang}\n(.*?)```", text, flags=re.S)
 
 
-@pytest.mark.parametrize("page", ["campaign", "import", "control"])
+@pytest.mark.parametrize("page", ["campaign", "import", "control", "bouc-wen-benchmark"])
 def test_tutorial_commands_run(page, tmp_path):
     text = (ROOT / "docs" / "tutorials" / f"{page}.md").read_text()
     blocks = _blocks(text, "bash")
@@ -81,6 +81,12 @@ def test_tutorial_commands_run(page, tmp_path):
     p = subprocess.run(["bash", "-c", script], cwd=tmp_path, capture_output=True, text=True,
                        env=_env(), timeout=600)
     assert p.returncode == 0, p.stdout[-3000:] + p.stderr[-3000:]
+    if page == "bouc-wen-benchmark":
+        import json
+
+        doc = json.loads((tmp_path / "bw" / "identification.json").read_text())
+        assert all(v["rmse_position_m"] <= 1e-5 for v in doc["validation"])
+        assert (tmp_path / "sweep-sim.h5").is_file()
     if page == "campaign":
         assert (tmp_path / "report.pdf").stat().st_size > 10_000
         assert "viscous-friction" in (tmp_path / "diag" / "diagnosis.json").read_text()
