@@ -51,6 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--truth", metavar="TRUTH.toml",
                    help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
                    "for a plant/model mismatch; default: every effect off)")
+    p.add_argument("--plant", metavar="MODEL_DIR",
+                   help="model in the loop: the manipulator's muscle is this identification "
+                        "(identification.json) run forward instead of the simulated truth; "
+                        "mechanics and regulator as the simulated manipulator's")
     p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
     p.add_argument("--real-time", action="store_true",
                    help="run the simulation at the wall clock's pace (the loop timing of a "
@@ -58,12 +62,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_control)
 
 
-def _make_rig_factory(truth: str | None, seed: int, real_time: bool = False):
+def _make_rig_factory(truth: str | None, seed: int, real_time: bool = False,
+                      plant: str | None = None):
     from pmalab.rig.base import RealClock
     from pmalab.rig.sim.manipulator import make_sim_manipulator
     from pmalab.rig.sim.truth import load_truth
 
     t = load_truth(truth) if truth else None  # checked once, before anything runs
+    if plant:
+        from pmalab.control.plant import make_plant_manipulator
+
+        make_plant_manipulator(plant, t)  # refuse a bad model before any output exists
+
+        def make_plant():
+            return make_plant_manipulator(plant, t, clock=RealClock() if real_time else None)
+        return make_plant
 
     def make():
         return make_sim_manipulator(t, seed=seed, clock=RealClock() if real_time else None)
@@ -123,7 +136,7 @@ def _run_one(args, check_duration, metrics_line) -> int:
     check_output(args.out, args.force)  # before anything runs
     model = IdentifiedModel.load(args.model) if loop == "position" else None
     _note_ignored(model)
-    make = _make_rig_factory(args.truth, args.seed or 0, args.real_time)
+    make = _make_rig_factory(args.truth, args.seed or 0, args.real_time, args.plant)
     rig = make()
     progress = None
     if sys.stderr.isatty():  # a long run shows where it is (simulated seconds)
@@ -134,9 +147,12 @@ def _run_one(args, check_duration, metrics_line) -> int:
     cmd = " ".join(sys.argv)
     attrs = planned_attrs(args.controller, ref, duration, settings, model, command_line=cmd,
                           truth=str(rig.info.get("truth", "")))
+    root = {"command_line": cmd}
+    if args.plant:
+        root["plant"] = str(rig.info.get("plant", args.plant))
     with rig:  # the file is live before the first sample: a crash leaves what was recorded
         with ControlRecording(args.out, [(args.controller, attrs)], loop, force=args.force,
-                              root_attrs={"command_line": cmd}) as rec:
+                              root_attrs=root) as rec:
             w = rec.writer(args.controller)
             run = run_control(rig, args.controller, ref, duration, settings, model,
                               name=args.controller, progress=progress, sink=w)
@@ -164,7 +180,8 @@ def _run_experiments(args) -> int:
     truth = args.truth or (str(es.truth) if es.truth else None)
     seed = args.seed if args.seed is not None else es.seed
     doc = run_experiments(es, args.out, force=args.force, model=model,
-                          make_rig=_make_rig_factory(truth, seed, args.real_time))
+                          make_rig=_make_rig_factory(truth, seed, args.real_time, args.plant),
+                          plant=args.plant)
     bad = [r for r in doc["results"] if r["status"] != "completed"]
     print(f"{args.out}: {len(doc['results'])} runs, metrics in {args.out}/metrics.json")
     if bad:

@@ -165,12 +165,14 @@ def run_experiments(
     model: IdentifiedModel | None = None,
     make_rig: Callable[[], Any],
     report: Callable[[str], None] = print,
+    plant: str | None = None,
 ) -> dict[str, Any]:
     """Run every experiment with every controller; write ``DIR/<name>.h5`` and
     ``DIR/metrics.json``; return the metrics document.
 
     ``make_rig()`` gives a fresh manipulator per run (every controller starts from the
-    same state and noise seed).  Each file is written while its runs go (a crash leaves
+    same state and noise seed).  ``plant``: the identification the rig's muscle is
+    (model in the loop, recorded as the files' root attr ``plant``).  Each file is written while its runs go (a crash leaves
     what was recorded); a run that aborts keeps what it recorded, and the remaining runs
     are not started (their groups stay ``pending``).
     """
@@ -194,7 +196,8 @@ def run_experiments(
         with ControlRecording(out / f"{e.name}.h5", planned, e.reference.quantity,
                               force=force, root_attrs={"experiment": e.name,
                                                        "experiments_file": es.path,
-                                                       "seeds": e.seeds}) as rec:
+                                                       "seeds": e.seeds,
+                                                       **({"plant": plant} if plant else {})}) as rec:
             for c in es.controllers:
                 done += 1
                 rig = make_rig()

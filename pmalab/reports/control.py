@@ -20,6 +20,8 @@ from pmalab.reports.figures_control import (
     gains_figure,
     metrics_table_figure,
     response_figure,
+    sim_to_real_figure,
+    sim_to_real_pairs,
 )
 from pmalab.reports.pdf import PageSpec, write_pdf
 from pmalab.runfile import decode_attr, open_h5, read_run_datasets, read_runs
@@ -57,7 +59,7 @@ def load_control_file(path: str | Path) -> ControlFileData:
             out.append(ControlRunData(r.name, attrs, str(attrs.get("status", "completed")), data))
     except PmalabError as exc:
         raise ReportError(str(exc)) from None
-    title = str(root.get("experiment") or p.stem)
+    title = str(root.get("experiment") or p.stem) + (" [model in the loop]" if root.get("plant") else "")
     return ControlFileData(str(p), title, root, out)
 
 
@@ -81,6 +83,9 @@ def build_control_report(
     files = [load_control_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], object]]] = [
         ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))]
+    pairs = sim_to_real_pairs(files)
+    if pairs:  # a model-in-the-loop run and a rig run of the same experiment
+        pages.append(("sim-to-real", lambda: sim_to_real_figure(pairs)))
     for f in files:
         pages.append((f"{f.title}-response", lambda f=f: response_figure(f)))
         pages.append((f"{f.title}-gains", lambda f=f: gains_figure(f)))

@@ -221,3 +221,77 @@ def metrics_table_figure(files: Sequence[ControlFileData], title: str) -> Figure
     notes += seed_rows(files) or ["(none stored with these experiments)"]
     fig.text(0.03, 0.27, "\n".join(notes), va="top", fontsize=8, wrap=True)
     return fig
+
+
+# --------------------------------------------------------------------------- sim-to-real
+def _reference_text(r: ControlRunData) -> str:
+    p = r.attrs.get("protocol")
+    return str(p.get("reference", "")) if isinstance(p, dict) else ""
+
+
+def sim_to_real_pairs(files: Sequence[ControlFileData]
+                      ) -> list[tuple[ControlRunData, ControlRunData, str]]:
+    """(rig run, model-in-the-loop run, reference) for every controller and reference
+    recorded both on a rig and with the identified model as plant (root attr ``plant``)."""
+    plant = [(r, f) for f in files if f.attrs.get("plant") for r in f.runs]
+    rig = [(r, f) for f in files if not f.attrs.get("plant") for r in f.runs]
+    out = []
+    for rp, _ in plant:
+        for rr, _ in rig:
+            if rr.controller == rp.controller and _reference_text(rr) == _reference_text(rp):
+                out.append((rr, rp, _reference_text(rr)))
+                break
+    return out
+
+
+def _m(r: ControlRunData, key: str, spec: str, unit: str) -> str:
+    return _fmt(r.metrics.get(key), spec, unit)
+
+
+@style.styled
+def sim_to_real_figure(pairs: Sequence[tuple[ControlRunData, ControlRunData, str]]) -> Figure:
+    """Model in the loop against the rig, per controller: responses overlaid (rig solid,
+    model dashed, same colour), tracking errors, and the metrics side by side."""
+    fig = style.new_figure("Sim-to-real: the identified model as plant vs the rig")
+    n = len(pairs)
+    gs = fig.add_gridspec(n + 1, 2, height_ratios=[*([1.0] * n), 0.32 + 0.12 * n])
+    for i, (rr, rp, ref) in enumerate(pairs):
+        ax = fig.add_subplot(gs[i, 0])
+        ae = fig.add_subplot(gs[i, 1], sharex=ax)
+        col = _colour(rr.controller)
+        pos = rr.loop == "position"
+        yname, rname = (("position", "position_reference") if pos
+                        else ("muscle_pressure", "muscle_pressure_reference"))
+        unit = "mm" if pos else "MPa"
+        d = rr.data
+        if "time" in d and rname in d:
+            _plot(ax, d["time"], d[rname], color=REFERENCE, lw=1.2, ls="--", label="reference")
+        for r, ls, what in ((rr, "-", "rig"), (rp, (0, (4, 2)), "model in the loop")):
+            dd = r.data
+            if "time" not in dd or yname not in dd or rname not in dd:
+                continue
+            _plot(ax, dd["time"], dd[yname], color=col, ls=ls, lw=1.1, label=what)
+            _plot(ae, dd["time"], dd[rname] - dd[yname], color=col, ls=ls, lw=1.0, label=what)
+        ax.set_ylabel(f"{rr.controller}\n{'x' if pos else 'p'} ({unit})")
+        ae.set_ylabel(f"error r − y ({unit})")
+        ae.axhline(0.0, color="0.5", lw=0.6)
+        ax.set_title(ref, fontsize=9, loc="left")
+        ax.legend(loc="upper right", fontsize=7, ncols=3)
+        if i == n - 1:
+            ax.set_xlabel(style.TIME)
+            ae.set_xlabel(style.TIME)
+    at = fig.add_subplot(gs[n, :])
+    at.axis("off")
+    rows = []
+    for rr, rp, ref in pairs:
+        u = str(rr.metrics.get("unit", ""))
+        for r, what in ((rr, "rig"), (rp, "model in the loop")):
+            rows.append([rr.controller, ref, what, _m(r, "overshoot_pct", ".1f", "%"),
+                         _m(r, "settling_time_s", ".2f", "s"), _m(r, "rms_error", ".3g", u),
+                         _m(r, "max_error", ".3g", u)])
+    tab = at.table(cellText=rows, colLabels=["controller", "reference", "plant", "overshoot",
+                                             "settling", "RMS error", "max error"],
+                   loc="center", cellLoc="center")
+    tab.auto_set_font_size(False)
+    tab.set_fontsize(8)
+    return fig
