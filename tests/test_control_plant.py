@@ -80,3 +80,23 @@ def test_report_overlays_model_in_the_loop_and_rig_runs(tmp_path):
     png2 = tmp_path / "png2"
     assert main(["report", files[0], "--out", str(tmp_path / "r2.pdf"), "--png", str(png2)]) == 0
     assert not any("sim-to-real" in p.name for p in png2.iterdir())
+
+
+@pytest.mark.parametrize("controller", ["pid", "sn-pid", "rbf-pid"])
+def test_inverse_hysteresis_feedforward_cuts_sine_tracking_error(controller, tmp_path, capsys):
+    # the muscle's hysteresis is Maxwell-slip-shaped, the controller's model Bouc-Wen
+    from pmalab.paths import DATA_DIR
+
+    truth = str(DATA_DIR / "truth" / "hysteresis-maxwell-slip.toml")
+    rms = {}
+    for hc in ("on", "off"):
+        assert main(["control", "--controller", controller, "--reference", "sine:0.2Hz:20mm",
+                     "--duration", "10", "--truth", truth, "--hysteresis-compensation", hc,
+                     "--out", str(tmp_path / f"{hc}.h5")]) == 0
+        with h5py.File(tmp_path / f"{hc}.h5") as f:
+            g = f[f"runs/{controller}"]
+            assert json.loads(g.attrs["settings"])["hysteresis_compensation"] is (hc == "on")
+            x, r = g["position"][:], g["position_reference"][:]
+        late = slice(len(x) // 4, None)
+        rms[hc] = float(np.sqrt(np.mean((x[late] - r[late]) ** 2)))
+    assert rms["on"] <= 0.9 * rms["off"], rms

@@ -14,7 +14,9 @@ pressure (MPa) and r, r̈ the position reference and its acceleration::
     p_ff   = model⁻¹(F_ff; x_home + s, h_s)            (what the model needs to hold s)
     u      = p_ff + τ_lead·ṗ_ff + inner(p_d, p)        ∈ [0, p_max]  → regulator command
 
-Without shaping s = r; without ``reference_feedforward`` u = inner(p_d, p) (the seeds').
+Without shaping s = r; without ``reference_feedforward`` u = inner(p_d, p) (the seeds');
+without ``hysteresis_compensation`` both inversions use h = h_s = 0 (the static curve only;
+h is still tracked and recorded).
 
 The pressure-loop experiment uses the inner loop alone: u = inner(p_ref, p).
 """
@@ -101,13 +103,14 @@ class Cascade:
         if self.settings.feedforward:
             ff = g.spring_force(g.home_contraction_mm + r) + g.moving_mass_kg * r_dd * 1e-3
         f_d = self.outer.step(r, x, ff)
-        p_d = self._model.invert(f_d, x_abs, h, self.p_max)
+        comp = 1.0 if self.settings.hysteresis_compensation else 0.0
+        p_d = self._model.invert(f_d, x_abs, comp * h, self.p_max)
         if self.settings.inner_feedforward:  # the regulator gets p_d itself (an option)
             u = self.inner.step(p_d, p, p_d)
         elif self.hyst_ref is not None:
             xr_abs = g.home_contraction_mm + r
             h_r = self.hyst_ref.update(xr_abs, self._p_ff)
-            p_ff = self._model.invert(ff, xr_abs, h_r, self.p_max)
+            p_ff = self._model.invert(ff, xr_abs, comp * h_r, self.p_max)
             # ṗ_ff through a 20 Hz low-pass: h along the set point is advanced with θ bound
             # per 1 kPa (HysteresisState), so p_ff moves in small jumps a raw difference
             # would turn into one-sample spikes of the lead

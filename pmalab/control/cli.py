@@ -51,6 +51,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--truth", metavar="TRUTH.toml",
                    help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
                    "for a plant/model mismatch; default: every effect off)")
+    p.add_argument("--hysteresis-compensation", choices=("on", "off"), default=None,
+                   help="invert the identified law's hysteretic force h (on, the default) or "
+                        "the static curve alone (off); for pid, sn-pid and rbf-pid alike")
     p.add_argument("--plant", metavar="MODEL_DIR",
                    help="model in the loop: the manipulator's muscle is this identification "
                         "(identification.json) run forward instead of the simulated truth; "
@@ -91,9 +94,10 @@ def cmd_control(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _sigterm)
     try:
         if args.experiments:
-            for flag in ("controller", "reference", "loop", "duration"):
+            for flag in ("controller", "reference", "loop", "duration",
+                         "hysteresis_compensation"):
                 if getattr(args, flag) is not None:
-                    raise ConfigError(f"--{flag}: not with --experiments (the file sets it)")
+                    raise ConfigError(f"--{flag.replace('_', '-')}: not with --experiments (the file sets it)")
             return _run_experiments(args)
         for flag in ("controller", "reference", "duration"):
             if getattr(args, flag) is None:
@@ -144,6 +148,11 @@ def _run_one(args, check_duration, metrics_line) -> int:
             print(f"\r{args.controller}: {t:5.0f} / {duration:g} s", end="", file=sys.stderr,
                   flush=True)
     settings = default_settings()
+    if args.hysteresis_compensation is not None:
+        from dataclasses import replace as _replace
+
+        settings = _replace(settings,
+                            hysteresis_compensation=args.hysteresis_compensation == "on")
     cmd = " ".join(sys.argv)
     attrs = planned_attrs(args.controller, ref, duration, settings, model, command_line=cmd,
                           truth=str(rig.info.get("truth", "")))

@@ -41,7 +41,11 @@ class CascadeSettings:
     rate of change — the lead that undoes the regulator → muscle pressure lag (0.25 s: the
     mean delay, area over the normalised step, of that path measured on the simulated
     rig with the link moving: 0.24–0.30 s for steps up and down).  The feedback loops then
-    only correct what the model gets wrong.  ``inner_feedforward``: instead, the regulator
+    only correct what the model gets wrong.  ``hysteresis_compensation``: the inversions
+    use the identified law's hysteretic force h (at the measured position for p_d, along
+    the set point for p_ff) — the inverse-hysteresis feedforward; off, they invert the
+    static curve k(p)·x + c0(p) alone (h = 0), for a with/without comparison.
+    ``inner_feedforward``: instead, the regulator
     gets the cascade's p_d itself (an older option: the outer PID's reaction goes straight
     to the regulator; it overshoots steps).
     """
@@ -55,6 +59,7 @@ class CascadeSettings:
     feedforward_lead_s: float = 0.25
     shaping_velocity_mm_s: float = 30.0
     shaping_accel_mm_s2: float = 100.0
+    hysteresis_compensation: bool = True
 
     def to_dict(self) -> dict[str, Any]:
         def loop(s: LoopSettings) -> dict[str, Any]:
@@ -69,7 +74,8 @@ class CascadeSettings:
                 "reference_feedforward": self.reference_feedforward,
                 "feedforward_lead_s": self.feedforward_lead_s,
                 "shaping_velocity_mm_s": self.shaping_velocity_mm_s,
-                "shaping_accel_mm_s2": self.shaping_accel_mm_s2}
+                "shaping_accel_mm_s2": self.shaping_accel_mm_s2,
+                "hysteresis_compensation": self.hysteresis_compensation}
 
 
 #: the adaptive laws' learning rates per controller, tuned once: the inner loop's on the
@@ -106,7 +112,8 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
         if key in ("feedforward_lead_s", "shaping_velocity_mm_s", "shaping_accel_mm_s2"):
             out = replace(out, **{key: _nonneg(val, f"{where}: {key}")})
             continue
-        if key in ("feedforward", "inner_feedforward", "reference_feedforward"):
+        if key in ("feedforward", "inner_feedforward", "reference_feedforward",
+                   "hysteresis_compensation"):
             if not isinstance(val, bool):
                 raise ConfigError(f"{where}: {key}: must be true or false")
             out = replace(out, **{key: val})
@@ -114,7 +121,8 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
         if key not in ("outer", "inner") or not isinstance(val, Mapping):
             raise ConfigError(f"{where}: {key}: unknown (known: outer, inner, "
                               "position_filter_Hz, feedforward, inner_feedforward, "
-                              "reference_feedforward, feedforward_lead_s, "
+                              "reference_feedforward, hysteresis_compensation, "
+                              "feedforward_lead_s, "
                               "shaping_velocity_mm_s, shaping_accel_mm_s2)")
         loop: LoopSettings = getattr(out, key)
         for k, v in val.items():
