@@ -33,6 +33,11 @@ the sample interval is split into ``n_sub`` sub-steps so that ω·Δt ≤ 0.05 (
 below 0.01 % per cycle of the fastest mode), at most 400.  The Bouc-Wen benchmark at 750 Hz
 (ω ≈ 224 rad/s) takes 6 sub-steps per sample.
 
+Without a moving mass (no inertia effect, or a fitted m ≤ 0, and no load mass) force in →
+position out is the quasi-static balance F_muscle(x, h(x), ẋ) = u + K·x solved at every
+sample (bracketed Illinois regula falsi to 1e-10 mm; ẋ backward Euler), laws with a
+compiled segment only.
+
 Laws with a compiled segment (``HysteresisLaw.kernel``: Bouc-Wen, Duhem) run in one cached
 numba loop (a 60 s, 500 Hz record in ~20 ms); the others (element laws) step in Python
 (~1 s for the same record).
@@ -266,6 +271,82 @@ def _integrate(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0
     return 0, N
 
 
+@njit(cache=True, fastmath=False)
+def _qs_resid(law_id, c, prm, x, xk, hk, p, p_nom, u, KL, dt):
+    """Force balance at x for the segment xk → x: F_muscle(x) − u − K·x (N) and h(x)."""
+    h = _seg(law_id, hk, xk, x, prm)
+    return _static(c, x, h, p, p_nom, u, KL) - c[3] * (x - xk) / dt, h
+
+
+@njit(cache=True, fastmath=False)
+def _quasi_static(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, KL, x0, h0, xo, vo, ho, fo):
+    """Massless forward model: at every sample x solves F_muscle(x, h(x), ẋ) = u + K·x,
+    h advanced along x_k → x and ẋ = (x − x_k)/Δt (backward Euler in the damping).  The
+    balance falls monotonically with x for a physical muscle (k < 0, h's slope ≤ |k|'s
+    side), so the root is bracketed by stepping out from x_k and found by the Illinois
+    variant of regula falsi to 1e-10 mm."""
+    N = t.shape[0]
+    nq = Q.shape[0]
+    c = np.empty(nq)
+    prm = np.empty(nq - ns + extras.shape[0])
+    for j in range(extras.shape[0]):
+        prm[nq - ns + j] = extras[j]
+    x = x0
+    h = h0
+    _theta(Q, lo, hi, p[0], c)
+    xo[0] = x
+    vo[0] = 0.0
+    ho[0] = h
+    fo[0] = _static(c, x, h, p[0], p_nom, 0.0, 0.0)
+    for k in range(N - 1):
+        dt = t[k + 1] - t[k]
+        _theta(Q, lo, hi, 0.5 * (p[k] + p[k + 1]), c)
+        for i in range(nq - ns):
+            prm[i] = c[ns + i]
+        _theta(Q, lo, hi, p[k + 1], c)
+        a = x
+        fa, _ = _qs_resid(law_id, c, prm, a, x, h, p[k + 1], p_nom, u[k + 1], KL, dt)
+        if fa == 0.0:
+            b = a
+            fb = fa
+        else:
+            # the balance falls with x: a positive residual means the muscle pulls harder
+            # than the load, so the root lies at larger contraction
+            step = 1e-3 if fa > 0 else -1e-3
+            b = a + step
+            fb, _ = _qs_resid(law_id, c, prm, b, x, h, p[k + 1], p_nom, u[k + 1], KL, dt)
+            n = 0
+            while fa * fb > 0.0 and n < 60:
+                a, fa = b, fb
+                step *= 2.0
+                b = a + step
+                fb, _ = _qs_resid(law_id, c, prm, b, x, h, p[k + 1], p_nom, u[k + 1], KL, dt)
+                n += 1
+            if fa * fb > 0.0:
+                return -1, k + 1
+            for _ in range(100):
+                m = b - fb * (b - a) / (fb - fa)
+                fm, _ = _qs_resid(law_id, c, prm, m, x, h, p[k + 1], p_nom, u[k + 1], KL, dt)
+                if fm * fb < 0.0:  # the root lies between b and m
+                    a, fa = b, fb
+                else:  # between a and m: keep a, halve its residual (Illinois)
+                    fa *= 0.5
+                b, fb = m, fm
+                if abs(b - a) < 1e-10 or fm == 0.0:
+                    break
+        xn = b
+        _, hn = _qs_resid(law_id, c, prm, xn, x, h, p[k + 1], p_nom, u[k + 1], KL, dt)
+        vo[k + 1] = (xn - x) / dt
+        x = xn
+        h = hn
+        if not (abs(x) < 1e6) or not (abs(h) < 1e12):
+            return -1, k + 1
+        xo[k + 1] = x
+        ho[k + 1] = h
+        fo[k + 1] = _static(c, x, h, p[k + 1], p_nom, 0.0, 0.0) - c[3] * vo[k + 1]
+    return 0, N
+
+
 def simulate(model: ForceModel, theta: Mapping[str, float | Sequence[float]], t: np.ndarray,
              u: np.ndarray | float, p: np.ndarray | float, *, p_nom: float | None = None,
              load: Load = Load(), x0: float = 0.0, v0: float = 0.0, h0: float = 0.0,
@@ -289,16 +370,26 @@ def simulate(model: ForceModel, theta: Mapping[str, float | Sequence[float]], t:
     if not np.all(np.diff(t) > 0):
         raise ForwardError("time stamps must increase")
     mass = coef.at(pn)[2] + load.mass_kg
-    if not mass > 0:
-        raise ForwardError(
-            "force in -> position out needs a moving mass: the model has none (add the "
-            "inertia effect, or give the load a mass)")
-    dt = float(np.median(np.diff(t)))
-    ns = n_sub or substeps(model, coef, p_a, dt, load)
-    xo, vo, ho, fo = (np.full(N, np.nan) for _ in range(4))
     kern = model.law.kernel()
     law_id = _KERNELS.get(kern) if kern is not None else None
     u_eff = u_a + load.preload_N
+    xo, vo, ho, fo = (np.full(N, np.nan) for _ in range(4))
+    if not mass > 0:
+        # no moving mass (none identified, or the fit's m ≤ 0): the quasi-static balance
+        if law_id is None or model.law.state_size != 1:
+            raise ForwardError(
+                f"force in -> position out without a moving mass needs a law with a compiled "
+                f"segment (bouc-wen, duhem), not {model.law.name}: add the inertia effect or "
+                "give the load a mass")
+        Qs = coef.Q.copy()
+        Qs[2, :] = 0.0  # a fitted m ≤ 0 is no mass: treated as 0
+        code, k = _quasi_static(law_id, t, u_eff, p_a, pn, Qs, coef.lo, coef.hi, coef.extras,
+                                coef.n_slots, float(load.stiffness_N_per_mm), float(x0),
+                                float(h0), xo, vo, ho, fo)
+        return Simulation(position=xo, velocity=vo, h=ho, tension=fo, n_sub=0,
+                          status="ok" if code == 0 else "diverged")
+    dt = float(np.median(np.diff(t)))
+    ns = n_sub or substeps(model, coef, p_a, dt, load)
     if law_id is not None and model.law.state_size == 1:
         code, k = _integrate(law_id, t, u_eff, p_a, pn, coef.Q, coef.lo, coef.hi, coef.extras,
                              coef.n_slots, float(load.mass_kg), float(load.stiffness_N_per_mm),

@@ -507,5 +507,4 @@ def refine_output_error(cf: CampaignFit, runs: Sequence[Run]) -> CampaignFit:
     runs_out = [replace(rf, result=replace(rf.result, warnings=[tag + w for w in rf.result.warnings]))
                 for rf in cf.runs]
     return replace(cf, pressure=pressure, pressure_model="output-error", output_error=oe,
-                   runs=runs_out, warnings=[w if "pressure level" in w or "fixed at" in w
-                                            else tag + w for w in cf.warnings])
+                   runs=runs_out, warnings=[*cf.warnings, *oe.notes])

@@ -33,7 +33,7 @@ import numpy as np
 from pmalab.identify.estimation.basis import PressureBasis
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.solver import solve, uncertainty
-from pmalab.identify.forward import Coefficients, Load, simulate, substeps
+from pmalab.identify.forward import Coefficients, Load, plant_slots, simulate, substeps
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 
@@ -95,9 +95,18 @@ class OutputErrorFit:
     success: bool
     message: str
     positions: list[np.ndarray] = field(default_factory=list)  # simulated, per run
+    notes: list[str] = field(default_factory=list)
 
     def theta(self, p: float) -> dict[str, float]:
         return {n: float(q[0] + q[1] * p + q[2] * p * p) for n, q in self.coef.items()}
+
+
+def state_names(model: ForceModel, theta: Mapping[str, float]) -> tuple[str, ...]:
+    """The start-state parameters: (x0, v0, h0) with a moving mass, (x0, h0) for the
+    quasi-static (massless) forward model, where the velocity is no state."""
+    slots = plant_slots(model)
+    m = float(theta.get(slots["mass"], 0.0)) if "mass" in slots else 0.0
+    return STATE if m > 0 else ("x0", "h0")
 
 
 def position_data(label: str, sig: Signals, force: np.ndarray, position: np.ndarray) -> PositionData:
@@ -136,6 +145,22 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
     basis = PressureBasis.over(pressures)
     free = [n for n in start if n not in STATE]
     b = dict(bounds)
+    notes: list[str] = []
+    mass = plant_slots(model).get("mass")
+    if mass in free:
+        m0 = min(float(np.polyval(list(reversed(list(start[mass]))), p)) for p in pressures)
+        if m0 <= 0:
+            # no positive mass at the start: the quasi-static forward model, m held at 0
+            held = {**held, mass: (0.0, 0.0, 0.0)}
+            free.remove(mass)
+            start = {n: q for n, q in start.items() if n != mass}
+            notes.append(f"{mass} held at 0 in the output-error fit: the force-direction fit "
+                         f"found no positive moving mass ({m0:.3g} kg), so the position is "
+                         "simulated quasi-statically (force balance per sample)")
+        else:
+            # a mass far below the start would need more sub-steps than were sized
+            lo_m, hi_m = b.get(mass, (-np.inf, np.inf))
+            b[mass] = (max(lo_m, 0.25 * m0), hi_m)
     b.update(_state_bounds(data, b.get("h0", (-1e4, 1e4))))
     th_start = []
     for d in data:
@@ -143,13 +168,15 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
         th_start.append(th)
     n_sub = [_n_sub(model, {**th, **start_state(d)}, d, b) for th, d in zip(th_start, data)]
     constants = {n: float(held[n][0]) for n in held}  # held laws are constants (order 0)
+    states = state_names(model, th_start[0])
+    constants.update({s: 0.0 for s in STATE if s not in states})
     prob = PositionProblem(model, data, n_sub=n_sub, free=free, degree=dict(degree),
-                           constants=constants, bounds=b, run_params=list(STATE), basis=basis)
+                           constants=constants, bounds=b, run_params=list(states), basis=basis)
     for rec, d in zip(prob.records, data):
         rec.weight = 1.0 / (max(float(np.std(d.position)), 1e-9) * math.sqrt(rec.n))
     st = [start_state(d, h) for d, h in zip(data, h0)]
     z0 = prob.z_from({n: basis.from_monomial(start[n], int(degree[n])) for n in free},
-                     {s: [v[s] for v in st] for s in STATE})
+                     {s: [v[s] for v in st] for s in states})
     lo, hi = prob.z_bounds()
     z0 = np.clip(z0, lo, hi)
     rm0 = prob.per_run_rmse(z0)
@@ -173,10 +200,11 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
     return OutputErrorFit(
         coef=coef, degree={n: int(degree[n]) for n in free}, stderr=se,
         labels=[d.label for d in data],
-        state={s: [float(th[s]) for th in ths] for s in STATE},
+        state={s: [float(th.get(s, 0.0)) for th in ths] for s in STATE},
         rmse_mm=rm, nrmse=[r / max(float(np.std(d.position)), 1e-12) for r, d in zip(rm, data)],
         rmse_mm_start=rm0, n_sub=n_sub, nfev=int(sol.nfev), success=bool(sol.success),
-        message=str(sol.message), positions=[prob.output(i, th) for i, th in enumerate(ths)])
+        message=str(sol.message), positions=[prob.output(i, th) for i, th in enumerate(ths)],
+        notes=notes)
 
 
 def estimate_state(model: ForceModel, theta: Mapping[str, float], d: PositionData,
@@ -191,14 +219,18 @@ def estimate_state(model: ForceModel, theta: Mapping[str, float], d: PositionDat
     b.update(_state_bounds([d], b.get("h0", (-1e4, 1e4))))
     th = {k: v for k, v in theta.items() if k not in STATE}
     ns = n_sub or _n_sub(model, {**th, **start_state(d)}, d, b)
+    states = state_names(model, th)
+    th.update({s: 0.0 for s in STATE if s not in states})
     prob = PositionProblem(model, [win], n_sub=[ns], free=[], degree={}, constants=th,
-                           bounds=b, run_params=list(STATE))
+                           bounds=b, run_params=list(states))
     st = start_state(d)
-    z0 = np.clip(prob.z_from({}, {s: [st[s]] for s in STATE}), *prob.z_bounds())
+    z0 = np.clip(prob.z_from({}, {s: [st[s]] for s in states}), *prob.z_bounds())
     lo, hi = prob.z_bounds()
     sol = solve(prob.residual, prob.jac, z0, lo, hi, tol=TOL, max_nfev=200)
     vals = prob.run_values(sol.x)
-    return {s: float(vals[s][0]) for s in STATE}, ns
+    out = {s: 0.0 for s in STATE}
+    out.update({s: float(vals[s][0]) for s in states})
+    return out, ns
 
 
 def predict_position(model: ForceModel, theta: Mapping[str, float], d: PositionData,
