@@ -197,6 +197,14 @@ def test_output_error_identification_meets_the_benchmark_goal(bench, tmp_path, c
         assert g["runs"][key]["position_model"].attrs["units"] == "mm"
     np.testing.assert_array_equal(xs, xm)
 
+    # the report draws what the model was fitted on: the simulated position
+    from pmalab.reports.build import plan_pages
+    from pmalab.reports.data import load_report_dir
+
+    titles = [p.title for p in plan_pages(load_report_dir(out))]
+    assert any(t.startswith("Validation: simulated position") for t in titles), titles
+    assert main(["report", str(out), "--out", str(tmp_path / "r.pdf")]) == 0
+
 
 def test_simulate_position_in_reproduces_identify_force_predictions(bench, tmp_path):
     out = tmp_path / "fd"

@@ -48,6 +48,7 @@ from pmalab.reports.figures_parameters import (
 from pmalab.reports.figures_signals import (
     before_after_figure,
     loops_figure,
+    position_validation_figure,
     time_history_figure,
     validation_figure,
 )
@@ -226,7 +227,14 @@ def plan_pages(data: ReportData) -> list[Page]:
     val_traces, val_fits = _ordered(data.traces_with_role("validation"), val_rows)
     vc = list(zip(_chunks(val_traces, VALIDATION_PER_PAGE),
                   _chunks(val_fits, VALIDATION_PER_PAGE)))
+    by_position = bool(ident) and ident.get("output") == "position"
     for i, (chunk, fits_) in enumerate(vc):
+        if by_position and all(t.position_model is not None for t in chunk):
+            title = ("Validation: simulated position (output error), free run from the "
+                     "measured force" + _part(i, len(vc)))
+            pages.append(Page(title, f"validation-{i + 1}", lambda c=chunk, t=title:
+                              position_validation_figure(c, title=t)))
+            continue
         title = "Validation: pressure-quadratic model, free-run prediction" + _part(i, len(vc))
         pages.append(Page(title, f"validation-{i + 1}", lambda c=chunk, f=fits_, t=title:
                           validation_figure(c, fit_percent=f, title=t)))

@@ -67,6 +67,8 @@ class Trace:
     frequency_Hz: float | None = None
     waveform: str = ""
     model: str = ""
+    #: the free-run simulated position (mm) of a model fitted on position (output error)
+    position_model: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -393,7 +395,14 @@ def read_predictions(path: Path) -> list[Trace]:
                 raise ReportError(f"{where}: attr 'role': expected a string such as "
                                   f"{', '.join(ROLES)}, got {role!r}")
             freq = attrs.get("frequency_Hz")
+            xm = None
+            if "position_model" in g:
+                xm = np.asarray(g["position_model"][()], dtype=np.float64)
+                if xm.shape != chans["time"].shape:
+                    raise ReportError(f"{where}/position_model: {xm.shape[0] if xm.ndim else 0} "
+                                      f"samples, time has {n['time']}")
             out.append(Trace(
+                position_model=xm,
                 key=key, role=str(role), file=str(attrs.get("file", "")),
                 run=str(attrs.get("run", key)),
                 muscle_pressure_MPa=float(attrs.get("muscle_pressure_MPa",

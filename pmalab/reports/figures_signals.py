@@ -186,6 +186,47 @@ def validation_figure(
 
 
 @style.styled
+def position_validation_figure(
+    traces: Sequence[Trace],
+    *,
+    title: str = "Validation: simulated position (output error), free run from the measured force",
+) -> Figure:
+    """For each of up to two validation runs of a model fitted on position (columns): the
+    measured and simulated position against time, their difference (same unit), and a
+    zoom on the one-second window where the difference is largest."""
+    fig = style.new_figure(title)
+    n = len(traces)
+    axes = fig.subplots(3, n, squeeze=False, gridspec_kw={"height_ratios": [1.5, 0.9, 1.5]})
+    for j, t in enumerate(traces):
+        a0, a1, a2 = axes[:, j]
+        xm = t.position_model if t.position_model is not None else np.full_like(t.time, np.nan)
+        e = t.position - xm
+        rmse = float(np.sqrt(np.mean(e * e)))
+        s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
+        a0.plot(t.time[s], t.position[s], color=style.MEASURED, lw=1.4, label="measured")
+        a0.plot(t.time[s], xm[s], color=style.VALIDATION, alpha=0.9, lw=0.7, label="simulated")
+        a0.set_ylabel("Contraction x (mm)")
+        a0.set_title(f"{t.label}\n{t.describe()}\nrms error {rmse * 1e-3:.3g} m "
+                     f"(nrmse {rmse / max(float(np.std(t.position)), 1e-12):.4f})", fontsize=10)
+        a1.plot(t.time[s], e[s], color=style.VALIDATION, lw=0.5)
+        a1.axhline(0.0, color="0.4", lw=0.6)
+        a1.set_ylabel("x − x_model (mm)")
+        a1.sharex(a0)
+        # the worst second, every sample drawn
+        dt = float(np.median(np.diff(t.time)))
+        w = max(2, min(t.time.shape[0], int(round(1.0 / dt))))
+        k = int(np.nanargmax(np.abs(e))) if np.any(np.isfinite(e)) else 0
+        lo = max(0, min(k - w // 2, t.time.shape[0] - w))
+        z = slice(lo, lo + w)
+        a2.plot(t.time[z], t.position[z], color=style.MEASURED, lw=1.6, label="measured")
+        a2.plot(t.time[z], xm[z], color=style.VALIDATION, lw=0.9, label="simulated")
+        a2.set_ylabel("x (mm), largest-error second")
+        a2.set_xlabel(style.TIME)
+        a2.legend(loc="upper right", ncols=2, fontsize=8)
+    return fig
+
+
+@style.styled
 def before_after_figure(
     pairs: Sequence[tuple[Trace, Trace]],
     *,

@@ -26,7 +26,8 @@ DIVERGED_RANGE_FACTOR = 2.0
 VALIDATION_STATUSES = ("ok", "extrapolated", "diverged")
 
 
-def check_prediction(measured: np.ndarray, predicted: np.ndarray) -> str | None:
+def check_prediction(measured: np.ndarray, predicted: np.ndarray, what: str = "force",
+                     unit: str = "N") -> str | None:
     """Why a prediction is unusable (non-finite, or far outside the measured force band), or None.
 
     Band: [min F − 2·range, max F + 2·range] of the measured force (N).  A model whose
@@ -41,8 +42,8 @@ def check_prediction(measured: np.ndarray, predicted: np.ndarray) -> str | None:
     rng = max(hi - lo, 1e-9)
     worst = float(np.max(np.maximum(yh - hi, lo - yh)))
     if worst > DIVERGED_RANGE_FACTOR * rng:
-        return (f"prediction leaves the measured force band [{lo:.4g}, {hi:.4g}] N by up to "
-                f"{worst:.4g} N (> {DIVERGED_RANGE_FACTOR:g}× its range)")
+        return (f"prediction leaves the measured {what} band [{lo:.4g}, {hi:.4g}] {unit} by up "
+                f"to {worst:.4g} {unit} (> {DIVERGED_RANGE_FACTOR:g}× its range)")
     return None
 
 
@@ -105,7 +106,7 @@ def validate_runs(cf: CampaignFit, runs: Iterable[Run],
         xm = None
         if cf.output == "position":
             xm, m = _position(cf, r, sig, m)
-            why = check_prediction(r.position, xm)
+            why = check_prediction(r.position, xm, "position", "mm")
             if why is not None and status != "diverged":
                 status, msg = "diverged", why
                 warnings.append(f"{r.label}: the simulated position diverged ({why})")
