@@ -146,16 +146,16 @@ def test_same_initial_gains_for_every_controller():
 
 def test_ctrl_c_mid_run_vents_and_keeps_the_samples():
     rig = make_sim_manipulator()
-    real = rig.sampler.read_now
+    real = rig.sampler.read_block
     calls = {"n": 0}
 
-    def read_now():
+    def read_block():
         calls["n"] += 1
         if calls["n"] == 301:
             raise KeyboardInterrupt
         return real()
 
-    rig.sampler.read_now = read_now
+    rig.sampler.read_block = read_block
     with rig:
         run = run_control(rig, "sn-pid", parse_reference("square:0.1Hz:15mm"), 10.0,
                           default_settings(), MODEL)
@@ -215,3 +215,51 @@ def test_reference_shaper_limits_a_step_and_passes_a_slow_sine():
     err = [abs(sh.step(*ref.value(k * 0.002)[:2])[0] - ref.value(k * 0.002)[0])
            for k in range(10000)]
     assert max(err) < 0.02  # within the limits the sine passes (to 0.1 % of its 20 mm)
+
+
+class _HardwareTimed:
+    """A hardware-timed view of the simulated manipulator: blocks of 10 samples stamped
+    by the device's sample clock; one block arrives 5 samples short (a hole in the stream)."""
+
+    hardware_timed = True
+
+    def __init__(self, rig) -> None:
+        self.rig, self.k, self.blocks = rig, 0, 0
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def read_block(self):
+        from pmalab.rig.base import Block
+
+        rows = []
+        self.blocks += 1
+        for _ in range(10):
+            if self.blocks == 5 and len(rows) == 2 and not getattr(self, "holed", False):
+                self.holed = True
+                self.k += 5  # five samples the device never delivered
+            t = self.k / 500.0
+            self.rig.clock.sleep_until(t)
+            o = self.rig.info["physics"].advance_and_sample(t).copy()
+            rows.append(o)
+            self.k += 1
+        a = np.array(rows)
+        return Block(a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4])
+
+
+def test_control_on_a_hardware_timed_sampler_records_the_gap_and_invents_nothing():
+    rig = make_sim_manipulator()
+    hw = _HardwareTimed(rig)
+    rig.sampler = hw
+    with rig:
+        run = run_control(rig, "pid", parse_reference("square:0.1Hz:15mm"), 1.0,
+                          default_settings(), MODEL)
+    assert run.completed, run.status
+    assert run.attrs["n_missed"] == 5
+    assert run.n == 501 - 5  # the deadlines of the hole have no rows
+    t = run.signals["time"]
+    assert np.all(np.isfinite(t)) and np.sum(np.diff(t) > 1.5 / 500) == 1
+    assert run.attrs["vent_confirmed"] is True

@@ -104,3 +104,20 @@ def test_ctrl_c_mid_run_vents_and_the_file_says_aborted(tmp_path):
     assert run.attrs["vent_confirmed"] is True
     assert run.attrs["metrics"]["completed"] is False and run.attrs["n_samples"] == len(run)
     assert 250 <= len(run) < 30 * 500
+
+
+def test_sigterm_mid_run_is_acted_on_at_the_next_sample_vented_samples_kept(tmp_path):
+    # the acquisition loop's deferred SIGTERM: the run ends at the next sample, vents,
+    # and the file keeps every sample recorded so far with the reason
+    out = tmp_path / "terminated.h5"
+    proc = _start(out)
+    _wait_for_samples(proc, out, 250)
+    proc.send_signal(signal.SIGTERM)
+    _stdout, stderr = proc.communicate(timeout=30)
+    assert proc.returncode != 0
+    assert "Traceback" not in stderr
+    run = read_runs(out)[0]
+    assert run.attrs["status"] == "aborted: terminated (SIGTERM)", run.attrs["status"]
+    assert run.attrs["vent_confirmed"] is True
+    assert run.attrs["n_samples"] == len(run) >= 250
+    assert np.all(np.isfinite(run.position)) and np.all(np.diff(run.time) > 0)

@@ -54,9 +54,7 @@ import json
 import math
 import os
 import re
-import signal
 import sys
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -66,6 +64,16 @@ from pathlib import Path
 from typing import Any
 
 from pmalab import __version__
+from pmalab.acquisition.loop import (
+    LATE_THRESHOLD_S,
+    STOP_REQUEST,
+    Stopped,
+    Terminated,
+    Trip,
+    check_signal,
+    deferred_signals,
+    sample_loop,
+)
 from pmalab.acquisition.protocol import Protocol, RunSpec
 from pmalab.acquisition.recorder import (
     Recorder,
@@ -84,21 +92,8 @@ from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output, output_failure
 from pmalab.rig.base import Rig, VentReport
 
-
-class _Trip(Exception):
-    """Internal: a limit tripped (reason in args[0])."""
-
-
-class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised in the main thread by the CLI's signal handler."""
-
-
-class Stopped(KeyboardInterrupt):
-    """The operator's stop request (live view): the same safe abort as Ctrl-C."""
-
-
-#: ``pending_signal["sig"]`` value of a stop request (not a signal number)
-STOP_REQUEST = -1
+# the loop's typed outcomes, under the names the CLI and tests know
+_Trip = Trip
 
 
 class RunObserver:
@@ -169,7 +164,7 @@ class RunnerOptions:
     """Tunables of the runner (defaults are the production values)."""
 
     #: a sample later than this after its deadline counts as late (s)
-    late_threshold_s: float = 0.5e-3
+    late_threshold_s: float = LATE_THRESHOLD_S
     #: a run that missed more than this share of its scheduled samples, or had more than
     #: this share late, is flagged (``timing_warning``) and warned about
     timing_warn_fraction: float = 0.01
@@ -300,40 +295,8 @@ def run_protocol(
             rig.sampler.stop()
 
 
-@contextlib.contextmanager
-def _deferred_signals(pending: dict[str, int | None]):
-    """Turn SIGINT/SIGTERM into a flag the sample loop checks once per sample.
-
-    An exception raised at an arbitrary bytecode could land between two HDF5 writes or
-    half-way through buffering a sample; acting on the flag at the top of the loop keeps
-    the file consistent and still vents within a sample period.  A second signal raises
-    at once (an operator hammering Ctrl-C means it).  Main thread only.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: object) -> None:
-        if pending["sig"] is not None:
-            raise Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
-        pending["sig"] = signum
-
-    old_int = signal.signal(signal.SIGINT, handler)
-    old_term = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
-
-
-def _check_signal(pending: dict[str, int | None]) -> None:
-    sig = pending["sig"]
-    if sig is not None:
-        pending["sig"] = None
-        if sig == STOP_REQUEST:
-            raise Stopped()
-        raise Terminated() if sig == signal.SIGTERM else KeyboardInterrupt()
+_deferred_signals = deferred_signals
+_check_signal = check_signal
 
 
 def _notify(opts: RunnerOptions, event: str, *args: Any) -> None:
@@ -641,12 +604,11 @@ def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: Saf
 # --------------------------------------------------------------------------- recording
 def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: RunWriter,
             rec: Recorder, opts: RunnerOptions, pbar) -> None:
-    """Record one run: command the waveform, check, store, flush — until its end."""
-    clock, sampler, reg = rig.clock, rig.sampler, rig.cylinder_regulator
+    """Record one run through the sample loop (:mod:`pmalab.acquisition.loop`): command the
+    waveform, check, store, flush — until its end."""
+    sampler, reg = rig.sampler, rig.cylinder_regulator
     dt = 1.0 / rate
     n_total = int(math.floor(spec.duration_s * rate + 1e-9)) + 1
-    late_thr = opts.late_threshold_s
-    check = monitor.check
     add = w.add
     flush_due = rec.flush_due
     w.start_unix = time.time()
@@ -656,72 +618,34 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
     progress_step = max(1, int(rate // 2))
     hw = sampler.hardware_timed
     cmds = command_samples(spec, rate, n_total).tolist()
-    t0 = clock.now()
-    k = 0  # deadline index (software-polled) / sample index on the nominal grid (hw)
-    since_update = 0  # samples since the progress bar moved
-    last_t = None
-    cmd = 0.0
-    pending = opts.pending_signal
-    while k < n_total:
-        if pending["sig"] is not None:
-            _check_signal(pending)
-        if not hw:
-            deadline = t0 + k * dt
-            clock.sleep_until(deadline)
-            # lateness: when the request starts, against the deadline (the sample's own
-            # timestamp lies inside the request, which may take most of a reduced period)
-            lateness = clock.now() - deadline
-        blk = sampler.read_block()
-        nb = len(blk)
-        for j in range(nb):
-            t = float(blk.time[j])
-            x, f = float(blk.position[j]), float(blk.force[j])
-            pm, pc = float(blk.muscle_pressure[j]), float(blk.cylinder_pressure[j])
-            if hw:
-                if last_t is None:
-                    t0 = t
-                elif t - last_t > 1.5 * dt:  # gap in a hardware-timed stream
-                    gap = int(round((t - last_t) * rate)) - 1
-                    w.n_missed += gap
-                    w.add_gap(last_t + dt - t0, gap)
-                    k += gap
-                    if k >= n_total:
-                        break
-                last_t = t
-                deadline = t0 + k * dt
-                lateness = t - deadline
-            reason = check(x, f, pm, pc)
-            if reason is not None:
-                # trip: vent in this sample period, keep the sample, then abort
-                _vent(rig)
-                if math.isfinite(t + x + f + pm + pc):  # a NaN would break the contract
-                    add(t - t0, x, f, pm, pc, 0.0, lateness)
-                raise _Trip(f"{reason} at t={t - t0:.3f} s")
-            # the waveform's value at this sample's nominal time (precomputed per deadline);
-            # sent right after the sample and held by the regulator until the next one
-            cmd = cmds[k]
-            if lateness > late_thr:
-                w.n_late += 1
-            add(t - t0, x, f, pm, pc, cmd, lateness)
-            k += 1
-            since_update += 1
-            if k >= n_total:
-                break
-        # command for the next sample period (the regulator holds it until the next one)
-        reg.set_pressure(cmd)
+    since = [0, 0]  # samples delivered, samples the progress bar has shown
+
+    def step(k: int, t_rel: float, x: float, f: float, pm: float, pc: float,
+             lateness: float) -> float:
+        # the waveform's value at this sample's nominal time (precomputed per deadline);
+        # sent right after the block and held by the regulator until the next one
+        cmd = cmds[k]
+        add(t_rel, x, f, pm, pc, cmd, lateness)
+        since[0] += 1
+        return cmd
+
+    def on_trip(reason: str, t_rel: float, x: float, f: float, pm: float, pc: float,
+                lateness: float) -> None:
+        # vent in this sample period, keep the sample, then the loop aborts
+        _vent(rig)
+        if math.isfinite(t_rel + x + f + pm + pc):  # a NaN would break the contract
+            add(t_rel, x, f, pm, pc, 0.0, lateness)
+
+    def after_block(k: int) -> None:
         if (hw or not k & 31) and flush_due():  # wall clock looked at every 32 samples
             w.commit()
-        if pbar is not None and since_update >= progress_step:
-            pbar.update(since_update * dt)
-            since_update = 0
-        if not hw:
-            # deadlines that passed entirely while we were busy are missed, not faked
-            lag = clock.now() - (t0 + k * dt)
-            if lag > dt:
-                skip = int(lag / dt)
-                w.n_missed += skip
-                w.add_gap(k * dt, skip)
-                k += skip
+        if pbar is not None and since[0] - since[1] >= progress_step:
+            pbar.update((since[0] - since[1]) * dt)
+            since[1] = since[0]
+
+    sample_loop(rig.clock, sampler, rate, n_total, check=monitor.check, step=step,
+                command=reg.set_pressure, on_trip=on_trip, pending=opts.pending_signal,
+                stats=w, late_threshold_s=opts.late_threshold_s, after_block=after_block)
     reg.set_pressure(0.0)
-    if pbar is not None and since_update:
-        pbar.update(since_update * dt)
+    if pbar is not None and since[0] > since[1]:
+        pbar.update((since[0] - since[1]) * dt)

@@ -1,8 +1,12 @@
 """The 500 Hz control loop on a :class:`~pmalab.rig.manipulator.ManipulatorRig`.
 
-Each sample: wait for the deadline on the rig's clock (a virtual clock jumps there, so a
-simulated run goes as fast as the physics and the controller compute), read the sensors,
-check the limits, run the cascade, command the regulator, record.
+The loop is acquisition's (:func:`pmalab.acquisition.loop.sample_loop`, the one
+real-time loop of pmalab): pacing by the rig's clock (a virtual clock jumps to each
+deadline, so a simulated run goes as fast as the physics and the controller compute) or
+by a hardware-timed sampler's own sample clock, SIGINT/SIGTERM deferred to the next
+sample, lateness, missed deadlines and gaps counted; per sample it reads the sensors,
+checks the limits, runs the cascade and records; the command goes to the regulator once
+per block.
 
 Safety (acquisition's rules, :class:`pmalab.acquisition.safety.SafetyMonitor`): every
 sample is checked against the rig's limits (muscle pressure, travel, force, NaN); a trip,
@@ -26,6 +30,14 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from pmalab.acquisition.loop import (
+    LATE_THRESHOLD_S,
+    LoopStats,
+    Terminated,
+    Trip,
+    deferred_signals,
+    sample_loop,
+)
 from pmalab.acquisition.safety import SafetyMonitor
 from pmalab.control.cascade import Cascade
 from pmalab.control.controllers import CascadeSettings
@@ -154,16 +166,13 @@ def run_control(
     sig = {k: np.full(n, np.nan) for k in SIGNALS}
     gains = {k: np.full(n, np.nan) for k in GAINS}
     late = np.zeros(n)
-    written = 0
+    written = [0]
     monitor = SafetyMonitor(rig.limits)
-    clock = rig.clock
     sampler = rig.sampler
-    read_now = getattr(sampler, "read_now", None)
     regulator = rig.muscle_regulator
     status = "completed"
     vent: VentResult | None = None
-    done = 0  # samples recorded
-    t_start = clock.now()
+    done = [0]  # samples recorded (missed deadlines leave no row: a gap, not a sample)
     wall0 = time.perf_counter()
     every = max(1, int(1.0 / dt))
     is_pos = loop == "position"
@@ -173,57 +182,56 @@ def run_control(
                             sig["force_reference"], sig["hysteresis_force"])
     s_sp = sig["position_setpoint"]
     gk = [gains[g] for g in GAINS]
+    stats = getattr(sink, "w", None) or LoopStats()
+
+    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float,
+             lk: float) -> float:
+        r, r_d, r_dd = reference.value(tr)
+        out = cascade.position_step(r, r_d, r_dd, x, p) if is_pos else cascade.pressure_step(r, p)
+        u = out.command
+        if not math.isfinite(u):
+            raise _Diverged("controller output is not finite (diverged)")
+        i = done[0]
+        s_t[i], s_x[i], s_f[i], s_p[i], s_u[i] = tr, x, f, p, u
+        s_pr[i], s_fr[i], s_h[i] = out.pressure_reference, out.force_reference, out.hysteresis
+        if is_pos:
+            s_xr[i] = r
+            s_sp[i] = out.setpoint
+        for arr, v in zip(gk, cascade.gains()):
+            arr[i] = v
+        late[i] = lk
+        done[0] = i + 1
+        if progress is not None and k % every == 0:
+            progress(tr)
+        return u
+
+    def on_trip(reason: str, *_sample: float) -> None:
+        nonlocal vent
+        vent = rig.vent()  # in this sample period
+
+    def after_block(k: int) -> None:
+        if sink is not None and (k % SINK_CHECK_EVERY == 0 or sampler.hardware_timed) \
+                and sink.due():
+            a, b = written[0], done[0]
+            sink.write({kk: v[a:b] for kk, v in sig.items()},
+                       {kk: v[a:b] for kk, v in gains.items()}, late[a:b])
+            written[0] = b
+
+    pending: dict[str, int | None] = {"sig": None}
     try:
-        sampler.start()
-        for k in range(n):
-            deadline = t_start + k * dt
-            clock.sleep_until(deadline)
-            lk = clock.now() - deadline
-            if read_now is not None:
-                t, x, f, p, _ = read_now()
-            else:
-                b = sampler.read_block()
-                t, x, f, p = (float(b.time[-1]), float(b.position[-1]), float(b.force[-1]),
-                              float(b.muscle_pressure[-1]))
-            trip = monitor.check(x, f, p, 0.0)
-            if trip is not None:
-                vent = rig.vent()
-                status = f"aborted: {trip}"
-                break
-            tr = t - t_start
-            r, r_d, r_dd = reference.value(tr)
-            if is_pos:
-                out = cascade.position_step(r, r_d, r_dd, x, p)
-            else:
-                out = cascade.pressure_step(r, p)
-            u = out.command
-            if not math.isfinite(u):
-                vent = rig.vent()
-                status = "aborted: controller output is not finite (diverged)"
-                break
-            regulator.set_pressure(u)
-            s_t[k] = tr
-            s_x[k] = x
-            s_f[k] = f
-            s_p[k] = p
-            s_u[k] = u
-            s_pr[k] = out.pressure_reference
-            s_fr[k] = out.force_reference
-            s_h[k] = out.hysteresis
-            if is_pos:
-                s_xr[k] = r
-                s_sp[k] = out.setpoint
-            for arr, v in zip(gk, cascade.gains()):
-                arr[k] = v
-            late[k] = lk
-            done = k + 1
-            if progress is not None and k % every == 0:
-                progress(tr)
-            if sink is not None and k % SINK_CHECK_EVERY == 0 and sink.due():
-                sink.write({kk: v[written:done] for kk, v in sig.items()},
-                           {kk: v[written:done] for kk, v in gains.items()},
-                           late[written:done])
-                written = done
+        with deferred_signals(pending):
+            sampler.start()
+            sample_loop(rig.clock, sampler, 1.0 / dt, n, check=monitor.check, step=step,
+                        command=regulator.set_pressure, on_trip=on_trip, pending=pending,
+                        stats=stats, late_threshold_s=LATE_THRESHOLD_S,
+                        after_block=after_block)
+    except Trip as exc:
+        status = f"aborted: {exc}"
+    except _Diverged as exc:
+        vent = rig.vent()
+        status = f"aborted: {exc}"
+    except Terminated:
+        status = "aborted: terminated (SIGTERM)"
     except KeyboardInterrupt:
         status = "aborted: interrupted (Ctrl-C)"
     except PmalabError as exc:
@@ -234,10 +242,15 @@ def run_control(
             sampler.stop()
         except Exception:  # the vent above is what matters; stop faults are secondary
             pass
-    keep = slice(0, done)
+    keep = slice(0, done[0])
     signals = {kk: v[keep] for kk, v in sig.items() if kk in signals_of(loop)}
     attrs = run_attrs(controller, reference, duration_s, settings, model)
-    attrs.update(vent=vent_phrase("muscle regulator", vent), vent_confirmed=vent.ok)
+    attrs.update(vent=vent_phrase("muscle regulator", vent), vent_confirmed=vent.ok,
+                 n_late=int(stats.n_late), n_missed=int(stats.n_missed))
     return ControlRun(name or controller, controller, loop, reference, signals,
                       {kk: v[keep] for kk, v in gains.items()}, status, attrs,
                       time.perf_counter() - wall0, late[keep])
+
+
+class _Diverged(Exception):
+    """The controller's output is not finite (the run aborts, vented)."""
