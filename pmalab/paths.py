@@ -127,7 +127,7 @@ def remove_empty_dirs(roots: list[Path]) -> None:
                 pass
 
 
-def write_together(writers: dict[Path, Callable[[Path], None]]) -> None:
+def write_together(writers: dict[Path, Callable[[Path], object]]) -> None:
     """Write several outputs as one: each writer fills a temporary ``NAME.tmp`` next to its
     path, and only when all succeeded is each renamed into place — a failure (a full disk)
     leaves none of them behind."""

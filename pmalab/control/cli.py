@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
+from collections.abc import Callable
 
 from pmalab.errors import ConfigError
 
@@ -142,11 +143,12 @@ def _run_one(args, check_duration, metrics_line) -> int:
     _note_ignored(model)
     make = _make_rig_factory(args.truth, args.seed or 0, args.real_time, args.plant)
     rig = make()
-    progress = None
+    progress: Callable[[float], None] | None = None
     if sys.stderr.isatty():  # a long run shows where it is (simulated seconds)
-        def progress(t: float) -> None:
+        def show(t: float) -> None:
             print(f"\r{args.controller}: {t:5.0f} / {duration:g} s", end="", file=sys.stderr,
                   flush=True)
+        progress = show
     settings = default_settings()
     if args.hysteresis_compensation is not None:
         from dataclasses import replace as _replace

@@ -15,7 +15,7 @@ pressure MPa.  Plots use matplotlib only.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +64,10 @@ def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None =
     """
     flat: list[str | Path] = []
     for p in paths:
-        flat.extend(p if isinstance(p, list | tuple) else [p])
+        if isinstance(p, str | Path):
+            flat.append(p)
+        else:
+            flat.extend(p)
     check_distinct(flat)
     wanted = None if runs is None else list(runs)
     out = RunList()
@@ -121,7 +124,7 @@ def identify(
     validate: Sequence[Run] | None = None,
     jobs: int = DEFAULT_JOBS,
     scheduler: str | None = None,
-    fixed: dict[str, float | None] | None = None,
+    fixed: Mapping[str, float | None] | None = None,
     free: Sequence[str] = (),
     initial: str = "estimate",
     progress: bool = False,
@@ -202,7 +205,7 @@ class DiagnosisResult:
         first = ["effect", "nrmse_before", "nrmse_after", "fall_percent", "significant"]
         df = pd.DataFrame(rows)
         if df.empty:
-            return pd.DataFrame(columns=first).set_index("effect")
+            return pd.DataFrame(columns=pd.Index(first)).set_index("effect")
         order = [c for c in first if c in df] + [c for c in df if c not in first]
         return df[order].set_index("effect")
 

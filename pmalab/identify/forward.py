@@ -46,9 +46,10 @@ numba loop (a 60 s, 500 Hz record in ~20 ms); the others (element laws) step in 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -152,17 +153,24 @@ class Coefficients:
         self.n_slots = len(SLOTS)
         self.law_names = law_names
         # law extras of the effects (asymmetric shape terms): constant, at θ(p_nom)
-        th0 = self.at(0.0, named=True)
+        th0 = self.named(0.0)
         extras: dict[str, float] = {}
         for e in model.effects:
             extras.update(e.law_extras(law.name, None, th0))  # type: ignore[arg-type]
         self.extras_map = extras
         self.extras = np.array([float(extras.get(n, 0.0)) for n in law.extras], dtype=np.float64)
 
-    def at(self, p: float, named: bool = False):
-        v = np.clip(self.Q[:, 0] + self.Q[:, 1] * p + self.Q[:, 2] * p * p, self.lo, self.hi)
-        if not named:
-            return v
+    def at(self, p: float) -> np.ndarray:
+        """Every row's value at pressure ``p`` (MPa), clipped: :data:`SLOTS`, then the law's."""
+        return np.clip(self.Q[:, 0] + self.Q[:, 1] * p + self.Q[:, 2] * p * p, self.lo, self.hi)
+
+    def law_theta(self, v: np.ndarray) -> dict[str, float]:
+        """The law's parameters by name from a row vector of :meth:`at`."""
+        return {n: float(x) for n, x in zip(self.law_names, v[self.n_slots:], strict=True)}
+
+    def named(self, p: float) -> dict[str, float]:
+        """Every parameter by name at pressure ``p`` (MPa)."""
+        v = self.at(p)
         slots = plant_slots(self.model)
         out = {slots[s]: float(v[i]) for i, s in enumerate(SLOTS) if s in slots}
         out.update({n: float(v[self.n_slots + j]) for j, n in enumerate(self.law_names)})
@@ -188,7 +196,7 @@ def substeps(model: ForceModel, coef: Coefficients, p: np.ndarray, dt: float, lo
         m = (v[2] + load.mass_kg) * 1e-3
         if m <= 0:
             continue
-        th = dict(zip(coef.law_names, v[coef.n_slots:], strict=True))
+        th = coef.law_theta(v)
         stiff = abs(v[0]) + abs(load.stiffness_N_per_mm) + law_slope(model, th, coef.extras_map)
         omega = math.sqrt(stiff / m)
         n = max(n, int(math.ceil(omega * dt / OMEGA_DT)))
@@ -409,15 +417,14 @@ def _integrate_py(model: ForceModel, coef: Coefficients, t, u, p, p_nom, load: L
     """The same scheme as :func:`_integrate` for laws without a compiled segment (element
     laws): the state is the law's own (``initial_state``), steppers cached per 1 kPa."""
     law = model.law
-    ns = coef.n_slots
-    steppers: dict[int, object] = {}
+
+    steppers: dict[int, Callable[..., Any]] = {}
 
     def stepper(pv: float):
         key = int(round(pv * 1000.0))
         st = steppers.get(key)
         if st is None:
-            c = coef.at(key / 1000.0)
-            th = dict(zip(coef.law_names, c[ns:], strict=True))
+            th = coef.law_theta(coef.at(key / 1000.0))
             st = steppers[key] = law.stepper(th, coef.extras_map)
         return st
 
@@ -426,7 +433,7 @@ def _integrate_py(model: ForceModel, coef: Coefficients, t, u, p, p_nom, load: L
                 + (c[6] + c[7] * x) * (pv - p_nom) - uv - load.stiffness_N_per_mm * x)
 
     c0 = coef.at(float(p[0]))
-    th0 = dict(zip(coef.law_names, c0[ns:], strict=True))
+    th0 = coef.law_theta(c0)
     state = law.initial_state(th0, h0, 1.0)
     x, v = float(x0), float(v0)
     h = law.output(state)
@@ -478,7 +485,12 @@ class IdentifiedPlant:
             self.model = ForceModel(law, [get_effect(e) for e in doc.get("effects") or []])
         except (KeyError, ValueError, PmalabError) as exc:
             raise ForwardError(f"{source}: {exc}") from None
-        self.laws = {n: tuple(float(v) for v in q) for n, q in fits.items()}
+        self.laws: dict[str, tuple[float, float, float]] = {}
+        for n, q in fits.items():
+            if (not isinstance(q, list) or len(q) != 3
+                    or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in q)):
+                raise ForwardError(f"{source}: pressure_fits.{n}: expected [q0, q1, q2]")
+            self.laws[str(n)] = (float(q[0]), float(q[1]), float(q[2]))
         self.bounds = {n: (float(b[0]), float(b[1]))
                        for n, b in (doc.get("parameter_bounds") or {}).items()}
         self.output = str(doc.get("output") or "force")

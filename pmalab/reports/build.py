@@ -374,11 +374,12 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
     order = ("identification", "validation", "diagnosis")
     # one row per run: final-model copies and runs already listed under another role
     # (an identify and a diagnose directory merged) are left out
-    shown, seen = [], set()
+    shown: list[Trace] = []
+    listed: set[tuple[str, str]] = set()
     for t in sorted((t for t in data.traces if t.role in order),
                     key=lambda t: (order.index(t.role), t.muscle_pressure_MPa)):
-        if _key(t.file, t.run) not in seen:
-            seen.add(_key(t.file, t.run))
+        if _key(t.file, t.run) not in listed:
+            listed.add(_key(t.file, t.run))
             shown.append(t)
     for t in shown:
         datasets.append({"role": t.role, "label": t.label, "p": t.muscle_pressure_MPa,

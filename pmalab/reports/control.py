@@ -11,6 +11,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from matplotlib.figure import Figure
+
 from pmalab.errors import OutputError, OutputExistsError, PmalabError
 from pmalab.paths import check_output
 from pmalab.reports.errors import ReportError
@@ -81,7 +83,7 @@ def build_control_report(
     except OutputError as exc:
         raise ReportError(str(exc)) from None
     files = [load_control_file(p) for p in paths]
-    pages: list[tuple[str, Callable[[], object]]] = [
+    pages: list[tuple[str, Callable[[], Figure]]] = [
         ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))]
     pairs = sim_to_real_pairs(files)
     if pairs:  # a model-in-the-loop run and a rig run of the same experiment

@@ -25,7 +25,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -172,7 +172,7 @@ class _Doc:
                 out.append(float("nan"))
                 continue
             self.check(x, f"{at}[{i}]", "number")
-            out.append(float(x))
+            out.append(float(cast(float, x)))
         return out
 
     def number_map(self, v: Any, at: str, *, nullable: bool = False) -> dict[str, float]:
@@ -183,7 +183,7 @@ class _Doc:
                 out[k] = float("nan")
                 continue
             self.check(x, f"{at}.{k}", "number")
-            out[k] = float(x)
+            out[k] = float(cast(float, x))
         return out
 
 
@@ -372,14 +372,19 @@ def read_predictions(path: Path) -> list[Trace]:
         if "runs" not in f:
             raise ReportError(f"{path}: no '/runs' group")
         out = []
-        for key in f["runs"]:
-            g = f["runs"][key]
+        runs = f["runs"]
+        if not isinstance(runs, h5py.Group):
+            raise ReportError(f"{path}: '/runs' is not a group")
+        for key in runs:
+            g = runs[key]
             where = f"{path}: /runs/{key}"
+            if not isinstance(g, h5py.Group):
+                raise ReportError(f"{where}: not a group")
             chans: dict[str, np.ndarray] = {}
             for ch in TRACE_CHANNELS:
                 if ch not in g:
                     raise ReportError(f"{where}/{ch}: missing dataset")
-                a = np.asarray(g[ch][()], dtype=np.float64)
+                a = np.asarray(cast(h5py.Dataset, g[ch])[()], dtype=np.float64)
                 if a.ndim != 1:
                     raise ReportError(f"{where}/{ch}: expected 1-D, got shape {a.shape}")
                 chans[ch] = a
@@ -397,13 +402,13 @@ def read_predictions(path: Path) -> list[Trace]:
             freq = attrs.get("frequency_Hz")
             xm = None
             if "position_model" in g:
-                xm = np.asarray(g["position_model"][()], dtype=np.float64)
+                xm = np.asarray(cast(h5py.Dataset, g["position_model"])[()], dtype=np.float64)
                 if xm.shape != chans["time"].shape:
                     raise ReportError(f"{where}/position_model: {xm.shape[0] if xm.ndim else 0} "
                                       f"samples, time has {n['time']}")
             out.append(Trace(
                 position_model=xm,
-                key=key, role=str(role), file=str(attrs.get("file", "")),
+                key=str(key), role=str(role), file=str(attrs.get("file", "")),
                 run=str(attrs.get("run", key)),
                 muscle_pressure_MPa=float(attrs.get("muscle_pressure_MPa",
                                                     np.mean(chans["muscle_pressure"]))),

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import textwrap
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping, Sequence, Set
 from pathlib import Path
 from typing import Any
 
@@ -227,7 +227,7 @@ def coef_text(q: Sequence[float | None]) -> list[str]:
 
 
 def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
-           col_widths: Sequence[float] | None = None, highlight: set[tuple[int, int]] = frozenset(),
+           col_widths: Sequence[float] | None = None, highlight: Set[tuple[int, int]] = frozenset(),
            fontsize: float = 8.5, row_height: float = 1.35):
     ax.axis("off")
     tab = ax.table(cellText=cells, colLabels=col_labels, loc="upper center", cellLoc="center",
@@ -442,7 +442,7 @@ def metrics_table_figure(
     widths = [0.085, 0.22, 0.05, 0.04, 0.06, 0.065, 0.065, 0.05, 0.075, 0.085, 0.08, 0.08]
     _table(axes[0], cells, head, col_widths=widths, highlight=hi, row_height=1.6)
     ax = axes[1]
-    fits = [r.get("fit_percent") if r.get("fit_percent") is not None
+    fits = [float(r["fit_percent"]) if r.get("fit_percent") is not None
             else 100.0 * (1.0 - float(r["nrmse"])) for r in rows]
     colours = [style.VALIDATION if r.get("role") == "validation" else style.MODEL for r in rows]
     xs = np.arange(nrow)

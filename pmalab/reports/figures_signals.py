@@ -68,7 +68,7 @@ def error_loop(
         norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
     ax.plot(x, f, color=style.MEASURED_BAND, lw=measured_lw, label=measured_label, zorder=1,
             solid_capstyle="round")
-    lc = LineCollection(segs, cmap=style.ERROR_CMAP, norm=norm, linewidths=model_lw, zorder=2)
+    lc = LineCollection(list(segs), cmap=style.ERROR_CMAP, norm=norm, linewidths=model_lw, zorder=2)
     lc.set_array(seg_err)
     ax.add_collection(lc)
     ax.autoscale_view()
@@ -87,7 +87,8 @@ def _fit_text(t: Trace, fit_percent: float | None) -> str:
 
 def _colorbar(fig: Figure, lc: LineCollection, ax: Axes) -> None:
     arr = np.asarray(lc.get_array(), dtype=float)
-    over = bool(arr.size) and float(arr.max()) > lc.norm.vmax
+    vmax = lc.norm.vmax
+    over = bool(arr.size) and isinstance(vmax, float | int) and float(arr.max()) > float(vmax)
     fig.colorbar(lc, ax=ax, label=style.ABS_ERROR, shrink=0.85, pad=0.01, aspect=30,
                  extend="max" if over else "neither")
 
@@ -254,7 +255,8 @@ def before_after_figure(
             if i == 0 and j == 0:
                 ax.legend(loc="best")
         fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,
-                     aspect=40, extend="max" if float(np.max(e)) > norm.vmax else "neither")
+                     aspect=40, extend="max" if float(np.max(e)) > float(norm.vmax or 0.0)
+                     else "neither")
         axes[1, j].sharex(axes[0, j])
         axes[1, j].sharey(axes[0, j])
     return fig

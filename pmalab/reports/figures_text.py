@@ -297,12 +297,14 @@ def summarize_provenance(
             if len(rest) > 10:
                 lines.append(f"… {len(rest) - 10} more attributes")
         blocks.append((file, lines))
-        runs = prov.get("runs") if isinstance(prov.get("runs"), Mapping) else {}
+        runs_v = prov.get("runs")
+        runs: Mapping[str, Any] = runs_v if isinstance(runs_v, Mapping) else {}
         for name in inp.get("runs") or list(runs):
             a = runs.get(name)
             if not isinstance(a, Mapping):
                 continue
-            tm = a.get("timing") if isinstance(a.get("timing"), Mapping) else {}
+            tm_v = a.get("timing")
+            tm: Mapping[str, Any] = tm_v if isinstance(tm_v, Mapping) else {}
             rows.append({
                 "run": f"{Path(file).name}:{name}", "role": a.get("role", ""),
                 "status": a.get("status", ""),

@@ -29,7 +29,8 @@ TOLERANCE_PX = 1.0
 def _drawn_ticks(axis: Axis) -> list:
     """The ticks the axis drew at the last draw (those inside the view interval)."""
     try:
-        return list(axis._update_ticks())  # the ticks to draw (matplotlib ≥ 3.x)
+        # the ticks to draw (matplotlib ≥ 3.x; private, hence the guard below)
+        return list(axis._update_ticks())  # pyright: ignore[reportAttributeAccessIssue]
     except AttributeError:  # pragma: no cover - a future matplotlib
         return list(axis.get_major_ticks())
 

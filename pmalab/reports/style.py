@@ -10,13 +10,14 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from pathlib import Path
-from typing import ParamSpec, TypeVar
+from typing import Any, ParamSpec, TypeVar, cast
 
 import matplotlib as mpl
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
+from matplotlib.layout_engine import ConstrainedLayoutEngine
 
 from pmalab.paths import check_output
 from pmalab.reports.errors import ReportError
@@ -24,7 +25,8 @@ from pmalab.reports.errors import ReportError
 A4_LANDSCAPE = (11.69, 8.27)  # inches
 MIN_FONT_PT = 8.0
 
-RC = {
+#: the report's rcParams (typed loosely: matplotlib types its keys as a literal list)
+RC: dict[Any, Any] = {
     "font.size": 9.0,
     "axes.titlesize": 10.0,
     "axes.labelsize": 9.0,
@@ -89,8 +91,9 @@ def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDS
         return fig
     fig = Figure(figsize=figsize, layout="constrained")
     # rect leaves a strip at the bottom for the page footer
-    fig.get_layout_engine().set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05,
-                                rect=(0.0, 0.025, 1.0, 0.975))
+    engine = cast(ConstrainedLayoutEngine, fig.get_layout_engine())
+    engine.set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05,
+               rect=(0.0, 0.025, 1.0, 0.975))
     if title:
         fig.suptitle(title, fontweight="bold")
     return fig

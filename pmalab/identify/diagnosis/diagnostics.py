@@ -151,7 +151,7 @@ def loop_regions(x: np.ndarray, v: np.ndarray, r: np.ndarray) -> list[dict[str, 
 
 def loop_phase(x: np.ndarray, r: np.ndarray, n_bins: int = 8) -> dict[str, Any]:
     """r.m.s. and mean residual by loop phase (0° = maximum contraction, 180° = minimum)."""
-    z = hilbert(x - np.mean(x))
+    z = np.asarray(hilbert(x - np.mean(x)))
     ph = np.degrees(np.angle(z)) % 360.0
     edges = np.linspace(0.0, 360.0, n_bins + 1)
     which = np.clip(np.digitize(ph, edges) - 1, 0, n_bins - 1)

@@ -21,6 +21,7 @@ dependent, α·(1 + ψ_α·σ), b·(1 + ψ_b·σ), through the law's own extras.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -68,7 +69,7 @@ class AsymmetricHysteresis(Effect):
     def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
         return ("asym_psi_a",) if law_name == "duhem" else ()
 
-    def law_extras(self, law_name: str, sig: Signals, theta: dict[str, float]) -> dict[str, float]:
+    def law_extras(self, law_name: str, sig: Signals, theta: Mapping[str, float]) -> dict[str, float]:
         if law_name == "duhem":
             # ratios kept inside (−1, 1) so α and b keep their sign on both branches
             return {"psi_alpha": float(np.tanh(theta["asym_psi_v"])),
@@ -78,6 +79,6 @@ class AsymmetricHysteresis(Effect):
         return {"psi_v": float(theta["asym_psi_v"]), "psi_h": float(theta["asym_psi_h"]),
                 "psi_a": float(theta["asym_psi_a"])}
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray | float:
         # the loop width changes along the stroke: h·(1 + g·x) = h + h·g·x
         return h * (theta["asym_g"] * sig.x)

@@ -28,6 +28,7 @@ User effects: put subclasses in a Python file and pass ``--effects my_effects.py
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -101,15 +102,15 @@ class Effect:
         """
         return []
 
-    def transform(self, sig: Signals, theta: dict[str, float]) -> Signals:
+    def transform(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
         """Signals the hysteresis law and the force terms see (default: unchanged)."""
         return sig
 
-    def law_extras(self, law_name: str, sig: Signals, theta: dict[str, float]) -> dict[str, float]:
+    def law_extras(self, law_name: str, sig: Signals, theta: Mapping[str, float]) -> dict[str, float]:
         """Extra inputs for the hysteresis law (default: none)."""
         return {}
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray | float:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray | float:
         """Additive force term in N (default: 0)."""
         return 0.0
 

@@ -9,6 +9,7 @@ are recomputed from the shifted position.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -61,7 +62,7 @@ class SensorDelay(Effect):
         return [Param("delay_tau", 0.0, -0.1, 0.1, "s",
                       doc="position channel lag behind the force channel (s)")]
 
-    def transform(self, sig: Signals, theta: dict[str, float]) -> Signals:
+    def transform(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
         tau = float(theta["delay_tau"])
         if tau == 0.0:
             return sig

@@ -10,6 +10,7 @@ and predictions of other runs tare the force (see :mod:`pmalab.identify.effects.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -50,7 +51,7 @@ class SensorDrift(Effect):
         lim = 5.0 * force_scale / dur
         return [Param("drift_d", 0.0, -lim, lim, "N/s", doc="force zero drift rate")]
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         # centred on the middle of the run's time span (not the sample mean, so the term is
         # the same function of absolute time whatever part of the run a fit sees)
         return theta["drift_d"] * (sig.t - 0.5 * (sig.t[0] + sig.t[-1]))

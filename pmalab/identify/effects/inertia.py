@@ -14,6 +14,7 @@ smoother acceleration, from the position low-passed (zero phase) at 6× the test
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -72,5 +73,5 @@ class Inertia(Effect):
         return [Param("inertia_m", 0.0, -lim, lim, "kg",
                       doc="moving mass between muscle and load cell")]
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         return -theta["inertia_m"] * smooth_acceleration(sig) * 1e-3

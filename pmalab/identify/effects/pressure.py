@@ -10,6 +10,7 @@ stroke (x absolute, so runs of one pressure level share g₀, g₁).  Uses the m
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -51,6 +52,6 @@ class PressureVariation(Effect):
                   doc="change of that sensitivity per mm of contraction"),
         ]
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         dp = sig.p - sig.p_nom
         return (theta["pv_g0"] + theta["pv_g1"] * sig.x) * dp

@@ -9,6 +9,7 @@ same function of x in each of them).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -48,6 +49,6 @@ class NonlinearStiffness(Effect):
                   "N/mm³", doc="cubic stiffness"),
         ]
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         x = sig.x
         return (theta["stiff_k2"] + theta["stiff_k3"] * x) * x * x

@@ -7,6 +7,7 @@ c ≥ 0 the term −c·ẋ is positive then and negative while the muscle contra
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
@@ -42,5 +43,5 @@ class ViscousFriction(Effect):
         return [Param("visc_c", 0.0, 0.0, 3.0 * force_scale / vmax, "N·s/mm",
                       doc="viscous coefficient (tension rise per mm/s of stretching speed)")]
 
-    def force(self, sig: Signals, h: np.ndarray, theta: dict[str, float]) -> np.ndarray:
+    def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         return -theta["visc_c"] * sig.v

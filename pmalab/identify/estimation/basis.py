@@ -35,20 +35,20 @@ class PressureBasis:
     def over(cls, pressures: Sequence[float]) -> PressureBasis:
         return cls(float(min(pressures)), float(max(pressures)))
 
-    def u(self, p: float | np.ndarray) -> np.ndarray:
+    def u(self, p: float | Sequence[float] | np.ndarray) -> np.ndarray:
         p = np.asarray(p, dtype=np.float64)
         span = self.p_hi - self.p_lo
         if span <= 0:
             return np.zeros_like(p)
         return (2.0 * p - self.p_lo - self.p_hi) / span
 
-    def matrix(self, p: float | np.ndarray, degree: int) -> np.ndarray:
+    def matrix(self, p: float | Sequence[float] | np.ndarray, degree: int) -> np.ndarray:
         """Rows: pressures; columns P_0..P_degree."""
         u = np.atleast_1d(self.u(p))
         cols = [np.ones_like(u), u, 1.5 * u * u - 0.5][: degree + 1]
         return np.column_stack(cols)
 
-    def to_monomial(self, c: Sequence[float]) -> tuple[float, float, float]:
+    def to_monomial(self, c: Sequence[float] | np.ndarray) -> tuple[float, float, float]:
         """(q0, q1, q2) of θ(p) = q0 + q1·p + q2·p² equal to Σ c_d·P_d(u(p))."""
         c = list(c) + [0.0] * (3 - len(c))
         nodes = self._nodes()
@@ -105,7 +105,8 @@ class PolyFit:
         return q0 + q1 * p + q2 * p * p
 
 
-def fit_polynomial(p: Sequence[float], y: Sequence[float], w: np.ndarray | None = None, *,
+def fit_polynomial(p: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
+                   w: np.ndarray | None = None, *,
                    max_degree: int = 2, select: bool = False) -> PolyFit:
     """Weighted least squares of ``y`` on p, order ≤ ``max_degree`` (≤ levels − 1).
 

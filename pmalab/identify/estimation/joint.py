@@ -44,7 +44,7 @@ model evaluations per Jacobian (one more R per nuisance parameter).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,7 +171,7 @@ def refine(
     max_prune_rounds: int = 2,
     max_nfev: int = MAX_NFEV,
     alternatives: Sequence[tuple[dict[str, tuple[float, float, float]], dict[str, int]]] = (),
-    nuisance_start: dict[str, Sequence[float]] | None = None,
+    nuisance_start: Mapping[str, Sequence[float]] | None = None,
     fixed_order: Sequence[str] = (),
 ) -> tuple[JointFit, list[str]]:
     """Jointly refine the pressure laws (see the module docstring); returns (fit, notes).
@@ -268,10 +268,10 @@ def refine(
     return fit, notes
 
 
-def evaluate(model: ForceModel, runs: Sequence[Record], coef: dict[str, Sequence[float]],
+def evaluate(model: ForceModel, runs: Sequence[Record], coef: Mapping[str, Sequence[float]],
              constants: dict[str, float], bounds: dict[str, tuple[float, float]],
              h0: Sequence[float] | None,
-             nuisance: dict[str, Sequence[float]] | None = None) -> list[float]:
+             nuisance: Mapping[str, Sequence[float]] | None = None) -> list[float]:
     """Per-run nrmse (subsampled free run) of the monomial pressure laws ``coef``.
 
     Each run's h0 (and record nuisance parameters, starting from ``nuisance``) is fitted
@@ -299,9 +299,9 @@ SMOOTH_R2 = 0.9
 def start_laws(
     names: Sequence[str],
     pressures: Sequence[float],
-    values: dict[str, Sequence[float]],
-    stderr: dict[str, Sequence[float | None]],
-    undetermined: dict[str, Sequence[bool]],
+    values: Mapping[str, Sequence[float]],
+    stderr: Mapping[str, Sequence[float | None]],
+    undetermined: Mapping[str, Sequence[bool]],
     max_degree: int,
 ) -> tuple[dict[str, tuple[float, float, float]], dict[str, int], list[str]]:
     """Start laws (monomial q) and orders from the per-run fits; returns (q, orders, notes).

@@ -112,7 +112,7 @@ class Problem:
             lo[self.block(j)], hi[self.block(j)] = self.bounds.get(rn, (-np.inf, np.inf))
         return lo, hi
 
-    def z_from(self, coefs: Mapping[str, Sequence[float]],
+    def z_from(self, coefs: Mapping[str, Sequence[float] | np.ndarray],
                run_values: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
         """z from Legendre coefficients per free parameter (padded/truncated to its order)
         and per-run values per run parameter (default 0)."""

@@ -158,4 +158,5 @@ def predict_record(model: ForceModel, sig: Signals, theta: Mapping[str, float],
     if initial == "burn-in":
         aug, P = burn_in_signals(sig)
         return model.predict(aug, th)[P:]
+    assert force is not None  # "estimate" without a force became "burn-in" above
     return model.predict(sig, estimate_record(model, sig, force, th, bounds))

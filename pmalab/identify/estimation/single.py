@@ -39,8 +39,12 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 from pmalab.errors import PmalabError
 from pmalab.identify.estimation.problem import Problem, Record
@@ -255,7 +259,7 @@ def _refine(prob: Problem, start: dict[str, float], max_nfev: int | None = None)
     return res.x, res
 
 
-def _refine_starts(prob: Problem, starts: list[dict[str, float]]) -> tuple[np.ndarray, object]:
+def _refine_starts(prob: Problem, starts: list[dict[str, float]]) -> tuple[np.ndarray, OptimizeResult]:
     """Refine the best start; try the next ones only if the fit stays poor; then the
     multi-start grid of any multi-modal effect parameter (``Effect.multistart``)."""
     best = None
@@ -320,7 +324,7 @@ def _remember(key: tuple, theta: dict[str, float]) -> None:
 
 
 def _fit_once(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[str, float],
-              init: dict[str, float]) -> tuple[Params, Problem, object]:
+              init: dict[str, float]) -> tuple[Params, Problem, OptimizeResult]:
     ps = model.params(sig, force)
     for name in list(fixed) + list(init):
         if name not in ps:

@@ -67,7 +67,8 @@ def solve(residual: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarra
           tol: float = 1e-8) -> OptimizeResult:
     """Bounded nonlinear least squares from ``z0`` (see the module docstring)."""
     with one_blas_thread():
-        return least_squares(residual, inside(np.asarray(z0, float), lo, hi), jac=jac,
+        return least_squares(residual, inside(np.asarray(z0, float), lo, hi),
+                             jac=jac,  # pyright: ignore[reportArgumentType]  (scipy's stubs: str only)
                              bounds=(lo, hi), method="trf", x_scale="jac", ftol=tol,
                              xtol=tol, gtol=tol, max_nfev=max_nfev)
 
