@@ -8,18 +8,36 @@ import math
 import pytest
 
 from pmalab.identify.headline import error_fall, worst_runs
-from pmalab.identify.messages import cli_text, is_note, sort_messages
+from pmalab.identify.messages import (
+    Message,
+    as_message,
+    detail,
+    is_note,
+    note,
+    read_messages,
+    sort_messages,
+    warn,
+)
 
-CAMPAIGN = [
-    "n fixed at 1 (default): n trades off against beta/gamma; free it with free=['n']",
-    "pressure laws refined jointly on all 7 runs (free-run error, per-run h0): mean nrmse "
-    "0.0357 with the per-run quadratics -> 0.0303; orders in p: k 2",
-    "joint fit: pressure order lowered where the joint data do not support it (Wald/BIC): A 2->1",
-    "beta: pressure order 1 (BIC over its per-run values; order 2 not supported)",
-    "joint refinement stopped early: The maximum number of function evaluations is exceeded.",
+CAMPAIGN: list[str] = [
+    note("default-fix", "n fixed at 1 (default): n trades off against beta/gamma; free it "
+         "with --free n", name="n", value=1.0),
+    note("joint-refined", "pressure laws refined jointly on all 7 runs (free-run error, "
+         "per-run h0): mean nrmse 0.0357 with the per-run quadratics -> 0.0303; orders in p: k 2"),
+    detail("joint-order", "joint fit: pressure order lowered where the joint data do not "
+           "support it (Wald/BIC): A 2->1"),
+    detail("pressure-order", "beta: pressure order 1 (BIC over its per-run values; order 2 "
+           "not supported)", name="beta", order=1),
+    warn("optimizer", "joint refinement stopped early: The maximum number of function "
+         "evaluations is exceeded."),
     "only 2 pressure level(s) (0.3, 0.4 MPa): quadratics reduced to degree 1",
     "an unknown new message nobody classified",
 ]
+
+
+def _coll(a: str, b: str, rho: float) -> Message:
+    return warn("collinear", f"rho({a},{b})={rho:+.3f}: |rho| > 0.95; these parameters "
+                "trade off", a=a, b=b, rho=rho, limit=0.95)
 
 
 def test_information_is_a_note_and_problems_are_warnings_in_full():
@@ -27,22 +45,20 @@ def test_information_is_a_note_and_problems_are_warnings_in_full():
         ("f.h5:r1", ["beta = 0.5 is at its bound [0, 0.5]",
                      "measured loop runs anti-physically (tension 3 N lower while stretching): "
                      "check the position sign / channel mapping",
-                     "rho(A,h0)=+0.988: |rho| > 0.95; these parameters trade off",
-                     "rho(beta,gamma)=-0.976: |rho| > 0.95; these parameters trade off"],
-         ["rho(k,c0)=-0.989 only because c0 is extrapolated to x = 0"]),
-        ("f.h5:r2", ["rho(A,h0)=+0.994: |rho| > 0.95; these parameters trade off"], []),
+                     _coll("A", "h0", 0.988), _coll("beta", "gamma", -0.976)],
+         [detail("c0-extrapolated", "rho(k,c0)=-0.989 only because c0 is extrapolated to x = 0")]),
+        ("f.h5:r2", [_coll("A", "h0", 0.994)], []),
         ("f.h5:r3", [], []),
     ])
     assert all(is_note(n) for n in CAMPAIGN[:4])
-    assert m.notes == [cli_text(CAMPAIGN[0]), CAMPAIGN[1]]
-    assert m.notes[0].endswith("free it with --free n")
+    assert m.notes == [CAMPAIGN[0], CAMPAIGN[1]]
     assert CAMPAIGN[2] in m.details and CAMPAIGN[3] in m.details  # the method's details: -v
     assert "f.h5:r1: beta = 0.5 is at its bound [0, 0.5]" in m.warnings
     assert any(w.startswith("f.h5:r1: measured loop runs anti-physically") and
                w.endswith("check the position sign / channel mapping") for w in m.warnings)
     assert CAMPAIGN[4] in m.warnings and CAMPAIGN[5] in m.warnings
     assert CAMPAIGN[6] in m.warnings  # unknown messages are shown, never hidden
-    # collinearity: one campaign line naming the pairs and their run counts
+    # collinearity: one campaign line naming the pairs and their run counts, from the data
     coll = [w for w in m.warnings if w.startswith("parameters trade off")]
     assert len(coll) == 1
     assert "on 2 of 3 runs" in coll[0] and "A/h0 (2 runs)" in coll[0]
@@ -51,18 +67,49 @@ def test_information_is_a_note_and_problems_are_warnings_in_full():
     assert any("only because c0 is extrapolated" in d for d in m.details)
 
 
+def test_a_sentence_decides_nothing_the_type_does():
+    # the same words as a note, but untyped: a warning (no regex reads sentences)
+    assert not is_note("n fixed at 1 (default): n trades off against beta/gamma")
+    assert is_note(note("x", "anything at all"))
+    assert not is_note(warn("x", "pressure laws refined jointly"))
+
+
 def test_held_out_runs_are_one_note():
-    m = sort_messages(["f.h5:v1: role 'validation' in the run file, held out for validation",
-                       "f.h5:v2: role 'validation' in the run file, held out for validation"], [])
+    m = sort_messages([note("held-out", "f.h5:v1: role 'validation' in the run file, held out "
+                            "for validation", run="f.h5:v1"),
+                       note("held-out", "whatever the wording", run="f.h5:v2")], [])
     assert m.notes == ["2 run(s) with role 'validation' in the run file held out for "
                        "validation: f.h5:v1, f.h5:v2"]
     assert not m.warnings
 
 
-def test_cli_text_turns_python_hints_into_flags():
-    assert cli_text("free it with free=['n']") == "free it with --free n"
-    assert cli_text("free=['n', 'a']") == "--free n --free a"
-    assert cli_text("no hint here") == "no hint here"
+def test_messages_round_trip_through_json_and_pickle():
+    import json
+    import pickle
+
+    ms = [as_message(m) for m in CAMPAIGN] + [_coll("A", "h0", 0.988)]
+    back = read_messages(json.loads(json.dumps([m.to_dict() for m in ms])))
+    assert all(a.same(b) for a, b in zip(ms, back, strict=True))
+    assert all(a.same(b) for a, b in zip(ms, pickle.loads(pickle.dumps(ms)), strict=True))
+    assert json.dumps(ms[0]) == json.dumps(ms[0].text)  # still reads as its sentence
+
+
+def test_identification_json_carries_the_typed_messages(tmp_path):
+    import json
+
+    from identify_synth import make_run
+
+    from pmalab.identify.api import identify
+
+    runs = [make_run("bouc-wen", p, n=3000, f=0.5, seed=i, name=f"r{i}")[0]
+            for i, p in enumerate((0.2, 0.4, 0.6))]
+    res = identify(runs, "bouc-wen")
+    res.save(tmp_path / "o")
+    doc = json.loads((tmp_path / "o" / "identification.json").read_text())
+    msgs = read_messages(doc["messages"])
+    codes = {m.code: m for m in msgs}
+    assert codes["default-fix"].kind == "note" and codes["default-fix"].data["name"] == "n"
+    assert "joint-refined" in codes
 
 
 def _doc(model, effects, nrmse):

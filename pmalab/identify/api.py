@@ -27,6 +27,7 @@ from pmalab.identify.campaign import (
     fit_and_validate,
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
+from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
 from pmalab.runfile import Run, check_distinct, check_distinct_runs, read_runs
@@ -153,8 +154,8 @@ def identify(
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
     ident, held = split_roles(runs_l)
-    notes = [f"{r.label}: role 'validation' in the run file, held out for validation"
-             for r in held]
+    notes: list[str] = [note("held-out", f"{r.label}: role 'validation' in the run file, held "
+                             "out for validation", run=r.label) for r in held]
     notes += gap_notes([*runs_l, *(validate or [])])
     if not ident:
         raise PmalabError("no identification runs: every run read from the files has role 'validation'")

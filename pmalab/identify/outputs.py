@@ -52,6 +52,7 @@ from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign import CampaignFit, ModelSpec, Validation, validate_runs
 from pmalab.identify.estimation.solver import STDERR_METHOD
+from pmalab.identify.messages import as_message
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.predictions import (  # noqa: F401  (the format's names, re-exported)
@@ -183,6 +184,7 @@ def identification_dict(res: Identification) -> dict:
             "fixed": list(r.fixed),
             "warnings": list(r.warnings),
             "notes": list(r.notes),
+            "messages": [as_message(m).to_dict() for m in [*r.warnings, *r.notes]],
             **_metric_block(r.metrics),
             "n_samples": r.n_samples, "n_eff": r.n_eff, "n_free": r.n_free,
             "aic": r.aic, "bic": r.bic, "condition_number": r.condition_number,
@@ -228,6 +230,8 @@ def identification_dict(res: Identification) -> dict:
         "validation": val_out,
         "warnings": warnings,
         "notes": list(res.notes),
+        # every campaign message typed: kind (note | detail | warning), code, text, data
+        "messages": [as_message(m).to_dict() for m in [*res.notes, *res.warnings]],
         "method": {
             "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
                    "scale) then joint scipy least_squares (trf, bounds) on free-run error",

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
-from pmalab.identify.messages import cli_text, is_note
+from pmalab.identify.messages import Message, is_detail, is_note, read_messages
 from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
@@ -181,14 +181,21 @@ def plan_pages(data: ReportData) -> list[Page]:
                      + _part(i, len(pc)))
             pages.append(Page(title, f"parameters-{i + 1}", lambda c=chunk, t=title:
                               _parameter_page(ident, id_rows, c, vps, t)))
-        warnings = list(ident.get("warnings") or [])
-        for r in id_rows:  # run warnings not already repeated in the top-level list
-            warnings += [f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): {w}"
-                         for w in r.get("warnings") or []
-                         if not any(g.endswith(w) for g in warnings)]
+        # typed messages (identification.json "messages"); an older file's plain
+        # "warnings" list reads as warnings
+        msgs: list[str] = (read_messages(ident["messages"]) if ident.get("messages")
+                           else list(ident.get("warnings") or []))
+        for r in id_rows:  # run messages, the method's details left out
+            run_msgs: list[str] = (read_messages(r["messages"]) if r.get("messages")
+                                   else list(r.get("warnings") or []))
+            head = f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): "
+            msgs += [m if not isinstance(m, Message) else
+                     Message(m.kind, m.code, head + m.text, **m.data)
+                     for m in run_msgs if not is_detail(m)]
+        msgs = [m for m in msgs if not is_detail(m)]
         # what to check first, then what was done (the terminal's warning:/note: split)
-        warnings = ([f"warning: {cli_text(w)}" for w in warnings if not is_note(w)]
-                    + [f"note: {cli_text(w)}" for w in warnings if is_note(w)])
+        warnings = ([f"warning: {w}" for w in msgs if not is_note(w)]
+                    + [f"note: {w}" for w in msgs if is_note(w)])
         fixed_all = [n for n in names if all(n in (r.get("fixed") or []) for r in id_rows)]
         tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
         for i, chunk in enumerate(tc):

@@ -40,6 +40,7 @@ from pmalab.identify.estimation.output_error import (
 )
 from pmalab.identify.estimation.records import TARE_NOTE, predict_record
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
+from pmalab.identify.messages import detail, note
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
@@ -294,7 +295,7 @@ def fit_campaign(
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings = list(default_fixed_notes(fm, free))
     if fm.tares:
-        warnings.append(TARE_NOTE)
+        warnings.append(note("tare", TARE_NOTE))
 
     # consistency: a collinear parameter fixed on most runs is fixed on all
     defaults = set(fm.law.default_fixed) - set(free)
@@ -312,12 +313,15 @@ def fit_campaign(
                                  progress=progress, fixed=fx, init=init, free=tuple(free),
                                  auto_fix=False)
                 for i, r in zip(redo, again):
-                    r.warnings.append(f"{name} fixed at {value:g} on every run for consistent "
-                                      f"pressure quadratics (collinear on {len(auto)} of "
-                                      f"{len(results)} runs)")
+                    r.warnings.append(detail(
+                        "consistent-fix", f"{name} fixed at {value:g} on every run for "
+                        f"consistent pressure quadratics (collinear on {len(auto)} of "
+                        f"{len(results)} runs)", name=name, value=value))
                     results[i] = r
-            warnings.append(f"{name} fixed at {value:g} on all runs: collinear with another "
-                            f"parameter on {len(auto)} of {len(results)} runs (see run warnings)")
+            warnings.append(note(
+                "collinear-fix-all", f"{name} fixed at {value:g} on all runs: collinear with "
+                f"another parameter on {len(auto)} of {len(results)} runs (see run warnings)",
+                name=name, value=value, runs=len(auto)))
         else:
             warnings.append(f"{name} was fixed at {value:g} on {len(auto)} of {len(results)} runs "
                             "only (collinear there); its quadratic mixes fixed and fitted values")
@@ -454,10 +458,13 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     cf.pressure_model = "joint"
     orders = ", ".join(f"{n} {joint.degree[n]}" for n in free)
     per = ", ".join(["h0"] * bool(h0 is not None) + nuis_names) or "none"
-    cf.warnings.append(
+    cf.warnings.append(note(
+        "joint-refined",
         f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run {per}): "
         f"mean nrmse {float(np.mean(per_run)):.4f} with the per-run quadratics -> "
-        f"{joint.mean_nrmse:.4f}; orders in p: {orders}")
+        f"{joint.mean_nrmse:.4f}; orders in p: {orders}",
+        nrmse_per_run_quadratics=float(np.mean(per_run)), nrmse=joint.mean_nrmse,
+        orders=dict(joint.degree)))
     cf.warnings += notes + jnotes
     if not joint.success:
         cf.warnings.append(f"joint refinement stopped early: {joint.message}")

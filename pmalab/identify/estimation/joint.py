@@ -53,6 +53,7 @@ from pmalab.identify.estimation.basis import PressureBasis, fit_polynomial, weig
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import fit_record_params
 from pmalab.identify.estimation.solver import one_blas_thread, solve, uncertainty
+from pmalab.identify.messages import detail
 from pmalab.identify.metrics import information_criteria
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
@@ -249,11 +250,11 @@ def refine(
         b1 = information_criteria(float(e1 @ e1), rows, prob.n_var, n_eff)[1]
         b2 = information_criteria(float(e2 @ e2), rows, prob2.n_var, n_eff)[1]
         if b2 > b1:
-            notes.append(f"joint fit: kept pressure orders (lowering {', '.join(dropped)} "
-                         "raised the joint BIC)")
+            notes.append(detail("joint-order", f"joint fit: kept pressure orders (lowering {', '.join(dropped)} "
+                         "raised the joint BIC)"))
             break
-        notes.append("joint fit: pressure order lowered where the joint data do not support "
-                     f"it (Wald/BIC): {', '.join(dropped)}")
+        notes.append(detail("joint-order", "joint fit: pressure order lowered where the joint data do not support "
+                     f"it (Wald/BIC): {', '.join(dropped)}"))
         prob, sol, se, n_eff, bic, deg = prob2, sol2, se2, n_eff2, bic2, deg2
 
     coef = {n: basis.to_monomial(sol.x[prob.slices[n]]) for n in free}
@@ -328,11 +329,11 @@ def start_laws(
         if 2 * int(bad.sum()) >= bad.shape[0] and max_degree > 0 and smooth < SMOOTH_R2:
             out[n] = max_degree
             start[n] = (float(np.median(y_all)), 0.0, 0.0)
-            notes.append(f"{n}: poorly determined per run (collinear with another parameter or "
+            notes.append(detail("poorly-determined", f"{n}: poorly determined per run (collinear with another parameter or "
                          f"at a bound on {int(bad.sum())} of {bad.shape[0]} runs; per-run values "
                          f"wander, unweighted R² {smooth:.2f}): no per-run quadratic — the joint "
                          "fit starts from their median and keeps only the pressure terms all "
-                         "runs together support")
+                         "runs together support"))
             continue
         good = ~bad if int((~bad).sum()) > max_degree + 1 else np.ones_like(bad)
         p = p_all[good]
@@ -344,6 +345,6 @@ def start_laws(
         out[n] = pf.degree
         start[n] = pf.coef
         if pf.degree < md:
-            notes.append(f"{n}: pressure order {pf.degree} (BIC over its per-run values; "
-                         f"order {md} not supported)")
+            notes.append(detail("pressure-order", f"{n}: pressure order {pf.degree} (BIC over its per-run values; "
+                         f"order {md} not supported)", name=n, order=pf.degree))
     return start, out, notes

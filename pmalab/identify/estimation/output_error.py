@@ -34,6 +34,7 @@ from pmalab.identify.estimation.basis import PressureBasis
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.solver import solve, uncertainty
 from pmalab.identify.forward import Coefficients, Load, plant_slots, simulate, substeps
+from pmalab.identify.messages import Message, note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 
@@ -95,7 +96,7 @@ class OutputErrorFit:
     success: bool
     message: str
     positions: list[np.ndarray] = field(default_factory=list)  # simulated, per run
-    notes: list[str] = field(default_factory=list)
+    notes: list[Message] = field(default_factory=list)
 
     def theta(self, p: float) -> dict[str, float]:
         return {n: float(q[0] + q[1] * p + q[2] * p * p) for n, q in self.coef.items()}
@@ -145,7 +146,7 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
     basis = PressureBasis.over(pressures)
     free = [n for n in start if n not in STATE]
     b = dict(bounds)
-    notes: list[str] = []
+    notes: list[Message] = []
     mass = plant_slots(model).get("mass")
     if mass in free:
         m0 = min(float(np.polyval(list(reversed(list(start[mass]))), p)) for p in pressures)
@@ -154,9 +155,10 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
             held = {**held, mass: (0.0, 0.0, 0.0)}
             free.remove(mass)
             start = {n: q for n, q in start.items() if n != mass}
-            notes.append(f"{mass} held at 0 in the output-error fit: the force-direction fit "
-                         f"found no positive moving mass ({m0:.3g} kg), so the position is "
-                         "simulated quasi-statically (force balance per sample)")
+            notes.append(note(
+                "oe-massless", f"{mass} held at 0 in the output-error fit: the force-direction "
+                f"fit found no positive moving mass ({m0:.3g} kg), so the position is "
+                "simulated quasi-statically (force balance per sample)", mass_kg=m0))
         else:
             # a mass far below the start would need more sub-steps than were sized
             lo_m, hi_m = b.get(mass, (-np.inf, np.inf))

@@ -50,6 +50,7 @@ from pmalab.errors import PmalabError
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import predict_record
 from pmalab.identify.estimation.solver import STDERR_METHOD, one_blas_thread, solve, uncertainty
+from pmalab.identify.messages import Message, detail, note, warn
 from pmalab.identify.metrics import information_criteria, loop_direction, metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.params import Params
@@ -449,9 +450,10 @@ def _fit_run(
             ps2, prob2, res2 = _fit_once(model, sig_f, force_f, fix2, init)
             pred2, met2 = full(prob2, res2)
             if met2["nrmse"] <= met["nrmse"] * (1.0 + FIX_TOLERANCE) + 1e-12:
-                warnings.append(
+                warnings.append(detail(
+                    "auto-fix",
                     f"{partners}: not identifiable on this run; fixed {name} = {value:g} "
-                    f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})")
+                    f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})", name=name, value=value))
                 fix, ps, prob, res, pred, met = fix2, ps2, prob2, res2, pred2, met2
                 auto_fixed.add(name)
                 se, corr, cond, n_eff = _uncertainty(prob, res)
@@ -471,11 +473,14 @@ def _fit_run(
             # c0 is the tension extrapolated to x = 0, away from the data; with the offset
             # taken at the data's centre (c0 + k·mean x) the pair is not collinear, so this
             # is a parametrisation artefact, not an identifiability problem
-            notes.append(f"rho({a},{b})={r:+.3f} only because c0 is extrapolated to x = 0 "
-                         f"(data centred at x = {xm:.3g} mm; centred offset: rho={rc:+.3f})")
+            notes.append(detail("c0-extrapolated",
+                                f"rho({a},{b})={r:+.3f} only because c0 is extrapolated to x = 0 "
+                                f"(data centred at x = {xm:.3g} mm; centred offset: "
+                                f"rho={rc:+.3f})", a=a, b=b, rho=r))
             continue
         if a not in done and b not in done:
-            warnings.append(f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these parameters trade off")
+            warnings.append(warn("collinear", f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these "
+                                 "parameters trade off", a=a, b=b, rho=r, limit=RHO_LIMIT))
     if cond > COND_LIMIT:
         warnings.append(f"condition number of scaled J^T J is {cond:.3g} (> {COND_LIMIT:.0e}): "
                         "some parameter combination is poorly determined")
@@ -522,6 +527,7 @@ def _centred_corr(corr: np.ndarray, names: list[str], se: np.ndarray, xm: float)
     return np.clip(cov_c / np.outer(d, d), -1.0, 1.0)
 
 
-def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[str]:
+def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[Message]:
     """Human-readable notes on the law's default fixes (for campaign-level warnings)."""
-    return [why for k, why in model.law.default_fixed_why.items() if k not in free]
+    return [note("default-fix", why, name=k, value=model.law.default_fixed.get(k))
+            for k, why in model.law.default_fixed_why.items() if k not in free]
