@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from importlib.resources import files
 from pathlib import Path
 
@@ -98,7 +98,7 @@ def prepare_output_dir(directory: str | Path, names: tuple[str, ...], force: boo
     return d
 
 
-def missing_roots(paths: list[str | Path]) -> list[Path]:
+def missing_roots(paths: Iterable[str | Path]) -> list[Path]:
     """For each output path, the outermost of it and its parents that does not exist yet
     (what a command may create); paths that exist give nothing."""
     roots: list[Path] = []

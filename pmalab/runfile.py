@@ -21,7 +21,7 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -187,10 +187,13 @@ class Run:
         """A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (s)."""
         rel = self.time - self.time[0]
         keep = (rel >= t_start) & (rel <= t_end)
-        chans = {c: (None if getattr(self, c) is None else getattr(self, c)[keep])
-                 for c in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS)}
+        cp, cpc = self.cylinder_pressure, self.cylinder_pressure_command
         attrs = dict(self.attrs, window_s=[float(t_start), float(t_end)])
-        return Run(name=self.name, attrs=attrs, file=self.file, **chans)
+        return Run(name=self.name, attrs=attrs, file=self.file,
+                   time=self.time[keep], position=self.position[keep],
+                   force=self.force[keep], muscle_pressure=self.muscle_pressure[keep],
+                   cylinder_pressure=None if cp is None else cp[keep],
+                   cylinder_pressure_command=None if cpc is None else cpc[keep])
 
     def steady(self) -> Run:
         """The full-amplitude cycles only, when the recording says where they are.
@@ -267,7 +270,7 @@ def _hdf5_units_hint(channel: str, declared: str, unit: str | None) -> str:
 def validate_channels(
     path: Path | str,
     run: str,
-    raw: dict[str, tuple[np.ndarray, str | None]],
+    raw: Mapping[str, tuple[np.ndarray, str | None]],
     units_hint: Callable[[str, str, str | None], str] = _hdf5_units_hint,
     *,
     exempt_last: bool = False,
@@ -362,6 +365,8 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
     — a killed 0.8 s settle fragment is not an isobaric test — unless named in ``runs``;
     a file left with no complete run is an error.
     """
+    import h5py
+
     path = Path(path)
     if not path.exists():
         raise _fail(path, None, None, "no such file")
@@ -380,7 +385,10 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             raise _fail(path, None, None, f"unsupported format_version {ver!r}")
         if "runs" not in f:
             raise _fail(path, None, None, "no '/runs' group")
-        names = list(f["runs"].keys())
+        runs_g = f["runs"]
+        if not isinstance(runs_g, h5py.Group):
+            raise _fail(path, None, None, "'/runs' is not a group")
+        names = list(runs_g.keys())
         if runs is not None:
             wanted = list(runs)
             for r in wanted:
@@ -391,11 +399,15 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             raise _fail(path, None, None, "file holds no runs")
         out = []
         for name in names:
-            g = f["runs"][name]
+            g = runs_g[name]
+            if not isinstance(g, h5py.Group):
+                raise _fail(path, name, None, "not a group")
             raw = {}
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 if ch in g:
                     ds = g[ch]
+                    if not isinstance(ds, h5py.Dataset):
+                        raise _fail(path, name, ch, "not a dataset")
                     try:
                         values = ds[()]
                     except OSError as exc:
@@ -434,7 +446,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
                         + (f"; {recover_hint(path)}" if killed else ""))
         if not out:
             raise _fail(path, None, None, "no run holds recorded samples (statuses: "
-                        + ", ".join(f"{n}={_recording_state(f['runs'][n]).get('status')}"
+                        + ", ".join(f"{n}={_recording_state(runs_g[n]).get('status')}"
                                     for n in names) + ")"
                         + (f"; {recover_hint(path)}" if killed else ""))
     except (OSError, KeyError) as exc:
@@ -476,6 +488,7 @@ def _check_window(path: Path, run: str, attrs: dict[str, Any], t: np.ndarray) ->
             raise _fail(path, run, None, f"field '{key}' missing (it has '{other}')")
         if not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
             raise _fail(path, run, None, f"field '{key}' = {v!r}: must be a time ≥ 0 s")
+    assert t0 is not None and t1 is not None  # the loop above refused a missing one
     if t1 <= t0:
         raise _fail(path, run, None, f"field 'steady_end_s' = {t1:g} s is not after "
                     f"'steady_start_s' = {t0:g} s (a reversed window)")
@@ -613,11 +626,16 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
     channels :func:`read_runs` does not know (references, commands, a controller's gains).
     A run whose writer was killed (status ``running``) is cut to the samples every dataset
     holds.  One-line :class:`RunFileError` naming file and run on any problem."""
+    import h5py
+
     path = Path(path)
     f = open_h5(path)
     out: dict[str, tuple[np.ndarray, str]] = {}
     try:
-        if "runs" not in f or run not in f["runs"]:
+        if "runs" not in f:
+            raise _fail(path, run, None, "no such run")
+        runs_g = f["runs"]
+        if not isinstance(runs_g, h5py.Group) or run not in runs_g:
             raise _fail(path, run, None, "no such run")
 
         def visit(name: str, obj: Any) -> None:
@@ -625,7 +643,9 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
                 out[name] = (np.asarray(obj[()], dtype=np.float64),
                              str(decode_attr(obj.attrs["units"])))
 
-        g = f["runs"][run]
+        g = runs_g[run]
+        if not isinstance(g, h5py.Group):
+            raise _fail(path, run, None, "not a group")
         g.visititems(visit)
         if out and _recording_state(g).get("status") == "running":
             # a writer killed mid-append: every channel up to what all of them hold

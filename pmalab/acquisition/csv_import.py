@@ -45,6 +45,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -361,19 +362,22 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
                                "--delimiter or --header-rows?")
         df = df.iloc[:, : len(names)]
 
-    raw: dict[str, tuple[np.ndarray, str | None]] = {}
+    raw: dict[str, tuple[np.ndarray, str]] = {}
     for ch, col in wanted.items():
         cname = names[col]
         if col >= df.shape[1]:
             raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' has no "
                                f"values (rows have {df.shape[1]} fields)")
         column = df.iloc[:, col]
+        values: np.ndarray
         if np.issubdtype(column.dtype, np.number):
             values = column.to_numpy(dtype=np.float64)
         else:
             text = column.fillna("").astype(str).str.strip()
             num = text.str.replace(",", ".", regex=False) if opts.decimal == "," else text
-            values = pd.to_numeric(num, errors="coerce").to_numpy(dtype=np.float64)
+            # a Series in, a Series out (pandas' own annotation is every overload's union)
+            numbers = cast("pd.Series", pd.to_numeric(num, errors="coerce"))
+            values = numbers.to_numpy(dtype=np.float64)
             bad = np.flatnonzero(np.isnan(values) & (num.str.lower() != "nan").to_numpy())
             if bad.size:
                 k = int(bad[0])

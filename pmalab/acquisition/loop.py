@@ -59,7 +59,8 @@ class Stats(Protocol):
     n_late: int
     n_missed: int
 
-    def add_gap(self, t_rel: float, n: int) -> None: ...
+    # positional-only: RunWriter and LoopStats name the parameters differently
+    def add_gap(self, t_rel: float, n: int, /) -> None: ...
 
 
 @dataclass

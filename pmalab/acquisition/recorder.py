@@ -46,13 +46,16 @@ import shutil
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from pmalab.errors import OutputError
 from pmalab.paths import output_failure
 from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION
+
+if TYPE_CHECKING:
+    import h5py
 
 #: recorded channels, in the order :meth:`RunWriter.add` takes them
 RECORDED = ("time", "position", "force", "muscle_pressure", "cylinder_pressure",
@@ -117,16 +120,21 @@ class RunWriter:
     def __init__(self, rec: Recorder, name: str) -> None:
         self._rec = rec
         self.name = name
-        g = rec.file["runs"][name]
+        # the Recorder made this group and its datasets before SWMR started
+        g = cast("h5py.Group", cast("h5py.Group", rec.file["runs"])[name])
+
+        def ds(key: str) -> h5py.Dataset:
+            return cast("h5py.Dataset", g[key])
+
         self.channels = tuple(rec.channels)
-        self._ds = [g[c] for c in self.channels]
+        self._ds = [ds(c) for c in self.channels]
         self._fi = self.channels.index("force") if "force" in self.channels else None
-        self._summary = g["summary"] if "summary" in g else None
-        self._late_ds = g["lateness"]
-        self._status = g["status"]
-        self._timing = g["timing"]
-        self._device_stats = g["device_stats"]
-        self._gaps = g["gaps"] if "gaps" in g else None
+        self._summary = ds("summary") if "summary" in g else None
+        self._late_ds = ds("lateness")
+        self._status = ds("status")
+        self._timing = ds("timing")
+        self._device_stats = ds("device_stats")
+        self._gaps = ds("gaps") if "gaps" in g else None
         self._gap_buf: list[tuple[float, float]] = []
         self._buf: list[list[float]] = [[] for _ in self.channels]
         self._late_buf: list[float] = []

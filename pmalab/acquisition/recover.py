@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -39,10 +40,15 @@ def is_healthy(path: Path) -> bool:
         runs = f.get("runs")
         if runs is None:
             return True
+        if not isinstance(runs, h5py.Group):
+            return False  # damaged: recover() names the problem
         for name in runs:
             g = runs[name]
-            if "status" in g and isinstance(g["status"], h5py.Dataset):
-                status = g["status"][()]
+            if not isinstance(g, h5py.Group):
+                return False
+            status_ds = g.get("status")
+            if isinstance(status_ds, h5py.Dataset):
+                status = status_ds[()]
                 if isinstance(status, bytes) and status.rstrip(b"\x00 ") == b"running":
                     return False
         return True
@@ -119,16 +125,27 @@ def recover(path: str | Path, out: str | Path | None = None, *,
             for k, v in src.attrs.items():
                 dst.attrs[k] = v
             runs = dst.create_group("runs", track_order=True)
-            for name in src["runs"]:
-                g = src["runs"][name]
+            src_runs = src["runs"]
+            if not isinstance(src_runs, h5py.Group):
+                raise RunFileError(f"{src_path}: damaged run file ('/runs' is not a group)")
+            for name in src_runs.keys():
+                g = src_runs[name]
+                if not isinstance(g, h5py.Group):
+                    raise RunFileError(f"{src_path}: damaged run file (run '{name}' is not "
+                                       "a group)")
                 d = runs.create_group(name)
                 for k, v in g.attrs.items():
                     d.attrs[k] = v
                 _copy_group(g, d, _samples(g))
                 if "status" in g:
-                    status = g["status"][()].decode("utf-8", "replace").rstrip("\x00 ")
+                    status_ds = g["status"]
+                    if not isinstance(status_ds, h5py.Dataset):
+                        raise RunFileError(f"{src_path}: damaged run file (run '{name}': "
+                                           "'status' is not a dataset)")
+                    status = status_ds[()].decode("utf-8", "replace").rstrip("\x00 ")
                     if status == "running":
-                        d["status"][()] = np.bytes_(
+                        # _copy_group copied the status dataset into d
+                        cast(h5py.Dataset, d["status"])[()] = np.bytes_(
                             b"aborted: recording interrupted (writer killed; recovered)")
                         fixed.append(name)
         src.close()

@@ -14,7 +14,9 @@ from typing import TYPE_CHECKING
 from pmalab.lazy import lazy_exports
 
 if TYPE_CHECKING:
-    from pmalab.active.loop import ActiveResult
+    from pathlib import Path
+
+    from pmalab.active.loop import ActiveResult, Recorder
 
 # imported on first use: `pmalab --help` registers this package's options without numpy
 _getattr, _names = lazy_exports(__name__, {n: "pmalab.active.loop" for n in (
@@ -26,7 +28,7 @@ def __getattr__(name: str):
     return _getattr(name)
 
 
-def diagnose(campaign, *, rig, run_suggested: bool = True, model: str = "bouc-wen",
+def diagnose(campaign, *, rig: str | Path | Recorder, run_suggested: bool = True, model: str = "bouc-wen",
              budget_s: float = 300.0, confirm=None, max_rounds: int = 3, seed: int | None = None,
              **kwargs) -> ActiveResult:
     """``pmalab diagnose CAMPAIGN --rig RIG --run-suggested`` from Python.

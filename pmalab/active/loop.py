@@ -32,7 +32,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from pmalab.active.design import MIN_SEPARATION, Experiment, design, experiment_toml
 from pmalab.errors import PmalabError
@@ -268,7 +268,8 @@ def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> None:
                 while new in runs:
                     new = f"{n}-{k}"
                     k += 1
-                src.copy(src["runs"][n], runs, name=new)
+                # round_file is the run file the round's recorder wrote (its /runs group)
+                src.copy(cast(h5py.Group, src["runs"])[n], runs, name=new)
                 runs[new].attrs["appended_from"] = str(round_file.name)
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())

@@ -49,6 +49,14 @@ def open_run_file(path: Path) -> h5py.File:
     return f
 
 
+def _dataset(path: Path, run: str, g: h5py.Group, channel: str) -> h5py.Dataset:
+    """Channel ``channel`` of run group ``g``, refused (one line) when it is not a dataset."""
+    ds = g[channel]
+    if not isinstance(ds, h5py.Dataset):
+        raise RunFileError(f"{path}: run '{run}': channel '{channel}' is not a dataset")
+    return ds
+
+
 def _run_info(name: str, index: int, n_runs: int, attrs: Any) -> dict[str, Any]:
     a = {k: decode_attr(v) for k, v in attrs.items()}
 
@@ -119,15 +127,21 @@ class FileFollower(threading.Thread):
             if self.margins is None:
                 limits = decode_attr(f.attrs.get("limits", ""), parse_json=True)
                 self.margins = Margins.from_limits(limits if isinstance(limits, dict) else {})
-            names = list(f["runs"].keys())
+            runs = f["runs"]
+            if not isinstance(runs, h5py.Group):
+                raise RunFileError(f"{self.path}: '/runs' is not a group")
+            names = list(runs.keys())
             final = True
             newest = -1
             for i, name in enumerate(names):
-                g = f["runs"][name]
+                g = runs[name]
+                if not isinstance(g, h5py.Group):
+                    raise RunFileError(f"{self.path}: run '{name}' is not a group")
                 status = _status(g)
                 if status in ("running", "pending"):
                     final = False
-                n = min((g[c].shape[0] for _, c in CHANNELS[:4] if c in g), default=0)
+                n = min((_dataset(self.path, name, g, c).shape[0]
+                         for _, c in CHANNELS[:4] if c in g), default=0)
                 if n == 0:
                     continue
                 newest = i
@@ -142,7 +156,7 @@ class FileFollower(threading.Thread):
                 if status not in ("running", "pending"):
                     self.hub.end_run(i, status)
             if newest >= 0:
-                self.hub.set_status(self._status_of(newest, len(names), f["runs"][names[newest]]))
+                self.hub.set_status(self._status_of(newest, len(names), runs[names[newest]]))
             if final and newest >= 0:
                 self.complete = True
                 k = len(self.done)

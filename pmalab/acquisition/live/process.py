@@ -126,12 +126,13 @@ class DisplayProcess:
         root = str(Path(pmalab.__file__).resolve().parents[1])  # this pmalab, also uninstalled
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
         try:
-            self.proc = subprocess.Popen(
+            self.proc = proc = subprocess.Popen(
                 [sys.executable, "-m", "pmalab.acquisition.live.display", self._ring_path,
                  json.dumps(self.config)],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
-            ready, _, _ = select.select([self.proc.stdout], [], [], START_TIMEOUT_S)
-            line = self.proc.stdout.readline().decode(errors="replace").strip() if ready else ""
+            assert proc.stdin is not None and proc.stdout is not None  # both are PIPEs
+            ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
+            line = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
         finally:
             with contextlib.suppress(OSError):
                 os.unlink(self._ring_path)  # both processes have it mapped now (or never will)
@@ -142,7 +143,7 @@ class DisplayProcess:
                 f" within {START_TIMEOUT_S:g} s" if not line else f" ({line})"))
             raise ConfigError(why)
         self.port = int(rest)
-        os.set_blocking(self.proc.stdin.fileno(), False)
+        os.set_blocking(proc.stdin.fileno(), False)
         self._watcher = threading.Thread(target=self._watch, name="pmalab-live-control",
                                          daemon=True)
         self._watcher.start()
@@ -182,7 +183,8 @@ class DisplayProcess:
                     lost = self.lost_events
                     self.send(("finish", message))
             with contextlib.suppress(Exception):
-                proc.stdin.close()
+                if proc.stdin is not None:
+                    proc.stdin.close()
             try:
                 proc.wait(timeout_s)
             except subprocess.TimeoutExpired:
@@ -192,6 +194,7 @@ class DisplayProcess:
             if self._watcher is not None:
                 self._watcher.join(1.0)
             with contextlib.suppress(Exception):
-                proc.stdout.close()
+                if proc.stdout is not None:
+                    proc.stdout.close()
         with contextlib.suppress(OSError):
             os.unlink(self._ring_path)

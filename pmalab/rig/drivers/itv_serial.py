@@ -133,6 +133,7 @@ class ItvSerialRegulator(PressureRegulator):
                 if self._stop:
                     return
                 n = self._pending
+            assert n is not None  # the wait ends on stop (returned above) or a pending value
             try:
                 self.set_counts(n)
             except RigError as exc:

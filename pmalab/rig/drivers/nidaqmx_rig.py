@@ -94,10 +94,10 @@ def daqmx_line(exc: BaseException) -> str:
 
 def _nidaqmx():
     try:
-        import nidaqmx
-        import nidaqmx.constants
-        import nidaqmx.errors
-        import nidaqmx.stream_readers
+        import nidaqmx  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
+        import nidaqmx.constants  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
+        import nidaqmx.errors  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
+        import nidaqmx.stream_readers  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
     except ImportError:
         raise ConfigError("rig kind 'nidaqmx' needs NI's driver (NI-DAQmx) and the nidaqmx "
                           "package: pip install 'pmalab[nidaq]'") from None
@@ -251,7 +251,7 @@ class NidaqSampler(Sampler):
     # -- task life
     def _make_task(self, rate: float):
         ni = _nidaqmx()
-        from nidaqmx.constants import AcquisitionType, TerminalConfiguration
+        from nidaqmx.constants import AcquisitionType, TerminalConfiguration  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
 
         task = ni.Task()
         try:
@@ -276,7 +276,7 @@ class NidaqSampler(Sampler):
         self.sample_rate_Hz = float(rate_Hz)
 
     def start(self) -> None:
-        from nidaqmx.stream_readers import AnalogMultiChannelReader
+        from nidaqmx.stream_readers import AnalogMultiChannelReader  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
 
         self.stop()
         try:
@@ -343,7 +343,7 @@ class NidaqSampler(Sampler):
         the running stream (what has arrived since the last read), else from a one-sample
         on-demand task.  Raises on a device that cannot be read."""
         ai = next(a for a in self.spec.inputs if a.name == name)
-        if self.running and self.task is not None:
+        if self.running and self.task is not None and self.reader is not None:
             avail = int(self.task.in_stream.avail_samp_per_chan)
             if avail > 0:
                 buf = np.zeros((len(self.spec.inputs), avail))
@@ -353,7 +353,7 @@ class NidaqSampler(Sampler):
                 return float(self._convert(buf[:, -1:], check=False)[name][-1])
             return self._latest.get(name, float("nan"))
         ni = _nidaqmx()
-        from nidaqmx.constants import TerminalConfiguration
+        from nidaqmx.constants import TerminalConfiguration  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
 
         with ni.Task() as task:
             task.ai_channels.add_ai_voltage_chan(

@@ -311,7 +311,7 @@ def make_modbus_rig(
 def build_modbus_rig(
     spec: str | Path | ModbusRigSpec,
     *,
-    seed: int = 0,
+    seed: int | None = 0,
     clock: Clock | None = None,
     probe: bool = True,
 ) -> Rig:

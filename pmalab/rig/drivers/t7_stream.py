@@ -31,7 +31,7 @@ import struct
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -168,7 +168,7 @@ class T7StreamSampler(Sampler):
         self.closers.clear()
         self.link.close()
 
-    def _read(self) -> tuple[list[int], int, int, int, list[int]]:
+    def _read(self) -> tuple[list[int], int, int, int, int]:
         want = (MAX_READ_REGISTERS - 4) // self.n_ch * self.n_ch
         regs = self.link.read_registers(STREAM_DATA_CR, 4 + want)
         self.counts["reads"] += 1
@@ -230,6 +230,7 @@ def make_t7_stream_rig(section: Mapping[str, Any], rig_file: Path | None = None,
                        seed: int | None = None, clock: Clock | None = None) -> Rig:
     """``RIG_KINDS["labjack-t7-stream"]``: a ``modbus`` rig whose inputs are streamed."""
     from pmalab.config import check_keys
+    from pmalab.rig.drivers.modbus_daq import ModbusSampler
     from pmalab.rig.drivers.rigfile import build_modbus_rig, parse_modbus_rig
 
     where = str(rig_file) if rig_file else "rig"
@@ -249,7 +250,7 @@ def make_t7_stream_rig(section: Mapping[str, Any], rig_file: Path | None = None,
         raise ConfigError(f"{where}: [rig.inputs] function: the stream reads STREAM_DATA_CR "
                           "with FC3 (\"holding\")")
     rig = build_modbus_rig(spec, seed=seed or 0, clock=clock, probe=False)
-    polled = rig.sampler
+    polled = cast(ModbusSampler, rig.sampler)  # what build_modbus_rig makes
     sampler = T7StreamSampler(polled.link, polled.channels, buffer_size_bytes=buf,
                               ain_calibration=cal)
     sampler.closers = list(getattr(polled, "closers", []))

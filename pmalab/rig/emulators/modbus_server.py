@@ -487,6 +487,8 @@ class ModbusEmulator:
             self._server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=trace,
                                            custom_pdu=STRICT_PDUS)
         else:  # an RS-485 device ignores frames for other units
+            if self.serial_port is None:  # reported by start()
+                raise ValueError("an RTU emulator needs serial_port (the serial bridge's path)")
             self._server = ModbusSerialServer(
                 device, port=self.serial_port, baudrate=self.baudrate, trace_packet=trace,
                 custom_pdu=STRICT_PDUS, ignore_missing_devices=True,
