@@ -19,6 +19,7 @@ demo: $(STAMP)
 test: $(STAMP) chromium
 	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/lint-imports
+	$(BIN)/basedpyright
 	@echo "pytest: the whole suite takes ~9 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
 	$(BIN)/python -m pytest -q --durations=10
 
@@ -42,6 +43,7 @@ docs: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/lint-imports
+	$(BIN)/basedpyright
 
 clean:
 	rm -rf $(VENV) demo-output .pytest_cache site

@@ -183,10 +183,10 @@ def plan_pages(data: ReportData) -> list[Page]:
                               _parameter_page(ident, id_rows, c, vps, t)))
         # typed messages (identification.json "messages"); an older file's plain
         # "warnings" list reads as warnings
-        msgs: list[str] = (read_messages(ident["messages"]) if ident.get("messages")
+        msgs: list[str] = ([*read_messages(ident["messages"])] if ident.get("messages")
                            else list(ident.get("warnings") or []))
         for r in id_rows:  # run messages, the method's details left out
-            run_msgs: list[str] = (read_messages(r["messages"]) if r.get("messages")
+            run_msgs: list[str] = ([*read_messages(r["messages"])] if r.get("messages")
                                    else list(r.get("warnings") or []))
             head = f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): "
             msgs += [m if not isinstance(m, Message) else

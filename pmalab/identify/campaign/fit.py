@@ -293,7 +293,7 @@ def fit_campaign(
     check_free(fm, free)
     kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
-    warnings = list(default_fixed_notes(fm, free))
+    warnings: list[str] = list(default_fixed_notes(fm, free))
     if fm.tares:
         warnings.append(note("tare", TARE_NOTE))
 
