@@ -140,3 +140,16 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
                 "data/control/identification-duhem.json", "--duration", "2", "--out", "c.h5"],
                cwd=work, env=env)
     assert (work / "c.h5").is_file() and "completed" in out, out
+    # the model as a plant: the benchmark written, identified on position, simulated, and
+    # the shipped identification as the manipulator's muscle (model in the loop)
+    _run([pmalab, "benchmark", "bouc-wen", "--out", "bw"], cwd=work, env=env)
+    out = _run([pmalab, "identify", "bw/train.h5", "--output", "position", "--model",
+                "bouc-wen", "--add", "inertia", "--add", "viscous-friction", "--validate",
+                "bw/test-multisine.h5", "--out", "bwid", "--quiet"], cwd=work, env=env)
+    assert "position rmse" in out, out
+    _run([pmalab, "simulate", "bwid", "bw/test-sweep.h5", "--out", "sim.h5"], cwd=work, env=env)
+    assert (work / "sim.h5").is_file()
+    out = _run([pmalab, "control", "--controller", "sn-pid", "--reference", "sine:0.2Hz:20mm",
+                "--plant", "data/control/identification-bouc-wen.json", "--duration", "2",
+                "--out", "plant.h5"], cwd=work, env=env)
+    assert "completed" in out, out

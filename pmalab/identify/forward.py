@@ -503,7 +503,11 @@ class IdentifiedPlant:
         """From a directory holding ``identification.json`` or the file itself."""
         import json
 
-        p = Path(path)
+        from pmalab.paths import DATA_DIR, shipped
+
+        # a result directory, its identification.json, or a shipped identification by name
+        # or clone path (data/control/identification-bouc-wen.json) from an installed wheel
+        p = shipped(path, DATA_DIR / "control", ".json")
         f = p / "identification.json" if p.is_dir() else p
         if not f.is_file():
             raise ForwardError(f"{path}: no identification.json there (run pmalab identify)")
