@@ -18,6 +18,7 @@ demo: $(STAMP)
 
 test: $(STAMP) chromium
 	$(BIN)/ruff check pmalab tests bench docs
+	$(BIN)/ruff format --check pmalab
 	$(BIN)/lint-imports
 	$(BIN)/basedpyright
 	@echo "pytest: the whole suite takes ~9 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
@@ -42,6 +43,7 @@ docs: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check pmalab tests bench docs
+	$(BIN)/ruff format --check pmalab
 	$(BIN)/lint-imports
 	$(BIN)/basedpyright
 

@@ -64,8 +64,10 @@ def main(argv: list[str] | None = None) -> int:
         return exc.code if isinstance(exc.code, int) else 2
     if extra:  # argparse would blame `pmalab`; the option belongs to the verb's --help
         prog = f"{parser.prog} {args.verb}"
-        print(f"{prog}: error: unrecognized arguments: {' '.join(extra)} (see {prog} --help)",
-              file=sys.stderr)
+        print(
+            f"{prog}: error: unrecognized arguments: {' '.join(extra)} (see {prog} --help)",
+            file=sys.stderr,
+        )
         return 2
     outputs = [v for k in OUTPUT_ARGS if isinstance(v := getattr(args, k, None), str) and v]
     created = missing_roots(outputs)

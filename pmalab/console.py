@@ -18,10 +18,15 @@ QUIET, NORMAL, VERBOSE = 0, 1, 2
 def add_verbosity(p: argparse.ArgumentParser, *, quiet_help: str = "") -> None:
     """Add ``-q/--quiet`` and ``-v/--verbose`` (mutually exclusive) to a verb's parser."""
     g = p.add_mutually_exclusive_group()
-    g.add_argument("-q", "--quiet", action="store_true",
-                   help=quiet_help or "print results and warnings only (no progress, no notes)")
-    g.add_argument("-v", "--verbose", action="store_true",
-                   help="also print per-run notes and details")
+    g.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help=quiet_help or "print results and warnings only (no progress, no notes)",
+    )
+    g.add_argument(
+        "-v", "--verbose", action="store_true", help="also print per-run notes and details"
+    )
 
 
 def verbosity(args: argparse.Namespace) -> int:

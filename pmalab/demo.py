@@ -36,8 +36,17 @@ DEMO_EFFECTS = (
 
 
 #: what a demo writes into --out (all that --force may delete)
-DEMO_OUTPUTS = frozenset({"rig", "campaign.h5", "identify", "diagnose", "identify-improved",
-                          "report.pdf", "report.pdf.part"})
+DEMO_OUTPUTS = frozenset(
+    {
+        "rig",
+        "campaign.h5",
+        "identify",
+        "diagnose",
+        "identify-improved",
+        "report.pdf",
+        "report.pdf.part",
+    }
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,9 +58,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo-output", help="output directory (default demo-output)")
     p.add_argument("--force", action="store_true", help="replace an existing output directory")
     p.add_argument("--model", default="bouc-wen", choices=("bouc-wen", "duhem"))
-    p.add_argument("--hidden", default="asymmetric-hysteresis", choices=DEMO_EFFECTS,
-                   help="the effect switched on in the simulated muscle (default: "
-                        "asymmetric-hysteresis, which the Bouc-Wen seed paper reports missing)")
+    p.add_argument(
+        "--hidden",
+        default="asymmetric-hysteresis",
+        choices=DEMO_EFFECTS,
+        help="the effect switched on in the simulated muscle (default: "
+        "asymmetric-hysteresis, which the Bouc-Wen seed paper reports missing)",
+    )
     p.add_argument("--seed", type=int, default=7, help="random seed of the simulated rig")
     add_verbosity(p, quiet_help="pass -q to every step: results and warnings only")
     p.set_defaults(func=run_demo)
@@ -104,11 +117,15 @@ def _verdict(hidden: str, found: list[str], diag: dict) -> str:
     if hidden in found:
         return "found it"
     if hidden in ambiguous:
-        return (f"found it among look-alikes ({', '.join(ambiguous)}); to separate them: "
-                f"{diag.get('suggested_experiment', '')}")
+        return (
+            f"found it among look-alikes ({', '.join(ambiguous)}); to separate them: "
+            f"{diag.get('suggested_experiment', '')}"
+        )
     if not found:
-        return ("claimed no effect: on this campaign the hidden effect is too small to "
-                "matter (inertia, for one, needs tests at ≥ 1–2 Hz)")
+        return (
+            "claimed no effect: on this campaign the hidden effect is too small to "
+            "matter (inertia, for one, needs tests at ≥ 1–2 Hz)"
+        )
     return f"did NOT find it (named {', '.join(found)} instead)"
 
 
@@ -121,10 +138,13 @@ def run_demo(args: argparse.Namespace) -> int:
             raise OutputError(f"{out}: is not a directory (give a directory for --out)")
         foreign = sorted(p.name for p in out.iterdir() if p.name not in DEMO_OUTPUTS)
         if foreign:  # --force replaces a demo's output, never a directory of other work
-            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more"
-                                              if len(foreign) > 3 else "")
-            raise OutputError(f"{out}: holds files the demo did not write ({shown}); --force "
-                              "replaces only a demo output directory: give another --out")
+            shown = ", ".join(foreign[:3]) + (
+                f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
+            )
+            raise OutputError(
+                f"{out}: holds files the demo did not write ({shown}); --force "
+                "replaces only a demo output directory: give another --out"
+            )
         shutil.rmtree(out)
     out.mkdir(parents=True)
     t0 = time.perf_counter()
@@ -134,24 +154,50 @@ def run_demo(args: argparse.Namespace) -> int:
     base, diagnosis, improved = out / "identify", out / "diagnose", out / "identify-improved"
     q = ["--quiet"] if args.quiet else (["--verbose"] if args.verbose else [])
 
-    _step(1, "record the seed campaign on a simulated rig with a hidden effect",
-          ["run", "--rig", str(rig), "--protocol", str(protocol), "--out", str(campaign),
-           "--seed", str(args.seed), "--quiet"])
-    _step(2, f"identify {args.model} per pressure level, quadratics, validation",
-          ["identify", str(campaign), "--model", args.model, "--out", str(base), *q])
-    _step(3, "diagnose: where does the model fail, which effect is missing?",
-          ["diagnose", str(campaign), "--model", args.model, "--out", str(diagnosis), *q])
+    _step(
+        1,
+        "record the seed campaign on a simulated rig with a hidden effect",
+        [
+            "run",
+            "--rig",
+            str(rig),
+            "--protocol",
+            str(protocol),
+            "--out",
+            str(campaign),
+            "--seed",
+            str(args.seed),
+            "--quiet",
+        ],
+    )
+    _step(
+        2,
+        f"identify {args.model} per pressure level, quadratics, validation",
+        ["identify", str(campaign), "--model", args.model, "--out", str(base), *q],
+    )
+    _step(
+        3,
+        "diagnose: where does the model fail, which effect is missing?",
+        ["diagnose", str(campaign), "--model", args.model, "--out", str(diagnosis), *q],
+    )
     diag = json.loads((diagnosis / "diagnosis.json").read_text())
     found = [s["added"] for s in diag.get("ladder", []) if s.get("added")]
     add: list[str] = []
     for e in found:
         add += ["--add", e]
-    _step(4, "identify again with the effects diagnosis named" if found
-          else "identify again (diagnosis named no effect)",
-          ["identify", str(campaign), "--model", args.model, *add, "--out", str(improved), *q])
+    _step(
+        4,
+        "identify again with the effects diagnosis named"
+        if found
+        else "identify again (diagnosis named no effect)",
+        ["identify", str(campaign), "--model", args.model, *add, "--out", str(improved), *q],
+    )
     report = out / "report.pdf"
-    _step(5, "report: base and improved identification side by side, and the diagnosis",
-          ["report", str(base), str(improved), str(diagnosis), "--out", str(report), *q])
+    _step(
+        5,
+        "report: base and improved identification side by side, and the diagnosis",
+        ["report", str(base), str(improved), str(diagnosis), "--out", str(report), *q],
+    )
 
     fall = _error_fall(base, improved)
     print("\nSummary")

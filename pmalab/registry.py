@@ -39,15 +39,17 @@ class Registry(Mapping[str, T]):
         self._entries: dict[str, Entry[T]] = {}
         self._seq = 0
 
-    def register(self, id: str, item: T, *, title: str = "", order: float = 100.0,
-                 replace: bool = False) -> T:
+    def register(
+        self, id: str, item: T, *, title: str = "", order: float = 100.0, replace: bool = False
+    ) -> T:
         """Add ``item`` under ``id``; a second item with the same id is refused unless
         ``replace`` (a user's file must not silently shadow a built-in)."""
         if not isinstance(id, str) or not id:
             raise self.error(f"{self.kind}: an id must be a non-empty text, got {id!r}")
         if id in self._entries and not replace and self._entries[id].item is not item:
-            raise self.error(f"{self.kind} '{id}' is already registered "
-                             f"({self._entries[id].item!r})")
+            raise self.error(
+                f"{self.kind} '{id}' is already registered ({self._entries[id].item!r})"
+            )
         self._seq += 1
         self._entries[id] = Entry(id, item, title, float(order), self._seq)
         return item
@@ -68,8 +70,9 @@ class Registry(Mapping[str, T]):
         try:
             return self._entries[id].item
         except KeyError:
-            raise self.error(f"unknown {self.kind} '{id}' (choose from "
-                             f"{', '.join(self)})") from None
+            raise self.error(
+                f"unknown {self.kind} '{id}' (choose from {', '.join(self)})"
+            ) from None
 
     # Mapping
     def __getitem__(self, id: str) -> T:

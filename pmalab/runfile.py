@@ -189,11 +189,17 @@ class Run:
         keep = (rel >= t_start) & (rel <= t_end)
         cp, cpc = self.cylinder_pressure, self.cylinder_pressure_command
         attrs = dict(self.attrs, window_s=[float(t_start), float(t_end)])
-        return Run(name=self.name, attrs=attrs, file=self.file,
-                   time=self.time[keep], position=self.position[keep],
-                   force=self.force[keep], muscle_pressure=self.muscle_pressure[keep],
-                   cylinder_pressure=None if cp is None else cp[keep],
-                   cylinder_pressure_command=None if cpc is None else cpc[keep])
+        return Run(
+            name=self.name,
+            attrs=attrs,
+            file=self.file,
+            time=self.time[keep],
+            position=self.position[keep],
+            force=self.force[keep],
+            muscle_pressure=self.muscle_pressure[keep],
+            cylinder_pressure=None if cp is None else cp[keep],
+            cylinder_pressure_command=None if cpc is None else cpc[keep],
+        )
 
     def steady(self) -> Run:
         """The full-amplitude cycles only, when the recording says where they are.
@@ -238,7 +244,6 @@ def decode_attr(v: Any, *, parse_json: bool = False) -> Any:
         except json.JSONDecodeError:
             return v
     return v
-
 
 
 def run_state(status: Any) -> str:
@@ -313,13 +318,17 @@ def validate_channels(
             raise _fail(path, run, ch, f"NaN or infinite value at sample {bad}")
         rule = PLAUSIBLE.get(ch)
         held = arr[:-1] if exempt_last else arr
-        if rule is not None and held.size and not (rule.lo <= held.min()
-                                                   and held.max() <= rule.hi):
+        if rule is not None and held.size and not (rule.lo <= held.min() and held.max() <= rule.hi):
             i = int(np.argmax(np.maximum(held - rule.hi, rule.lo - held)))
             canon = CANONICAL_UNITS[ch]
-            raise _fail(path, run, ch, f"reaches {arr[i]:.4g} {canon} at sample {i}, which no "
-                        f"PMA test produces ({rule.what}) — "
-                        + units_hint(ch, str(units), likely_unit(ch, rawf[: held.size])))
+            raise _fail(
+                path,
+                run,
+                ch,
+                f"reaches {arr[i]:.4g} {canon} at sample {i}, which no "
+                f"PMA test produces ({rule.what}) — "
+                + units_hint(ch, str(units), likely_unit(ch, rawf[: held.size])),
+            )
         if n is None:
             n = arr.shape[0]
         out[ch] = arr
@@ -344,12 +353,15 @@ INCLUDE_HINT = "--include-aborted uses it anyway"
 
 def recover_hint(path: Path | str) -> str:
     """What makes a file whose writer was killed readable by other HDF5 tools."""
-    return (f"h5dump/HDFView cannot open this file until 'pmalab recover {path}' "
-            f"(or 'h5clear -s {path}')")
+    return (
+        f"h5dump/HDFView cannot open this file until 'pmalab recover {path}' "
+        f"(or 'h5clear -s {path}')"
+    )
 
 
-def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
-              skip_incomplete: bool = False) -> list[Run]:
+def read_runs(
+    path: str | Path, runs: Iterable[str] | None = None, *, skip_incomplete: bool = False
+) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
     Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
@@ -430,8 +442,7 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
                 continue
-            chans = validate_channels(path, name, raw,
-                                      exempt_last=run_state(status) != "completed")
+            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
@@ -442,30 +453,46 @@ def read_runs(path: str | Path, runs: Iterable[str] | None = None, *,
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
             states = "; ".join(f"run '{n}' {_state_words(s)}" for n, s in skipped)
-            raise _fail(path, None, None, f"no complete run ({states}); {INCLUDE_HINT}"
-                        + (f"; {recover_hint(path)}" if killed else ""))
+            raise _fail(
+                path,
+                None,
+                None,
+                f"no complete run ({states}); {INCLUDE_HINT}"
+                + (f"; {recover_hint(path)}" if killed else ""),
+            )
         if not out:
-            raise _fail(path, None, None, "no run holds recorded samples (statuses: "
-                        + ", ".join(f"{n}={_recording_state(runs_g[n]).get('status')}"
-                                    for n in names) + ")"
-                        + (f"; {recover_hint(path)}" if killed else ""))
+            raise _fail(
+                path,
+                None,
+                None,
+                "no run holds recorded samples (statuses: "
+                + ", ".join(f"{n}={_recording_state(runs_g[n]).get('status')}" for n in names)
+                + ")"
+                + (f"; {recover_hint(path)}" if killed else ""),
+            )
     except (OSError, KeyError) as exc:
         raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
     finally:
         f.close()
     for name, status in skipped:
-        warnings.warn(RunFileWarning(
-            f"{path}: run '{name}' skipped: {_state_words(status)} ({INCLUDE_HINT})"
-            + (f"; {recover_hint(path)}" if killed and status == "running" else "")),
-            stacklevel=2)
+        warnings.warn(
+            RunFileWarning(
+                f"{path}: run '{name}' skipped: {_state_words(status)} ({INCLUDE_HINT})"
+                + (f"; {recover_hint(path)}" if killed and status == "running" else "")
+            ),
+            stacklevel=2,
+        )
     if killed and not any(status == "running" for _, status in skipped):
         # killed between runs (waiting for a pressure, or before closing): no cut run
         # carries the hint, yet other tools cannot open the file
-        unrecorded = (f" ({len(never)} run(s) never recorded: {', '.join(never)})"
-                      if never else "")
-        warnings.warn(RunFileWarning(
-            f"{path}: its recording did not close the file (killed, or still running){unrecorded}; "
-            f"{recover_hint(path)}"), stacklevel=2)
+        unrecorded = f" ({len(never)} run(s) never recorded: {', '.join(never)})" if never else ""
+        warnings.warn(
+            RunFileWarning(
+                f"{path}: its recording did not close the file (killed, or still running){unrecorded}; "
+                f"{recover_hint(path)}"
+            ),
+            stacklevel=2,
+        )
     return out
 
 
@@ -490,14 +517,23 @@ def _check_window(path: Path, run: str, attrs: dict[str, Any], t: np.ndarray) ->
             raise _fail(path, run, None, f"field '{key}' = {v!r}: must be a time ≥ 0 s")
     assert t0 is not None and t1 is not None  # the loop above refused a missing one
     if t1 <= t0:
-        raise _fail(path, run, None, f"field 'steady_end_s' = {t1:g} s is not after "
-                    f"'steady_start_s' = {t0:g} s (a reversed window)")
+        raise _fail(
+            path,
+            run,
+            None,
+            f"field 'steady_end_s' = {t1:g} s is not after "
+            f"'steady_start_s' = {t0:g} s (a reversed window)",
+        )
     dur = float(t[-1] - t[0])
     # an aborted or interrupted run stops before the window its protocol planned: only a
     # completed run must hold its window
     if t0 >= dur and run_state(attrs.get("status")) == "completed":
-        raise _fail(path, run, None, f"field 'steady_start_s' = {t0:g} s is beyond the run's "
-                    f"end ({dur:.3g} s)")
+        raise _fail(
+            path,
+            run,
+            None,
+            f"field 'steady_start_s' = {t0:g} s is beyond the run's end ({dur:.3g} s)",
+        )
 
 
 def open_h5(path: Path):
@@ -514,8 +550,9 @@ def open_h5(path: Path):
             return h5py.File(path, "r", swmr=True)
         except OSError:
             pass
-    raise _fail(path, None, None, f"not a readable HDF5 file ({_short(first)})"
-                + _text_hint(path)) from None
+    raise _fail(
+        path, None, None, f"not a readable HDF5 file ({_short(first)})" + _text_hint(path)
+    ) from None
 
 
 def _text_hint(path: Path) -> str:
@@ -580,17 +617,21 @@ def check_distinct_runs(runs: Sequence[Run]) -> None:
     run name and identical time and force samples."""
     seen: dict[tuple[str, int, str], Run] = {}
     for r in runs:
-        digest = hashlib.sha1(np.ascontiguousarray(r.time).tobytes()
-                              + np.ascontiguousarray(r.force).tobytes()).hexdigest()
+        digest = hashlib.sha1(
+            np.ascontiguousarray(r.time).tobytes() + np.ascontiguousarray(r.force).tobytes()
+        ).hexdigest()
         key = (r.name, len(r), digest)
         first = seen.setdefault(key, r)
         if first is not r and first.file != r.file:
-            raise RunFileError(f"{r.file}: run '{r.name}': the same recording as "
-                               f"{first.label} (a copy of one file?): use each recording once")
+            raise RunFileError(
+                f"{r.file}: run '{r.name}': the same recording as "
+                f"{first.label} (a copy of one file?): use each recording once"
+            )
 
 
-def check_distinct(paths: Sequence[str | Path], other: Sequence[str | Path] = (),
-                   other_name: str = "--validate") -> None:
+def check_distinct(
+    paths: Sequence[str | Path], other: Sequence[str | Path] = (), other_name: str = "--validate"
+) -> None:
     """Refuse a file given twice (in ``paths``, or in both ``paths`` and ``other``).
 
     Refused rather than de-duplicated: the same runs counted twice weigh double in the
@@ -610,8 +651,11 @@ def check_distinct(paths: Sequence[str | Path], other: Sequence[str | Path] = ()
             if key in seen:
                 first, first_group = seen[key]
                 same = "" if str(first) == str(p) else f" (the same file as {first})"
-                where = (f"given both as input and to {group}" if group and not first_group
-                         else "given twice")
+                where = (
+                    f"given both as input and to {group}"
+                    if group and not first_group
+                    else "given twice"
+                )
                 raise RunFileError(f"{p}: file {where}{same}: use each file once")
             seen[key] = (p, group)
 
@@ -640,8 +684,10 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
 
         def visit(name: str, obj: Any) -> None:
             if getattr(obj, "ndim", None) == 1 and "units" in obj.attrs:
-                out[name] = (np.asarray(obj[()], dtype=np.float64),
-                             str(decode_attr(obj.attrs["units"])))
+                out[name] = (
+                    np.asarray(obj[()], dtype=np.float64),
+                    str(decode_attr(obj.attrs["units"])),
+                )
 
         g = runs_g[run]
         if not isinstance(g, h5py.Group):

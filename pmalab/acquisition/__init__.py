@@ -26,12 +26,15 @@ from pmalab.lazy import lazy_exports
 # names are imported on first use: every ``pmalab`` verb registers its options through
 # ``pmalab.acquisition.cli``, and ``pmalab identify`` should not pay for the runner (numpy,
 # h5py, the rig interface) before it starts
-__getattr__, __all__ = lazy_exports(__name__, {
-    "Protocol": "pmalab.acquisition.protocol",
-    "RunSpec": "pmalab.acquisition.protocol",
-    "load_protocol": "pmalab.acquisition.protocol",
-    "parse_protocol": "pmalab.acquisition.protocol",
-    "RunnerOptions": "pmalab.acquisition.runner",
-    "RunResult": "pmalab.acquisition.runner",
-    "run_protocol": "pmalab.acquisition.runner",
-})
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "Protocol": "pmalab.acquisition.protocol",
+        "RunSpec": "pmalab.acquisition.protocol",
+        "load_protocol": "pmalab.acquisition.protocol",
+        "parse_protocol": "pmalab.acquisition.protocol",
+        "RunnerOptions": "pmalab.acquisition.runner",
+        "RunResult": "pmalab.acquisition.runner",
+        "run_protocol": "pmalab.acquisition.runner",
+    },
+)

@@ -22,134 +22,237 @@ from pmalab.errors import ConfigError, PmalabError, SafetyAbort
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``run`` and ``import`` to the ``pmalab`` parser."""
-    p = sub.add_parser("run", help="run a test protocol on a rig and record it to HDF5",
-                       description="Run a protocol on a rig (or the simulated one) and record "
-                       "every run at 500 Hz into a crash-proof HDF5 run file.  Ctrl-C or "
-                       "SIGTERM vents, closes the file and exits non-zero; after a kill -9 or "
-                       "power cut pmalab still reads the file, but h5dump/HDFView open it only "
-                       "after 'pmalab recover FILE' (or 'h5clear -s FILE').")
+    p = sub.add_parser(
+        "run",
+        help="run a test protocol on a rig and record it to HDF5",
+        description="Run a protocol on a rig (or the simulated one) and record "
+        "every run at 500 Hz into a crash-proof HDF5 run file.  Ctrl-C or "
+        "SIGTERM vents, closes the file and exits non-zero; after a kill -9 or "
+        "power cut pmalab still reads the file, but h5dump/HDFView open it only "
+        "after 'pmalab recover FILE' (or 'h5clear -s FILE').",
+    )
     p.add_argument("--rig", required=True, help="'sim' or a rig TOML file")
-    p.add_argument("--protocol", required=True,
-                   help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)")
+    p.add_argument(
+        "--protocol",
+        required=True,
+        help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)",
+    )
     p.add_argument("--out", required=True, help="output HDF5 run file")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
-    p.add_argument("--seed", type=int, default=None,
-                   help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)")
-    p.add_argument("--realtime", action="store_true",
-                   help="simulated rig: run on the real clock instead of the virtual one")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="simulated rig: run on the real clock instead of the virtual one",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--host", default=None,
-                   help="Modbus TCP rig: connect to this host instead of the rig file's")
-    p.add_argument("--port", type=int, default=None,
-                   help="Modbus TCP rig: connect to this TCP port instead of the rig file's "
-                   "(e.g. the one 'pmalab emulate --port' listens on)")
-    p.add_argument("--only", nargs="+", metavar="ROLE_OR_RUN",
-                   help="record only runs with these roles (identification, validation) "
-                   "or names")
-    p.add_argument("--live", metavar="[HOST:]PORT",
-                   help="serve a live page of the recording on HOST:PORT (HOST defaults to "
-                   "127.0.0.1; port 0 picks a free one); its stop button works from "
-                   "127.0.0.1 only")
+    p.add_argument(
+        "--host",
+        default=None,
+        help="Modbus TCP rig: connect to this host instead of the rig file's",
+    )
+    p.add_argument(
+        "--port",
+        type=int,
+        default=None,
+        help="Modbus TCP rig: connect to this TCP port instead of the rig file's "
+        "(e.g. the one 'pmalab emulate --port' listens on)",
+    )
+    p.add_argument(
+        "--only",
+        nargs="+",
+        metavar="ROLE_OR_RUN",
+        help="record only runs with these roles (identification, validation) or names",
+    )
+    p.add_argument(
+        "--live",
+        metavar="[HOST:]PORT",
+        help="serve a live page of the recording on HOST:PORT (HOST defaults to "
+        "127.0.0.1; port 0 picks a free one); its stop button works from "
+        "127.0.0.1 only",
+    )
     p.set_defaults(func=cmd_run)
 
-    v = sub.add_parser("view", help="show a run file (finished or still recording) in the "
-                       "live page",
-                       description="Serve the live page on a run file: a finished one, or one "
-                       "still being recorded (followed as it grows).  Ctrl-C to quit.")
+    v = sub.add_parser(
+        "view",
+        help="show a run file (finished or still recording) in the live page",
+        description="Serve the live page on a run file: a finished one, or one "
+        "still being recorded (followed as it grows).  Ctrl-C to quit.",
+    )
     v.add_argument("file", help="the HDF5 run file")
-    v.add_argument("--port", metavar="[HOST:]PORT", default="0",
-                   help="where to serve (default: a free port on 127.0.0.1)")
-    v.add_argument("--no-browser", action="store_true",
-                   help="only print the address (default: open it where a desktop is running)")
+    v.add_argument(
+        "--port",
+        metavar="[HOST:]PORT",
+        default="0",
+        help="where to serve (default: a free port on 127.0.0.1)",
+    )
+    v.add_argument(
+        "--no-browser",
+        action="store_true",
+        help="only print the address (default: open it where a desktop is running)",
+    )
     v.set_defaults(func=cmd_view)
 
-    q = sub.add_parser("import", help="convert other DAQs' exports (text, TDMS, .mat) into a run file",
-                       description="Convert exports of another DAQ into one pmalab HDF5 run "
-                       "file: text/CSV (one run per file), TDMS (.tdms: one run per group; "
-                       "units from unit_string, time from the waveform timing when there is "
-                       "no time channel) and MATLAB .mat v5/v7.3 (a struct per run, a vector "
-                       "per channel, or one matrix named by --columns). "
-                       "Columns default to time, position, force, muscle_pressure.  Exports "
-                       "with a metadata block (--header-rows), a units row (--units-row), "
-                       "';' and a decimal comma (--delimiter ';' --decimal ,) or Windows text "
-                       "(--encoding cp1252) are understood; values no PMA test can produce "
-                       "(gauge pressure above 1.2 MPa, |force| above 20 kN, |position| above "
-                       "500 mm) are refused with the unit they probably are in.")
-    q.add_argument("csv", nargs="+", metavar="FILE",
-                   help="input export(s): .csv/.txt (a row of column names, then data rows; "
-                   "--no-header for numbers only), .tdms or .mat; several files make one "
-                   "campaign")
+    q = sub.add_parser(
+        "import",
+        help="convert other DAQs' exports (text, TDMS, .mat) into a run file",
+        description="Convert exports of another DAQ into one pmalab HDF5 run "
+        "file: text/CSV (one run per file), TDMS (.tdms: one run per group; "
+        "units from unit_string, time from the waveform timing when there is "
+        "no time channel) and MATLAB .mat v5/v7.3 (a struct per run, a vector "
+        "per channel, or one matrix named by --columns). "
+        "Columns default to time, position, force, muscle_pressure.  Exports "
+        "with a metadata block (--header-rows), a units row (--units-row), "
+        "';' and a decimal comma (--delimiter ';' --decimal ,) or Windows text "
+        "(--encoding cp1252) are understood; values no PMA test can produce "
+        "(gauge pressure above 1.2 MPa, |force| above 20 kN, |position| above "
+        "500 mm) are refused with the unit they probably are in.",
+    )
+    q.add_argument(
+        "csv",
+        nargs="+",
+        metavar="FILE",
+        help="input export(s): .csv/.txt (a row of column names, then data rows; "
+        "--no-header for numbers only), .tdms or .mat; several files make one "
+        "campaign",
+    )
     q.add_argument("--out", required=True, help="output HDF5 run file")
     q.add_argument("--force", action="store_true", help="overwrite an existing output")
     for ch in ("time", "position", "force"):
-        q.add_argument(f"--{ch}-col", metavar="NAME", help=f"column holding {ch} "
-                       f"(default '{ch}')")
-    q.add_argument("--pressure-col", metavar="NAME",
-                   help="column holding the muscle pressure (default 'muscle_pressure')")
-    q.add_argument("--cylinder-col", metavar="NAME",
-                   help="column holding the cylinder pressure (optional)")
-    q.add_argument("--units", metavar="Q=U,...",
-                   help="units of the columns, e.g. position=m,force=kN,time=ms,pressure=kPa "
-                   "(override the units row and units in column names; defaults: s, mm, N, "
-                   "MPa); also written [mm], (mm), µm, um")
-    q.add_argument("--pressure", type=float, metavar="MPA",
-                   help="nominal muscle pressure in MPa (required without a pressure column)")
+        q.add_argument(f"--{ch}-col", metavar="NAME", help=f"column holding {ch} (default '{ch}')")
+    q.add_argument(
+        "--pressure-col",
+        metavar="NAME",
+        help="column holding the muscle pressure (default 'muscle_pressure')",
+    )
+    q.add_argument(
+        "--cylinder-col", metavar="NAME", help="column holding the cylinder pressure (optional)"
+    )
+    q.add_argument(
+        "--units",
+        metavar="Q=U,...",
+        help="units of the columns, e.g. position=m,force=kN,time=ms,pressure=kPa "
+        "(override the units row and units in column names; defaults: s, mm, N, "
+        "MPa); also written [mm], (mm), µm, um",
+    )
+    q.add_argument(
+        "--pressure",
+        type=float,
+        metavar="MPA",
+        help="nominal muscle pressure in MPa (required without a pressure column)",
+    )
     q.add_argument("--run", metavar="NAME", help="run name (default: the CSV's stem)")
-    q.add_argument("--delimiter", default=",", metavar="D",
-                   help="field separator: ',' (default), ';', '\\t' (tab) or any one character")
-    q.add_argument("--decimal", default=".", choices=(".", ","), metavar="MARK",
-                   help="decimal mark of the numbers: '.' (default) or ','")
-    q.add_argument("--header-rows", type=int, default=0, metavar="N",
-                   help="lines before the row of column names (a metadata block; default 0)")
-    q.add_argument("--units-row", action="store_true",
-                   help="the row under the names holds each column's unit ([s], mm, µm, kPa...)")
-    q.add_argument("--encoding", default="utf-8", metavar="NAME",
-                   help="text encoding (default utf-8; cp1252 for most Windows exports)")
-    q.add_argument("--negate", nargs="+", default=[], choices=["position", "force"],
-                   help="flip the sign of these channels (e.g. a DAQ recording elongation)")
-    q.add_argument("--no-header", action="store_true",
-                   help="the file has no row of column names (LabVIEW's spreadsheet export): "
-                   "name the fields with --columns")
-    q.add_argument("--columns", metavar="F1,F2,...",
-                   help="the fields by position: time, position, force, pressure (or t, x, f, "
-                   "p), cylinder_pressure; '-' skips a field, e.g. time,-,-,-,position,"
-                   "pressure,force")
-    q.add_argument("--pressure-from-name", metavar="REGEX",
-                   help="nominal pressure from each file's name, the number in the first "
-                   "group and the unit after it, e.g. '(\\d+)bar' or '(\\d+)kPa'")
-    q.add_argument("--split-halves", action="store_true",
-                   help="each record becomes two runs: the first half for identification, "
-                   "the second held out for validation")
+    q.add_argument(
+        "--delimiter",
+        default=",",
+        metavar="D",
+        help="field separator: ',' (default), ';', '\\t' (tab) or any one character",
+    )
+    q.add_argument(
+        "--decimal",
+        default=".",
+        choices=(".", ","),
+        metavar="MARK",
+        help="decimal mark of the numbers: '.' (default) or ','",
+    )
+    q.add_argument(
+        "--header-rows",
+        type=int,
+        default=0,
+        metavar="N",
+        help="lines before the row of column names (a metadata block; default 0)",
+    )
+    q.add_argument(
+        "--units-row",
+        action="store_true",
+        help="the row under the names holds each column's unit ([s], mm, µm, kPa...)",
+    )
+    q.add_argument(
+        "--encoding",
+        default="utf-8",
+        metavar="NAME",
+        help="text encoding (default utf-8; cp1252 for most Windows exports)",
+    )
+    q.add_argument(
+        "--negate",
+        nargs="+",
+        default=[],
+        choices=["position", "force"],
+        help="flip the sign of these channels (e.g. a DAQ recording elongation)",
+    )
+    q.add_argument(
+        "--no-header",
+        action="store_true",
+        help="the file has no row of column names (LabVIEW's spreadsheet export): "
+        "name the fields with --columns",
+    )
+    q.add_argument(
+        "--columns",
+        metavar="F1,F2,...",
+        help="the fields by position: time, position, force, pressure (or t, x, f, "
+        "p), cylinder_pressure; '-' skips a field, e.g. time,-,-,-,position,"
+        "pressure,force",
+    )
+    q.add_argument(
+        "--pressure-from-name",
+        metavar="REGEX",
+        help="nominal pressure from each file's name, the number in the first "
+        "group and the unit after it, e.g. '(\\d+)bar' or '(\\d+)kPa'",
+    )
+    q.add_argument(
+        "--split-halves",
+        action="store_true",
+        help="each record becomes two runs: the first half for identification, "
+        "the second held out for validation",
+    )
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
-    q.add_argument("--frequency", metavar="HZ|auto",
-                   help="excitation frequency tag (Hz), or 'auto': from the position's "
-                   "spectrum")
+    q.add_argument(
+        "--frequency",
+        metavar="HZ|auto",
+        help="excitation frequency tag (Hz), or 'auto': from the position's spectrum",
+    )
     q.set_defaults(func=cmd_import)
 
-    r = sub.add_parser("recover", help="close a run file whose recording was killed",
-                       description="A recording killed mid-run (kill -9, power cut) leaves "
-                       "its HDF5 file flagged 'open for write': h5dump, h5ls, HDFView and "
-                       "MATLAB refuse to open it until it is recovered (this command, or "
-                       "HDF5's 'h5clear -s FILE').  recover rewrites it as a plainly closed "
-                       "file that any tool opens; runs cut mid-recording are marked "
-                       "aborted.  pmalab's own readers do not need this.  A healthy file is "
-                       "left as it is (exit 0) unless --force.")
+    r = sub.add_parser(
+        "recover",
+        help="close a run file whose recording was killed",
+        description="A recording killed mid-run (kill -9, power cut) leaves "
+        "its HDF5 file flagged 'open for write': h5dump, h5ls, HDFView and "
+        "MATLAB refuse to open it until it is recovered (this command, or "
+        "HDF5's 'h5clear -s FILE').  recover rewrites it as a plainly closed "
+        "file that any tool opens; runs cut mid-recording are marked "
+        "aborted.  pmalab's own readers do not need this.  A healthy file is "
+        "left as it is (exit 0) unless --force.",
+    )
     r.add_argument("file", help="the run file")
     r.add_argument("--out", help="write here instead of replacing FILE")
-    r.add_argument("--force", action="store_true",
-                   help="overwrite --out if it exists; rewrite even a healthy file")
+    r.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite --out if it exists; rewrite even a healthy file",
+    )
     r.set_defaults(func=cmd_recover)
 
 
-def load_rig_spec(spec: str, *, seed: int | None = None, realtime: bool = False,
-                  host: str | None = None, port: int | None = None):
+def load_rig_spec(
+    spec: str,
+    *,
+    seed: int | None = None,
+    realtime: bool = False,
+    host: str | None = None,
+    port: int | None = None,
+):
     """``sim`` or a rig TOML path → a Rig; ``--realtime`` puts a simulated rig on the wall
     clock; ``host``/``port`` replace a Modbus TCP rig's endpoint."""
     from pmalab.rig.base import RealClock
     from pmalab.rig.loader import load_rig
 
-    return load_rig(spec, seed=seed, clock=RealClock() if realtime else None, host=host,
-                    port=port)
+    return load_rig(spec, seed=seed, clock=RealClock() if realtime else None, host=host, port=port)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -181,8 +284,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         from pmalab.acquisition.live.address import parse_address
 
         live = parse_address(args.live, "--live")
-    rig = load_rig_spec(args.rig, seed=args.seed, realtime=args.realtime, host=args.host,
-                        port=args.port)
+    rig = load_rig_spec(
+        args.rig, seed=args.seed, realtime=args.realtime, host=args.host, port=args.port
+    )
 
     def on_term(signum, frame):  # SIGTERM aborts like Ctrl-C: vent, close, exit non-zero
         raise Terminated()
@@ -190,8 +294,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, on_term)
     opts = RunnerOptions(
         progress=not args.quiet,
-        extra_attrs={"command_line": " ".join(sys.argv), "seed": rig.info.get("seed", args.seed),
-                     "rig_spec": args.rig},
+        extra_attrs={
+            "command_line": " ".join(sys.argv),
+            "seed": rig.info.get("seed", args.seed),
+            "rig_spec": args.rig,
+        },
     )
     try:
         with rig:
@@ -202,11 +309,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
                 with LiveSession(rig, protocol, args.out, opts, *live):
                     if rig.clock.virtual:
-                        print("pmalab: note: the simulated rig runs on its virtual clock, "
-                              "faster than real time; add --realtime to watch it at its pace",
-                              file=sys.stderr)
-                    results = run_protocol(rig, protocol, args.out, force=args.force,
-                                           options=opts)
+                        print(
+                            "pmalab: note: the simulated rig runs on its virtual clock, "
+                            "faster than real time; add --realtime to watch it at its pace",
+                            file=sys.stderr,
+                        )
+                    results = run_protocol(rig, protocol, args.out, force=args.force, options=opts)
     except SafetyAbort as exc:
         # closing the rig vented once more: a regulator that answers again is confirmed
         update_abort_vent(exc, rig.last_vent)
@@ -226,7 +334,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(r.summary())
     total = sum(r.n_samples for r in results)
     print(f"{args.out}: {len(results)} runs, {total} samples")
-    for r in results:  # after the summaries: a run that did not keep its rate is not just "completed"
+    for (
+        r
+    ) in results:  # after the summaries: a run that did not keep its rate is not just "completed"
         if r.warning:
             print(f"pmalab run: warning: {args.out}: {r.warning}", file=sys.stderr)
     vent = rig.last_vent
@@ -253,8 +363,14 @@ def _select_either(protocol, roles, names):
     runs = [r for r in protocol.runs if r.role in roles or r.name in names]
     if not runs:
         raise ConfigError(f"{protocol.path}: no run matches --only")
-    return Protocol(protocol.name, runs, protocol.path, protocol.description,
-                    protocol.sample_rate_Hz, protocol.text)
+    return Protocol(
+        protocol.name,
+        runs,
+        protocol.path,
+        protocol.description,
+        protocol.sample_rate_Hz,
+        protocol.text,
+    )
 
 
 def cmd_import(args: argparse.Namespace) -> int:
@@ -267,9 +383,13 @@ def cmd_import(args: argparse.Namespace) -> int:
     )
 
     cols = {}
-    for ch, val in (("time", args.time_col), ("position", args.position_col),
-                    ("force", args.force_col), ("muscle_pressure", args.pressure_col),
-                    ("cylinder_pressure", args.cylinder_col)):
+    for ch, val in (
+        ("time", args.time_col),
+        ("position", args.position_col),
+        ("force", args.force_col),
+        ("muscle_pressure", args.pressure_col),
+        ("cylinder_pressure", args.cylinder_col),
+    ):
         if val:
             cols[ch] = val
     auto = args.frequency is not None and args.frequency.strip().lower() == "auto"
@@ -278,40 +398,64 @@ def cmd_import(args: argparse.Namespace) -> int:
         try:
             freq = float(args.frequency)
         except ValueError:
-            raise ConfigError(f"--frequency: '{args.frequency}' is not a number of Hz "
-                              "or 'auto'") from None
+            raise ConfigError(
+                f"--frequency: '{args.frequency}' is not a number of Hz or 'auto'"
+            ) from None
         if not (freq > 0 and freq < 1e4):
             raise ConfigError(f"--frequency: must be > 0 Hz, got {args.frequency}")
     opts = CsvImportOptions(
-        columns=cols, units=parse_units(args.units), pressure_MPa=args.pressure, run=args.run,
-        delimiter=parse_delimiter(args.delimiter), negate=tuple(args.negate),
-        waveform=args.waveform, frequency_Hz=freq, header_rows=args.header_rows,
-        units_row=args.units_row, decimal=args.decimal, encoding=args.encoding,
-        no_header=args.no_header, layout=parse_layout(args.columns),
+        columns=cols,
+        units=parse_units(args.units),
+        pressure_MPa=args.pressure,
+        run=args.run,
+        delimiter=parse_delimiter(args.delimiter),
+        negate=tuple(args.negate),
+        waveform=args.waveform,
+        frequency_Hz=freq,
+        header_rows=args.header_rows,
+        units_row=args.units_row,
+        decimal=args.decimal,
+        encoding=args.encoding,
+        no_header=args.no_header,
+        layout=parse_layout(args.columns),
     )
     opts.check()  # option mistakes before the input is read
     many = len(args.csv) > 1
 
     def progress(path, run) -> None:
         if many:
-            print(f"  {path}: {len(run)} samples, {run.time[-1] - run.time[0]:.1f} s, "
-                  f"{run.nominal_pressure:.4g} MPa", file=sys.stderr)
+            print(
+                f"  {path}: {len(run)} samples, {run.time[-1] - run.time[0]:.1f} s, "
+                f"{run.nominal_pressure:.4g} MPa",
+                file=sys.stderr,
+            )
 
-    runs = import_files(args.csv, args.out, opts, force=args.force,
-                        pressure_pattern=args.pressure_from_name, halves=args.split_halves,
-                        auto_frequency=auto, progress=progress)
+    runs = import_files(
+        args.csv,
+        args.out,
+        opts,
+        force=args.force,
+        pressure_pattern=args.pressure_from_name,
+        halves=args.split_halves,
+        auto_frequency=auto,
+        progress=progress,
+    )
     if len(runs) == 1:
         run = runs[0]
-        print(f"{args.out}: run '{run.name}', {len(run)} samples, "
-              f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
-              f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa")
+        print(
+            f"{args.out}: run '{run.name}', {len(run)} samples, "
+            f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
+            f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa"
+        )
     else:
         levels = sorted({round(r.nominal_pressure, 4) for r in runs})
         held = sum(r.attrs.get("role") == "validation" for r in runs)
-        print(f"{args.out}: {len(runs)} runs from {len(args.csv)} file(s), "
-              f"{sum(len(r) for r in runs)} samples, pressures "
-              f"{', '.join(f'{p:g}' for p in levels)} MPa"
-              + (f", {held} held out for validation" if held else ""))
+        print(
+            f"{args.out}: {len(runs)} runs from {len(args.csv)} file(s), "
+            f"{sum(len(r) for r in runs)} samples, pressures "
+            f"{', '.join(f'{p:g}' for p in levels)} MPa"
+            + (f", {held} held out for validation" if held else "")
+        )
     return 0
 
 
@@ -320,13 +464,18 @@ def cmd_recover(args: argparse.Namespace) -> int:
 
     fixed = recover(args.file, args.out, force=args.force)
     if fixed is None:
-        print(f"{args.file}: nothing to recover (closed cleanly, no run cut mid-recording); "
-              "left as it is" + (f", {args.out} not written" if args.out else "")
-              + " (--force rewrites it anyway)")
+        print(
+            f"{args.file}: nothing to recover (closed cleanly, no run cut mid-recording); "
+            "left as it is"
+            + (f", {args.out} not written" if args.out else "")
+            + " (--force rewrites it anyway)"
+        )
         return 0
     where = args.out or args.file
-    print(f"{where}: closed; " + (f"marked aborted: {', '.join(fixed)}" if fixed
-                                  else "no run was cut mid-recording"))
+    print(
+        f"{where}: closed; "
+        + (f"marked aborted: {', '.join(fixed)}" if fixed else "no run was cut mid-recording")
+    )
     return 0
 
 
@@ -373,4 +522,5 @@ def cmd_view(args: argparse.Namespace) -> int:
 def _has_desktop() -> bool:
     """A graphical session to open a browser in (not a terminal browser over ssh)."""
     return sys.platform in ("darwin", "win32") or bool(
-        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    )

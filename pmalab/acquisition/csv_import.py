@@ -80,14 +80,26 @@ _UNIT_KEYS = {
     "cylinder_pressure_command": ("cylinder_pressure_command",),
 }
 #: ``--delimiter`` spellings of characters a shell makes awkward
-_DELIMITER_NAMES = {"\\t": "\t", "tab": "\t", "TAB": "\t", "semicolon": ";", "comma": ",",
-                    "space": " ", "pipe": "|"}
+_DELIMITER_NAMES = {
+    "\\t": "\t",
+    "tab": "\t",
+    "TAB": "\t",
+    "semicolon": ";",
+    "comma": ",",
+    "space": " ",
+    "pipe": "|",
+}
 #: ``--columns`` names: a channel, or a short name for one; ``-`` skips a field
 LAYOUT_NAMES = {
-    "t": "time", "time": "time",
-    "x": "position", "position": "position",
-    "f": "force", "force": "force",
-    "p": "muscle_pressure", "pressure": "muscle_pressure", "muscle_pressure": "muscle_pressure",
+    "t": "time",
+    "time": "time",
+    "x": "position",
+    "position": "position",
+    "f": "force",
+    "force": "force",
+    "p": "muscle_pressure",
+    "pressure": "muscle_pressure",
+    "muscle_pressure": "muscle_pressure",
     "cylinder_pressure": "cylinder_pressure",
     "cylinder_pressure_command": "cylinder_pressure_command",
 }
@@ -122,26 +134,35 @@ class CsvImportOptions:
     def check(self) -> None:
         """Refuse inconsistent layout options (one line naming the option)."""
         if len(self.delimiter) != 1:
-            raise RunFileError(f"--delimiter: {self.delimiter!r} is not one character "
-                               "(give ',', ';', '\\t' or another single character)")
+            raise RunFileError(
+                f"--delimiter: {self.delimiter!r} is not one character "
+                "(give ',', ';', '\\t' or another single character)"
+            )
         if self.decimal not in (".", ","):
             raise RunFileError(f"--decimal: must be '.' or ',', got {self.decimal!r}")
         if self.decimal == self.delimiter:
-            raise RunFileError(f"--decimal {self.decimal}: the same character as the "
-                               "delimiter (a decimal-comma export separates fields with ';')")
+            raise RunFileError(
+                f"--decimal {self.decimal}: the same character as the "
+                "delimiter (a decimal-comma export separates fields with ';')"
+            )
         if self.header_rows < 0:
             raise RunFileError(f"--header-rows: must be ≥ 0, got {self.header_rows}")
         try:
             codecs.lookup(self.encoding)
         except LookupError:
-            raise RunFileError(f"--encoding: unknown encoding '{self.encoding}' "
-                               "(e.g. utf-8, cp1252, latin-1)") from None
+            raise RunFileError(
+                f"--encoding: unknown encoding '{self.encoding}' (e.g. utf-8, cp1252, latin-1)"
+            ) from None
         if self.no_header and not self.layout:
-            raise RunFileError("--no-header: give the fields' meaning with --columns, e.g. "
-                               "--columns time,-,position,pressure,force ('-' skips a field)")
+            raise RunFileError(
+                "--no-header: give the fields' meaning with --columns, e.g. "
+                "--columns time,-,position,pressure,force ('-' skips a field)"
+            )
         if self.layout is not None and self.columns:
-            raise RunFileError("--columns: names the fields by position; do not combine it "
-                               "with --time-col/--position-col/--force-col/--pressure-col")
+            raise RunFileError(
+                "--columns: names the fields by position; do not combine it "
+                "with --time-col/--position-col/--force-col/--pressure-col"
+            )
 
 
 def parse_layout(text: str | None) -> list[str | None] | None:
@@ -159,15 +180,18 @@ def parse_layout(text: str | None) -> list[str | None] | None:
             continue
         ch = LAYOUT_NAMES.get(item.lower())
         if ch is None:
-            raise RunFileError(f"--columns: unknown field '{item}' (use - to skip a field, "
-                               f"or one of {', '.join(sorted(LAYOUT_NAMES))})")
+            raise RunFileError(
+                f"--columns: unknown field '{item}' (use - to skip a field, "
+                f"or one of {', '.join(sorted(LAYOUT_NAMES))})"
+            )
         if ch in out:
             raise RunFileError(f"--columns: '{item}' names {ch} twice")
         out.append(ch)
     missing = [c for c in ("time", "position", "force") if c not in out]
     if missing:
-        raise RunFileError(f"--columns: no field for {', '.join(missing)} "
-                           f"(got {text!r}; '-' skips a field)")
+        raise RunFileError(
+            f"--columns: no field for {', '.join(missing)} (got {text!r}; '-' skips a field)"
+        )
     return out
 
 
@@ -192,13 +216,16 @@ def parse_units(text: str | None, where: str = "--units") -> dict[str, str]:
             raise RunFileError(f"{where}: '{item}' is not KEY=UNIT (e.g. position=m)")
         key, unit = (s.strip() for s in item.split("=", 1))
         if key not in _UNIT_KEYS:
-            raise RunFileError(f"{where}: unknown quantity '{key}' (expected one of "
-                               f"{', '.join(_UNIT_KEYS)})")
+            raise RunFileError(
+                f"{where}: unknown quantity '{key}' (expected one of {', '.join(_UNIT_KEYS)})"
+            )
         for ch in _UNIT_KEYS[key]:
             canon = normalize_unit(ch, unit)
             if canon is None:
-                raise RunFileError(f"{where}: unknown unit '{unit}' for {key} (expected one of "
-                                   f"{', '.join(UNIT_FACTORS[ch])})")
+                raise RunFileError(
+                    f"{where}: unknown unit '{unit}' for {key} (expected one of "
+                    f"{', '.join(UNIT_FACTORS[ch])})"
+                )
             out[ch] = canon
     return out
 
@@ -237,11 +264,14 @@ def _read_text(path: Path, opts: CsvImportOptions) -> str:
         text = data.decode(opts.encoding)
     except UnicodeDecodeError as exc:
         line = data[: exc.start].count(b"\n") + 1
-        hint = ("give --encoding (cp1252 for most Windows exports)"
-                if opts.encoding.lower().replace("-", "") in ("utf8", "utf8sig")
-                else "check --encoding")
-        raise RunFileError(f"{path}: line {line}: not {opts.encoding} text (byte "
-                           f"0x{data[exc.start]:02x}); {hint}") from None
+        hint = (
+            "give --encoding (cp1252 for most Windows exports)"
+            if opts.encoding.lower().replace("-", "") in ("utf8", "utf8sig")
+            else "check --encoding"
+        )
+        raise RunFileError(
+            f"{path}: line {line}: not {opts.encoding} text (byte 0x{data[exc.start]:02x}); {hint}"
+        ) from None
     return text.lstrip("\ufeff")
 
 
@@ -257,19 +287,22 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         raise RunFileError(f"{path}: is a directory, not a CSV file")
     opts.check()
     if opts.pressure_MPa is not None and not (
-        math.isfinite(opts.pressure_MPa) and 0 < opts.pressure_MPa <= PLAUSIBLE[
-            "muscle_pressure"].hi
+        math.isfinite(opts.pressure_MPa)
+        and 0 < opts.pressure_MPa <= PLAUSIBLE["muscle_pressure"].hi
     ):
-        raise RunFileError(f"--pressure: must be a muscle pressure > 0 and ≤ "
-                           f"{PLAUSIBLE['muscle_pressure'].hi:g} MPa, got {opts.pressure_MPa:g}")
+        raise RunFileError(
+            f"--pressure: must be a muscle pressure > 0 and ≤ "
+            f"{PLAUSIBLE['muscle_pressure'].hi:g} MPa, got {opts.pressure_MPa:g}"
+        )
     lines = _read_text(path, opts).splitlines()
     d = opts.delimiter
 
     # ---- the names row (after the metadata block) and the units row
     i = opts.header_rows
     if i >= len(lines):
-        raise RunFileError(f"{path}: --header-rows {opts.header_rows}: the file has only "
-                           f"{len(lines)} line(s)")
+        raise RunFileError(
+            f"{path}: --header-rows {opts.header_rows}: the file has only {len(lines)} line(s)"
+        )
     while i < len(lines) and (not lines[i].strip() or lines[i].lstrip().startswith("#")):
         i += 1
     if i >= len(lines):
@@ -293,15 +326,19 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     row_units: list[str] | None = None
     if opts.units_row:
         if i >= len(lines):
-            raise RunFileError(f"{path}: --units-row: no row under the names row "
-                               f"(line {names_line})")
+            raise RunFileError(
+                f"{path}: --units-row: no row under the names row (line {names_line})"
+            )
         row_units = _split(lines[i], d)
         i += 1
-    data_rows = [(k + 1, ln) for k, ln in enumerate(lines[i:], start=i)
-                 if ln.strip() and not ln.lstrip().startswith("#")]
+    data_rows = [
+        (k + 1, ln)
+        for k, ln in enumerate(lines[i:], start=i)
+        if ln.strip() and not ln.lstrip().startswith("#")
+    ]
     if not data_rows:
-        raise RunFileError(f"{path}: not a readable CSV file (no data rows after line "
-                           f"{i})")
+        raise RunFileError(f"{path}: not a readable CSV file (no data rows after line {i})")
+
     def find(ch: str, explicit: bool) -> int | None:
         name = opts.columns.get(ch, DEFAULT_COLUMNS[ch])
         for pool in (names, base_names):
@@ -311,63 +348,88 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
             if name.lower() in low:
                 return low.index(name.lower())
         if explicit:
-            needed = [opts.columns.get(c, DEFAULT_COLUMNS[c]) for c in DEFAULT_COLUMNS
-                      if c in opts.columns or c in ("time", "position", "force")]
+            needed = [
+                opts.columns.get(c, DEFAULT_COLUMNS[c])
+                for c in DEFAULT_COLUMNS
+                if c in opts.columns or c in ("time", "position", "force")
+            ]
             if opts.layout is not None:
-                hint = ("; name the pressure field, or give --pressure MPA or "
-                        "--pressure-from-name" if ch == "muscle_pressure" else "")
-                raise RunFileError(f"{path}: run '{run}': channel '{ch}': not in --columns "
-                                   f"({', '.join(c or '-' for c in opts.layout)}){hint}")
-            raise RunFileError(f"{path}: run '{run}': channel '{ch}': no column '{name}' "
-                               f"(columns: {', '.join(n for n in names[:8] if n)}"
-                               + (", …" if len(names) > 8 else "")
-                               + (f" on line {names_line})" if names_line != 1 else ")")
-                               + (_headerless_hint(names, d)
-                                  or _header_hint(lines, needed, names_line, d)
-                                  or _delimiter_hint(names, d)))
+                hint = (
+                    "; name the pressure field, or give --pressure MPA or --pressure-from-name"
+                    if ch == "muscle_pressure"
+                    else ""
+                )
+                raise RunFileError(
+                    f"{path}: run '{run}': channel '{ch}': not in --columns "
+                    f"({', '.join(c or '-' for c in opts.layout)}){hint}"
+                )
+            raise RunFileError(
+                f"{path}: run '{run}': channel '{ch}': no column '{name}' "
+                f"(columns: {', '.join(n for n in names[:8] if n)}"
+                + (", …" if len(names) > 8 else "")
+                + (f" on line {names_line})" if names_line != 1 else ")")
+                + (
+                    _headerless_hint(names, d)
+                    or _header_hint(lines, needed, names_line, d)
+                    or _delimiter_hint(names, d)
+                )
+            )
         return None
 
     wanted: dict[str, int] = {}
     for ch in DEFAULT_COLUMNS:
         required = ch in ("time", "position", "force") or (
-            ch == "muscle_pressure" and opts.pressure_MPa is None)
+            ch == "muscle_pressure" and opts.pressure_MPa is None
+        )
         col = find(ch, explicit=required or ch in opts.columns)
         if col is not None:
             wanted[ch] = col
     # ---- the numbers: pandas' C parser makes every clean column float at once; a column
     # with a bad cell stays text and is converted cell by cell below to name the cell
     try:
-        df = pd.read_csv(io.StringIO("\n".join(ln for _, ln in data_rows)),
-                         sep=r"\s+" if d == " " else d, header=None,
-                         decimal=opts.decimal, keep_default_na=False, na_values=[],
-                         skipinitialspace=True)
+        df = pd.read_csv(
+            io.StringIO("\n".join(ln for _, ln in data_rows)),
+            sep=r"\s+" if d == " " else d,
+            header=None,
+            decimal=opts.decimal,
+            keep_default_na=False,
+            na_values=[],
+            skipinitialspace=True,
+        )
     except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         m = re.search(r"Expected (\d+) fields in line (\d+), saw (\d+)", first)
         if m and int(m.group(2)) <= len(data_rows):
             raise RunFileError(
                 f"{path}: line {data_rows[int(m.group(2)) - 1][0]}: {m.group(3)} fields where the "
-                f"rows before have {m.group(1)}; wrong --delimiter or --header-rows?") from None
+                f"rows before have {m.group(1)}; wrong --delimiter or --header-rows?"
+            ) from None
         raise RunFileError(f"{path}: not a readable CSV file ({first[:120]})") from None
     extra = df.shape[1] - len(names)
     if extra > 0:
-        tail = df.iloc[:, len(names):]
+        tail = df.iloc[:, len(names) :]
         if not tail.astype(str).isin(["", "nan"]).all().all():  # a trailing delimiter is harmless
             if opts.layout is not None:
-                raise RunFileError(f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
-                                   f"--columns names {len(names)}; name every field "
-                                   "('-' skips one) or check --delimiter")
-            raise RunFileError(f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
-                               f"{len(names)} column names (line {names_line}); wrong "
-                               "--delimiter or --header-rows?")
+                raise RunFileError(
+                    f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
+                    f"--columns names {len(names)}; name every field "
+                    "('-' skips one) or check --delimiter"
+                )
+            raise RunFileError(
+                f"{path}: line {data_rows[0][0]}: {df.shape[1]} fields but "
+                f"{len(names)} column names (line {names_line}); wrong "
+                "--delimiter or --header-rows?"
+            )
         df = df.iloc[:, : len(names)]
 
     raw: dict[str, tuple[np.ndarray, str]] = {}
     for ch, col in wanted.items():
         cname = names[col]
         if col >= df.shape[1]:
-            raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' has no "
-                               f"values (rows have {df.shape[1]} fields)")
+            raise RunFileError(
+                f"{path}: run '{run}': channel '{ch}': column '{cname}' has no "
+                f"values (rows have {df.shape[1]} fields)"
+            )
         column = df.iloc[:, col]
         values: np.ndarray
         if np.issubdtype(column.dtype, np.number):
@@ -382,9 +444,10 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
             if bad.size:
                 k = int(bad[0])
                 cell = text.iloc[k]
-                raise RunFileError(f"{path}: run '{run}': channel '{ch}': column '{cname}' row "
-                                   f"{data_rows[k][0]} is not a number ({cell!r})"
-                                   + _cell_hint(cell, k, opts, ch))
+                raise RunFileError(
+                    f"{path}: run '{run}': channel '{ch}': column '{cname}' row "
+                    f"{data_rows[k][0]} is not a number ({cell!r})" + _cell_hint(cell, k, opts, ch)
+                )
         if ch in opts.negate:
             values = -values
         unit = opts.units.get(ch)
@@ -393,35 +456,64 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
         if unit is None:
             unit = name_units[col]
         raw[ch] = (values, unit if unit is not None else CANONICAL_UNITS[ch])
-    return finish_run(path, run, raw, opts, "csv import", {
-        "header_rows": opts.header_rows, "delimiter": opts.delimiter, "decimal": opts.decimal,
-        "encoding": opts.encoding, "no_header": opts.no_header, "layout": opts.layout})
+    return finish_run(
+        path,
+        run,
+        raw,
+        opts,
+        "csv import",
+        {
+            "header_rows": opts.header_rows,
+            "delimiter": opts.delimiter,
+            "decimal": opts.decimal,
+            "encoding": opts.encoding,
+            "no_header": opts.no_header,
+            "layout": opts.layout,
+        },
+    )
 
 
-def finish_run(path: str | Path, run: str, raw: dict[str, tuple[np.ndarray, str]],
-               opts: CsvImportOptions, source: str, details: dict) -> Run:
+def finish_run(
+    path: str | Path,
+    run: str,
+    raw: dict[str, tuple[np.ndarray, str]],
+    opts: CsvImportOptions,
+    source: str,
+    details: dict,
+) -> Run:
     """Channels read from any export (values, unit as written) → a checked run in canonical
     units: the constant pressure of a file without a pressure channel, the checks of
     :func:`pmalab.runfile.validate_channels` (one line naming file, run and channel), and
     the attributes every imported run carries."""
     if "muscle_pressure" not in raw:
         if opts.pressure_MPa is None:
-            raise RunFileError(f"{path}: run '{run}': channel 'muscle_pressure': none found; "
-                               "give --pressure MPA or --pressure-from-name")
+            raise RunFileError(
+                f"{path}: run '{run}': channel 'muscle_pressure': none found; "
+                "give --pressure MPA or --pressure-from-name"
+            )
         n = len(raw["time"][0])
         raw["muscle_pressure"] = (np.full(n, float(opts.pressure_MPa)), "MPa")
     chans = validate_channels(path, run, raw, units_hint=_csv_units_hint)
-    nominal = (float(opts.pressure_MPa) if opts.pressure_MPa is not None
-               else float(np.mean(chans["muscle_pressure"])))
+    nominal = (
+        float(opts.pressure_MPa)
+        if opts.pressure_MPa is not None
+        else float(np.mean(chans["muscle_pressure"]))
+    )
     dt = np.diff(chans["time"])
     attrs = {
         "muscle_pressure_MPa": nominal,
         "waveform": opts.waveform,
         "frequency_Hz": opts.frequency_Hz,
         "sample_rate_Hz": float(1.0 / np.median(dt)),
-        "protocol": json.dumps({"imported_from": str(path), "columns": opts.columns,
-                                "units": {c: u for c, (_, u) in raw.items()},
-                                "negate": list(opts.negate), **details}),
+        "protocol": json.dumps(
+            {
+                "imported_from": str(path),
+                "columns": opts.columns,
+                "units": {c: u for c, (_, u) in raw.items()},
+                "negate": list(opts.negate),
+                **details,
+            }
+        ),
         "role": "identification",
         "source": source,
         "status": "completed",
@@ -455,12 +547,21 @@ def _headerless_hint(names: list[str], delimiter: str) -> str:
                 fields = names[0].split() if sep == " " else names[0].split(sep)
                 break
     if fields and all(_is_number(f) for f in fields if f):
-        sep = "" if fields is names else {"\t": " --delimiter '\\t'", ";": " --delimiter ';'",
-                                          ",": " --delimiter ','", " ": " --delimiter space"}[
-            next(s for s in ("\t", ";", ",", " ") if s in names[0])]
+        sep = (
+            ""
+            if fields is names
+            else {
+                "\t": " --delimiter '\\t'",
+                ";": " --delimiter ';'",
+                ",": " --delimiter ','",
+                " ": " --delimiter space",
+            }[next(s for s in ("\t", ";", ",", " ") if s in names[0])]
+        )
         layout = ",".join(["time"] + ["-"] * max(len(fields) - 1, 0))
-        return (f"; the first row is numbers, not names: a file without a names row? "
-                f"use --no-header{sep} --columns {layout} (name each field; '-' skips one)")
+        return (
+            f"; the first row is numbers, not names: a file without a names row? "
+            f"use --no-header{sep} --columns {layout} (name each field; '-' skips one)"
+        )
     return ""
 
 
@@ -483,14 +584,17 @@ def _cell_hint(cell: str, k: int, opts: CsvImportOptions, ch: str) -> str:
     return ""
 
 
-def import_csv(csv: str | Path, out: str | Path, opts: CsvImportOptions, *,
-               force: bool = False) -> Run:
+def import_csv(
+    csv: str | Path, out: str | Path, opts: CsvImportOptions, *, force: bool = False
+) -> Run:
     """Import ``csv`` into a new contract file ``out`` (refuses to overwrite without force)."""
     from pmalab.paths import check_output
 
     if Path(out).exists() and Path(csv).exists() and os.path.samefile(out, csv):
-        raise OutputError(f"--out {out}: is the input CSV itself (--force would replace your "
-                          "data with the run file): give the run file another name")
+        raise OutputError(
+            f"--out {out}: is the input CSV itself (--force would replace your "
+            "data with the run file): give the run file another name"
+        )
     check_output(out, force)
     run = read_csv_run(csv, opts)
     write_runs(out, [run], force=force)
@@ -509,29 +613,36 @@ def pressure_from_name(path: str | Path, pattern: str) -> float:
     except re.error as exc:
         raise RunFileError(f"--pressure-from-name: not a regular expression ({exc})") from None
     if rx.groups < 1:
-        raise RunFileError("--pressure-from-name: the pattern needs a group around the "
-                           "number, e.g. '(\\d+)bar'")
+        raise RunFileError(
+            "--pressure-from-name: the pattern needs a group around the number, e.g. '(\\d+)bar'"
+        )
     name = Path(path).name
     m = rx.search(name)
     if m is None:
-        raise RunFileError(f"{path}: --pressure-from-name {pattern!r} does not match "
-                           f"the file name '{name}'")
+        raise RunFileError(
+            f"{path}: --pressure-from-name {pattern!r} does not match the file name '{name}'"
+        )
     try:
         value = float(m.group(1).replace(",", ".").replace("p", "."))
     except ValueError:
-        raise RunFileError(f"{path}: --pressure-from-name: '{m.group(1)}' is not a "
-                           "number") from None
-    unit_text = name[m.end(1): m.end()].strip(" _-") or "MPa"
+        raise RunFileError(
+            f"{path}: --pressure-from-name: '{m.group(1)}' is not a number"
+        ) from None
+    unit_text = name[m.end(1) : m.end()].strip(" _-") or "MPa"
     canon = normalize_unit("muscle_pressure", unit_text)
     if canon is None:
-        raise RunFileError(f"{path}: --pressure-from-name: unknown pressure unit "
-                           f"'{unit_text}' after the number (write it in the pattern, "
-                           f"e.g. '(\\d+)bar', '(\\d+)kPa')")
+        raise RunFileError(
+            f"{path}: --pressure-from-name: unknown pressure unit "
+            f"'{unit_text}' after the number (write it in the pattern, "
+            f"e.g. '(\\d+)bar', '(\\d+)kPa')"
+        )
     mpa = value * UNIT_FACTORS["muscle_pressure"][canon]
     hi = PLAUSIBLE["muscle_pressure"].hi
     if not (math.isfinite(mpa) and 0 < mpa <= hi):
-        raise RunFileError(f"{path}: --pressure-from-name: {value:g} {canon} is not a muscle "
-                           f"pressure (> 0 and ≤ {hi:g} MPa)")
+        raise RunFileError(
+            f"{path}: --pressure-from-name: {value:g} {canon} is not a muscle "
+            f"pressure (> 0 and ≤ {hi:g} MPa)"
+        )
     return mpa
 
 
@@ -554,8 +665,9 @@ def excitation_frequency(run: Run) -> float:
         k = k + (0.5 * (a - c) / den if den != 0 else 0.0)
     f = float(k * fs / n)
     if not (math.isfinite(f) and f > 0):
-        raise RunFileError(f"{run.file}: run '{run.name}': --frequency auto: no periodic "
-                           "motion in the position")
+        raise RunFileError(
+            f"{run.file}: run '{run.name}': --frequency auto: no periodic motion in the position"
+        )
     return f
 
 
@@ -567,11 +679,12 @@ def split_halves(run: Run) -> list[Run]:
         raise RunFileError(f"{run.file}: run '{run.name}': --split-halves: only {n} samples")
     mid = n // 2
     out = []
-    for tag, sl, role in (("a", slice(0, mid), "identification"),
-                          ("b", slice(mid, n), "validation")):
+    for tag, sl, role in (
+        ("a", slice(0, mid), "identification"),
+        ("b", slice(mid, n), "validation"),
+    ):
         attrs = dict(run.attrs, role=role, split=f"half {tag} of '{run.name}'")
-        chans = {c: getattr(run, c)[sl] for c in ("time", "position", "force",
-                                                    "muscle_pressure")}
+        chans = {c: getattr(run, c)[sl] for c in ("time", "position", "force", "muscle_pressure")}
         for c in ("cylinder_pressure", "cylinder_pressure_command"):
             v = getattr(run, c, None)
             if v is not None:
@@ -595,17 +708,22 @@ def read_export(path: str | Path, opts: CsvImportOptions) -> list[Run]:
     return [read_csv_run(path, opts)]
 
 
-def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
-                  pressure_pattern: str | None = None, halves: bool = False,
-                  auto_frequency: bool = False, progress=None) -> list[Run]:
+def read_campaign(
+    paths: list[str | Path],
+    opts: CsvImportOptions,
+    *,
+    pressure_pattern: str | None = None,
+    halves: bool = False,
+    auto_frequency: bool = False,
+    progress=None,
+) -> list[Run]:
     """Read one run per file (``opts.run`` must be unset for several files), name each by its
     stem (unique), and apply the nominal pressure from the name, ``--frequency auto`` and
     ``--split-halves``."""
     from dataclasses import replace
 
     if len(paths) > 1 and opts.run:
-        raise RunFileError("--run: names one run; with several files each run is named "
-                           "by its file")
+        raise RunFileError("--run: names one run; with several files each run is named by its file")
     runs: list[Run] = []
     seen: dict[str, Path] = {}
     for p in paths:
@@ -632,18 +750,27 @@ def read_campaign(paths: list[str | Path], opts: CsvImportOptions, *,
                 run.attrs["frequency_Hz"] = round(excitation_frequency(run), 4)
                 run.attrs["frequency_from"] = "position spectrum (--frequency auto)"
             if any(r.name == run.name for r in runs):
-                raise RunFileError(f"{p}: run '{run.name}': a run of that name was read from "
-                                   "another file already (rename one)")
+                raise RunFileError(
+                    f"{p}: run '{run.name}': a run of that name was read from "
+                    "another file already (rename one)"
+                )
             runs.extend(split_halves(run) if halves else [run])
             if progress is not None:
                 progress(p, run)
     return runs
 
 
-def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOptions, *,
-                 force: bool = False, pressure_pattern: str | None = None,
-                 halves: bool = False, auto_frequency: bool = False,
-                 progress=None) -> list[Run]:
+def import_files(
+    paths: list[str | Path],
+    out: str | Path,
+    opts: CsvImportOptions,
+    *,
+    force: bool = False,
+    pressure_pattern: str | None = None,
+    halves: bool = False,
+    auto_frequency: bool = False,
+    progress=None,
+) -> list[Run]:
     """Import several exports (one run per file) into one new campaign file ``out``.
 
     Every file is read and checked before anything is written: a mistake in the last file
@@ -654,11 +781,19 @@ def import_files(paths: list[str | Path], out: str | Path, opts: CsvImportOption
     for p in paths:
         if Path(out).exists() and Path(p).exists() and os.path.samefile(out, p):
             what = "the input CSV" if len(paths) == 1 else f"the input file {p}"
-            raise OutputError(f"--out {out}: is {what} itself (--force would replace your "
-                              "data with the run file): give the run file another name")
+            raise OutputError(
+                f"--out {out}: is {what} itself (--force would replace your "
+                "data with the run file): give the run file another name"
+            )
     check_output(out, force)
-    runs = read_campaign(paths, opts, pressure_pattern=pressure_pattern, halves=halves,
-                         auto_frequency=auto_frequency, progress=progress)
+    runs = read_campaign(
+        paths,
+        opts,
+        pressure_pattern=pressure_pattern,
+        halves=halves,
+        auto_frequency=auto_frequency,
+        progress=progress,
+    )
     write_runs(out, runs, force=force)
     return runs
 
@@ -678,8 +813,13 @@ def read_head(path: str | Path, what: str, n: int) -> bytes:
         raise RunFileError(f"{p}: cannot read ({exc.strerror or exc})") from None
 
 
-def match_named(names: list[str], opts: CsvImportOptions, where: str,
-                what: str = "channel", need_time: bool = True) -> dict[str, str]:
+def match_named(
+    names: list[str],
+    opts: CsvImportOptions,
+    where: str,
+    what: str = "channel",
+    need_time: bool = True,
+) -> dict[str, str]:
     """Channels of a self-describing export (TDMS channels, MATLAB variables) by name.
 
     The names are the CSV importer's (``--time-col`` ... or the defaults), matched exactly,
@@ -700,12 +840,19 @@ def match_named(names: list[str], opts: CsvImportOptions, where: str,
         if hit is not None:
             out[ch] = hit
             continue
-        required = ch in ("position", "force") or (ch == "time" and need_time) or (
-            ch == "muscle_pressure" and opts.pressure_MPa is None) or ch in opts.columns
+        required = (
+            ch in ("position", "force")
+            or (ch == "time" and need_time)
+            or (ch == "muscle_pressure" and opts.pressure_MPa is None)
+            or ch in opts.columns
+        )
         if required:
-            opt = {"muscle_pressure": "--pressure-col", "cylinder_pressure": "--cylinder-col"
-                   }.get(ch, f"--{ch}-col")
+            opt = {"muscle_pressure": "--pressure-col", "cylinder_pressure": "--cylinder-col"}.get(
+                ch, f"--{ch}-col"
+            )
             shown = ", ".join(names[:12]) + (", …" if len(names) > 12 else "")
-            raise RunFileError(f"{where}: {what} for '{ch}': no {what} '{want}' "
-                               f"({what}s: {shown or 'none'}); name it with {opt} NAME")
+            raise RunFileError(
+                f"{where}: {what} for '{ch}': no {what} '{want}' "
+                f"({what}s: {shown or 'none'}); name it with {opt} NAME"
+            )
     return out

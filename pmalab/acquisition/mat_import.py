@@ -41,8 +41,9 @@ def _load(path: Path) -> dict[str, Any]:
         if head[:4] == b"\x00\x00\x00\x00" or len(head) < 128:
             pass  # v4 files have no text header: let scipy decide
         else:
-            raise RunFileError(f"{path}: not a MATLAB .mat file (no 'MATLAB 5.0' or "
-                               "'MATLAB 7.3' header)")
+            raise RunFileError(
+                f"{path}: not a MATLAB .mat file (no 'MATLAB 5.0' or 'MATLAB 7.3' header)"
+            )
     import scipy.io
 
     try:
@@ -75,8 +76,7 @@ def _load_v73(path: Path) -> dict[str, Any]:
                 if k.startswith("#"):  # '#refs#' and '#subsystem#': MATLAB's internals
                     continue
                 if isinstance(obj, h5py.Group):
-                    out[k] = {fk: arr(fv) for fk, fv in obj.items()
-                              if isinstance(fv, h5py.Dataset)}
+                    out[k] = {fk: arr(fv) for fk, fv in obj.items() if isinstance(fv, h5py.Dataset)}
                 elif isinstance(obj, h5py.Dataset):
                     out[k] = arr(obj)
     except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:
@@ -93,29 +93,36 @@ def _numeric(path: Path, where: str, a: Any) -> np.ndarray:
     return a.astype(np.float64)
 
 
-def _run_from_vectors(path: Path, name: str, vecs: dict[str, Any], opts: CsvImportOptions,
-                      where: str) -> Run:
-    found = match_named([k for k, v in vecs.items() if np.asarray(v).dtype.kind in "iuf"],
-                        opts, where, what="variable")
+def _run_from_vectors(
+    path: Path, name: str, vecs: dict[str, Any], opts: CsvImportOptions, where: str
+) -> Run:
+    found = match_named(
+        [k for k, v in vecs.items() if np.asarray(v).dtype.kind in "iuf"],
+        opts,
+        where,
+        what="variable",
+    )
     raw: dict[str, tuple[np.ndarray, str]] = {}
     for ch, var in found.items():
         v = _numeric(path, f"variable '{var}'", vecs[var])
         if v.ndim > 1 and min(v.shape) != 1:
-            raise RunFileError(f"{where}: variable '{var}' is a {v.shape[0]}×{v.shape[1]} "
-                               "matrix, not a vector")
+            raise RunFileError(
+                f"{where}: variable '{var}' is a {v.shape[0]}×{v.shape[1]} matrix, not a vector"
+            )
         v = v.ravel()
         if ch in opts.negate:
             v = -v
         raw[ch] = (v, opts.units.get(ch, CANONICAL_UNITS[ch]))
     lengths = {found[ch]: len(v) for ch, (v, _) in raw.items()}
     if len(set(lengths.values())) > 1:
-        raise RunFileError(f"{where}: variables of different lengths "
-                           f"({', '.join(f'{k}={n}' for k, n in lengths.items())})")
+        raise RunFileError(
+            f"{where}: variables of different lengths "
+            f"({', '.join(f'{k}={n}' for k, n in lengths.items())})"
+        )
     return finish_run(path, name, raw, opts, "mat import", {"variables": found})
 
 
-def _run_from_matrix(path: Path, name: str, var: str, m: np.ndarray,
-                     opts: CsvImportOptions) -> Run:
+def _run_from_matrix(path: Path, name: str, var: str, m: np.ndarray, opts: CsvImportOptions) -> Run:
     m = _numeric(path, f"variable '{var}'", m)
     layout = opts.layout or []
     if m.ndim != 2:
@@ -123,16 +130,17 @@ def _run_from_matrix(path: Path, name: str, var: str, m: np.ndarray,
     if m.shape[1] != len(layout) and m.shape[0] == len(layout):
         m = m.T  # channels in rows
     if m.shape[1] != len(layout):
-        raise RunFileError(f"{path}: variable '{var}': {m.shape[1]} columns but --columns names "
-                           f"{len(layout)}; name every column ('-' skips one)")
+        raise RunFileError(
+            f"{path}: variable '{var}': {m.shape[1]} columns but --columns names "
+            f"{len(layout)}; name every column ('-' skips one)"
+        )
     raw: dict[str, tuple[np.ndarray, str]] = {}
     for i, ch in enumerate(layout):
         if ch is None:
             continue
         v = m[:, i]
         raw[ch] = (-v if ch in opts.negate else v, opts.units.get(ch, CANONICAL_UNITS[ch]))
-    return finish_run(path, name, raw, opts, "mat import",
-                      {"variable": var, "layout": layout})
+    return finish_run(path, name, raw, opts, "mat import", {"variable": var, "layout": layout})
 
 
 def read_mat_runs(path: str | Path, opts: CsvImportOptions) -> list[Run]:
@@ -143,20 +151,25 @@ def read_mat_runs(path: str | Path, opts: CsvImportOptions) -> list[Run]:
         raise RunFileError(f"{path}: no variables")
     structs = {k: v for k, v in doc.items() if isinstance(v, dict)}
     wanted = {opts.columns.get(c, c).lower() for c in ("position", "force")}
-    run_structs = {k: v for k, v in structs.items()
-                   if wanted <= {f.lower() for f in v}}
+    run_structs = {k: v for k, v in structs.items() if wanted <= {f.lower() for f in v}}
     if run_structs:
         if opts.run and len(run_structs) > 1:
-            raise RunFileError(f"--run: names one run, but {path} has {len(run_structs)} "
-                               "run structs")
-        return [_run_from_vectors(path, opts.run or k, v, opts, f"{path}: struct '{k}'")
-                for k, v in run_structs.items()]
+            raise RunFileError(
+                f"--run: names one run, but {path} has {len(run_structs)} run structs"
+            )
+        return [
+            _run_from_vectors(path, opts.run or k, v, opts, f"{path}: struct '{k}'")
+            for k, v in run_structs.items()
+        ]
     arrays = {k: v for k, v in doc.items() if not isinstance(v, dict)}
     if opts.layout is not None:
-        mats = [k for k, v in arrays.items() if np.asarray(v).ndim == 2
-                and min(np.asarray(v).shape) > 1]
+        mats = [
+            k for k, v in arrays.items() if np.asarray(v).ndim == 2 and min(np.asarray(v).shape) > 1
+        ]
         if len(mats) != 1:
-            raise RunFileError(f"{path}: --columns names a matrix's columns, but the file has "
-                               f"{len(mats)} matrices ({', '.join(mats) or 'none'})")
+            raise RunFileError(
+                f"{path}: --columns names a matrix's columns, but the file has "
+                f"{len(mats)} matrices ({', '.join(mats) or 'none'})"
+            )
         return [_run_from_matrix(path, opts.run or path.stem, mats[0], arrays[mats[0]], opts)]
     return [_run_from_vectors(path, opts.run or path.stem, arrays, opts, str(path))]

@@ -101,8 +101,14 @@ _FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
     "description": (str, ""),
 }
 #: campaign fields that may be lists (expanded as a cartesian product)
-_LISTABLE = ("muscle_pressure_MPa", "waveform", "frequency_Hz", "amplitude_MPa", "offset_MPa",
-             "magnitude_MPa")
+_LISTABLE = (
+    "muscle_pressure_MPa",
+    "waveform",
+    "frequency_Hz",
+    "amplitude_MPa",
+    "offset_MPa",
+    "magnitude_MPa",
+)
 
 
 @dataclass(frozen=True)
@@ -186,8 +192,15 @@ class Protocol:
         if not runs:
             want = ", ".join((roles or []) + (names or []))
             raise ConfigError(f"{self.path or self.name}: no run matches {want!r}")
-        return Protocol(self.name, runs, self.path, self.description, self.sample_rate_Hz,
-                        self.text, dict(self.extra))
+        return Protocol(
+            self.name,
+            runs,
+            self.path,
+            self.description,
+            self.sample_rate_Hz,
+            self.text,
+            dict(self.extra),
+        )
 
 
 # --------------------------------------------------------------------------- loading
@@ -209,13 +222,21 @@ def load_protocol(path: str | Path) -> Protocol:
 def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
     """Validate protocol TOML text; ``where`` names the file in error messages."""
     doc = parse_toml(text, where)
-    check_keys(doc, {"protocol", "defaults", "run", "campaign"},
-               "{where}: unknown section '{key}' (expected one of: {known})", where=where)
+    check_keys(
+        doc,
+        {"protocol", "defaults", "run", "campaign"},
+        "{where}: unknown section '{key}' (expected one of: {known})",
+        where=where,
+    )
     head = doc.get("protocol", {})
     if not isinstance(head, dict):
         raise ConfigError(f"{where}: [protocol] must be a table")
-    check_keys(head, ("name", "description", "sample_rate_Hz"),
-               "{where}: [protocol]: unknown field '{key}'", where=where)
+    check_keys(
+        head,
+        ("name", "description", "sample_rate_Hz"),
+        "{where}: [protocol]: unknown field '{key}'",
+        where=where,
+    )
     name = head.get("name", Path(where).stem)
     if not isinstance(name, str) or not name:
         raise ConfigError(f"{where}: [protocol]: field 'name' must be a non-empty string")
@@ -246,18 +267,26 @@ def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
             t = dict(t)
             pair = _check_pair(t.pop("pair", None), t, ctx)
             _check_fields(t, ctx, allow_lists=True, allow_name=True)
-            runs.extend(_expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate),
-                                         pair))
+            runs.extend(
+                _expand_campaign({**defaults, **t}, ctx, f"campaign[{i}]", float(rate), pair)
+            )
     if not runs:
         raise ConfigError(f"{where}: no [[run]] or [[campaign]] defined")
     seen: dict[str, str] = {}
     for r in runs:
         if r.name in seen:
-            raise ConfigError(f"{where}: {r.origin}: run name '{r.name}' already used by "
-                              f"{seen[r.name]}")
+            raise ConfigError(
+                f"{where}: {r.origin}: run name '{r.name}' already used by {seen[r.name]}"
+            )
         seen[r.name] = r.origin
-    return Protocol(name=name, runs=runs, path=where, description=str(head.get("description", "")),
-                    sample_rate_Hz=float(rate), text=text)
+    return Protocol(
+        name=name,
+        runs=runs,
+        path=where,
+        description=str(head.get("description", "")),
+        sample_rate_Hz=float(rate),
+        text=text,
+    )
 
 
 def _check_fields(t: dict[str, Any], ctx: str, *, allow_lists: bool, allow_name: bool) -> None:
@@ -269,8 +298,7 @@ def _check_fields(t: dict[str, Any], ctx: str, *, allow_lists: bool, allow_name:
         if k == "pair":
             raise ConfigError(f"{ctx}: field 'pair' is only allowed in a [[campaign]]")
         if k not in _FIELDS:
-            raise ConfigError(f"{ctx}: unknown field '{k}' (known: name, "
-                              f"{', '.join(_FIELDS)})")
+            raise ConfigError(f"{ctx}: unknown field '{k}' (known: name, {', '.join(_FIELDS)})")
         typ = _FIELDS[k][0]
         vals = v if (allow_lists and k in _LISTABLE and isinstance(v, list)) else [v]
         if isinstance(v, list) and not (allow_lists and k in _LISTABLE):
@@ -295,8 +323,10 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
     if get["magnitude_MPa"] is not None:
         for k in ("amplitude_MPa", "offset_MPa"):
             if k in t and t.get(k) is not None:
-                raise ConfigError(f"{ctx}: field '{k}' conflicts with 'magnitude_MPa' "
-                                  "(magnitude M means offset = amplitude = M/2)")
+                raise ConfigError(
+                    f"{ctx}: field '{k}' conflicts with 'magnitude_MPa' "
+                    "(magnitude M means offset = amplitude = M/2)"
+                )
         m = float(get["magnitude_MPa"])
         if m <= 0:
             raise ConfigError(f"{ctx}: field 'magnitude_MPa' must be > 0, got {m}")
@@ -308,25 +338,36 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         off = float(get["offset_MPa"]) if get["offset_MPa"] is not None else amp
     wf = get["waveform"]
     if wf not in WAVEFORMS:
-        raise ConfigError(f"{ctx}: field 'waveform' must be one of {', '.join(WAVEFORMS)}, "
-                          f"got {wf!r}")
+        raise ConfigError(
+            f"{ctx}: field 'waveform' must be one of {', '.join(WAVEFORMS)}, got {wf!r}"
+        )
     if get["role"] not in ROLES:
-        raise ConfigError(f"{ctx}: field 'role' must be one of {', '.join(ROLES)}, "
-                          f"got {get['role']!r}")
+        raise ConfigError(
+            f"{ctx}: field 'role' must be one of {', '.join(ROLES)}, got {get['role']!r}"
+        )
     f = float(get["frequency_Hz"])
     checks = [
         ("muscle_pressure_MPa", float(get["muscle_pressure_MPa"]) > 0, "must be > 0"),
         ("frequency_Hz", f > 0, "must be > 0"),
-        ("frequency_Hz", f <= rate / 20, f"must be ≤ {rate / 20:g} Hz (20 samples per period "
-                                         f"at {rate:g} Hz)"),
+        (
+            "frequency_Hz",
+            f <= rate / 20,
+            f"must be ≤ {rate / 20:g} Hz (20 samples per period at {rate:g} Hz)",
+        ),
         ("amplitude_MPa", amp > 0, "must be > 0"),
-        ("offset_MPa", off - amp >= -1e-12, "must be ≥ amplitude_MPa (a regulator cannot "
-                                            "command negative pressure)"),
+        (
+            "offset_MPa",
+            off - amp >= -1e-12,
+            "must be ≥ amplitude_MPa (a regulator cannot command negative pressure)",
+        ),
         ("cycles", float(get["cycles"]) > 0, "must be > 0"),
         ("ramp_s", float(get["ramp_s"]) >= 0, "must be ≥ 0"),
         ("settle_s", float(get["settle_s"]) >= 0, "must be ≥ 0"),
-        ("preload_MPa", 0 <= float(get["preload_MPa"]) <= off + amp,
-         "must be within [0, offset + amplitude]"),
+        (
+            "preload_MPa",
+            0 <= float(get["preload_MPa"]) <= off + amp,
+            "must be within [0, offset + amplitude]",
+        ),
         ("square_edge", 0 <= float(get["square_edge"]) <= 0.25, "must be within [0, 0.25]"),
         ("pressure_tolerance_MPa", float(get["pressure_tolerance_MPa"]) > 0, "must be > 0"),
         ("pressure_stable_s", float(get["pressure_stable_s"]) > 0, "must be > 0"),
@@ -371,33 +412,37 @@ def _check_pair(pair: Any, t: dict[str, Any], ctx: str) -> tuple[str, ...]:
     """Validate a campaign's ``pair`` (fields zipped together); () when absent."""
     if pair is None:
         return ()
-    if (not isinstance(pair, list) or len(pair) < 2
-            or not all(isinstance(k, str) for k in pair)):
-        raise ConfigError(f"{ctx}: field 'pair' must be a list of at least two field names, "
-                          f"got {pair!r}")
+    if not isinstance(pair, list) or len(pair) < 2 or not all(isinstance(k, str) for k in pair):
+        raise ConfigError(
+            f"{ctx}: field 'pair' must be a list of at least two field names, got {pair!r}"
+        )
     for k in pair:
         if k not in _LISTABLE:
-            raise ConfigError(f"{ctx}: field 'pair': '{k}' cannot be a list (pairable: "
-                              f"{', '.join(_LISTABLE)})")
+            raise ConfigError(
+                f"{ctx}: field 'pair': '{k}' cannot be a list (pairable: {', '.join(_LISTABLE)})"
+            )
     if len(set(pair)) != len(pair):
         raise ConfigError(f"{ctx}: field 'pair' names a field twice: {pair!r}")
     for k in pair:
         if not isinstance(t.get(k), list):
-            raise ConfigError(f"{ctx}: field 'pair': '{k}' must be given as a list in this "
-                              "campaign")
+            raise ConfigError(
+                f"{ctx}: field 'pair': '{k}' must be given as a list in this campaign"
+            )
     lengths = {k: len(t[k]) for k in pair}
     if len(set(lengths.values())) > 1:
         desc = ", ".join(f"{k} has {n}" for k, n in lengths.items())
-        raise ConfigError(f"{ctx}: field 'pair': paired lists must have equal lengths ({desc} "
-                          "values)")
+        raise ConfigError(
+            f"{ctx}: field 'pair': paired lists must have equal lengths ({desc} values)"
+        )
     return tuple(pair)
 
 
 _PLACEHOLDER = re.compile(r"\{([^{}]*)\}")
 
 
-def _run_name(base: str, fields: list[str], values: list[Any], merged: dict[str, Any],
-              ctx: str) -> str:
+def _run_name(
+    base: str, fields: list[str], values: list[Any], merged: dict[str, Any], ctx: str
+) -> str:
     """``base-v1-v2...`` over the varying fields, or ``base`` as a ``{field}`` template."""
     if "{" not in base and "}" not in base:
         suffix = "-".join(_fmt_val(k, v) for k, v in zip(fields, values))
@@ -406,11 +451,14 @@ def _run_name(base: str, fields: list[str], values: list[Any], merged: dict[str,
     def fill(m: re.Match[str]) -> str:
         k = m.group(1)
         if k not in _LISTABLE:
-            raise ConfigError(f"{ctx}: field 'name': unknown placeholder '{{{k}}}' (known: "
-                              f"{', '.join('{' + f + '}' for f in _LISTABLE)})")
+            raise ConfigError(
+                f"{ctx}: field 'name': unknown placeholder '{{{k}}}' (known: "
+                f"{', '.join('{' + f + '}' for f in _LISTABLE)})"
+            )
         if merged.get(k) is None:
-            raise ConfigError(f"{ctx}: field 'name': placeholder '{{{k}}}' but the campaign "
-                              f"has no '{k}'")
+            raise ConfigError(
+                f"{ctx}: field 'name': placeholder '{{{k}}}' but the campaign has no '{k}'"
+            )
         return _fmt_val(k, merged[k])
 
     name = _PLACEHOLDER.sub(fill, base)
@@ -419,8 +467,9 @@ def _run_name(base: str, fields: list[str], values: list[Any], merged: dict[str,
     return name
 
 
-def _expand_campaign(t: dict[str, Any], ctx: str, origin: str, rate: float,
-                     pair: tuple[str, ...] = ()) -> list[RunSpec]:
+def _expand_campaign(
+    t: dict[str, Any], ctx: str, origin: str, rate: float, pair: tuple[str, ...] = ()
+) -> list[RunSpec]:
     """Cartesian product over the listed fields (``pair`` zipped into one axis).
 
     Run names say what varies (see the module docstring).

@@ -58,15 +58,33 @@ if TYPE_CHECKING:
     import h5py
 
 #: recorded channels, in the order :meth:`RunWriter.add` takes them
-RECORDED = ("time", "position", "force", "muscle_pressure", "cylinder_pressure",
-            "cylinder_pressure_command")
+RECORDED = (
+    "time",
+    "position",
+    "force",
+    "muscle_pressure",
+    "cylinder_pressure",
+    "cylinder_pressure_command",
+)
 #: fields of the per-run ``timing`` dataset (its ``fields`` attr)
 #: ``missed_fraction`` = missed / (samples + missed), ``late_fraction`` = late / samples;
 #: ``timing_warning`` is 1 when either exceeds ``warn_fraction`` (the run did not keep its
 #: rate: the CLI warns), else 0
-TIMING_FIELDS = ("start_unix_s", "n_samples", "duration_s", "late", "missed",
-                 "lateness_p50_s", "lateness_p99_s", "lateness_max_s", "late_threshold_s",
-                 "missed_fraction", "late_fraction", "warn_fraction", "timing_warning")
+TIMING_FIELDS = (
+    "start_unix_s",
+    "n_samples",
+    "duration_s",
+    "late",
+    "missed",
+    "lateness_p50_s",
+    "lateness_p99_s",
+    "lateness_max_s",
+    "late_threshold_s",
+    "missed_fraction",
+    "late_fraction",
+    "warn_fraction",
+    "timing_warning",
+)
 STATUS_LEN = 256
 #: bytes reserved for the per-run ``device_stats`` JSON (fixed length: no resize in SWMR
 #: mode); a Modbus link + ITV + indicator report ~1 kB
@@ -87,7 +105,6 @@ def _attr(v: Any) -> Any:
     if isinstance(v, Path):
         return str(v)
     return v
-
 
 
 def estimated_file_size(samples_per_run: Sequence[int]) -> int:
@@ -113,6 +130,7 @@ def check_free_space(path: str | Path, need_bytes: int) -> None:
             f"{p}: refused: the recording needs about {need_bytes / 1e6:.1f} MB, only "
             f"{free / 1e6:.1f} MB free on {where}"
         )
+
 
 class RunWriter:
     """Appends one run's samples; :meth:`commit` writes and flushes what is buffered."""
@@ -151,8 +169,9 @@ class RunWriter:
 
     # hot path: plain list appends (called 500×/s in real time, as fast as possible virtually)
     # of the acquisition's channels (:data:`RECORDED`, in that order)
-    def add(self, t: float, x: float, f: float, pm: float, pc: float, cmd: float,
-            lateness: float) -> None:
+    def add(
+        self, t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
+    ) -> None:
         b = self._buf
         b[0].append(t)
         b[1].append(x)
@@ -173,8 +192,10 @@ class RunWriter:
         """Write the run's end-of-run facts (JSON) into its ``summary`` dataset and flush."""
         if self._summary is None:
             raise ValueError(f"run '{self.name}' has no summary dataset")
-        raw = np.frombuffer(json.dumps(doc, sort_keys=True, allow_nan=False, default=str)
-                            .encode("utf-8"), dtype=np.uint8)
+        raw = np.frombuffer(
+            json.dumps(doc, sort_keys=True, allow_nan=False, default=str).encode("utf-8"),
+            dtype=np.uint8,
+        )
         self._summary.resize((raw.size,))
         self._summary[:] = raw
         self._rec.file.flush()
@@ -197,8 +218,12 @@ class RunWriter:
         text = json.dumps(stats, sort_keys=True, separators=(",", ":"), default=str)
         raw = text.encode("utf-8")
         if len(raw) >= DEVICE_STATS_LEN:  # never write a cut (unparsable) JSON text
-            raw = json.dumps({"error": f"device stats too long to record ({len(raw)} bytes > "
-                              f"{DEVICE_STATS_LEN - 1})"}).encode("utf-8")
+            raw = json.dumps(
+                {
+                    "error": f"device stats too long to record ({len(raw)} bytes > "
+                    f"{DEVICE_STATS_LEN - 1})"
+                }
+            ).encode("utf-8")
         self._device_stats[()] = np.bytes_(raw)
 
     def commit(self) -> None:
@@ -239,7 +264,6 @@ class RunWriter:
         self._timing[()] = self._timing_values(final=False)
         self._rec.file.flush()
 
-
     def add_gap(self, t_s: float, n_missed: int) -> None:
         """Record a gap: ``n_missed`` samples the device (or the schedule) did not deliver,
         the first of which was due at ``t_s`` (s from the run's first sample).  Written with
@@ -270,9 +294,24 @@ class RunWriter:
         missed_frac = self.n_missed / scheduled if scheduled else 0.0
         late_frac = self.n_late / self.n if self.n else 0.0
         warn = float(missed_frac > self.warn_fraction or late_frac > self.warn_fraction)
-        return np.array([self.start_unix, self.n, dur, self.n_late, self.n_missed, p50, p99,
-                         self.max_lateness, self.late_threshold_s, missed_frac, late_frac,
-                         self.warn_fraction, warn], dtype=np.float64)
+        return np.array(
+            [
+                self.start_unix,
+                self.n,
+                dur,
+                self.n_late,
+                self.n_missed,
+                p50,
+                p99,
+                self.max_lateness,
+                self.late_threshold_s,
+                missed_frac,
+                late_frac,
+                self.warn_fraction,
+                warn,
+            ],
+            dtype=np.float64,
+        )
 
     def finish(self, status: str) -> dict[str, float]:
         """Write remaining samples, final timing statistics and ``status``; flush."""
@@ -306,8 +345,9 @@ class Recorder:
 
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
-        self.channels = dict(channels) if channels is not None else {
-            c: CANONICAL_UNITS[c] for c in RECORDED}
+        self.channels = (
+            dict(channels) if channels is not None else {c: CANONICAL_UNITS[c] for c in RECORDED}
+        )
         tmp = self.path.with_name(self.path.name + ".partial")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -325,35 +365,45 @@ class Recorder:
                 for k, v in attrs.items():
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():
-                    ds = g.create_dataset(c, shape=(0,), maxshape=(None,), chunks=(CHUNK,),
-                                          dtype=np.float64)
+                    ds = g.create_dataset(
+                        c, shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float64
+                    )
                     ds.attrs["units"] = units
                 if summary:
-                    ds = g.create_dataset("summary", shape=(0,), maxshape=(None,),
-                                          chunks=(CHUNK,), dtype=np.uint8)
-                    ds.attrs["description"] = ("UTF-8 JSON: the run's end-of-run facts "
-                                               "(empty until the run ends)")
-                ds = g.create_dataset("lateness", shape=(0,), maxshape=(None,),
-                                      chunks=(CHUNK,), dtype=np.float32)
+                    ds = g.create_dataset(
+                        "summary", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.uint8
+                    )
+                    ds.attrs["description"] = (
+                        "UTF-8 JSON: the run's end-of-run facts (empty until the run ends)"
+                    )
+                ds = g.create_dataset(
+                    "lateness", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float32
+                )
                 ds.attrs["units"] = "s"
                 ds.attrs["description"] = (
                     "how late the sample was taken after its scheduled time: software-polled, "
                     "the start of its request minus its deadline; hardware-timed, its "
-                    "timestamp minus its place on the nominal grid")
+                    "timestamp minus its place on the nominal grid"
+                )
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
-                gp = g.create_dataset("gaps", shape=(0, 2), maxshape=(None, 2), chunks=(64, 2),
-                                      dtype=np.float64)
+                gp = g.create_dataset(
+                    "gaps", shape=(0, 2), maxshape=(None, 2), chunks=(64, 2), dtype=np.float64
+                )
                 gp.attrs["fields"] = json.dumps(["start_s", "samples_missed"])
                 gp.attrs["description"] = (
                     "samples the device or the schedule did not deliver: one row per gap, "
                     "its first missing sample's time (s from the run's first sample) and "
-                    "how many; never filled with invented samples")
+                    "how many; never filled with invented samples"
+                )
                 t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)
-                d = g.create_dataset("device_stats", data=np.bytes_(b""),
-                                     dtype=f"S{DEVICE_STATS_LEN}")
-                d.attrs["description"] = ("JSON: the devices' link/fault counters at the "
-                                          "run's end, cumulative since the rig was opened")
+                d = g.create_dataset(
+                    "device_stats", data=np.bytes_(b""), dtype=f"S{DEVICE_STATS_LEN}"
+                )
+                d.attrs["description"] = (
+                    "JSON: the devices' link/fault counters at the "
+                    "run's end, cumulative since the rig was opened"
+                )
             f.flush()
             f.swmr_mode = True  # from here on: no new attrs/objects, only data writes
             os.replace(tmp, self.path)

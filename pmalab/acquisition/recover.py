@@ -60,8 +60,12 @@ def _is_channel(obj) -> bool:
     """A per-sample dataset: 1-D, resizable, with units (subgroups' too: ``gains/...``)."""
     import h5py
 
-    return (isinstance(obj, h5py.Dataset) and obj.ndim == 1 and obj.maxshape == (None,)
-            and "units" in obj.attrs)
+    return (
+        isinstance(obj, h5py.Dataset)
+        and obj.ndim == 1
+        and obj.maxshape == (None,)
+        and "units" in obj.attrs
+    )
 
 
 def _samples(g) -> int:
@@ -90,8 +94,9 @@ def _copy_group(src, dst, n: int) -> None:
             new.attrs[k] = v
 
 
-def recover(path: str | Path, out: str | Path | None = None, *,
-            force: bool = False) -> list[str] | None:
+def recover(
+    path: str | Path, out: str | Path | None = None, *, force: bool = False
+) -> list[str] | None:
     """Rewrite ``path`` (or into ``out``) as a closed file; return the runs marked aborted,
     or None when the file is healthy and ``force`` is not given (nothing is written)."""
     import h5py
@@ -131,8 +136,9 @@ def recover(path: str | Path, out: str | Path | None = None, *,
             for name in src_runs.keys():
                 g = src_runs[name]
                 if not isinstance(g, h5py.Group):
-                    raise RunFileError(f"{src_path}: damaged run file (run '{name}' is not "
-                                       "a group)")
+                    raise RunFileError(
+                        f"{src_path}: damaged run file (run '{name}' is not a group)"
+                    )
                 d = runs.create_group(name)
                 for k, v in g.attrs.items():
                     d.attrs[k] = v
@@ -140,13 +146,16 @@ def recover(path: str | Path, out: str | Path | None = None, *,
                 if "status" in g:
                     status_ds = g["status"]
                     if not isinstance(status_ds, h5py.Dataset):
-                        raise RunFileError(f"{src_path}: damaged run file (run '{name}': "
-                                           "'status' is not a dataset)")
+                        raise RunFileError(
+                            f"{src_path}: damaged run file (run '{name}': "
+                            "'status' is not a dataset)"
+                        )
                     status = status_ds[()].decode("utf-8", "replace").rstrip("\x00 ")
                     if status == "running":
                         # _copy_group copied the status dataset into d
                         cast(h5py.Dataset, d["status"])[()] = np.bytes_(
-                            b"aborted: recording interrupted (writer killed; recovered)")
+                            b"aborted: recording interrupted (writer killed; recovered)"
+                        )
                         fixed.append(name)
         src.close()
         os.replace(tmp, dst_path)

@@ -133,30 +133,39 @@ class RunResult:
         if not t.get("timing_warning"):
             missed = int(t.get("missed", 0))
             if self.hardware_timed and missed:
-                return (f"run '{self.name}': the device skipped {missed} sample(s) (its "
-                        "buffer overflowed); recorded as gaps in the run's 'gaps' dataset, "
-                        "nothing filled in")
+                return (
+                    f"run '{self.name}': the device skipped {missed} sample(s) (its "
+                    "buffer overflowed); recorded as gaps in the run's 'gaps' dataset, "
+                    "nothing filled in"
+                )
             return None
         late, missed = int(t.get("late", 0)), int(t.get("missed", 0))
         scheduled = self.n_samples + missed
         limit = 100 * t.get("warn_fraction", 0.01)
-        return (f"run '{self.name}' did not keep its sample rate: {missed} of {scheduled} "
-                f"scheduled samples missed ({100 * t.get('missed_fraction', 0.0):.1f} %), "
-                f"{late} of {self.n_samples} late ({100 * t.get('late_fraction', 0.0):.1f} %; "
-                f"more than {limit:g} % is a warning); the recorded samples keep their real "
-                "timestamps")
+        return (
+            f"run '{self.name}' did not keep its sample rate: {missed} of {scheduled} "
+            f"scheduled samples missed ({100 * t.get('missed_fraction', 0.0):.1f} %), "
+            f"{late} of {self.n_samples} late ({100 * t.get('late_fraction', 0.0):.1f} %; "
+            f"more than {limit:g} % is a warning); the recorded samples keep their real "
+            "timestamps"
+        )
 
     def summary(self) -> str:
         t = self.timing
-        frange = (f"force {self.force_min:.0f}…{self.force_max:.0f} N" if self.n_samples
-                  else "no samples")
+        frange = (
+            f"force {self.force_min:.0f}…{self.force_max:.0f} N" if self.n_samples else "no samples"
+        )
         lat = ""
         if t.get("lateness_max_s", 0.0) > 0:  # real clock: how well the deadlines were kept
-            lat = (f" (lateness p99 {t.get('lateness_p99_s', 0.0) * 1e3:.3f} ms, "
-                   f"max {t['lateness_max_s'] * 1e3:.2f} ms)")
-        return (f"{self.name}: {self.status}, {self.n_samples} samples, "
-                f"{self.duration_s:.1f} s, {frange}, late {int(t.get('late', 0))}, "
-                f"missed {int(t.get('missed', 0))}{lat}")
+            lat = (
+                f" (lateness p99 {t.get('lateness_p99_s', 0.0) * 1e3:.3f} ms, "
+                f"max {t['lateness_max_s'] * 1e3:.2f} ms)"
+            )
+        return (
+            f"{self.name}: {self.status}, {self.n_samples} samples, "
+            f"{self.duration_s:.1f} s, {frange}, late {int(t.get('late', 0))}, "
+            f"missed {int(t.get('missed', 0))}{lat}"
+        )
 
 
 @dataclass
@@ -237,8 +246,9 @@ def info_json(info: dict[str, Any]) -> str:
     return json.dumps(clean, sort_keys=True)
 
 
-def run_attrs(spec: RunSpec, protocol: Protocol, rig: Rig,
-              rate_Hz: float | None = None) -> dict[str, Any]:
+def run_attrs(
+    spec: RunSpec, protocol: Protocol, rig: Rig, rate_Hz: float | None = None
+) -> dict[str, Any]:
     """The per-run attrs (contract fields first, then provenance).
 
     ``rate_Hz`` is the rate actually recorded at (default: the protocol's).
@@ -356,8 +366,10 @@ def recording_rate(rig: Rig, protocol: Protocol) -> tuple[float, str | None]:
     name = rig.info.get("name") or rig.info.get("kind") or "rig"
     sustain = timing.get("sustainable_Hz") if isinstance(timing, dict) else None
     why = f" (its link sustains about {sustain:.0f} Hz)" if isinstance(sustain, int | float) else ""
-    return rate, (f"pmalab: warning: {name}: recording at a reduced {rate:g} Hz instead of "
-                  f"the protocol's {requested:g} Hz{why}; allow_reduced_rate = true")
+    return rate, (
+        f"pmalab: warning: {name}: recording at a reduced {rate:g} Hz instead of "
+        f"the protocol's {requested:g} Hz{why}; allow_reduced_rate = true"
+    )
 
 
 def _device_stats(rig: Rig) -> dict[str, Any] | None:
@@ -378,13 +390,18 @@ def _store_device_stats(rig: Rig, w: RunWriter) -> None:
         w.set_device_stats(d)
 
 
-def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
-                  opts: RunnerOptions) -> list[RunResult]:
+def _run_protocol(
+    rig: Rig, protocol: Protocol, out: str | Path, force: bool, opts: RunnerOptions
+) -> list[RunResult]:
     preflight(protocol, rig)
     rate, warning = recording_rate(rig, protocol)
     out = check_output(out, force)
-    check_free_space(out, estimated_file_size(
-        [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs]))
+    check_free_space(
+        out,
+        estimated_file_size(
+            [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs]
+        ),
+    )
     if warning:
         print(warning, file=sys.stderr, flush=True)
     limits = effective_limits(rig)
@@ -401,8 +418,13 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
         "limits": json.dumps(limits.__dict__, sort_keys=True),
         "clock": "virtual" if rig.clock.virtual else "real",
         # what stamps each sample: the device's sample clock (t = k / rate) or the host's
-        "time_base": ("device sample clock" if rig.sampler.hardware_timed
-                      else "virtual clock" if rig.clock.virtual else "host clock"),
+        "time_base": (
+            "device sample clock"
+            if rig.sampler.hardware_timed
+            else "virtual clock"
+            if rig.clock.virtual
+            else "host clock"
+        ),
         "sample_rate_Hz": rate,
         "requested_sample_rate_Hz": protocol.sample_rate_Hz,
         **opts.extra_attrs,
@@ -410,8 +432,12 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
     results: list[RunResult] = []
     pbar = _progress(protocol, opts.progress)
     try:
-        rec = Recorder(out, [(r.name, run_attrs(r, protocol, rig, rate)) for r in protocol.runs],
-                       root, flush_interval_s=opts.flush_interval_s)
+        rec = Recorder(
+            out,
+            [(r.name, run_attrs(r, protocol, rig, rate)) for r in protocol.runs],
+            root,
+            flush_interval_s=opts.flush_interval_s,
+        )
         try:
             for i, spec in enumerate(protocol.runs):
                 w = rec.writer(spec.name)
@@ -434,21 +460,26 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
                     # vent FIRST — before any file work — then close the run as aborted
                     vented = _vent(rig)
                     reason = _reason(exc)
-                    failed = _close_aborted(rig, rec, w, protocol.runs[i + 1:],
-                                            f"aborted: {reason}")
+                    failed = _close_aborted(
+                        rig, rec, w, protocol.runs[i + 1 :], f"aborted: {reason}"
+                    )
                     if not vented.ok:  # once more: a link may answer again by now
                         vented = vented.merged(_vent(rig))
-                    kept = (f"{w.n} samples kept (status 'aborted')" if failed is None else
-                            f"the file could not be finished ({failed}): what was flushed "
-                            "before stays readable")
+                    kept = (
+                        f"{w.n} samples kept (status 'aborted')"
+                        if failed is None
+                        else f"the file could not be finished ({failed}): what was flushed "
+                        "before stays readable"
+                    )
                     abort = abort_error(
-                        f"{out}: run '{spec.name}' aborted: {reason}; {VENT_SLOT}; {kept}",
-                        vented)
+                        f"{out}: run '{spec.name}' aborted: {reason}; {VENT_SLOT}; {kept}", vented
+                    )
                     abort.hard_exit = rec.unclosed
                     _notify(opts, "run_ended", i, spec, f"aborted: {reason}", str(abort))
                     raise abort from (exc if isinstance(exc, Exception) else None)
-                results.append(_result(spec.name, "completed", w, timing,
-                                       rig.sampler.hardware_timed))
+                results.append(
+                    _result(spec.name, "completed", w, timing, rig.sampler.hardware_timed)
+                )
         except BaseException:
             with contextlib.suppress(Exception):  # never hide the reason of the abort
                 rec.close()
@@ -465,8 +496,9 @@ def _run_protocol(rig: Rig, protocol: Protocol, out: str | Path, force: bool,
     return results
 
 
-def _close_aborted(rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec],
-                   status: str) -> str | None:
+def _close_aborted(
+    rig: Rig, rec: Recorder, w: RunWriter, later: list[RunSpec], status: str
+) -> str | None:
     """Close an aborted run's file: status first, then samples, statistics and the rest.
 
     The status goes first because it is written in place (no new file space); then the
@@ -519,11 +551,13 @@ def _reason(exc: BaseException) -> str:
     return f"exception: {type(exc).__name__}" + (f": {msg}" if msg else "")
 
 
-def _result(name: str, status: str, w: RunWriter, timing: dict[str, float],
-            hardware_timed: bool = False) -> RunResult:
+def _result(
+    name: str, status: str, w: RunWriter, timing: dict[str, float], hardware_timed: bool = False
+) -> RunResult:
     fmin, fmax = w.force_range
-    return RunResult(name, status, w.n, float(timing.get("duration_s", 0.0)), fmin, fmax, timing,
-                     hardware_timed)
+    return RunResult(
+        name, status, w.n, float(timing.get("duration_s", 0.0)), fmin, fmax, timing, hardware_timed
+    )
 
 
 def _progress(protocol: Protocol, enabled: bool):
@@ -531,9 +565,14 @@ def _progress(protocol: Protocol, enabled: bool):
         return None
     from tqdm import tqdm
 
-    return tqdm(total=round(protocol.duration_s, 1), unit="s", file=sys.stderr,
-                desc=protocol.name, bar_format="{desc}: {percentage:3.0f}%|{bar}| "
-                "{n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}")
+    return tqdm(
+        total=round(protocol.duration_s, 1),
+        unit="s",
+        file=sys.stderr,
+        desc=protocol.name,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| "
+        "{n:.0f}/{total:.0f} s [{elapsed}<{remaining}]{postfix}",
+    )
 
 
 def _default_prompt(msg: str) -> None:
@@ -541,8 +580,9 @@ def _default_prompt(msg: str) -> None:
 
 
 # --------------------------------------------------------------------------- muscle pressure
-def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor,
-                              opts: RunnerOptions, pbar) -> None:
+def _wait_for_muscle_pressure(
+    rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, opts: RunnerOptions, pbar
+) -> None:
     """Request the muscle pressure; sample (with safety checks) until it is within
     tolerance and stable for ``pressure_stable_s``.
 
@@ -558,9 +598,13 @@ def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: Saf
         supply.request(target)
     else:
         # the supply words the request; the runner adds which run and when it will start
-        supply.request(target, lambda text: prompt(
-            f"run '{spec.name}': {text} (recording starts once the reading is within "
-            f"±{tol:g} MPa of {target:.4g} MPa and stable)"))
+        supply.request(
+            target,
+            lambda text: prompt(
+                f"run '{spec.name}': {text} (recording starts once the reading is within "
+                f"±{tol:g} MPa of {target:.4g} MPa and stable)"
+            ),
+        )
     if pbar is not None:
         pbar.set_postfix_str(f"{spec.name}: waiting for {target:.3g} MPa")
     clock, sampler = rig.clock, rig.sampler
@@ -594,16 +638,26 @@ def _wait_for_muscle_pressure(rig: Rig, spec: RunSpec, rate: float, monitor: Saf
                     return
         if now - t_start > spec.pressure_timeout_s:
             mean = math.fsum(window) / max(1, len(window))
-            raise RigError(f"muscle pressure did not settle at {target:.4g} MPa within "
-                           f"{spec.pressure_timeout_s:g} s (reading {mean:.4g} MPa)")
+            raise RigError(
+                f"muscle pressure did not settle at {target:.4g} MPa within "
+                f"{spec.pressure_timeout_s:g} s (reading {mean:.4g} MPa)"
+            )
         if not supply.automatic and now - last_note >= 5.0 and not clock.virtual:
             last_note = now
             prompt(f"muscle pressure reads {window[-1]:.4g} MPa (target {target:.4g})")
 
 
 # --------------------------------------------------------------------------- recording
-def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: RunWriter,
-            rec: Recorder, opts: RunnerOptions, pbar) -> None:
+def _record(
+    rig: Rig,
+    spec: RunSpec,
+    rate: float,
+    monitor: SafetyMonitor,
+    w: RunWriter,
+    rec: Recorder,
+    opts: RunnerOptions,
+    pbar,
+) -> None:
     """Record one run through the sample loop (:mod:`pmalab.acquisition.loop`): command the
     waveform, check, store, flush — until its end."""
     sampler, reg = rig.sampler, rig.cylinder_regulator
@@ -620,8 +674,9 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
     cmds = command_samples(spec, rate, n_total).tolist()
     since = [0, 0]  # samples delivered, samples the progress bar has shown
 
-    def step(k: int, t_rel: float, x: float, f: float, pm: float, pc: float,
-             lateness: float) -> float:
+    def step(
+        k: int, t_rel: float, x: float, f: float, pm: float, pc: float, lateness: float
+    ) -> float:
         # the waveform's value at this sample's nominal time (precomputed per deadline);
         # sent right after the block and held by the regulator until the next one
         cmd = cmds[k]
@@ -629,8 +684,9 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
         since[0] += 1
         return cmd
 
-    def on_trip(reason: str, t_rel: float, x: float, f: float, pm: float, pc: float,
-                lateness: float) -> None:
+    def on_trip(
+        reason: str, t_rel: float, x: float, f: float, pm: float, pc: float, lateness: float
+    ) -> None:
         # vent in this sample period, keep the sample, then the loop aborts
         _vent(rig)
         if math.isfinite(t_rel + x + f + pm + pc):  # a NaN would break the contract
@@ -643,9 +699,20 @@ def _record(rig: Rig, spec: RunSpec, rate: float, monitor: SafetyMonitor, w: Run
             pbar.update((since[0] - since[1]) * dt)
             since[1] = since[0]
 
-    sample_loop(rig.clock, sampler, rate, n_total, check=monitor.check, step=step,
-                command=reg.set_pressure, on_trip=on_trip, pending=opts.pending_signal,
-                stats=w, late_threshold_s=opts.late_threshold_s, after_block=after_block)
+    sample_loop(
+        rig.clock,
+        sampler,
+        rate,
+        n_total,
+        check=monitor.check,
+        step=step,
+        command=reg.set_pressure,
+        on_trip=on_trip,
+        pending=opts.pending_signal,
+        stats=w,
+        late_threshold_s=opts.late_threshold_s,
+        after_block=after_block,
+    )
     reg.set_pressure(0.0)
     if pbar is not None and since[0] > since[1]:
         pbar.update((since[0] - since[1]) * dt)

@@ -25,7 +25,9 @@ class ProtocolRefused(ConfigError):
 def effective_limits(rig: Rig) -> Limits:
     """The rig's limits, with the cylinder limit capped at the regulator's own maximum."""
     lim = rig.limits
-    reg_max = float(getattr(rig.cylinder_regulator, "max_pressure_MPa", lim.max_cylinder_pressure_MPa))
+    reg_max = float(
+        getattr(rig.cylinder_regulator, "max_pressure_MPa", lim.max_cylinder_pressure_MPa)
+    )
     return Limits(
         max_muscle_pressure_MPa=float(lim.max_muscle_pressure_MPa),
         max_cylinder_pressure_MPa=min(float(lim.max_cylinder_pressure_MPa), reg_max),
@@ -52,8 +54,11 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
             f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz is "
             f"outside the rig's {lo_hi[0]:g}–{lo_hi[1]:g} Hz"
         )
-    if (lo_hi is None and sampler.hardware_timed
-            and abs(sampler.sample_rate_Hz - protocol.sample_rate_Hz) > 1e-9):
+    if (
+        lo_hi is None
+        and sampler.hardware_timed
+        and abs(sampler.sample_rate_Hz - protocol.sample_rate_Hz) > 1e-9
+    ):
         raise ProtocolRefused(
             f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz but the "
             f"rig's hardware-timed sampler runs at {sampler.sample_rate_Hz:g} Hz"
@@ -96,18 +101,25 @@ class SafetyMonitor:
         """Return the trip reason, or None when every channel is within its limit."""
         lim = self.limits
         # NaN compares false everywhere; a sensor returning NaN is a fault, so test for it
-        if not (force == force and position == position and muscle == muscle
-                and cylinder == cylinder):
+        if not (
+            force == force and position == position and muscle == muscle and cylinder == cylinder
+        ):
             return "sensor returned NaN (sample not stored)"
         if abs(force) > lim.max_force_N:
             return f"force {force:.1f} N beyond the load cell's range ±{lim.max_force_N:g} N"
         if position > lim.max_position_mm or position < lim.min_position_mm:
-            return (f"position {position:.2f} mm outside the travel "
-                    f"[{lim.min_position_mm:g}, {lim.max_position_mm:g}] mm")
+            return (
+                f"position {position:.2f} mm outside the travel "
+                f"[{lim.min_position_mm:g}, {lim.max_position_mm:g}] mm"
+            )
         if muscle > self._muscle_trip:
-            return (f"muscle pressure {muscle:.3f} MPa above the limit "
-                    f"{lim.max_muscle_pressure_MPa:g} MPa")
+            return (
+                f"muscle pressure {muscle:.3f} MPa above the limit "
+                f"{lim.max_muscle_pressure_MPa:g} MPa"
+            )
         if cylinder > self._cyl_trip:
-            return (f"cylinder pressure {cylinder:.3f} MPa above the limit "
-                    f"{lim.max_cylinder_pressure_MPa:g} MPa")
+            return (
+                f"cylinder pressure {cylinder:.3f} MPa above the limit "
+                f"{lim.max_cylinder_pressure_MPa:g} MPa"
+            )
         return None

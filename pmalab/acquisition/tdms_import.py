@@ -26,8 +26,9 @@ def _open(path: Path):
 
     head = read_head(path, "TDMS", 4)
     if head != b"TDSm":
-        raise RunFileError(f"{path}: not a TDMS file (no 'TDSm' lead-in; a .tdms_index file "
-                           "or another format?)")
+        raise RunFileError(
+            f"{path}: not a TDMS file (no 'TDSm' lead-in; a .tdms_index file or another format?)"
+        )
     try:
         return TdmsFile.read(str(path))
     except Exception as exc:  # npTDMS raises ValueError/KeyError/struct.error on damage
@@ -39,11 +40,12 @@ def _values(path: Path, group: str, name: str, channel) -> np.ndarray:
     try:
         data = np.asarray(channel[:])
     except Exception as exc:
-        raise RunFileError(f"{path}: group '{group}': channel '{name}': cannot read its data "
-                           f"({str(exc)[:100] or type(exc).__name__})") from None
+        raise RunFileError(
+            f"{path}: group '{group}': channel '{name}': cannot read its data "
+            f"({str(exc)[:100] or type(exc).__name__})"
+        ) from None
     if data.dtype.kind not in "iuf":
-        raise RunFileError(f"{path}: group '{group}': channel '{name}': not numbers "
-                           f"({data.dtype})")
+        raise RunFileError(f"{path}: group '{group}': channel '{name}': not numbers ({data.dtype})")
     return data.astype(np.float64)
 
 
@@ -73,27 +75,34 @@ def read_tdms_runs(path: str | Path, opts: CsvImportOptions) -> list[Run]:
             c = chans[found["force"]]
             inc = c.properties.get("wf_increment")
             if inc is None:
-                raise RunFileError(f"{where}: no time channel and no waveform timing "
-                                   f"(wf_increment) on '{c.name}': name the time channel "
-                                   "with --time-col NAME")
+                raise RunFileError(
+                    f"{where}: no time channel and no waveform timing "
+                    f"(wf_increment) on '{c.name}': name the time channel "
+                    "with --time-col NAME"
+                )
             try:
                 inc = float(inc)
                 start = float(c.properties.get("wf_start_offset", 0.0) or 0.0)
             except (TypeError, ValueError):
-                raise RunFileError(f"{where}: channel '{c.name}': wf_increment/"
-                                   "wf_start_offset are not numbers") from None
+                raise RunFileError(
+                    f"{where}: channel '{c.name}': wf_increment/wf_start_offset are not numbers"
+                ) from None
             if not (np.isfinite(inc) and inc > 0):
-                raise RunFileError(f"{where}: channel '{c.name}': wf_increment must be > 0 s, "
-                                   f"got {inc:g}")
+                raise RunFileError(
+                    f"{where}: channel '{c.name}': wf_increment must be > 0 s, got {inc:g}"
+                )
             n = len(raw["force"][0])
             raw["time"] = (start + inc * np.arange(n), "s")
         lengths = {ch: len(v) for ch, (v, _) in raw.items()}
         if len(set(lengths.values())) > 1:
-            raise RunFileError(f"{where}: channels of different lengths "
-                               f"({', '.join(f'{found.get(k, k)}={n}' for k, n in lengths.items())})")
+            raise RunFileError(
+                f"{where}: channels of different lengths "
+                f"({', '.join(f'{found.get(k, k)}={n}' for k, n in lengths.items())})"
+            )
         name = opts.run or str(g.name)
-        runs.append(finish_run(path, name, raw, opts, "tdms import",
-                               {"group": g.name, "channels": found}))
+        runs.append(
+            finish_run(path, name, raw, opts, "tdms import", {"group": g.name, "channels": found})
+        )
     return runs
 
 

@@ -123,8 +123,9 @@ def command_samples(spec: RunSpec, rate_Hz: float, n: int) -> np.ndarray:
     t = np.arange(n) / rate_Hz
     env = envelope_array(spec, t)
     phase = (t - spec.steady_start_s) * spec.frequency_Hz
-    val = spec.offset_MPa + spec.amplitude_MPa * unit_wave_array(spec.waveform, phase,
-                                                                 spec.square_edge)
+    val = spec.offset_MPa + spec.amplitude_MPa * unit_wave_array(
+        spec.waveform, phase, spec.square_edge
+    )
     before = t < spec.steady_start_s  # settle and ramp in: from the preload to the waveform
     out = np.where(before, (1.0 - env) * spec.preload_MPa + env * val, env * val)
     return np.maximum(0.0, out)

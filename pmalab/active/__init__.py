@@ -19,8 +19,13 @@ if TYPE_CHECKING:
     from pmalab.active.loop import ActiveResult, Recorder
 
 # imported on first use: `pmalab --help` registers this package's options without numpy
-_getattr, _names = lazy_exports(__name__, {n: "pmalab.active.loop" for n in (
-    "ActiveResult", "ActiveRound", "diagnose_active", "rig_recorder")})
+_getattr, _names = lazy_exports(
+    __name__,
+    {
+        n: "pmalab.active.loop"
+        for n in ("ActiveResult", "ActiveRound", "diagnose_active", "rig_recorder")
+    },
+)
 __all__ = ["diagnose", *_names]
 
 
@@ -28,9 +33,18 @@ def __getattr__(name: str):
     return _getattr(name)
 
 
-def diagnose(campaign, *, rig: str | Path | Recorder, run_suggested: bool = True, model: str = "bouc-wen",
-             budget_s: float = 300.0, confirm=None, max_rounds: int = 3, seed: int | None = None,
-             **kwargs) -> ActiveResult:
+def diagnose(
+    campaign,
+    *,
+    rig: str | Path | Recorder,
+    run_suggested: bool = True,
+    model: str = "bouc-wen",
+    budget_s: float = 300.0,
+    confirm=None,
+    max_rounds: int = 3,
+    seed: int | None = None,
+    **kwargs,
+) -> ActiveResult:
     """``pmalab diagnose CAMPAIGN --rig RIG --run-suggested`` from Python.
 
     ``rig``: ``"sim"`` or a rig TOML path (or a recorder callable, see
@@ -41,6 +55,13 @@ def diagnose(campaign, *, rig: str | Path | Recorder, run_suggested: bool = True
     from pmalab.active.loop import diagnose_active, protocol_duration, rig_recorder
 
     record = rig if callable(rig) else rig_recorder(str(rig), seed=seed)
-    return diagnose_active(campaign, record, model=model, budget_s=budget_s, confirm=confirm,
-                           max_rounds=max_rounds if run_suggested else 0,
-                           protocol_duration=protocol_duration, **kwargs)
+    return diagnose_active(
+        campaign,
+        record,
+        model=model,
+        budget_s=budget_s,
+        confirm=confirm,
+        max_rounds=max_rounds if run_suggested else 0,
+        protocol_duration=protocol_duration,
+        **kwargs,
+    )

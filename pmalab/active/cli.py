@@ -26,21 +26,39 @@ def register(sub: argparse._SubParsersAction) -> None:
         "show it as a protocol with the reason, ask before the rig moves (--yes: don't ask), "
         "record it through the same safety runner as 'pmalab run', append the runs to the "
         "campaign (one FILE.h5) and diagnose again, until the verdict is clear, nothing is "
-        "worth measuring, or the budget is spent.")
+        "worth measuring, or the budget is spent.",
+    )
     g.add_argument("--rig", metavar="RIG", help="'sim' or a rig TOML file to record on")
-    g.add_argument("--run-suggested", action="store_true",
-                   help="run the suggested experiments on --rig and re-diagnose")
-    g.add_argument("--budget", type=float, default=300.0, metavar="S",
-                   help="rig time the loop may use, in seconds (default 300)")
-    g.add_argument("--rounds", type=int, default=3, metavar="N",
-                   help="most experiments to run (default 3)")
-    g.add_argument("--yes", action="store_true",
-                   help="run suggested experiments without asking (scripts, simulated rig)")
-    g.add_argument("--seed", type=int, default=None,
-                   help="simulated rig: sensor-noise seed of the first round (+1 per round)")
+    g.add_argument(
+        "--run-suggested",
+        action="store_true",
+        help="run the suggested experiments on --rig and re-diagnose",
+    )
+    g.add_argument(
+        "--budget",
+        type=float,
+        default=300.0,
+        metavar="S",
+        help="rig time the loop may use, in seconds (default 300)",
+    )
+    g.add_argument(
+        "--rounds", type=int, default=3, metavar="N", help="most experiments to run (default 3)"
+    )
+    g.add_argument(
+        "--yes",
+        action="store_true",
+        help="run suggested experiments without asking (scripts, simulated rig)",
+    )
+    g.add_argument(
+        "--seed",
+        type=int,
+        default=None,
+        help="simulated rig: sensor-noise seed of the first round (+1 per round)",
+    )
     plain = p.get_default("func")
-    p.set_defaults(func=lambda args: run_active(args) if args.run_suggested or args.rig
-                   else plain(args))
+    p.set_defaults(
+        func=lambda args: run_active(args) if args.run_suggested or args.rig else plain(args)
+    )
 
 
 def run_active(args: argparse.Namespace) -> int:
@@ -54,16 +72,21 @@ def run_active(args: argparse.Namespace) -> int:
     from pmalab.paths import prepare_output_dir
 
     if not args.run_suggested:
-        raise PmalabError("--rig: only used with --run-suggested (run the suggested "
-                          "experiments on this rig)")
+        raise PmalabError(
+            "--rig: only used with --run-suggested (run the suggested experiments on this rig)"
+        )
     if not args.rig:
         raise PmalabError("--run-suggested: needs --rig (sim or a rig TOML file)")
     if len(args.files) != 1:
-        raise PmalabError("--run-suggested: give exactly one campaign file (the new runs are "
-                          f"appended to it), got {len(args.files)}")
+        raise PmalabError(
+            "--run-suggested: give exactly one campaign file (the new runs are "
+            f"appended to it), got {len(args.files)}"
+        )
     if args.validate:
-        raise PmalabError("--run-suggested: tag held-out runs with role 'validation' in the "
-                          "campaign instead of --validate (new runs are appended to it)")
+        raise PmalabError(
+            "--run-suggested: tag held-out runs with role 'validation' in the "
+            "campaign instead of --validate (new runs are appended to it)"
+        )
     if args.budget <= 0:
         raise PmalabError(f"--budget {args.budget:g}: must be a positive number of seconds")
     if args.rounds < 1:
@@ -72,8 +95,9 @@ def run_active(args: argparse.Namespace) -> int:
     if not campaign.is_file():
         raise PmalabError(f"{campaign}: no such campaign file")
     out = prepare_output_dir(args.out, ("diagnosis.json", "predictions.h5"), args.force)
-    record = rig_recorder(args.rig, seed=args.seed, quiet=args.quiet if hasattr(args, "quiet")
-                          else True)
+    record = rig_recorder(
+        args.rig, seed=args.seed, quiet=args.quiet if hasattr(args, "quiet") else True
+    )
 
     def confirm(exp, toml: str) -> bool:
         print(f"\nSuggested experiment ({exp.duration_s:.0f} s of rig time on {args.rig}):")
@@ -81,8 +105,9 @@ def run_active(args: argparse.Namespace) -> int:
         if args.yes:
             return True
         if not sys.stdin.isatty():
-            raise PmalabError("the suggested experiment needs confirmation: run interactively "
-                              "or add --yes")
+            raise PmalabError(
+                "the suggested experiment needs confirmation: run interactively or add --yes"
+            )
         ans = input(f"Run it on {args.rig}? [y/N] ").strip().lower()
         return ans in ("y", "yes")
 
@@ -91,29 +116,44 @@ def run_active(args: argparse.Namespace) -> int:
 
     old = signal.signal(signal.SIGTERM, on_term)
     try:
-        res = diagnose_active(campaign, record, model=args.model, budget_s=args.budget,
-                              confirm=confirm, max_rounds=args.rounds, effects=args.only,
-                              jobs=args.jobs, protocol_duration=protocol_duration)
+        res = diagnose_active(
+            campaign,
+            record,
+            model=args.model,
+            budget_s=args.budget,
+            confirm=confirm,
+            max_rounds=args.rounds,
+            effects=args.only,
+            jobs=args.jobs,
+            protocol_duration=protocol_duration,
+        )
     except RoundAborted as exc:
         _write(exc.partial, out, args.force, write_outputs)
-        exc.args = (f"{exc}; {campaign} is unchanged, the round's samples are in "
-                    f"{exc.round_file}; diagnosis of the campaign so far in {out}",)
+        exc.args = (
+            f"{exc}; {campaign} is unchanged, the round's samples are in "
+            f"{exc.round_file}; diagnosis of the campaign so far in {out}",
+        )
         raise exc from None
     finally:
         signal.signal(signal.SIGTERM, old)
     d = res.diagnosis
-    print(f"\nEffect ranking after {len(res.rounds)} round(s) "
-          f"(noise floor {d.noise_floor['mean_nrmse']:.4f}):")
+    print(
+        f"\nEffect ranking after {len(res.rounds)} round(s) "
+        f"(noise floor {d.noise_floor['mean_nrmse']:.4f}):"
+    )
     print(d.ranking_table())
     for r in res.rounds:
         v = r.verdict
-        print(f"round {r.round}: {r.experiment['label']} ({r.rig_time_s:.0f} s), expected "
-              f"separation {r.expected_separation['min_x_floor']:.1f}× floor → first "
-              f"{v['first']}" + (f", ambiguous {', '.join(v['ambiguous'])}" if v["ambiguous"]
-                                 else ", not ambiguous"))
+        print(
+            f"round {r.round}: {r.experiment['label']} ({r.rig_time_s:.0f} s), expected "
+            f"separation {r.expected_separation['min_x_floor']:.1f}× floor → first "
+            f"{v['first']}"
+            + (f", ambiguous {', '.join(v['ambiguous'])}" if v["ambiguous"] else ", not ambiguous")
+        )
     print(f"\n{d.summary}")
-    print(f"Stopped: {res.stop_text} ({res.rig_time_s:.0f} s of {res.budget_s:.0f} s rig time "
-          "used).")
+    print(
+        f"Stopped: {res.stop_text} ({res.rig_time_s:.0f} s of {res.budget_s:.0f} s rig time used)."
+    )
     jpath, hpath = _write(res, out, args.force, write_outputs)
     print(f"wrote {jpath} and {hpath}")
     return 0

@@ -92,10 +92,16 @@ class Experiment:
         return f"{self.frequency_Hz:g} Hz {self.waveform}{amp} at {ps} MPa"
 
     def as_json(self) -> dict[str, Any]:
-        return {"waveform": self.waveform, "frequency_Hz": self.frequency_Hz,
-                "amplitude_scale": self.amplitude_scale, "cycles": self.cycles,
-                "duration_s": self.duration_s, "runs": self.runs, "label": self.label,
-                "reason": self.reason}
+        return {
+            "waveform": self.waveform,
+            "frequency_Hz": self.frequency_Hz,
+            "amplitude_scale": self.amplitude_scale,
+            "cycles": self.cycles,
+            "duration_s": self.duration_s,
+            "runs": self.runs,
+            "label": self.label,
+            "reason": self.reason,
+        }
 
 
 def _steady_cycles(run: Run) -> Run:
@@ -134,15 +140,30 @@ def synth_run(template: Run, waveform: str, f: float, scale: float, cycles: floa
     mean, half = _template_stats(template)
     x = synth_position(t, waveform, f, mean, half * scale)
     p = np.full(n, template.nominal_pressure)
-    attrs = {"muscle_pressure_MPa": template.nominal_pressure, "frequency_Hz": f,
-             "waveform": waveform, "sample_rate_Hz": rate}
-    return Run(name=f"design-{waveform}-{f:g}Hz", time=t, position=x, force=np.zeros(n),
-               muscle_pressure=p, attrs=attrs)
+    attrs = {
+        "muscle_pressure_MPa": template.nominal_pressure,
+        "frequency_Hz": f,
+        "waveform": waveform,
+        "sample_rate_Hz": rate,
+    }
+    return Run(
+        name=f"design-{waveform}-{f:g}Hz",
+        time=t,
+        position=x,
+        force=np.zeros(n),
+        muscle_pressure=p,
+        attrs=attrs,
+    )
 
 
-def fit_candidates(train: Sequence[Run], held: Sequence[Run], law: str,
-                   base_effects: Sequence[str], ambiguous: Sequence[str],
-                   effects_files: Sequence[str] = ()) -> list[CandidateModel]:
+def fit_candidates(
+    train: Sequence[Run],
+    held: Sequence[Run],
+    law: str,
+    base_effects: Sequence[str],
+    ambiguous: Sequence[str],
+    effects_files: Sequence[str] = (),
+) -> list[CandidateModel]:
     """Identify the current model + each ambiguous effect (THE identification)."""
     from pmalab.identify.campaign.fit import fit_campaign
 
@@ -152,8 +173,9 @@ def fit_candidates(train: Sequence[Run], held: Sequence[Run], law: str,
     out = []
     for e in ambiguous:
         effects = (*base, e)
-        cf, _, _ = fit_and_validate(list(train), ModelSpec(law, effects, tuple(effects_files)),
-                                    list(held))
+        cf, _, _ = fit_and_validate(
+            list(train), ModelSpec(law, effects, tuple(effects_files)), list(held)
+        )
         own = [n for n in cf.parameter_names if n not in base_names]
         params = {}
         for r in held:
@@ -163,8 +185,9 @@ def fit_candidates(train: Sequence[Run], held: Sequence[Run], law: str,
     return out
 
 
-def _separations(models: Sequence[CandidateModel], runs: Sequence[Run],
-                 noise_N: Sequence[float]) -> tuple[float, dict[str, float]]:
+def _separations(
+    models: Sequence[CandidateModel], runs: Sequence[Run], noise_N: Sequence[float]
+) -> tuple[float, dict[str, float]]:
     """(min pairwise separation, every pair's) of ``models`` on ``runs`` (× noise)."""
     preds = []
     for m in models:
@@ -199,8 +222,9 @@ def _amplitude(r: Run) -> float | None:
     return None if v is None else float(v)
 
 
-def candidate_experiments(templates: Sequence[Run],
-                          campaign: Sequence[Run] = ()) -> list[tuple[str, float, float]]:
+def candidate_experiments(
+    templates: Sequence[Run], campaign: Sequence[Run] = ()
+) -> list[tuple[str, float, float]]:
     """(waveform, frequency, amplitude scale) triples not yet recorded at the templates'
     pressures (a condition already in ``campaign`` or the templates is not proposed again)."""
     done = set()
@@ -225,28 +249,61 @@ def cycles_for(f: float) -> float:
     return 3.0 if f < 1.0 else (4.0 if f < 3.0 else 6.0)
 
 
-def run_fields(template: Run, name: str, waveform: str, f: float, scale: float,
-               cycles: float, role: str = "validation") -> dict[str, Any]:
+def run_fields(
+    template: Run,
+    name: str,
+    waveform: str,
+    f: float,
+    scale: float,
+    cycles: float,
+    role: str = "validation",
+) -> dict[str, Any]:
     """Protocol fields of a new validation run modelled on ``template``'s own protocol."""
     proto = template.attrs.get("protocol")
     proto = dict(proto) if isinstance(proto, dict) else {}
-    keep = ("muscle_pressure_MPa", "offset_MPa", "amplitude_MPa", "magnitude_MPa", "ramp_s",
-            "settle_s", "preload_MPa", "pressure_tolerance_MPa", "pressure_stable_s",
-            "pressure_timeout_s")
+    keep = (
+        "muscle_pressure_MPa",
+        "offset_MPa",
+        "amplitude_MPa",
+        "magnitude_MPa",
+        "ramp_s",
+        "settle_s",
+        "preload_MPa",
+        "pressure_tolerance_MPa",
+        "pressure_stable_s",
+        "pressure_timeout_s",
+    )
     out: dict[str, Any] = {k: proto[k] for k in keep if k in proto and proto[k] is not None}
     out.setdefault("muscle_pressure_MPa", float(template.nominal_pressure))
     for k in ("amplitude_MPa", "magnitude_MPa"):
         if k in out:
             out[k] = round(float(out[k]) * scale, 6)
-    out.update({"name": name, "role": role, "waveform": waveform,
-                "frequency_Hz": float(f), "cycles": float(cycles)})
+    out.update(
+        {
+            "name": name,
+            "role": role,
+            "waveform": waveform,
+            "frequency_Hz": float(f),
+            "cycles": float(cycles),
+        }
+    )
     return out
 
 
-def design(runs: Sequence[Run], law: str, base_effects: Sequence[str], ambiguous: Sequence[str],
-           noise_floor: dict[str, float], *, budget_s: float = math.inf, round_index: int = 1,
-           validate: Sequence[Run] = (), effects_files: Sequence[str] = (),
-           duration_of=None, with_identification: bool = True) -> tuple[Experiment | None, list[Experiment], list[CandidateModel]]:
+def design(
+    runs: Sequence[Run],
+    law: str,
+    base_effects: Sequence[str],
+    ambiguous: Sequence[str],
+    noise_floor: dict[str, float],
+    *,
+    budget_s: float = math.inf,
+    round_index: int = 1,
+    validate: Sequence[Run] = (),
+    effects_files: Sequence[str] = (),
+    duration_of=None,
+    with_identification: bool = True,
+) -> tuple[Experiment | None, list[Experiment], list[CandidateModel]]:
     """The experiment that separates the ``ambiguous`` effects most (module doc).
 
     ``runs``: the campaign (steady windows are taken here, as diagnosis does);
@@ -284,8 +341,10 @@ def design(runs: Sequence[Run], law: str, base_effects: Sequence[str], ambiguous
         cyc = cycles_for(f)
         fields = [run_fields(t, _name(round_index, w, f, s, t), w, f, s, cyc) for t in tpl]
         if with_identification:
-            fields += [run_fields(t, _name(round_index, w, f, s, t), w, f, s, cyc,
-                                  role="identification") for t in train_tpl]
+            fields += [
+                run_fields(t, _name(round_index, w, f, s, t), w, f, s, cyc, role="identification")
+                for t in train_tpl
+            ]
         try:
             d = float(dur(fields))
         except PmalabError:  # the protocol refuses it (e.g. too fast for the rig's rate)
@@ -307,13 +366,20 @@ def design(runs: Sequence[Run], law: str, base_effects: Sequence[str], ambiguous
 
 
 def _name(i: int, w: str, f: float, s: float, t: Run) -> str:
-    return (f"r{i}-{w[:3]}{f:g}Hz-{1000 * t.nominal_pressure:.0f}kPa"
-            + ("" if s == 1.0 else f"-x{s:g}"))
+    return f"r{i}-{w[:3]}{f:g}Hz-{1000 * t.nominal_pressure:.0f}kPa" + (
+        "" if s == 1.0 else f"-x{s:g}"
+    )
 
 
 def _default_duration(fields: Sequence[dict[str, Any]]) -> float:
-    return float(sum(float(x.get("settle_s", 0.5)) + float(x.get("ramp_s", 0.5))
-                     + float(x["cycles"]) / float(x["frequency_Hz"]) for x in fields))
+    return float(
+        sum(
+            float(x.get("settle_s", 0.5))
+            + float(x.get("ramp_s", 0.5))
+            + float(x["cycles"]) / float(x["frequency_Hz"])
+            for x in fields
+        )
+    )
 
 
 def _fmt_params(m: CandidateModel) -> str:
@@ -324,19 +390,34 @@ def _fmt_params(m: CandidateModel) -> str:
     return f"{m.effect} ({txt} at {p:g} MPa)" if txt else m.effect
 
 
-def _reason(models: Sequence[CandidateModel], e: Experiment, now: float,
-            templates: Sequence[Run]) -> str:
+def _reason(
+    models: Sequence[CandidateModel], e: Experiment, now: float, templates: Sequence[Run]
+) -> str:
     names = " and ".join(_fmt_params(m) for m in models)
-    here = ", ".join(sorted({f"{r.frequency:g} Hz {r.attrs.get('waveform', 'sine')}"
-                             for r in templates if r.frequency}))
-    return (f"{names} predict forces that differ by {e.separation:.1f}× the noise floor on a "
-            f"{e.label} (on the campaign's {here or 'runs'}: {now:.1f}×)")
+    here = ", ".join(
+        sorted(
+            {
+                f"{r.frequency:g} Hz {r.attrs.get('waveform', 'sine')}"
+                for r in templates
+                if r.frequency
+            }
+        )
+    )
+    return (
+        f"{names} predict forces that differ by {e.separation:.1f}× the noise floor on a "
+        f"{e.label} (on the campaign's {here or 'runs'}: {now:.1f}×)"
+    )
 
 
 def experiment_toml(e: Experiment, name: str, why: str) -> str:
     """The experiment as a protocol file (the TOML ``pmalab run --protocol`` takes)."""
-    lines = [f"# {why}", "[protocol]", f'name = "{name}"',
-             f'description = "{e.label}: suggested by pmalab diagnose --run-suggested"', ""]
+    lines = [
+        f"# {why}",
+        "[protocol]",
+        f'name = "{name}"',
+        f'description = "{e.label}: suggested by pmalab diagnose --run-suggested"',
+        "",
+    ]
     for r in e.runs:
         lines.append("[[run]]")
         for k, v in r.items():

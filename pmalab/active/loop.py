@@ -48,7 +48,7 @@ DEFAULT_BUDGET_S = 300.0
 STOP_REASONS = {
     "unambiguous": "the verdict is unambiguous: nothing more is worth measuring",
     "no-experiment": "no experiment the rig can run within the budget separates the "
-                     "candidate models by ≥ {min_sep:g}× the noise floor",
+    "candidate models by ≥ {min_sep:g}× the noise floor",
     "budget": "the rig-time budget is spent",
     "rounds": "the maximum number of rounds was reached",
     "declined": "the suggested experiment was not confirmed",
@@ -74,10 +74,16 @@ class ActiveRound:
     verdict: dict[str, Any] = field(default_factory=dict)
 
     def as_json(self) -> dict[str, Any]:
-        return {"round": self.round, "experiment": self.experiment,
-                "expected_separation": self.expected_separation, "protocol": self.protocol,
-                "file": self.file, "recorded_runs": self.recorded_runs,
-                "rig_time_s": self.rig_time_s, "verdict": self.verdict}
+        return {
+            "round": self.round,
+            "experiment": self.experiment,
+            "expected_separation": self.expected_separation,
+            "protocol": self.protocol,
+            "file": self.file,
+            "recorded_runs": self.recorded_runs,
+            "rig_time_s": self.rig_time_s,
+            "verdict": self.verdict,
+        }
 
 
 @dataclass
@@ -100,11 +106,18 @@ class ActiveResult:
         from dataclasses import replace
 
         d = self.diagnosis
-        active = {"stop_reason": self.stop_reason, "stop": self.stop_text,
-                  "rig_time_s": self.rig_time_s, "budget_s": self.budget_s,
-                  "initial_verdict": self.initial_verdict}
-        return replace(d, rounds=[r.as_json() for r in self.rounds],
-                       settings={**d.settings, "ladder_rounds": d.rounds, "active": active})
+        active = {
+            "stop_reason": self.stop_reason,
+            "stop": self.stop_text,
+            "rig_time_s": self.rig_time_s,
+            "budget_s": self.budget_s,
+            "initial_verdict": self.initial_verdict,
+        }
+        return replace(
+            d,
+            rounds=[r.as_json() for r in self.rounds],
+            settings={**d.settings, "ladder_rounds": d.rounds, "active": active},
+        )
 
     def to_json(self) -> dict[str, Any]:
         """diagnosis.json as written (see :meth:`final`)."""
@@ -117,17 +130,29 @@ def verdict_of(d: Any) -> dict[str, Any]:
     be judged on the runs it recorded."""
     first = d.ranking[0] if d.ranking else {}
     held = list(d.settings.get("held_out", []))
-    per_run = {r["effect"]: dict(zip(held, (float(v) for v in r.get("per_run_after") or [])))
-               for r in d.ranking}
+    per_run = {
+        r["effect"]: dict(zip(held, (float(v) for v in r.get("per_run_after") or [])))
+        for r in d.ranking
+    }
     base = d.ladder[0] if d.ladder else {}
     per_run["base"] = dict(zip(held, (float(v) for v in base.get("per_run") or [])))
-    return {"first": first.get("effect"), "significant": bool(first.get("significant")),
-            "ambiguous": list(d.ambiguous), "final_model": "+".join([d.model, *d.final_effects]),
-            "verdict": d.verdict,
-            "ranking": [{"effect": r["effect"], "nrmse_after": r["nrmse_after"],
-                         "fall_percent": r["fall_percent"], "significant": r["significant"]}
-                        for r in d.ranking],
-            "per_run": per_run}
+    return {
+        "first": first.get("effect"),
+        "significant": bool(first.get("significant")),
+        "ambiguous": list(d.ambiguous),
+        "final_model": "+".join([d.model, *d.final_effects]),
+        "verdict": d.verdict,
+        "ranking": [
+            {
+                "effect": r["effect"],
+                "nrmse_after": r["nrmse_after"],
+                "fall_percent": r["fall_percent"],
+                "significant": r["significant"],
+            }
+            for r in d.ranking
+        ],
+        "per_run": per_run,
+    }
 
 
 Recorder = Callable[[str, Path, int], list[str]]
@@ -171,9 +196,16 @@ def diagnose_active(
             break
         left = budget_s - spent
         dur = _duration_fn(protocol_duration)
-        best, _scored, _models = design(runs, model, d.final_effects, d.ambiguous,
-                                        d.noise_floor.get("per_run", {}), budget_s=left,
-                                        round_index=i, duration_of=dur)
+        best, _scored, _models = design(
+            runs,
+            model,
+            d.final_effects,
+            d.ambiguous,
+            d.noise_floor.get("per_run", {}),
+            budget_s=left,
+            round_index=i,
+            duration_of=dur,
+        )
         if best is None:
             stop = "budget" if spent > 0 else "no-experiment"
             break
@@ -182,8 +214,10 @@ def diagnose_active(
             break
         name = f"{path.stem}-round{i}"
         toml = experiment_toml(best, name, best.reason)
-        say(f"round {i}: ambiguous {', '.join(d.ambiguous)}; suggested experiment "
-            f"({best.duration_s:.0f} s of rig time): {best.reason}")
+        say(
+            f"round {i}: ambiguous {', '.join(d.ambiguous)}; suggested experiment "
+            f"({best.duration_s:.0f} s of rig time): {best.reason}"
+        )
         if confirm is not None and not confirm(best, toml):
             stop = "declined"
             break
@@ -192,9 +226,13 @@ def diagnose_active(
             names = record(toml, round_file, i)
         except PmalabError as exc:
             # the campaign is untouched; the round file keeps what was recorded
-            err = RoundAborted(str(exc), ActiveResult(
-                d, rounds, "aborted", f"round {i} was aborted: {exc}", spent, budget_s,
-                initial), round_file)
+            err = RoundAborted(
+                str(exc),
+                ActiveResult(
+                    d, rounds, "aborted", f"round {i} was aborted: {exc}", spent, budget_s, initial
+                ),
+                round_file,
+            )
             err.exit_code = exc.exit_code  # a safety abort keeps its exit status (4)
             err.hard_exit = exc.hard_exit
             raise err from exc
@@ -202,15 +240,27 @@ def diagnose_active(
         spent += best.duration_s
         runs = read_runs(path, skip_incomplete=True)
         d = diagnose(runs, model, effects=effects, jobs=jobs)
-        rounds.append(ActiveRound(
-            round=i, experiment=best.as_json(),
-            expected_separation={"min_x_floor": best.separation, "pairs": best.pairs},
-            protocol=toml, file=str(round_file), recorded_runs=names,
-            rig_time_s=best.duration_s, verdict=verdict_of(d)))
-        say(f"round {i}: recorded {len(names)} runs ({best.duration_s:.0f} s); now "
+        rounds.append(
+            ActiveRound(
+                round=i,
+                experiment=best.as_json(),
+                expected_separation={"min_x_floor": best.separation, "pairs": best.pairs},
+                protocol=toml,
+                file=str(round_file),
+                recorded_runs=names,
+                rig_time_s=best.duration_s,
+                verdict=verdict_of(d),
+            )
+        )
+        say(
+            f"round {i}: recorded {len(names)} runs ({best.duration_s:.0f} s); now "
             + (f"{d.ranking[0]['effect']} first" if d.ranking else "no ranking")
-            + (f", still ambiguous with {', '.join(d.ambiguous[1:])}" if len(d.ambiguous) > 1
-               else ", not ambiguous"))
+            + (
+                f", still ambiguous with {', '.join(d.ambiguous[1:])}"
+                if len(d.ambiguous) > 1
+                else ", not ambiguous"
+            )
+        )
     else:
         stop = "rounds" if len(d.ambiguous) >= 2 else "unambiguous"
     text = STOP_REASONS[stop].format(min_sep=MIN_SEPARATION)
@@ -294,15 +344,22 @@ def rig_recorder(rig_spec: str, *, seed: int | None = None, quiet: bool = True) 
             rig.close()
             base = int(rig.info.get("seed") or 0)
             rig = load_rig_spec(rig_spec, seed=base + 1000 * i)
-        opts = RunnerOptions(progress=not quiet,
-                             extra_attrs={"command_line": " ".join(sys.argv),
-                                          "rig_spec": rig_spec, "active_round": i})
+        opts = RunnerOptions(
+            progress=not quiet,
+            extra_attrs={
+                "command_line": " ".join(sys.argv),
+                "rig_spec": rig_spec,
+                "active_round": i,
+            },
+        )
         with rig:
             results = run_protocol(rig, protocol, out, force=False, options=opts)
         vent = rig.last_vent
         if vent is not None and not vent.ok:
-            raise ActiveError(f"{out}: round {i} recorded, but the regulators' vent was not "
-                              f"confirmed: {vent.line()}")
+            raise ActiveError(
+                f"{out}: round {i} recorded, but the regulators' vent was not "
+                f"confirmed: {vent.line()}"
+            )
         return [r.name for r in results if r.status == "completed"]
 
     return record

@@ -57,9 +57,15 @@ class Cascade:
     #: low-pass (Hz) on the feedforward pressure's rate of change that the lead multiplies
     LEAD_FILTER_HZ = 20.0
 
-    def __init__(self, controller: str, settings: CascadeSettings, model: IdentifiedModel | None,
-                 geometry: ManipulatorGeometry, p_max: float, hysteresis: HysteresisState | None
-                 = None) -> None:
+    def __init__(
+        self,
+        controller: str,
+        settings: CascadeSettings,
+        model: IdentifiedModel | None,
+        geometry: ManipulatorGeometry,
+        p_max: float,
+        hysteresis: HysteresisState | None = None,
+    ) -> None:
         self.controller = controller
         self.settings = settings
         self.model = model
@@ -71,8 +77,7 @@ class Cascade:
         if model is not None and hysteresis is None:
             self.hyst = HysteresisState(model, geometry.home_contraction_mm)
         self._model = model if model is not None else _NoModel()
-        self._a = 1.0 - math.exp(-2.0 * math.pi * settings.position_filter_Hz
-                                 * settings.outer.dt)
+        self._a = 1.0 - math.exp(-2.0 * math.pi * settings.position_filter_Hz * settings.outer.dt)
         self._xf: float | None = None
         self.shaper = None
         self.hyst_ref = None
@@ -83,11 +88,11 @@ class Cascade:
         if model is not None and settings.reference_feedforward:
             self.hyst_ref = HysteresisState(model, geometry.home_contraction_mm)
         if settings.shaping_velocity_mm_s > 0 and settings.shaping_accel_mm_s2 > 0:
-            self.shaper = ReferenceShaper(settings.shaping_velocity_mm_s,
-                                          settings.shaping_accel_mm_s2, settings.outer.dt)
+            self.shaper = ReferenceShaper(
+                settings.shaping_velocity_mm_s, settings.shaping_accel_mm_s2, settings.outer.dt
+            )
 
-    def position_step(self, r: float, r_d: float, r_dd: float, x: float, p: float
-                      ) -> CascadeOutput:
+    def position_step(self, r: float, r_d: float, r_dd: float, x: float, p: float) -> CascadeOutput:
         """One sample of the position loop (see the module docstring); ``r`` mm, ``r_d``
         mm/s, ``r_dd`` mm/s² (the reference and its derivatives)."""
         g = self.geometry

@@ -23,51 +23,81 @@ from pmalab.errors import ConfigError
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``control`` to the ``pmalab`` parser."""
     p = sub.add_parser(
-        "control", help="cascade position control of the simulated PMA manipulator",
+        "control",
+        help="cascade position control of the simulated PMA manipulator",
         description="Run the seed papers' cascade controllers (classic PID, single-neuron "
         "adaptive PID, RBF-network-tuned PID) on the simulated 1-DOF manipulator driven by "
         "one DMSP-20-120 muscle, on a virtual clock; record a run file with the response, "
-        "pressures and gains, and print step/tracking metrics.")
+        "pressures and gains, and print step/tracking metrics.",
+    )
     # no argparse choices: the registry (pmalab.control.pid.CONTROLLERS) is the list, and
     # importing it here would load numpy at every start-up; an unknown id is one line
-    p.add_argument("--controller", metavar="ID",
-                   help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
-                   "built-ins; any registered controller's id)")
-    p.add_argument("--reference", metavar="KIND:FHz:M",
-                   help="square|sine, frequency, magnitude in mm (position loop) or MPa "
-                   "(pressure loop), e.g. square:0.1Hz:15mm, sine:0.1Hz:20mm, "
-                   "square:0.1Hz:0.5MPa; runs from 0 to the magnitude")
-    p.add_argument("--loop", choices=["position", "pressure"],
-                   help="the loop to close (default: from the reference's unit)")
-    p.add_argument("--model", metavar="ID.json",
-                   help="identification.json (or its directory) of the muscle, from 'pmalab "
-                   "identify' (default: the shipped identification of the simulated muscle)")
+    p.add_argument(
+        "--controller",
+        metavar="ID",
+        help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
+        "built-ins; any registered controller's id)",
+    )
+    p.add_argument(
+        "--reference",
+        metavar="KIND:FHz:M",
+        help="square|sine, frequency, magnitude in mm (position loop) or MPa "
+        "(pressure loop), e.g. square:0.1Hz:15mm, sine:0.1Hz:20mm, "
+        "square:0.1Hz:0.5MPa; runs from 0 to the magnitude",
+    )
+    p.add_argument(
+        "--loop",
+        choices=["position", "pressure"],
+        help="the loop to close (default: from the reference's unit)",
+    )
+    p.add_argument(
+        "--model",
+        metavar="ID.json",
+        help="identification.json (or its directory) of the muscle, from 'pmalab "
+        "identify' (default: the shipped identification of the simulated muscle)",
+    )
     p.add_argument("--duration", type=float, metavar="S", help="run length in s (≤ 600)")
-    p.add_argument("--experiments", metavar="FILE.toml",
-                   help="run every experiment of this file with each of its controllers "
-                   "(data/control/seed-experiments.toml: the seeds' set); --out is a directory")
-    p.add_argument("--out", required=True, help="output run file (a directory with "
-                   "--experiments)")
+    p.add_argument(
+        "--experiments",
+        metavar="FILE.toml",
+        help="run every experiment of this file with each of its controllers "
+        "(data/control/seed-experiments.toml: the seeds' set); --out is a directory",
+    )
+    p.add_argument("--out", required=True, help="output run file (a directory with --experiments)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.add_argument("--truth", metavar="TRUTH.toml",
-                   help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
-                   "for a plant/model mismatch; default: every effect off)")
-    p.add_argument("--hysteresis-compensation", choices=("on", "off"), default=None,
-                   help="invert the identified law's hysteretic force h (on, the default) or "
-                        "the static curve alone (off); for pid, sn-pid and rbf-pid alike")
-    p.add_argument("--plant", metavar="MODEL_DIR",
-                   help="model in the loop: the manipulator's muscle is this identification "
-                        "(identification.json) run forward instead of the simulated truth; "
-                        "mechanics and regulator as the simulated manipulator's")
+    p.add_argument(
+        "--truth",
+        metavar="TRUTH.toml",
+        help="simulated muscle truth (e.g. data/truth/hidden-viscous-friction.toml "
+        "for a plant/model mismatch; default: every effect off)",
+    )
+    p.add_argument(
+        "--hysteresis-compensation",
+        choices=("on", "off"),
+        default=None,
+        help="invert the identified law's hysteretic force h (on, the default) or "
+        "the static curve alone (off); for pid, sn-pid and rbf-pid alike",
+    )
+    p.add_argument(
+        "--plant",
+        metavar="MODEL_DIR",
+        help="model in the loop: the manipulator's muscle is this identification "
+        "(identification.json) run forward instead of the simulated truth; "
+        "mechanics and regulator as the simulated manipulator's",
+    )
     p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
-    p.add_argument("--real-time", action="store_true",
-                   help="run the simulation at the wall clock's pace (the loop timing of a "
-                   "real rig; default: a virtual clock, as fast as it computes)")
+    p.add_argument(
+        "--real-time",
+        action="store_true",
+        help="run the simulation at the wall clock's pace (the loop timing of a "
+        "real rig; default: a virtual clock, as fast as it computes)",
+    )
     p.set_defaults(func=cmd_control)
 
 
-def _make_rig_factory(truth: str | None, seed: int, real_time: bool = False,
-                      plant: str | None = None):
+def _make_rig_factory(
+    truth: str | None, seed: int, real_time: bool = False, plant: str | None = None
+):
     from pmalab.rig.base import RealClock
     from pmalab.rig.sim.manipulator import make_sim_manipulator
     from pmalab.rig.sim.truth import load_truth
@@ -80,10 +110,12 @@ def _make_rig_factory(truth: str | None, seed: int, real_time: bool = False,
 
         def make_plant():
             return make_plant_manipulator(plant, t, clock=RealClock() if real_time else None)
+
         return make_plant
 
     def make():
         return make_sim_manipulator(t, seed=seed, clock=RealClock() if real_time else None)
+
     return make
 
 
@@ -95,10 +127,11 @@ def cmd_control(args: argparse.Namespace) -> int:
     old = signal.signal(signal.SIGTERM, _sigterm)
     try:
         if args.experiments:
-            for flag in ("controller", "reference", "loop", "duration",
-                         "hysteresis_compensation"):
+            for flag in ("controller", "reference", "loop", "duration", "hysteresis_compensation"):
                 if getattr(args, flag) is not None:
-                    raise ConfigError(f"--{flag.replace('_', '-')}: not with --experiments (the file sets it)")
+                    raise ConfigError(
+                        f"--{flag.replace('_', '-')}: not with --experiments (the file sets it)"
+                    )
             return _run_experiments(args)
         for flag in ("controller", "reference", "duration"):
             if getattr(args, flag) is None:
@@ -110,9 +143,11 @@ def cmd_control(args: argparse.Namespace) -> int:
 
 def _note_ignored(model) -> None:
     if model is not None and model.ignored_effects:
-        print(f"note: {model.source}: the controller inverts the base {model.law} law; the "
-              f"identified effects ({', '.join(model.ignored_effects)}) are not inverted",
-              file=sys.stderr)
+        print(
+            f"note: {model.source}: the controller inverts the base {model.law} law; the "
+            f"identified effects ({', '.join(model.ignored_effects)}) are not inverted",
+            file=sys.stderr,
+        )
 
 
 def _sigterm(signum, frame):  # SIGTERM ends a run like Ctrl-C: vent, keep the samples
@@ -129,14 +164,16 @@ def _run_one(args, check_duration, metrics_line) -> int:
     from pmalab.paths import check_output
 
     if args.controller not in CONTROLLERS:  # before any output exists
-        raise ConfigError(f"--controller: unknown '{args.controller}' (choose from "
-                          f"{', '.join(CONTROLLERS)})")
+        raise ConfigError(
+            f"--controller: unknown '{args.controller}' (choose from {', '.join(CONTROLLERS)})"
+        )
     ref = parse_reference(args.reference)
     loop = args.loop or ref.quantity
     if loop != ref.quantity:
         unit = "MPa" if loop == "pressure" else "mm"
-        raise ConfigError(f"--reference: '{args.reference}': the {loop} loop needs a "
-                          f"magnitude in {unit}")
+        raise ConfigError(
+            f"--reference: '{args.reference}': the {loop} loop needs a magnitude in {unit}"
+        )
     duration = check_duration(args.duration, "--duration")
     check_output(args.out, args.force)  # before anything runs
     model = IdentifiedModel.load(args.model) if loop == "position" else None
@@ -145,38 +182,64 @@ def _run_one(args, check_duration, metrics_line) -> int:
     rig = make()
     progress: Callable[[float], None] | None = None
     if sys.stderr.isatty():  # a long run shows where it is (simulated seconds)
+
         def show(t: float) -> None:
-            print(f"\r{args.controller}: {t:5.0f} / {duration:g} s", end="", file=sys.stderr,
-                  flush=True)
+            print(
+                f"\r{args.controller}: {t:5.0f} / {duration:g} s",
+                end="",
+                file=sys.stderr,
+                flush=True,
+            )
+
         progress = show
     settings = default_settings()
     if args.hysteresis_compensation is not None:
         from dataclasses import replace as _replace
 
-        settings = _replace(settings,
-                            hysteresis_compensation=args.hysteresis_compensation == "on")
+        settings = _replace(settings, hysteresis_compensation=args.hysteresis_compensation == "on")
     cmd = " ".join(sys.argv)
-    attrs = planned_attrs(args.controller, ref, duration, settings, model, command_line=cmd,
-                          truth=str(rig.info.get("truth", "")))
+    attrs = planned_attrs(
+        args.controller,
+        ref,
+        duration,
+        settings,
+        model,
+        command_line=cmd,
+        truth=str(rig.info.get("truth", "")),
+    )
     root = {"command_line": cmd}
     if args.plant:
         root["plant"] = str(rig.info.get("plant", args.plant))
     with rig:  # the file is live before the first sample: a crash leaves what was recorded
-        with ControlRecording(args.out, [(args.controller, attrs)], loop, force=args.force,
-                              root_attrs=root) as rec:
+        with ControlRecording(
+            args.out, [(args.controller, attrs)], loop, force=args.force, root_attrs=root
+        ) as rec:
             w = rec.writer(args.controller)
-            run = run_control(rig, args.controller, ref, duration, settings, model,
-                              name=args.controller, progress=progress, sink=w)
+            run = run_control(
+                rig,
+                args.controller,
+                ref,
+                duration,
+                settings,
+                model,
+                name=args.controller,
+                progress=progress,
+                sink=w,
+            )
             w.finish(run)
     if progress is not None:
         print(file=sys.stderr)
     m = run_metrics(run)
-    print(f"{args.out}: {args.controller} {ref.text} ({loop} loop), {run.n} samples, "
-          f"{duration / max(run.wall_s, 1e-9):.0f}× real time; {run.status}")
+    print(
+        f"{args.out}: {args.controller} {ref.text} ({loop} loop), {run.n} samples, "
+        f"{duration / max(run.wall_s, 1e-9):.0f}× real time; {run.status}"
+    )
     print(f"  {metrics_line(m)}")
     if not run.completed:
-        raise SafetyAbort(f"{args.out}: run {run.status}; {run.attrs.get('vent')}; "
-                          "the samples so far are in the file")
+        raise SafetyAbort(
+            f"{args.out}: run {run.status}; {run.attrs.get('vent')}; "
+            "the samples so far are in the file"
+        )
     return 0
 
 
@@ -190,12 +253,19 @@ def _run_experiments(args) -> int:
     _note_ignored(model)
     truth = args.truth or (str(es.truth) if es.truth else None)
     seed = args.seed if args.seed is not None else es.seed
-    doc = run_experiments(es, args.out, force=args.force, model=model,
-                          make_rig=_make_rig_factory(truth, seed, args.real_time, args.plant),
-                          plant=args.plant)
+    doc = run_experiments(
+        es,
+        args.out,
+        force=args.force,
+        model=model,
+        make_rig=_make_rig_factory(truth, seed, args.real_time, args.plant),
+        plant=args.plant,
+    )
     bad = [r for r in doc["results"] if r["status"] != "completed"]
     print(f"{args.out}: {len(doc['results'])} runs, metrics in {args.out}/metrics.json")
     if bad:
-        raise SafetyAbort(f"{args.out}: {bad[0]['experiment']} {bad[0]['controller']}: "
-                          f"{bad[0]['status']}; later runs not started")
+        raise SafetyAbort(
+            f"{args.out}: {bad[0]['experiment']} {bad[0]['controller']}: "
+            f"{bad[0]['status']}; later runs not started"
+        )
     return 0

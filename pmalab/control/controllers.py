@@ -63,19 +63,34 @@ class CascadeSettings:
 
     def to_dict(self) -> dict[str, Any]:
         def loop(s: LoopSettings) -> dict[str, Any]:
-            return {"kp": s.gains.kp, "ki": s.gains.ki, "kd": s.gains.kd, "u_min": s.u_min,
-                    "u_max": s.u_max, "e_scale": s.e_scale, "u_scale": s.u_scale,
-                    "y_scale": s.y_scale, "dt": s.dt, "d_filter_Hz": s.d_filter_Hz,
-                    "gain_bounds": list(s.gain_bounds), "learning": dict(s.learning),
-                    "max_rate": s.max_rate}
-        return {"outer": loop(self.outer), "inner": loop(self.inner),
-                "position_filter_Hz": self.position_filter_Hz, "feedforward": self.feedforward,
-                "inner_feedforward": self.inner_feedforward,
-                "reference_feedforward": self.reference_feedforward,
-                "feedforward_lead_s": self.feedforward_lead_s,
-                "shaping_velocity_mm_s": self.shaping_velocity_mm_s,
-                "shaping_accel_mm_s2": self.shaping_accel_mm_s2,
-                "hysteresis_compensation": self.hysteresis_compensation}
+            return {
+                "kp": s.gains.kp,
+                "ki": s.gains.ki,
+                "kd": s.gains.kd,
+                "u_min": s.u_min,
+                "u_max": s.u_max,
+                "e_scale": s.e_scale,
+                "u_scale": s.u_scale,
+                "y_scale": s.y_scale,
+                "dt": s.dt,
+                "d_filter_Hz": s.d_filter_Hz,
+                "gain_bounds": list(s.gain_bounds),
+                "learning": dict(s.learning),
+                "max_rate": s.max_rate,
+            }
+
+        return {
+            "outer": loop(self.outer),
+            "inner": loop(self.inner),
+            "position_filter_Hz": self.position_filter_Hz,
+            "feedforward": self.feedforward,
+            "inner_feedforward": self.inner_feedforward,
+            "reference_feedforward": self.reference_feedforward,
+            "feedforward_lead_s": self.feedforward_lead_s,
+            "shaping_velocity_mm_s": self.shaping_velocity_mm_s,
+            "shaping_accel_mm_s2": self.shaping_accel_mm_s2,
+            "hysteresis_compensation": self.hysteresis_compensation,
+        }
 
 
 #: the adaptive laws' learning rates per controller, tuned once: the inner loop's on the
@@ -88,20 +103,37 @@ LEARNING_INNER = {"sn-pid": {"eta_d": 1.0}, "rbf-pid": {"eta_p": 1.0}}
 
 def default_settings(p_max: float = 0.6, dt: float = 0.002) -> CascadeSettings:
     """The shared initial gains, ranges and learning rates (units in :class:`LoopSettings`)."""
-    outer = LoopSettings(gains=Gains(kp=12.0, ki=20.0, kd=1.0), u_min=0.0, u_max=1500.0,
-                         e_scale=5.0, u_scale=300.0, y_scale=25.0, dt=dt, d_filter_Hz=20.0,
-                         learning={k: dict(v) for k, v in LEARNING_OUTER.items()})
-    inner = LoopSettings(gains=Gains(kp=0.6, ki=4.0, kd=0.002), u_min=0.0, u_max=p_max,
-                         e_scale=0.1, u_scale=p_max, y_scale=p_max, dt=dt, d_filter_Hz=30.0,
-                         learning={k: dict(v) for k, v in LEARNING_INNER.items()})
+    outer = LoopSettings(
+        gains=Gains(kp=12.0, ki=20.0, kd=1.0),
+        u_min=0.0,
+        u_max=1500.0,
+        e_scale=5.0,
+        u_scale=300.0,
+        y_scale=25.0,
+        dt=dt,
+        d_filter_Hz=20.0,
+        learning={k: dict(v) for k, v in LEARNING_OUTER.items()},
+    )
+    inner = LoopSettings(
+        gains=Gains(kp=0.6, ki=4.0, kd=0.002),
+        u_min=0.0,
+        u_max=p_max,
+        e_scale=0.1,
+        u_scale=p_max,
+        y_scale=p_max,
+        dt=dt,
+        d_filter_Hz=30.0,
+        learning={k: dict(v) for k, v in LEARNING_INNER.items()},
+    )
     return CascadeSettings(outer=outer, inner=inner)
 
 
 _LOOP_KEYS = {"kp", "ki", "kd", "d_filter_Hz", "gain_bounds", "learning", "max_rate"}
 
 
-def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: str
-                        ) -> CascadeSettings:
+def settings_from_table(
+    table: Mapping[str, Any], base: CascadeSettings, where: str
+) -> CascadeSettings:
     """``base`` with a TOML table's ``[outer]``/``[inner]`` overrides (same for every
     controller); one-line :class:`ConfigError` naming ``where`` and the field."""
     out = base
@@ -112,18 +144,24 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
         if key in ("feedforward_lead_s", "shaping_velocity_mm_s", "shaping_accel_mm_s2"):
             out = replace(out, **{key: _nonneg(val, f"{where}: {key}")})
             continue
-        if key in ("feedforward", "inner_feedforward", "reference_feedforward",
-                   "hysteresis_compensation"):
+        if key in (
+            "feedforward",
+            "inner_feedforward",
+            "reference_feedforward",
+            "hysteresis_compensation",
+        ):
             if not isinstance(val, bool):
                 raise ConfigError(f"{where}: {key}: must be true or false")
             out = replace(out, **{key: val})
             continue
         if key not in ("outer", "inner") or not isinstance(val, Mapping):
-            raise ConfigError(f"{where}: {key}: unknown (known: outer, inner, "
-                              "position_filter_Hz, feedforward, inner_feedforward, "
-                              "reference_feedforward, hysteresis_compensation, "
-                              "feedforward_lead_s, "
-                              "shaping_velocity_mm_s, shaping_accel_mm_s2)")
+            raise ConfigError(
+                f"{where}: {key}: unknown (known: outer, inner, "
+                "position_filter_Hz, feedforward, inner_feedforward, "
+                "reference_feedforward, hysteresis_compensation, "
+                "feedforward_lead_s, "
+                "shaping_velocity_mm_s, shaping_accel_mm_s2)"
+            )
         loop: LoopSettings = getattr(out, key)
         for k, v in val.items():
             field = f"{where}: {key}.{k}"
@@ -134,8 +172,11 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
                 gains = {"kp": g.kp, "ki": g.ki, "kd": g.kd, k: _nonneg(v, field)}
                 loop = replace(loop, gains=Gains(**gains))
             elif k == "gain_bounds":
-                if (not isinstance(v, list) or len(v) != 2
-                        or not 0 <= _nonneg(v[0], field) <= 1 <= _nonneg(v[1], field) <= 100):
+                if (
+                    not isinstance(v, list)
+                    or len(v) != 2
+                    or not 0 <= _nonneg(v[0], field) <= 1 <= _nonneg(v[1], field) <= 100
+                ):
                     raise ConfigError(f"{field}: must be [lo, hi] with 0 ≤ lo ≤ 1 ≤ hi ≤ 100")
                 loop = replace(loop, gain_bounds=(float(v[0]), float(v[1])))
             elif k == "learning":
@@ -144,10 +185,10 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
                 learning = {c: dict(r) for c, r in loop.learning.items()}
                 for c, rates in v.items():
                     if c not in CONTROLLERS or c == "pid" or not isinstance(rates, Mapping):
-                        raise ConfigError(f"{field}.{c}: expected a table of rates for "
-                                          "sn-pid or rbf-pid")
-                    learning[c] = {str(n): _nonneg(r, f"{field}.{c}.{n}")
-                                   for n, r in rates.items()}
+                        raise ConfigError(
+                            f"{field}.{c}: expected a table of rates for sn-pid or rbf-pid"
+                        )
+                    learning[c] = {str(n): _nonneg(r, f"{field}.{c}.{n}") for n, r in rates.items()}
                 loop = replace(loop, learning=learning)
             else:
                 loop = replace(loop, **{k: _positive(v, field)})
@@ -156,8 +197,13 @@ def settings_from_table(table: Mapping[str, Any], base: CascadeSettings, where: 
 
 
 def _nonneg(v: Any, field: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not v == v or v < 0 \
-            or v == float("inf"):
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, int | float)
+        or not v == v
+        or v < 0
+        or v == float("inf")
+    ):
         raise ConfigError(f"{field}: must be a finite number ≥ 0")
     return float(v)
 
@@ -172,6 +218,7 @@ def make_loop(name: str, settings: LoopSettings) -> IncrementalPID:
     try:
         cls = CONTROLLERS[name]
     except KeyError:
-        raise ConfigError(f"--controller: unknown '{name}' (choose from "
-                          f"{', '.join(CONTROLLERS)})") from None
+        raise ConfigError(
+            f"--controller: unknown '{name}' (choose from {', '.join(CONTROLLERS)})"
+        ) from None
     return cls(settings)

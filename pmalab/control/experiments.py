@@ -75,8 +75,12 @@ class ExperimentSet:
 
 def check_duration(v: Any, where: str) -> float:
     """A run length in s: a number in (0, 600]; one-line error otherwise."""
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) \
-            or not 0 < v <= MAX_DURATION_S:
+    if (
+        isinstance(v, bool)
+        or not isinstance(v, int | float)
+        or not math.isfinite(v)
+        or not 0 < v <= MAX_DURATION_S
+    ):
         raise ConfigError(f"{where}: must be a number of seconds in (0, {MAX_DURATION_S:g}]")
     return float(v)
 
@@ -97,15 +101,18 @@ def load_experiments(path: str | Path | None = None) -> ExperimentSet:
     allowed = {"name", "description", "controllers", "duration_s", "seed", "model", "truth"}
     for k in head:
         if k not in allowed:
-            raise ConfigError(f"{where}: experiments.{k}: unknown key "
-                              f"(known: {', '.join(sorted(allowed))})")
+            raise ConfigError(
+                f"{where}: experiments.{k}: unknown key (known: {', '.join(sorted(allowed))})"
+            )
     ctrls = head.get("controllers", list(CONTROLLERS))
     if not isinstance(ctrls, list) or not ctrls:
         raise ConfigError(f"{where}: experiments.controllers: must be a non-empty list")
     for c in ctrls:
         if c not in CONTROLLERS:
-            raise ConfigError(f"{where}: experiments.controllers: unknown '{c}' "
-                              f"(choose from {', '.join(CONTROLLERS)})")
+            raise ConfigError(
+                f"{where}: experiments.controllers: unknown '{c}' "
+                f"(choose from {', '.join(CONTROLLERS)})"
+            )
     dur = check_duration(head.get("duration_s", 20.0), f"{where}: experiments.duration_s")
     seed = head.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
@@ -139,8 +146,9 @@ def load_experiments(path: str | Path | None = None) -> ExperimentSet:
             raise ConfigError(f"{w}: must be a table")
         for k in e:
             if k not in ("name", "reference", "duration_s", "seeds", "description"):
-                raise ConfigError(f"{w}.{k}: unknown key (known: name, reference, duration_s, "
-                                  "seeds, description)")
+                raise ConfigError(
+                    f"{w}.{k}: unknown key (known: name, reference, duration_s, seeds, description)"
+                )
         name = e.get("name")
         if not isinstance(name, str) or not name or "/" in name or name in names:
             raise ConfigError(f"{w}.name: must be a unique non-empty name without '/'")
@@ -153,8 +161,17 @@ def load_experiments(path: str | Path | None = None) -> ExperimentSet:
         if not isinstance(seeds, dict):
             raise ConfigError(f"{w}.seeds: must be a table")
         exps.append(Experiment(name, ref, d, seeds))
-    return ExperimentSet(str(head.get("name", p.stem)), list(ctrls), exps, settings, seed,
-                         rel("model"), rel("truth"), str(p), text)
+    return ExperimentSet(
+        str(head.get("name", p.stem)),
+        list(ctrls),
+        exps,
+        settings,
+        seed,
+        rel("model"),
+        rel("truth"),
+        str(p),
+        text,
+    )
 
 
 def run_experiments(
@@ -185,39 +202,61 @@ def run_experiments(
         check_output(out / f"{e.name}.h5", force)
     check_output(out / "metrics.json", force)
     out.mkdir(parents=True, exist_ok=True)
-    doc: dict[str, Any] = {"experiments": es.name, "file": es.path,
-                           "controllers": es.controllers, "results": []}
+    doc: dict[str, Any] = {
+        "experiments": es.name,
+        "file": es.path,
+        "controllers": es.controllers,
+        "results": [],
+    }
     total = len(es.experiments) * len(es.controllers)
     done = 0
     for e in es.experiments:
         stop = False
-        planned = [(c, planned_attrs(c, e.reference, e.duration_s, es.settings, model))
-                   for c in es.controllers]
-        with ControlRecording(out / f"{e.name}.h5", planned, e.reference.quantity,
-                              force=force, root_attrs={"experiment": e.name,
-                                                       "experiments_file": es.path,
-                                                       "seeds": e.seeds,
-                                                       **({"plant": plant} if plant else {})}) as rec:
+        planned = [
+            (c, planned_attrs(c, e.reference, e.duration_s, es.settings, model))
+            for c in es.controllers
+        ]
+        with ControlRecording(
+            out / f"{e.name}.h5",
+            planned,
+            e.reference.quantity,
+            force=force,
+            root_attrs={
+                "experiment": e.name,
+                "experiments_file": es.path,
+                "seeds": e.seeds,
+                **({"plant": plant} if plant else {}),
+            },
+        ) as rec:
             for c in es.controllers:
                 done += 1
                 rig = make_rig()
                 w = rec.writer(c)
                 with rig:
-                    run = run_control(rig, c, e.reference, e.duration_s, es.settings, model,
-                                      name=c, sink=w)
+                    run = run_control(
+                        rig, c, e.reference, e.duration_s, es.settings, model, name=c, sink=w
+                    )
                 w.finish(run)
                 m = run_metrics(run)
-                doc["results"].append({"experiment": e.name, "reference": e.reference.text,
-                                       "controller": c, "status": run.status, "metrics": m,
-                                       "seeds": e.seeds})
+                doc["results"].append(
+                    {
+                        "experiment": e.name,
+                        "reference": e.reference.text,
+                        "controller": c,
+                        "status": run.status,
+                        "metrics": m,
+                        "seeds": e.seeds,
+                    }
+                )
                 report(f"[{done}/{total}] {e.name} {c}: {run.status}; " + metrics_line(m))
                 if not run.completed:
                     stop = True
                     break
         if stop:
             break
-    (out / "metrics.json").write_text(json.dumps(doc, indent=1, allow_nan=False,
-                                                 default=str), encoding="utf-8")
+    (out / "metrics.json").write_text(
+        json.dumps(doc, indent=1, allow_nan=False, default=str), encoding="utf-8"
+    )
     return doc
 
 
@@ -227,13 +266,18 @@ def metrics_line(m: Mapping[str, Any]) -> str:
 
     def f(key: str, fmt: str, unit: str = "") -> str:
         v = m.get(key)
-        return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) \
+        return (
+            "—"
+            if v is None or (isinstance(v, float) and not math.isfinite(v))
             else format(v, fmt) + unit
+        )
 
     if m.get("kind") == "square":
-        return (f"overshoot {f('overshoot_pct', '.1f', ' %')}, rise {f('rise_time_s', '.2f', ' s')}, "
-                f"settling {f('settling_time_s', '.2f', ' s')}"
-                + ("" if m.get("settled", True) else " (never settles)")
-                + f", sse {f('steady_state_error', '.3g', ' ' + u)}, "
-                f"RMS {f('rms_error', '.3g', ' ' + u)}")
+        return (
+            f"overshoot {f('overshoot_pct', '.1f', ' %')}, rise {f('rise_time_s', '.2f', ' s')}, "
+            f"settling {f('settling_time_s', '.2f', ' s')}"
+            + ("" if m.get("settled", True) else " (never settles)")
+            + f", sse {f('steady_state_error', '.3g', ' ' + u)}, "
+            f"RMS {f('rms_error', '.3g', ' ' + u)}"
+        )
     return f"RMS {f('rms_error', '.3g', ' ' + u)}, max {f('max_error', '.3g', ' ' + u)}"

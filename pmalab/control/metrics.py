@@ -49,9 +49,14 @@ class StepInfo:
         return asdict(self)
 
 
-def step_info(t: np.ndarray, y: np.ndarray, y0: float = 0.0, y_final: float | None = None,
-              settling_threshold: float = SETTLING_THRESHOLD,
-              rise_limits: tuple[float, float] = RISE_LIMITS) -> StepInfo:
+def step_info(
+    t: np.ndarray,
+    y: np.ndarray,
+    y0: float = 0.0,
+    y_final: float | None = None,
+    settling_threshold: float = SETTLING_THRESHOLD,
+    rise_limits: tuple[float, float] = RISE_LIMITS,
+) -> StepInfo:
     """Step characteristics of ``y(t)`` (``t`` from the step instant, s).
 
     ``y0``: the value before the step (python-control assumes 0); ``y_final``: the final
@@ -59,7 +64,7 @@ def step_info(t: np.ndarray, y: np.ndarray, y0: float = 0.0, y_final: float | No
     """
     t = np.asarray(t, dtype=float)
     yr = np.asarray(y, dtype=float) - y0
-    inf = (float(yr[-1]) if y_final is None else float(y_final) - y0)
+    inf = float(yr[-1]) if y_final is None else float(y_final) - y0
     nan = math.nan
     if not math.isfinite(inf) or inf == 0.0 or yr.size < 2:
         return StepInfo(nan, nan, nan, nan, nan, nan, inf + y0, False, False)
@@ -78,8 +83,17 @@ def step_info(t: np.ndarray, y: np.ndarray, y0: float = 0.0, y_final: float | No
     y_us = float((sgn * yr).min())
     undershoot = abs(100.0 * y_us / inf) if y_us < 0 else 0.0
     ip = int(np.argmax(sgn * yr))
-    return StepInfo(rise, settling, overshoot, undershoot, float(yr[ip] + y0), float(t[ip]),
-                    inf + y0, bool(settled), bool(reached))
+    return StepInfo(
+        rise,
+        settling,
+        overshoot,
+        undershoot,
+        float(yr[ip] + y0),
+        float(t[ip]),
+        inf + y0,
+        bool(settled),
+        bool(reached),
+    )
 
 
 @dataclass(frozen=True)
@@ -94,13 +108,23 @@ class StepResult:
 
     def to_dict(self) -> dict:
         d = self.info.to_dict()
-        d.update(t_step=self.t_step, r_before=self.r_before, r_after=self.r_after,
-                 steady_state_error=self.steady_state_error)
+        d.update(
+            t_step=self.t_step,
+            r_before=self.r_before,
+            r_after=self.r_after,
+            steady_state_error=self.steady_state_error,
+        )
         return d
 
 
-def square_steps(t: np.ndarray, y: np.ndarray, r: np.ndarray, step_times: Sequence[float],
-                 final_window_s: float = 0.1, min_step: float = 0.0) -> list[StepResult]:
+def square_steps(
+    t: np.ndarray,
+    y: np.ndarray,
+    r: np.ndarray,
+    step_times: Sequence[float],
+    final_window_s: float = 0.1,
+    min_step: float = 0.0,
+) -> list[StepResult]:
     """step_info of every step of a square reference that the recording covers whole.
 
     Each window runs from one step to the next (or the end of the data); it is analysed
@@ -139,8 +163,9 @@ def tracking(t: np.ndarray, y: np.ndarray, r: np.ndarray, t_from: float = 0.0) -
     return {"rms_error": float(np.sqrt(np.mean(e * e))), "max_error": float(np.max(np.abs(e)))}
 
 
-def summarize(kind: str, t: np.ndarray, y: np.ndarray, r: np.ndarray,
-              step_times: Sequence[float]) -> dict:
+def summarize(
+    kind: str, t: np.ndarray, y: np.ndarray, r: np.ndarray, step_times: Sequence[float]
+) -> dict:
     """The metrics table row of one run: steps (square) and tracking (both).
 
     Square: ``overshoot_pct`` is the largest over the steps (the seeds report the maximum),
@@ -153,8 +178,13 @@ def summarize(kind: str, t: np.ndarray, y: np.ndarray, r: np.ndarray,
     steps = square_steps(t, y, r, step_times)
     out["steps"] = [s.to_dict() for s in steps]
     if not steps:
-        out.update(overshoot_pct=math.nan, rise_time_s=math.nan, settling_time_s=math.nan,
-                   steady_state_error=math.nan, settled=False)
+        out.update(
+            overshoot_pct=math.nan,
+            rise_time_s=math.nan,
+            settling_time_s=math.nan,
+            steady_state_error=math.nan,
+            settled=False,
+        )
         return out
     up = [s for s in steps if s.r_after > s.r_before]
     rises = [s.info.rise_time for s in (up or steps)]

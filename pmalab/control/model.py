@@ -56,11 +56,18 @@ class IdentifiedModel:
             raise ConfigError(f"{source}: field 'pressure_fits': missing or not an object")
         coef: dict[str, tuple[float, float, float]] = {}
         for name, q in fits.items():
-            if (not isinstance(q, list) or len(q) != 3
-                    or not all(isinstance(v, int | float) and not isinstance(v, bool)
-                               and math.isfinite(v) for v in q)):
-                raise ConfigError(f"{source}: field 'pressure_fits.{name}': expected three "
-                                  "finite numbers [q0, q1, q2]")
+            if (
+                not isinstance(q, list)
+                or len(q) != 3
+                or not all(
+                    isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in q
+                )
+            ):
+                raise ConfigError(
+                    f"{source}: field 'pressure_fits.{name}': expected three "
+                    "finite numbers [q0, q1, q2]"
+                )
             coef[str(name)] = (float(q[0]), float(q[1]), float(q[2]))
         for name in _LINEAR:
             if name not in coef:
@@ -68,8 +75,9 @@ class IdentifiedModel:
         law_obj = _law(law)  # an unknown law is one line naming the valid ones
         for lp in law_obj.params:
             if lp.name not in _STATE and lp.name not in coef:
-                raise ConfigError(f"{source}: field 'pressure_fits.{lp.name}': missing "
-                                  f"(the {law} law needs it)")
+                raise ConfigError(
+                    f"{source}: field 'pressure_fits.{lp.name}': missing (the {law} law needs it)"
+                )
         self.law = law
         self.coef = coef
         effects = doc.get("effects") or []
@@ -78,8 +86,9 @@ class IdentifiedModel:
         # reads its own parameters by name; an effect's extra parameters are ignored there)
         self.law_params = [n for n in coef if n not in _LINEAR and n not in _STATE]
         rng = doc.get("pressure_range_MPa")
-        self.pressure_range = (tuple(float(v) for v in rng)
-                               if isinstance(rng, list) and len(rng) == 2 else (0.0, 0.6))
+        self.pressure_range = (
+            tuple(float(v) for v in rng) if isinstance(rng, list) and len(rng) == 2 else (0.0, 0.6)
+        )
         self._kq = coef["k"]
         self._cq = coef["c0"]
 
@@ -87,8 +96,11 @@ class IdentifiedModel:
     def load(cls, path: str | Path | None = None) -> IdentifiedModel:
         """Read an ``identification.json`` (``None``: the shipped one); one-line errors."""
         # a shipped identification by name (identification-duhem) or clone path works anywhere
-        p = shipped(path, DATA_DIR / "control", ".json") if path is not None \
+        p = (
+            shipped(path, DATA_DIR / "control", ".json")
+            if path is not None
             else SHIPPED_IDENTIFICATION
+        )
         if p.is_dir():
             p = p / "identification.json"
         try:
@@ -160,8 +172,7 @@ class HysteresisState:
         self._cache: dict[int, Callable[[Any, float, float], Any]] = {}
         # the law's own state: h itself (Bouc-Wen, Duhem) or its elements' forces
         # (Prandtl-Ishlinskii, Maxwell-slip), carried across pressure bins
-        self.state: Any = (float(h0) if self._law.state_size == 1 else
-                           [0.0] * self._law.state_size)
+        self.state: Any = float(h0) if self._law.state_size == 1 else [0.0] * self._law.state_size
 
     def stepper(self, p: float) -> Callable[[float, float, float], float]:
         """``step(h, x_prev, x) -> h`` at pressure ``p`` (MPa, 1 kPa bins)."""

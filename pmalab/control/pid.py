@@ -155,5 +155,6 @@ class IncrementalPID:
         return self.u
 
 
-CONTROLLERS.register(IncrementalPID.name, IncrementalPID, title=IncrementalPID.title,
-                     order=IncrementalPID.order)
+CONTROLLERS.register(
+    IncrementalPID.name, IncrementalPID, title=IncrementalPID.title, order=IncrementalPID.order
+)

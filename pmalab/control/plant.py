@@ -59,15 +59,21 @@ class PlantPhysics:
     Same interface as :class:`~pmalab.rig.sim.manipulator.ManipulatorPhysics`, so the
     simulated manipulator's sampler and regulator drive it unchanged."""
 
-    def __init__(self, plant: IdentifiedPlant, truth: Truth | None = None,
-                 spec: ManipulatorSpec | None = None) -> None:
+    def __init__(
+        self,
+        plant: IdentifiedPlant,
+        truth: Truth | None = None,
+        spec: ManipulatorSpec | None = None,
+    ) -> None:
         self.plant = plant
         model = plant.model
         kern = model.law.kernel()
         if kern not in _KERNELS or model.law.state_size != 1:
-            raise ConfigError(f"--plant {plant.source}: law '{model.law.name}' has no compiled "
-                              "forward segment; model-in-the-loop runs Bouc-Wen and Duhem "
-                              "identifications")
+            raise ConfigError(
+                f"--plant {plant.source}: law '{model.law.name}' has no compiled "
+                "forward segment; model-in-the-loop runs Bouc-Wen and Duhem "
+                "identifications"
+            )
         self.law_id = _KERNELS[kern]
         self.truth = truth or default_truth()
         self.spec = (spec or ManipulatorSpec()).checked()
@@ -76,8 +82,9 @@ class PlantPhysics:
         self.home_contraction_mm = ref.home_contraction_mm
         self._geometry = ref.geometry
         reg = self.truth.section("regulator")
-        self.max_MPa = min(float(reg["max_pressure_MPa"]),
-                           float(self.truth.section("muscle")["max_pressure_MPa"]))
+        self.max_MPa = min(
+            float(reg["max_pressure_MPa"]), float(self.truth.section("muscle")["max_pressure_MPa"])
+        )
         levels = 2 ** int(reg["bits"]) - 1
         self._q = float(reg["max_pressure_MPa"]) / levels
         self._dead = float(reg["dead_time_ms"]) * 1e-3
@@ -88,11 +95,13 @@ class PlantPhysics:
             raise ConfigError(f"--plant {plant.source}: {exc}") from None
         # the bearing's viscous friction joins the model's damping term (slot "damping")
         self.coef.Q[3, 0] += self.spec.bearing_viscous_N_s_per_mm
-        self.load = Load(self.spec.moving_mass_kg, self.spec.spring_N_per_mm,
-                         self.spec.spring_preload_N)
+        self.load = Load(
+            self.spec.moving_mass_kg, self.spec.spring_N_per_mm, self.spec.spring_preload_N
+        )
         p_lo, p_hi = plant.pressure_range
-        ps = np.array([0.0, p_lo if math.isfinite(p_lo) else 0.3,
-                       p_hi if math.isfinite(p_hi) else 0.6])
+        ps = np.array(
+            [0.0, p_lo if math.isfinite(p_lo) else 0.3, p_hi if math.isfinite(p_hi) else 0.6]
+        )
         self.n_sub = substeps(model, self.coef, ps, 1.0 / 500.0, self.load)
         self._t = 0.0
         # at rest at the rig's home (the same coordinates as a rig run).  Below the
@@ -127,8 +136,9 @@ class PlantPhysics:
     def set_command(self, mpa: float) -> None:
         mpa = float(mpa)
         if not -1e-9 <= mpa <= self.max_MPa + 1e-9:
-            raise RigError(f"plant-model manipulator: command {mpa:g} MPa outside "
-                           f"0–{self.max_MPa:g} MPa")
+            raise RigError(
+                f"plant-model manipulator: command {mpa:g} MPa outside 0–{self.max_MPa:g} MPa"
+            )
         self._command = min(max(mpa, 0.0), self.max_MPa)
         self._pending.append((self._t + self._dead, round(self._command / self._q) * self._q))
 
@@ -137,7 +147,9 @@ class PlantPhysics:
         while self._pending and self._pending[0][0] <= t1:
             ta, q = self._pending.pop(0)
             if ta > self._t:  # the lag runs to ta with the old target first
-                self._p = self._target + (self._p - self._target) * math.exp(-(ta - self._t) / self._tau)
+                self._p = self._target + (self._p - self._target) * math.exp(
+                    -(ta - self._t) / self._tau
+                )
                 self._advance_muscle(ta, self._p)
             self._target = q
         p1 = self._target + (self._p - self._target) * math.exp(-(t1 - self._t) / self._tau)
@@ -152,11 +164,33 @@ class PlantPhysics:
         self._uu[:] = self.load.preload_N
         xo, vo, ho, fo = self._buf
         c = self.coef
-        code, _ = _integrate(self.law_id, self._tt, self._uu, self._pp, 0.0, c.Q, c.lo, c.hi,
-                             c.extras, c.n_slots, self.load.mass_kg, self.load.stiffness_N_per_mm, self._x, self._v, self._h, self.n_sub, xo, vo, ho, fo)
+        code, _ = _integrate(
+            self.law_id,
+            self._tt,
+            self._uu,
+            self._pp,
+            0.0,
+            c.Q,
+            c.lo,
+            c.hi,
+            c.extras,
+            c.n_slots,
+            self.load.mass_kg,
+            self.load.stiffness_N_per_mm,
+            self._x,
+            self._v,
+            self._h,
+            self.n_sub,
+            xo,
+            vo,
+            ho,
+            fo,
+        )
         if code != 0:
-            raise RigError(f"plant-model manipulator: the identified model ran away at "
-                           f"t = {t1:.3f} s (pressure {p1:.3g} MPa)")
+            raise RigError(
+                f"plant-model manipulator: the identified model ran away at "
+                f"t = {t1:.3f} s (pressure {p1:.3g} MPa)"
+            )
         x, v = float(xo[1]), float(vo[1])
         s = self.spec
         if x < s.stop_min_mm or x > s.stop_max_mm:  # the link's end stops
@@ -179,19 +213,35 @@ class PlantPhysics:
         """Advance to ``t``: (time, position from home, tension, muscle pressure, 0)."""
         self.advance_to(t)
         o = self._out
-        o[0], o[1], o[2], o[3], o[4] = (self._t, self._x - self.home_contraction_mm,
-                                        self._tension, self._p, 0.0)
+        o[0], o[1], o[2], o[3], o[4] = (
+            self._t,
+            self._x - self.home_contraction_mm,
+            self._tension,
+            self._p,
+            0.0,
+        )
         return o
 
     def truth_state(self) -> dict[str, Any]:
-        return {"time": self._t, "position": self._x - self.home_contraction_mm,
-                "contraction": self._x, "velocity": self._v, "muscle_pressure": self._p,
-                "command_applied": self._target, "tension": self._tension}
+        return {
+            "time": self._t,
+            "position": self._x - self.home_contraction_mm,
+            "contraction": self._x,
+            "velocity": self._v,
+            "muscle_pressure": self._p,
+            "command_applied": self._target,
+            "tension": self._tension,
+        }
 
 
-def make_plant_manipulator(model_dir: str | Path, truth: Truth | None = None, *,
-                           spec: ManipulatorSpec | None = None, clock: Clock | None = None,
-                           limits: Limits | None = None) -> ManipulatorRig:
+def make_plant_manipulator(
+    model_dir: str | Path,
+    truth: Truth | None = None,
+    *,
+    spec: ManipulatorSpec | None = None,
+    clock: Clock | None = None,
+    limits: Limits | None = None,
+) -> ManipulatorRig:
     """A :class:`~pmalab.rig.manipulator.ManipulatorRig` whose muscle is the identified
     model of ``model_dir`` (a directory holding ``identification.json``, or the file)."""
     try:
@@ -202,8 +252,13 @@ def make_plant_manipulator(model_dir: str | Path, truth: Truth | None = None, *,
     physics = PlantPhysics(plant, truth, spec)
     if clock.now() > physics.time:
         physics.advance_to(clock.now())
-    lim = limits or Limits(max_muscle_pressure_MPa=physics.max_MPa, max_cylinder_pressure_MPa=0.9,
-                           max_force_N=2000.0, min_position_mm=-3.0, max_position_mm=27.0)
+    lim = limits or Limits(
+        max_muscle_pressure_MPa=physics.max_MPa,
+        max_cylinder_pressure_MPa=0.9,
+        max_force_N=2000.0,
+        min_position_mm=-3.0,
+        max_position_mm=27.0,
+    )
     info = {
         "kind": "plant-model-manipulator",
         "truth": f"plant model {plant.source}",
@@ -214,6 +269,11 @@ def make_plant_manipulator(model_dir: str | Path, truth: Truth | None = None, *,
         "clock": "virtual" if clock.virtual else "real",
         "physics": physics,
     }
-    return ManipulatorRig(clock=clock, sampler=ManipulatorSampler(physics, clock),  # type: ignore[arg-type]
-                          muscle_regulator=ManipulatorRegulator(physics, clock),  # type: ignore[arg-type]
-                          geometry=physics.geometry, limits=lim, info=info)
+    return ManipulatorRig(
+        clock=clock,
+        sampler=ManipulatorSampler(physics, clock),  # type: ignore[arg-type]
+        muscle_regulator=ManipulatorRegulator(physics, clock),  # type: ignore[arg-type]
+        geometry=physics.geometry,
+        limits=lim,
+        info=info,
+    )

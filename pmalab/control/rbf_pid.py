@@ -39,8 +39,14 @@ from pmalab.control.pid import IncrementalPID, LoopSettings
 #: :func:`pmalab.control.controllers.default_settings`)
 #: rates a settings table leaves out (gain rates 0: no tuning; the tuned ones are in
 #: :func:`pmalab.control.controllers.default_settings`)
-DEFAULT_RATES = {"eta": 0.2, "alpha": 0.05, "eta_p": 0.0, "eta_i": 0.0, "eta_d": 0.0,
-                 "jac_max": 2.0}
+DEFAULT_RATES = {
+    "eta": 0.2,
+    "alpha": 0.05,
+    "eta_p": 0.0,
+    "eta_i": 0.0,
+    "eta_d": 0.0,
+    "jac_max": 2.0,
+}
 N_HIDDEN = 4
 N_IN = 3
 
@@ -114,8 +120,11 @@ class RbfPID(IncrementalPID):
 
         self.eta = r("eta", DEFAULT_RATES["eta"])
         self.alpha = min(r("alpha", DEFAULT_RATES["alpha"]), 0.95)
-        self.eta_pid = (r("eta_p", DEFAULT_RATES["eta_p"]), r("eta_i", DEFAULT_RATES["eta_i"]),
-                        r("eta_d", DEFAULT_RATES["eta_d"]))
+        self.eta_pid = (
+            r("eta_p", DEFAULT_RATES["eta_p"]),
+            r("eta_i", DEFAULT_RATES["eta_i"]),
+            r("eta_d", DEFAULT_RATES["eta_d"]),
+        )
         self.jac_max = r("jac_max", DEFAULT_RATES["jac_max"])
         self._init_net()
 
@@ -150,8 +159,7 @@ class RbfPID(IncrementalPID):
         xl, xn = self._xl, self._xn
         xl[0], xl[1], xl[2] = self.u_prev, self.y1, self.y2
         xn[0], xn[1], xn[2] = self.u / s.u_scale, yn, self.y1
-        jac = rbf_step(self.net, self.prev, xl, yn, xn, self.eta, self.alpha, self.jac_max,
-                       self._h)
+        jac = rbf_step(self.net, self.prev, xl, yn, xn, self.eta, self.alpha, self.jac_max, self._h)
         self.jac = jac
         self.y2, self.y1 = self.y1, yn
         ep, ei, ed = self.eta_pid

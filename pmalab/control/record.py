@@ -90,8 +90,11 @@ def control_channels(loop: str) -> dict[str, str]:
 
 
 def _attrs(d: Mapping[str, Any]) -> dict[str, Any]:
-    return {k: (json.dumps(_clean(v)) if isinstance(v, dict | list) else v)
-            for k, v in d.items() if v is not None}
+    return {
+        k: (json.dumps(_clean(v)) if isinstance(v, dict | list) else v)
+        for k, v in d.items()
+        if v is not None
+    }
 
 
 class ControlRecording:
@@ -102,19 +105,34 @@ class ControlRecording:
     ``loop``.  Use :meth:`writer` per run, then :meth:`close`.
     """
 
-    def __init__(self, path: str | Path, runs: Sequence[tuple[str, Mapping[str, Any]]],
-                 loop: str, *, force: bool = False, root_attrs: Mapping[str, Any] | None = None,
-                 flush_interval_s: float = 0.25) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        runs: Sequence[tuple[str, Mapping[str, Any]]],
+        loop: str,
+        *,
+        force: bool = False,
+        root_attrs: Mapping[str, Any] | None = None,
+        flush_interval_s: float = 0.25,
+    ) -> None:
         from pmalab.acquisition.recorder import Recorder
 
         path = check_output(path, force)
-        root = {"kind": "control", "pmalab_version": __version__,
-                "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-                **_attrs(root_attrs or {})}
+        root = {
+            "kind": "control",
+            "pmalab_version": __version__,
+            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+            **_attrs(root_attrs or {}),
+        }
         self.path = path
-        self.rec = Recorder(path, [(n, _attrs(a)) for n, a in runs], root,
-                            flush_interval_s=flush_interval_s, channels=control_channels(loop),
-                            summary=True)
+        self.rec = Recorder(
+            path,
+            [(n, _attrs(a)) for n, a in runs],
+            root,
+            flush_interval_s=flush_interval_s,
+            channels=control_channels(loop),
+            summary=True,
+        )
 
     def writer(self, name: str) -> ControlRunWriter:
         return ControlRunWriter(self, name)
@@ -151,8 +169,12 @@ class ControlRunWriter:
         except (OSError, RuntimeError) as exc:  # a full disk, a vanished directory
             raise output_failure(self.recording.path, exc) from None
 
-    def write(self, signals: Mapping[str, np.ndarray], gains: Mapping[str, np.ndarray],
-              lateness: np.ndarray) -> None:
+    def write(
+        self,
+        signals: Mapping[str, np.ndarray],
+        gains: Mapping[str, np.ndarray],
+        lateness: np.ndarray,
+    ) -> None:
         cols = [gains[c[6:]] if c.startswith("gains/") else signals[c] for c in self.w.channels]
         n = len(lateness)
         if not n:
@@ -161,14 +183,18 @@ class ControlRunWriter:
         def do() -> None:
             self.w.extend(cols, lateness)
             self.w.commit()
+
         self._guard(do)
         self.sent += n
 
     def finish(self, run: ControlRun) -> None:
         """The samples not yet written, the summary (metrics, vent) and the status."""
         i = self.sent
-        self.write({k: v[i:] for k, v in run.signals.items()},
-                   {k: v[i:] for k, v in run.gains.items()}, run.lateness[i:])
+        self.write(
+            {k: v[i:] for k, v in run.signals.items()},
+            {k: v[i:] for k, v in run.gains.items()},
+            run.lateness[i:],
+        )
         self._guard(lambda: self.w.set_summary(_clean(run_summary(run))))
         self._guard(lambda: self.w.finish(run.status))
 
@@ -176,17 +202,31 @@ class ControlRunWriter:
 def run_summary(run: ControlRun) -> dict[str, Any]:
     """The end-of-run facts of ``run`` (its ``summary`` dataset)."""
     p = run.signals["muscle_pressure"]
-    return {"metrics": run_metrics(run), "vent": run.attrs.get("vent"),
-            "vent_confirmed": run.attrs.get("vent_confirmed"), "wall_time_s": run.wall_s,
-            "muscle_pressure_MPa": float(np.mean(p)) if p.size else 0.0, "n_samples": run.n}
+    return {
+        "metrics": run_metrics(run),
+        "vent": run.attrs.get("vent"),
+        "vent_confirmed": run.attrs.get("vent_confirmed"),
+        "wall_time_s": run.wall_s,
+        "muscle_pressure_MPa": float(np.mean(p)) if p.size else 0.0,
+        "n_samples": run.n,
+    }
 
 
-def planned_attrs(controller: str, reference: Reference, duration_s: float,
-                  settings: CascadeSettings, model: IdentifiedModel | None,
-                  **extra: Any) -> dict[str, Any]:
+def planned_attrs(
+    controller: str,
+    reference: Reference,
+    duration_s: float,
+    settings: CascadeSettings,
+    model: IdentifiedModel | None,
+    **extra: Any,
+) -> dict[str, Any]:
     """A run group's attrs, written before it starts."""
     a = run_attrs(controller, reference, duration_s, settings, model)
-    a["protocol"] = {"kind": "control", "reference": reference.text, "controller": controller,
-                     "loop": reference.quantity}
+    a["protocol"] = {
+        "kind": "control",
+        "reference": reference.text,
+        "controller": controller,
+        "loop": reference.quantity,
+    }
     a.update(extra)
     return a

@@ -56,8 +56,11 @@ class Reference:
             return (self.magnitude if phase < 0.5 else 0.0), 0.0, 0.0
         w = 2.0 * math.pi * self.frequency_Hz
         half = 0.5 * self.magnitude
-        return (half * (1.0 - math.cos(w * t)), half * w * math.sin(w * t),
-                half * w * w * math.cos(w * t))
+        return (
+            half * (1.0 - math.cos(w * t)),
+            half * w * math.sin(w * t),
+            half * w * w * math.cos(w * t),
+        )
 
     def step_times(self, duration_s: float) -> list[float]:
         """Instants (s) of the square's steps inside [0, duration) — empty for a sine."""
@@ -73,8 +76,10 @@ def parse_reference(text: str, where: str = "--reference") -> Reference:
     s = str(text).strip().replace(" ", "").lower()
     m = _SPEC.match(s)
     if not m:
-        raise ConfigError(f"{where}: '{text}': expected KIND:FREQHz:MAGNITUDE with KIND square|"
-                          "sine and a magnitude in mm or MPa, e.g. square:0.1Hz:15mm")
+        raise ConfigError(
+            f"{where}: '{text}': expected KIND:FREQHz:MAGNITUDE with KIND square|"
+            "sine and a magnitude in mm or MPa, e.g. square:0.1Hz:15mm"
+        )
     kind, f_txt, m_txt, unit = m.groups()
     try:
         f, mag = float(f_txt), float(m_txt)
@@ -85,8 +90,10 @@ def parse_reference(text: str, where: str = "--reference") -> Reference:
         raise ConfigError(f"{where}: '{text}': frequency must be in (0, 5] Hz")
     top = MAX_POSITION_MM if unit == "mm" else MAX_PRESSURE_MPA
     if not (math.isfinite(mag) and 0.0 < mag <= top):
-        raise ConfigError(f"{where}: '{text}': magnitude must be in (0, {top:g}] {unit} "
-                          "(the manipulator's travel / the DMSP-20's rating)")
+        raise ConfigError(
+            f"{where}: '{text}': magnitude must be in (0, {top:g}] {unit} "
+            "(the manipulator's travel / the DMSP-20's rating)"
+        )
     return Reference(kind, f, mag, unit)
 
 
@@ -127,8 +134,7 @@ class ReferenceShaper:
         e = r - self.s
         ae = abs(e)
         # braking velocity one sample early (the discrete loop would otherwise overrun)
-        rel = min(max(math.sqrt(2.0 * self.a_max * ae) - self.a_max * self.dt, 0.0),
-                  ae / self.tau)
+        rel = min(max(math.sqrt(2.0 * self.a_max * ae) - self.a_max * self.dt, 0.0), ae / self.tau)
         v_des = r_d + (rel if e >= 0.0 else -rel)
         if v_des > self.v_max:
             v_des = self.v_max

@@ -61,12 +61,15 @@ SIGNALS = {
     "hysteresis_force": "N",
 }
 GAINS = {
-    "outer_kp": "N/mm", "outer_ki": "N/(mm*s)", "outer_kd": "N*s/mm",
-    "inner_kp": "MPa/MPa", "inner_ki": "1/s", "inner_kd": "s",
+    "outer_kp": "N/mm",
+    "outer_ki": "N/(mm*s)",
+    "outer_kd": "N*s/mm",
+    "inner_kp": "MPa/MPa",
+    "inner_ki": "1/s",
+    "inner_kd": "s",
 }
 #: signals only the position loop has (a pressure-loop run records the others)
-POSITION_ONLY = ("position_reference", "position_setpoint", "force_reference",
-                 "hysteresis_force")
+POSITION_ONLY = ("position_reference", "position_setpoint", "force_reference", "hysteresis_force")
 #: samples between two looks at ``sink.due()`` (0.05 s of the run)
 SINK_CHECK_EVERY = 25
 
@@ -78,8 +81,9 @@ class SampleSink(Protocol):
         """True when the samples so far should be written now."""
         ...
 
-    def write(self, signals: dict[str, np.ndarray], gains: dict[str, np.ndarray],
-              lateness: np.ndarray) -> None:
+    def write(
+        self, signals: dict[str, np.ndarray], gains: dict[str, np.ndarray], lateness: np.ndarray
+    ) -> None:
         """Append these samples (one block per signal and gain, equal lengths)."""
         ...
 
@@ -89,8 +93,13 @@ def signals_of(loop: str) -> dict[str, str]:
     return {k: u for k, u in SIGNALS.items() if loop == "position" or k not in POSITION_ONLY}
 
 
-def run_attrs(controller: str, reference: Reference, duration_s: float,
-              settings: CascadeSettings, model: IdentifiedModel | None) -> dict[str, Any]:
+def run_attrs(
+    controller: str,
+    reference: Reference,
+    duration_s: float,
+    settings: CascadeSettings,
+    model: IdentifiedModel | None,
+) -> dict[str, Any]:
     """A run's attrs known before it starts (the vent's outcome comes at its end)."""
     is_pos = reference.quantity == "position"
     return {
@@ -160,8 +169,9 @@ def run_control(
     if loop == "position" and model is None:
         raise PmalabError("the position loop needs an identified model (--model)")
     p_max = float(min(rig.muscle_regulator.max_pressure_MPa, rig.limits.max_muscle_pressure_MPa))
-    cascade = Cascade(controller, settings, model if loop == "position" else None,
-                      rig.geometry, p_max)
+    cascade = Cascade(
+        controller, settings, model if loop == "position" else None, rig.geometry, p_max
+    )
     n = int(round(duration_s / dt)) + 1
     sig = {k: np.full(n, np.nan) for k in SIGNALS}
     gains = {k: np.full(n, np.nan) for k in GAINS}
@@ -176,16 +186,24 @@ def run_control(
     wall0 = time.perf_counter()
     every = max(1, int(1.0 / dt))
     is_pos = loop == "position"
-    s_t, s_x, s_xr, s_f, s_p = (sig["time"], sig["position"], sig["position_reference"],
-                                sig["force"], sig["muscle_pressure"])
-    s_u, s_pr, s_fr, s_h = (sig["muscle_pressure_command"], sig["muscle_pressure_reference"],
-                            sig["force_reference"], sig["hysteresis_force"])
+    s_t, s_x, s_xr, s_f, s_p = (
+        sig["time"],
+        sig["position"],
+        sig["position_reference"],
+        sig["force"],
+        sig["muscle_pressure"],
+    )
+    s_u, s_pr, s_fr, s_h = (
+        sig["muscle_pressure_command"],
+        sig["muscle_pressure_reference"],
+        sig["force_reference"],
+        sig["hysteresis_force"],
+    )
     s_sp = sig["position_setpoint"]
     gk = [gains[g] for g in GAINS]
     stats = getattr(sink, "w", None) or LoopStats()
 
-    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float,
-             lk: float) -> float:
+    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float, lk: float) -> float:
         r, r_d, r_dd = reference.value(tr)
         out = cascade.position_step(r, r_d, r_dd, x, p) if is_pos else cascade.pressure_step(r, p)
         u = out.command
@@ -210,21 +228,37 @@ def run_control(
         vent = rig.vent()  # in this sample period
 
     def after_block(k: int) -> None:
-        if sink is not None and (k % SINK_CHECK_EVERY == 0 or sampler.hardware_timed) \
-                and sink.due():
+        if (
+            sink is not None
+            and (k % SINK_CHECK_EVERY == 0 or sampler.hardware_timed)
+            and sink.due()
+        ):
             a, b = written[0], done[0]
-            sink.write({kk: v[a:b] for kk, v in sig.items()},
-                       {kk: v[a:b] for kk, v in gains.items()}, late[a:b])
+            sink.write(
+                {kk: v[a:b] for kk, v in sig.items()},
+                {kk: v[a:b] for kk, v in gains.items()},
+                late[a:b],
+            )
             written[0] = b
 
     pending: dict[str, int | None] = {"sig": None}
     try:
         with deferred_signals(pending):
             sampler.start()
-            sample_loop(rig.clock, sampler, 1.0 / dt, n, check=monitor.check, step=step,
-                        command=regulator.set_pressure, on_trip=on_trip, pending=pending,
-                        stats=stats, late_threshold_s=LATE_THRESHOLD_S,
-                        after_block=after_block)
+            sample_loop(
+                rig.clock,
+                sampler,
+                1.0 / dt,
+                n,
+                check=monitor.check,
+                step=step,
+                command=regulator.set_pressure,
+                on_trip=on_trip,
+                pending=pending,
+                stats=stats,
+                late_threshold_s=LATE_THRESHOLD_S,
+                after_block=after_block,
+            )
     except Trip as exc:
         status = f"aborted: {exc}"
     except _Diverged as exc:
@@ -245,11 +279,24 @@ def run_control(
     keep = slice(0, done[0])
     signals = {kk: v[keep] for kk, v in sig.items() if kk in signals_of(loop)}
     attrs = run_attrs(controller, reference, duration_s, settings, model)
-    attrs.update(vent=vent_phrase("muscle regulator", vent), vent_confirmed=vent.ok,
-                 n_late=int(stats.n_late), n_missed=int(stats.n_missed))
-    return ControlRun(name or controller, controller, loop, reference, signals,
-                      {kk: v[keep] for kk, v in gains.items()}, status, attrs,
-                      time.perf_counter() - wall0, late[keep])
+    attrs.update(
+        vent=vent_phrase("muscle regulator", vent),
+        vent_confirmed=vent.ok,
+        n_late=int(stats.n_late),
+        n_missed=int(stats.n_missed),
+    )
+    return ControlRun(
+        name or controller,
+        controller,
+        loop,
+        reference,
+        signals,
+        {kk: v[keep] for kk, v in gains.items()},
+        status,
+        attrs,
+        time.perf_counter() - wall0,
+        late[keep],
+    )
 
 
 class _Diverged(Exception):

@@ -48,8 +48,9 @@ class SingleNeuronPID(IncrementalPID):
         self.K = sum(abs(v) for v in disc)
         self.w0 = tuple(v / self.K for v in disc)
         self.w = list(self.w0)
-        self.eta = tuple(settings.rate(self.name, k, DEFAULT_RATES[k])
-                         for k in ("eta_i", "eta_p", "eta_d"))
+        self.eta = tuple(
+            settings.rate(self.name, k, DEFAULT_RATES[k]) for k in ("eta_i", "eta_p", "eta_d")
+        )
 
     def reset(self, u0: float = 0.0) -> None:
         super().reset(u0)

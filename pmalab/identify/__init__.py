@@ -21,18 +21,21 @@ from __future__ import annotations
 
 from pmalab.lazy import lazy_exports
 
-__getattr__, __all__ = lazy_exports(__name__, {
-    "load": "pmalab.identify.api",
-    "identify": "pmalab.identify.api",
-    "Identification": "pmalab.identify.api",
-    "fit_run": "pmalab.identify.estimation.single",
-    "FitResult": "pmalab.identify.estimation.single",
-    "diagnose": "pmalab.identify.api",
-    "DiagnosisResult": "pmalab.identify.api",
-    "fit_campaign": "pmalab.identify.campaign",
-    "predict_run": "pmalab.identify.campaign",
-    "CampaignFit": "pmalab.identify.campaign",
-    "metrics": "pmalab.identify.metrics",
-    "ForceModel": "pmalab.identify.model",
-    "Signals": "pmalab.identify.signals",
-})
+__getattr__, __all__ = lazy_exports(
+    __name__,
+    {
+        "load": "pmalab.identify.api",
+        "identify": "pmalab.identify.api",
+        "Identification": "pmalab.identify.api",
+        "fit_run": "pmalab.identify.estimation.single",
+        "FitResult": "pmalab.identify.estimation.single",
+        "diagnose": "pmalab.identify.api",
+        "DiagnosisResult": "pmalab.identify.api",
+        "fit_campaign": "pmalab.identify.campaign",
+        "predict_run": "pmalab.identify.campaign",
+        "CampaignFit": "pmalab.identify.campaign",
+        "metrics": "pmalab.identify.metrics",
+        "ForceModel": "pmalab.identify.model",
+        "Signals": "pmalab.identify.signals",
+    },
+)

@@ -49,14 +49,19 @@ class RunList(list):
         return RunList(out) if isinstance(key, slice) else out
 
     def __repr__(self) -> str:
-        rows = [f"{r.label}  p={r.nominal_pressure:.4g} MPa  f={r.frequency} Hz  "
-                f"{r.attrs.get('waveform', '')}  {len(r)} samples  {r.attrs.get('role', '')}"
-                for r in self]
+        rows = [
+            f"{r.label}  p={r.nominal_pressure:.4g} MPa  f={r.frequency} Hz  "
+            f"{r.attrs.get('waveform', '')}  {len(r)} samples  {r.attrs.get('role', '')}"
+            for r in self
+        ]
         return f"RunList({len(self)} runs)\n  " + "\n  ".join(rows)
 
 
-def load(*paths: str | Path | Sequence[str | Path], runs: Iterable[str] | None = None,
-         include_aborted: bool = False) -> RunList:
+def load(
+    *paths: str | Path | Sequence[str | Path],
+    runs: Iterable[str] | None = None,
+    include_aborted: bool = False,
+) -> RunList:
     """Every complete run of the given contract files (or the named ``runs``), canonical units.
 
     Runs that were aborted or interrupted (status ``aborted: ...`` / ``running``) are
@@ -108,11 +113,17 @@ def gap_notes(runs: Sequence[Run]) -> list[str]:
         longest = float(dt[big].max())
         period = 1.0 / r.frequency if r.frequency else None
         risky = period is not None and longest > 0.02 * period
-        out.append(f"{r.label}: {big.size} gap(s) in the samples ({missing} missing, longest "
-                   f"{1e3 * longest:.1f} ms at t={t[big[np.argmax(dt[big])]] - t[0]:.3f} s), "
-                   "bridged by a straight position segment (the law integrates position)"
-                   + ("; the longest exceeds 2 % of the motion's period and may hide a "
-                      "reversal: check the fit there, or split the run" if risky else ""))
+        out.append(
+            f"{r.label}: {big.size} gap(s) in the samples ({missing} missing, longest "
+            f"{1e3 * longest:.1f} ms at t={t[big[np.argmax(dt[big])]] - t[0]:.3f} s), "
+            "bridged by a straight position segment (the law integrates position)"
+            + (
+                "; the longest exceeds 2 % of the motion's period and may hide a "
+                "reversal: check the fit there, or split the run"
+                if risky
+                else ""
+            )
+        )
     return out
 
 
@@ -154,11 +165,19 @@ def identify(
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
     ident, held = split_roles(runs_l)
-    notes: list[str] = [note("held-out", f"{r.label}: role 'validation' in the run file, held "
-                             "out for validation", run=r.label) for r in held]
+    notes: list[str] = [
+        note(
+            "held-out",
+            f"{r.label}: role 'validation' in the run file, held out for validation",
+            run=r.label,
+        )
+        for r in held
+    ]
     notes += gap_notes([*runs_l, *(validate or [])])
     if not ident:
-        raise PmalabError("no identification runs: every run read from the files has role 'validation'")
+        raise PmalabError(
+            "no identification runs: every run read from the files has role 'validation'"
+        )
     if isinstance(model, ForceModel):
         spec = None
         fm: ForceModel | ModelSpec = model
@@ -173,11 +192,27 @@ def identify(
             plant_slots(built)  # an effect without a forward form, refused by name
         fm = spec
     cf, vals, warns = fit_and_validate(
-        ident, fm, [*held, *(validate or [])], initial=initial, fixed=fixed, free=free,
-        jobs=jobs, scheduler=scheduler, progress=progress, pressure_model=pressure_model,
-        output=output)
-    return Identification(campaign=cf, runs=ident, spec=spec, initial=initial, notes=notes,
-                          validation=vals, validation_warnings=warns)
+        ident,
+        fm,
+        [*held, *(validate or [])],
+        initial=initial,
+        fixed=fixed,
+        free=free,
+        jobs=jobs,
+        scheduler=scheduler,
+        progress=progress,
+        pressure_model=pressure_model,
+        output=output,
+    )
+    return Identification(
+        campaign=cf,
+        runs=ident,
+        spec=spec,
+        initial=initial,
+        notes=notes,
+        validation=vals,
+        validation_warnings=warns,
+    )
 
 
 class DiagnosisResult:
@@ -201,8 +236,9 @@ class DiagnosisResult:
     def ranking(self):
         import pandas as pd
 
-        rows = [_scalars(r) | {"ambiguous": r["effect"] in self.raw.ambiguous}
-                for r in self.raw.ranking]
+        rows = [
+            _scalars(r) | {"ambiguous": r["effect"] in self.raw.ambiguous} for r in self.raw.ranking
+        ]
         first = ["effect", "nrmse_before", "nrmse_after", "fall_percent", "significant"]
         df = pd.DataFrame(rows)
         if df.empty:
@@ -214,10 +250,17 @@ class DiagnosisResult:
     def ladder(self):
         import pandas as pd
 
-        rows = [{"step": s["step"], "model": "+".join([self.raw.model, *s.get("effects", [])]),
-                 "added": s.get("added"), "nrmse": s["nrmse"], "fit_percent": s.get("fit_percent")}
-                | {k: v for k, v in _scalars(s).items() if k not in ("model", "step")}
-                for s in self.raw.ladder]
+        rows = [
+            {
+                "step": s["step"],
+                "model": "+".join([self.raw.model, *s.get("effects", [])]),
+                "added": s.get("added"),
+                "nrmse": s["nrmse"],
+                "fit_percent": s.get("fit_percent"),
+            }
+            | {k: v for k, v in _scalars(s).items() if k not in ("model", "step")}
+            for s in self.raw.ladder
+        ]
         return pd.DataFrame(rows).set_index("step")
 
     @property
@@ -228,9 +271,17 @@ class DiagnosisResult:
         from pmalab.identify.headline import worst_runs
 
         d = self.raw.diagnostics
-        return pd.DataFrame([{"run": k, "rmse_N": d[k].get("rmse"), "nrmse": d[k].get("nrmse"),
-                              "worst_region": d[k].get("worst_region")}
-                             for k in worst_runs(d)]).set_index("run")
+        return pd.DataFrame(
+            [
+                {
+                    "run": k,
+                    "rmse_N": d[k].get("rmse"),
+                    "nrmse": d[k].get("nrmse"),
+                    "worst_region": d[k].get("worst_region"),
+                }
+                for k in worst_runs(d)
+            ]
+        ).set_index("run")
 
     @property
     def summary(self) -> str:
@@ -258,8 +309,10 @@ class DiagnosisResult:
         return getattr(self.raw, name)
 
     def __repr__(self) -> str:
-        return (f"{self.summary}\n\nEffect ranking (held-out nrmse without → with each "
-                f"effect):\n{self.ranking_table()}\n\nLadder:\n{self.ladder_table()}")
+        return (
+            f"{self.summary}\n\nEffect ranking (held-out nrmse without → with each "
+            f"effect):\n{self.ranking_table()}\n\nLadder:\n{self.ladder_table()}"
+        )
 
 
 def _scalars(row: dict) -> dict:

@@ -35,52 +35,109 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
-    p.add_argument("--model", required=True, metavar="LAW[,LAW...]",
-                   help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
-                   "any law file in identify/laws/); several, comma-separated, identify each "
-                   "into OUT/LAW/ and print one table ranking them")
-    p.add_argument("--add", action="append", default=[], metavar="EFFECT",
-                   help="add an effect by id (repeatable), e.g. viscous-friction")
-    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
-                   help="Python file defining user effects (Effect subclasses)")
-    p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
-                   help="held-out run files to validate on")
-    p.add_argument("--hold-out", action="append", default=[], metavar="RUN[,RUN]",
-                   help="hold these runs of the input files out for validation (as "
-                        "`pmalab diagnose` does when no --validate is given)")
+    p.add_argument(
+        "--model",
+        required=True,
+        metavar="LAW[,LAW...]",
+        help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
+        "any law file in identify/laws/); several, comma-separated, identify each "
+        "into OUT/LAW/ and print one table ranking them",
+    )
+    p.add_argument(
+        "--add",
+        action="append",
+        default=[],
+        metavar="EFFECT",
+        help="add an effect by id (repeatable), e.g. viscous-friction",
+    )
+    p.add_argument(
+        "--effects",
+        action="append",
+        default=[],
+        metavar="FILE.py",
+        help="Python file defining user effects (Effect subclasses)",
+    )
+    p.add_argument(
+        "--validate",
+        nargs="+",
+        default=[],
+        metavar="FILE.h5",
+        help="held-out run files to validate on",
+    )
+    p.add_argument(
+        "--hold-out",
+        action="append",
+        default=[],
+        metavar="RUN[,RUN]",
+        help="hold these runs of the input files out for validation (as "
+        "`pmalab diagnose` does when no --validate is given)",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.add_argument("--jobs", type=int, default=2, metavar="N",
-                   help="parallel worker processes (default 2)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run the fits on a Dask distributed scheduler (tcp://host:port)")
-    p.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
-                   help="hold a parameter at a value (repeatable)")
-    p.add_argument("--free", action="append", default=[], metavar="NAME",
-                   help="free a parameter the law fixes by default (bouc-wen: n; duhem: a)")
-    p.add_argument("--initial", default="estimate", choices=("estimate", "burn-in", "zero"),
-                   help="start state of validation predictions (default: estimate from the "
-                        "first 50 ms of force)")
-    p.add_argument("--output", default="force", choices=("force", "position"),
-                   help="what the model is fitted to predict: force (from the measured "
-                        "position, default) or position (output error: the model driven by "
-                        "the measured force, simulated forward; needs a moving mass, e.g. "
-                        "--add inertia)")
-    p.add_argument("--pressure-model", default="joint", choices=("joint", "per-run"),
-                   help="pressure laws: refined jointly on all runs with chosen orders "
-                        "(default) or the seeds' per-run quadratics")
+    p.add_argument(
+        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the fits on a Dask distributed scheduler (tcp://host:port)",
+    )
+    p.add_argument(
+        "--fix",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold a parameter at a value (repeatable)",
+    )
+    p.add_argument(
+        "--free",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="free a parameter the law fixes by default (bouc-wen: n; duhem: a)",
+    )
+    p.add_argument(
+        "--initial",
+        default="estimate",
+        choices=("estimate", "burn-in", "zero"),
+        help="start state of validation predictions (default: estimate from the "
+        "first 50 ms of force)",
+    )
+    p.add_argument(
+        "--output",
+        default="force",
+        choices=("force", "position"),
+        help="what the model is fitted to predict: force (from the measured "
+        "position, default) or position (output error: the model driven by "
+        "the measured force, simulated forward; needs a moving mass, e.g. "
+        "--add inertia)",
+    )
+    p.add_argument(
+        "--pressure-model",
+        default="joint",
+        choices=("joint", "per-run"),
+        help="pressure laws: refined jointly on all runs with chosen orders "
+        "(default) or the seeds' per-run quadratics",
+    )
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--include-aborted", action="store_true",
-                   help="also use runs that were aborted or interrupted (default: skip them "
-                        "with a warning; their fragments are not full tests)")
-    p.add_argument("--whole-run", action="store_true",
-                   help="use every sample, including the settle time and ramps (default: "
-                        "the full-amplitude cycles recorded in steady_start_s/steady_end_s)")
+    p.add_argument(
+        "--include-aborted",
+        action="store_true",
+        help="also use runs that were aborted or interrupted (default: skip them "
+        "with a warning; their fragments are not full tests)",
+    )
+    p.add_argument(
+        "--whole-run",
+        action="store_true",
+        help="use every sample, including the settle time and ramps (default: "
+        "the full-amplitude cycles recorded in steady_start_s/steady_end_s)",
+    )
 
 
 def _parse_fix(items: list[str]) -> dict[str, float]:
@@ -124,27 +181,48 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--hold-out {unknown[0]}: no such run in the input files")
         val = [r for r in runs if r.name in hold or r.label in hold] + list(val)
         runs = [r for r in runs if not (r.name in hold or r.label in hold)]
-    res = identify(runs, args.model, effects=args.add, effects_files=args.effects, validate=val,
-                   jobs=args.jobs, scheduler=args.scheduler, fixed=_parse_fix(args.fix),
-                   free=args.free, initial=args.initial, progress=show_progress(args),
-                   pressure_model=args.pressure_model, whole_run=args.whole_run,
-                   output=args.output)
+    res = identify(
+        runs,
+        args.model,
+        effects=args.add,
+        effects_files=args.effects,
+        validate=val,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        fixed=_parse_fix(args.fix),
+        free=args.free,
+        initial=args.initial,
+        progress=show_progress(args),
+        pressure_model=args.pressure_model,
+        whole_run=args.whole_run,
+        output=args.output,
+    )
     jpath, hpath = res.save(out, force=args.force)
 
     level = verbosity(args)
-    w = max([len(rf.label) for rf in res.campaign.runs] + [len(v.run.label) for v in res.validation] + [10])
-    print(f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
-          f"{len(res.validation)} validation run(s)")
+    w = max(
+        [len(rf.label) for rf in res.campaign.runs]
+        + [len(v.run.label) for v in res.validation]
+        + [10]
+    )
+    print(
+        f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
+        f"{len(res.validation)} validation run(s)"
+    )
     oe = res.campaign.output_error
     for i, rf in enumerate(res.campaign.runs):
         r = rf.result
         if oe is not None:
-            print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
-                  f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
-                  f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)")
+            print(
+                f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
+                f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
+                f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)"
+            )
             continue
-        print(f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
-              f"rmse {r.rmse:7.3g} N")
+        print(
+            f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
+            f"rmse {r.rmse:7.3g} N"
+        )
     for v in res.validation:
         m = v.metrics
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
@@ -152,16 +230,24 @@ def run_identify(args: argparse.Namespace) -> int:
             print(head + f"prediction DIVERGED ({v.message})")
             continue
         if "rmse_position_m" in m:
-            print(head + f"position rmse {m['rmse_position_m']:9.3g} m  "
-                  f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %")
+            print(
+                head + f"position rmse {m['rmse_position_m']:9.3g} m  "
+                f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %"
+            )
             continue
-        print(head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
-              f"energy {m['energy_error_percent']:+.1f} %"
-              + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else ""))
+        print(
+            head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
+            f"energy {m['energy_error_percent']:+.1f} %"
+            + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
+        )
     sys.stdout.flush()
-    msgs = sort_messages([*res.notes, *res.warnings],
-                         [(rf.label, rf.result.warnings, getattr(rf.result, "notes", []))
-                          for rf in res.campaign.runs])
+    msgs = sort_messages(
+        [*res.notes, *res.warnings],
+        [
+            (rf.label, rf.result.warnings, getattr(rf.result, "notes", []))
+            for rf in res.campaign.runs
+        ],
+    )
     if level > 0:
         for n in msgs.notes:
             note(n)
@@ -187,29 +273,61 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
-    p.add_argument("--model", required=True, metavar="LAW",
-                   help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)")
-    p.add_argument("--validate", nargs="+", default=[], metavar="FILE.h5",
-                   help="held-out run files (default: the last third of every run)")
+    p.add_argument(
+        "--model",
+        required=True,
+        metavar="LAW",
+        help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)",
+    )
+    p.add_argument(
+        "--validate",
+        nargs="+",
+        default=[],
+        metavar="FILE.h5",
+        help="held-out run files (default: the last third of every run)",
+    )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.add_argument("--effects", action="append", default=[], metavar="FILE.py",
-                   help="Python file defining user effects (Effect subclasses), repeatable")
-    p.add_argument("--only", action="append", default=None, metavar="EFFECT",
-                   help="rank only these effect ids (repeatable; default: all)")
-    p.add_argument("--max-steps", type=int, default=3, metavar="N",
-                   help="most steps the ladder takes (adding an effect or changing the law; "
-                   "default 3)")
-    p.add_argument("--laws", default=None, metavar="A,B|none",
-                   help="other hysteresis laws scored like effects (default: every law; "
-                   "'none' scores none)")
-    p.add_argument("--jobs", type=int, default=2, metavar="N",
-                   help="parallel worker processes (default 2)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="run the candidates' identifications on a Dask distributed scheduler "
-                   "(tcp://host:port); the same numbers as locally")
-    p.add_argument("--plot", default=None, metavar="FILE.png",
-                   help="also save the ranking/ladder figure")
+    p.add_argument(
+        "--effects",
+        action="append",
+        default=[],
+        metavar="FILE.py",
+        help="Python file defining user effects (Effect subclasses), repeatable",
+    )
+    p.add_argument(
+        "--only",
+        action="append",
+        default=None,
+        metavar="EFFECT",
+        help="rank only these effect ids (repeatable; default: all)",
+    )
+    p.add_argument(
+        "--max-steps",
+        type=int,
+        default=3,
+        metavar="N",
+        help="most steps the ladder takes (adding an effect or changing the law; default 3)",
+    )
+    p.add_argument(
+        "--laws",
+        default=None,
+        metavar="A,B|none",
+        help="other hysteresis laws scored like effects (default: every law; 'none' scores none)",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help="run the candidates' identifications on a Dask distributed scheduler "
+        "(tcp://host:port); the same numbers as locally",
+    )
+    p.add_argument(
+        "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
+    )
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -238,32 +356,63 @@ def run_diagnose(args: argparse.Namespace) -> int:
     val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
     check_distinct_runs([*runs, *val])
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
-    d = diagnose(runs, model=args.model, validate=val, effects=args.only,
-                 effects_files=args.effects, max_steps=args.max_steps, jobs=args.jobs,
-                 progress=show_progress(args), whole_run=args.whole_run, laws=laws,
-                 scheduler=args.scheduler)
+    d = diagnose(
+        runs,
+        model=args.model,
+        validate=val,
+        effects=args.only,
+        effects_files=args.effects,
+        max_steps=args.max_steps,
+        jobs=args.jobs,
+        progress=show_progress(args),
+        whole_run=args.whole_run,
+        laws=laws,
+        scheduler=args.scheduler,
+    )
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
     print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
-    print(f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
-          f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):")
+    print(
+        f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
+        f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):"
+    )
     print(d.ranking_table())
     if d.ambiguous:
-        print(f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: "
-              f"{d.suggested_experiment}")
+        print(
+            f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: {d.suggested_experiment}"
+        )
     print("\nLadder (the error falling step by step):")
     print(d.ladder_table())
     if d.laws:
         print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
-        print(_table([("law", "nrmse before", "nrmse after", "fall %", "× floor gain",
-                       "significant")] + [
-            (lw["law"], f"{lw['nrmse_before']:.4f}", f"{lw['nrmse_after']:.4f}",
-             f"{lw['fall_percent']:+.1f}", f"{lw['gain_x_floor']:+.2f}",
-             "yes" if lw["significant"] else "no") for lw in d.laws]))
-    hint = " ".join(["pmalab identify", *args.files, "--model", d.final_law or args.model,
-                     *[f"--add {e}" for e in d.final_effects], *(["--validate", *args.validate]
-                                                                  if args.validate else []),
-                     *([st["identify_hint"]] if st.get("identify_hint") else []), "--out DIR"])
+        print(
+            _table(
+                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                + [
+                    (
+                        lw["law"],
+                        f"{lw['nrmse_before']:.4f}",
+                        f"{lw['nrmse_after']:.4f}",
+                        f"{lw['fall_percent']:+.1f}",
+                        f"{lw['gain_x_floor']:+.2f}",
+                        "yes" if lw["significant"] else "no",
+                    )
+                    for lw in d.laws
+                ]
+            )
+        )
+    hint = " ".join(
+        [
+            "pmalab identify",
+            *args.files,
+            "--model",
+            d.final_law or args.model,
+            *[f"--add {e}" for e in d.final_effects],
+            *(["--validate", *args.validate] if args.validate else []),
+            *([st["identify_hint"]] if st.get("identify_hint") else []),
+            "--out DIR",
+        ]
+    )
     print(f"\nSame numbers from identification: {hint}")
     print(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
     for key in worst_runs(d.diagnostics, 3):
@@ -273,7 +422,6 @@ def run_diagnose(args: argparse.Namespace) -> int:
         d.plot(check_output(args.plot, args.force))
     print(f"wrote {jpath} and {hpath}")
     return 0
-
 
 
 def run_identify_many(args: argparse.Namespace) -> int:
@@ -302,9 +450,12 @@ def run_identify_many(args: argparse.Namespace) -> int:
         raise PmalabError(f"--model {args.model}: a law is named twice")
     if args.hold_out or args.fix or args.free:
         raise PmalabError("--hold-out, --fix and --free: give one --model at a time")
-    outs = {m: prepare_output_dir(str(Path(args.out) / m), ("identification.json",
-                                                            "predictions.h5"), args.force)
-            for m in laws}
+    outs = {
+        m: prepare_output_dir(
+            str(Path(args.out) / m), ("identification.json", "predictions.h5"), args.force
+        )
+        for m in laws
+    }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
     runs = load(args.files, include_aborted=args.include_aborted)
@@ -313,33 +464,73 @@ def run_identify_many(args: argparse.Namespace) -> int:
     rows = []
     floors: list[float] = []
     for m in laws:
-        res = identify(runs, m, effects=args.add, effects_files=args.effects, validate=val,
-                       jobs=args.jobs, scheduler=args.scheduler, initial=args.initial,
-                       progress=show_progress(args), pressure_model=args.pressure_model,
-                       whole_run=args.whole_run)
+        res = identify(
+            runs,
+            m,
+            effects=args.add,
+            effects_files=args.effects,
+            validate=val,
+            jobs=args.jobs,
+            scheduler=args.scheduler,
+            initial=args.initial,
+            progress=show_progress(args),
+            pressure_model=args.pressure_model,
+            whole_run=args.whole_run,
+        )
         res.save(outs[m], force=args.force)
         if not floors:
             floors = [noise_floor_nrmse(v.run.force, v.run.time) for v in res.validation]
         vn = [float(v.metrics["nrmse"]) for v in res.validation]
         fit = [float(rf.result.metrics["nrmse"]) for rf in res.campaign.runs]
-        k = len({p.name for rf in res.campaign.runs for p in rf.result.params if p.vary
-                 and p.name not in res.model.state_params})
-        rows.append({"law": m, "validation_nrmse": float(np.mean(vn)) if vn else None,
-                     "validation_per_run": vn, "identification_nrmse": float(np.mean(fit)),
-                     "parameters_per_run": k, "directory": str(outs[m])})
+        k = len(
+            {
+                p.name
+                for rf in res.campaign.runs
+                for p in rf.result.params
+                if p.vary and p.name not in res.model.state_params
+            }
+        )
+        rows.append(
+            {
+                "law": m,
+                "validation_nrmse": float(np.mean(vn)) if vn else None,
+                "validation_per_run": vn,
+                "identification_nrmse": float(np.mean(fit)),
+                "parameters_per_run": k,
+                "directory": str(outs[m]),
+            }
+        )
     floor = float(np.mean(floors)) if floors else None
     for r in rows:
         v = r["validation_nrmse"]
         r["x_floor"] = (v / floor) if (v is not None and floor) else None
-    rows.sort(key=lambda r: (r["validation_nrmse"] is None, r["validation_nrmse"] or 0.0,
-                             r["identification_nrmse"]))
-    print(f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
-          + (f" (noise floor {floor:.4f})" if floor else "") + ", best first:")
-    print(_table([("law", "validation nrmse", "× floor", "fit nrmse (per run)",
-                   "parameters")] + [
-        (r["law"], "-" if r["validation_nrmse"] is None else f"{r['validation_nrmse']:.4f}",
-         "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
-         f"{r['identification_nrmse']:.4f}", str(r["parameters_per_run"])) for r in rows]))
+    rows.sort(
+        key=lambda r: (
+            r["validation_nrmse"] is None,
+            r["validation_nrmse"] or 0.0,
+            r["identification_nrmse"],
+        )
+    )
+    print(
+        f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
+        + (f" (noise floor {floor:.4f})" if floor else "")
+        + ", best first:"
+    )
+    print(
+        _table(
+            [("law", "validation nrmse", "× floor", "fit nrmse (per run)", "parameters")]
+            + [
+                (
+                    r["law"],
+                    "-" if r["validation_nrmse"] is None else f"{r['validation_nrmse']:.4f}",
+                    "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
+                    f"{r['identification_nrmse']:.4f}",
+                    str(r["parameters_per_run"]),
+                )
+                for r in rows
+            ]
+        )
+    )
     table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
     return 0
@@ -367,19 +558,28 @@ def _register_simulate(sub: argparse._SubParsersAction) -> None:
             "--input force: measured force in, position out (needs a moving mass: the "
             "inertia effect or --load-mass); --input pressure: the muscle moves a load "
             "(--load-mass kg, --load-stiffness N/mm, --preload N) driven by the recorded "
-            "pressure.  Default: the direction the model was identified in."),
+            "pressure.  Default: the direction the model was identified in."
+        ),
     )
     p.add_argument("model_dir", metavar="MODEL_DIR", help="directory of identification.json")
     p.add_argument("input", metavar="INPUT.h5", help="run file giving the inputs")
     p.add_argument("--out", required=True, metavar="SIM.h5", help="run file to write")
-    p.add_argument("--input", dest="direction", default=None,
-                   choices=("position", "force", "pressure"), help="which channel drives it")
+    p.add_argument(
+        "--input",
+        dest="direction",
+        default=None,
+        choices=("position", "force", "pressure"),
+        help="which channel drives it",
+    )
     p.add_argument("--load-mass", type=float, default=0.0, metavar="KG")
     p.add_argument("--load-stiffness", type=float, default=0.0, metavar="N_PER_MM")
     p.add_argument("--preload", type=float, default=0.0, metavar="N")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
-    p.add_argument("--whole-run", action="store_true",
-                   help="every sample (default: each run's full-amplitude window, as identify)")
+    p.add_argument(
+        "--whole-run",
+        action="store_true",
+        help="every sample (default: each run's full-amplitude window, as identify)",
+    )
     add_verbosity(p)
     p.set_defaults(func=run_simulate)
 
@@ -418,30 +618,49 @@ def run_simulate(args: argparse.Namespace) -> int:
         sig = Signals.from_run(r)
         th = plant.theta(float(r.nominal_pressure))
         if direction == "position":
-            f = predict_record(plant.model, sig, th, force=r.force, initial=plant.initial,
-                               bounds=plant.bounds)
+            f = predict_record(
+                plant.model, sig, th, force=r.force, initial=plant.initial, bounds=plant.bounds
+            )
             new = replace(r, force=f)
             err = f"force rmse {float(np.sqrt(np.mean((f - r.force) ** 2))):.4g} N"
         elif direction == "force":
-            xm, _ = predict_position(plant.model, th, position_data(r.label, sig, r.force,
-                                                                   r.position), plant.bounds)
+            xm, _ = predict_position(
+                plant.model, th, position_data(r.label, sig, r.force, r.position), plant.bounds
+            )
             new = replace(r, position=xm)
             err = f"position rmse {position_metrics(r.position, xm)['rmse_position_m']:.4g} m"
         else:
             if load.mass_kg <= 0 and "inertia" not in [e.id for e in plant.model.effects]:
-                raise PmalabError("--input pressure: the muscle must move a mass: give "
-                                  "--load-mass KG")
-            s = simulate(plant.model, plant.free_laws(), r.time, 0.0, r.muscle_pressure,
-                         p_nom=float(r.nominal_pressure), load=load,
-                         x0=float(r.position[0]), bounds=plant.bounds)
+                raise PmalabError(
+                    "--input pressure: the muscle must move a mass: give --load-mass KG"
+                )
+            s = simulate(
+                plant.model,
+                plant.free_laws(),
+                r.time,
+                0.0,
+                r.muscle_pressure,
+                p_nom=float(r.nominal_pressure),
+                load=load,
+                x0=float(r.position[0]),
+                bounds=plant.bounds,
+            )
             new = replace(r, position=s.position, force=s.tension)
-            err = (f"position rmse {position_metrics(r.position, s.position)['rmse_position_m']:.4g}"
-                   f" m ({s.status})")
-        new.attrs = {**r.attrs, "simulated_by": "pmalab simulate", "simulated_input": direction,
-                     "simulated_model": plant.source}
+            err = (
+                f"position rmse {position_metrics(r.position, s.position)['rmse_position_m']:.4g}"
+                f" m ({s.status})"
+            )
+        new.attrs = {
+            **r.attrs,
+            "simulated_by": "pmalab simulate",
+            "simulated_input": direction,
+            "simulated_model": plant.source,
+        }
         out.append(new)
-        print(f"  {r.label}: {len(r)} samples, {direction} in, {time.perf_counter() - t0:.3f} s; "
-              f"vs measured: {err}")
+        print(
+            f"  {r.label}: {len(r)} samples, {direction} in, {time.perf_counter() - t0:.3f} s; "
+            f"vs measured: {err}"
+        )
     path = write_runs(args.out, out, force=args.force)
     print(f"wrote {path}")
     return 0

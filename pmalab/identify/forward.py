@@ -107,7 +107,8 @@ def plant_slots(model: ForceModel) -> dict[str, str]:
         if e.plant is None:
             raise ForwardError(
                 f"effect '{e.id}' has no forward (plant) form: a forward simulation supports "
-                f"{', '.join(sorted(forward_effects()))}")
+                f"{', '.join(sorted(forward_effects()))}"
+            )
         out.update(e.plant)
     return out
 
@@ -127,8 +128,12 @@ class Coefficients:
     at the run's nominal pressure) or pressure laws {name: (q0, q1, q2)} (a plant whose
     pressure moves, as under a controller)."""
 
-    def __init__(self, model: ForceModel, theta: Mapping[str, float | Sequence[float]],
-                 bounds: Mapping[str, tuple[float, float]] | None = None) -> None:
+    def __init__(
+        self,
+        model: ForceModel,
+        theta: Mapping[str, float | Sequence[float]],
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+    ) -> None:
         self.model = model
         law = model.law
         slots = plant_slots(model)
@@ -166,7 +171,7 @@ class Coefficients:
 
     def law_theta(self, v: np.ndarray) -> dict[str, float]:
         """The law's parameters by name from a row vector of :meth:`at`."""
-        return {n: float(x) for n, x in zip(self.law_names, v[self.n_slots:], strict=True)}
+        return {n: float(x) for n, x in zip(self.law_names, v[self.n_slots :], strict=True)}
 
     def named(self, p: float) -> dict[str, float]:
         """Every parameter by name at pressure ``p`` (MPa)."""
@@ -213,8 +218,15 @@ def _theta(Q, lo, hi, p, out):
 @njit(cache=True, fastmath=False)
 def _static(c, x, h, p, p_nom, u, KL):
     """F_muscle without the damping term, minus the load (N); c = θ at this pressure."""
-    return (c[0] * x + c[1] + h * (1.0 + c[8] * x) + (c[4] + c[5] * x) * x * x
-            + (c[6] + c[7] * x) * (p - p_nom) - u - KL * x)
+    return (
+        c[0] * x
+        + c[1]
+        + h * (1.0 + c[8] * x)
+        + (c[4] + c[5] * x) * x * x
+        + (c[6] + c[7] * x) * (p - p_nom)
+        - u
+        - KL * x
+    )
 
 
 @njit(cache=True, fastmath=False)
@@ -227,8 +239,9 @@ def _seg(law_id, h, x0, x1, prm):
 
 
 @njit(cache=True, fastmath=False)
-def _integrate(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0, nsub,
-               xo, vo, ho, fo):
+def _integrate(
+    law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0, nsub, xo, vo, ho, fo
+):
     N = t.shape[0]
     nq = Q.shape[0]
     ca = np.empty(nq)
@@ -258,7 +271,9 @@ def _integrate(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0
             if m <= 0.0:
                 return -2, k
             c = ca[3]
-            vh = (v + 0.5 * dt * _static(ca, x, h, pa, p_nom, ua, KL) / m) / (1.0 + 0.5 * dt * c / m)
+            vh = (v + 0.5 * dt * _static(ca, x, h, pa, p_nom, ua, KL) / m) / (
+                1.0 + 0.5 * dt * c / m
+            )
             xn = x + dt * vh
             # the law's parameters at the segment's mid pressure
             _theta(Q, lo, hi, 0.5 * (pa + pb), cb)
@@ -269,7 +284,9 @@ def _integrate(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, ML, KL, x0, v0, h0
             _theta(Q, lo, hi, pb, cb)
             m = (cb[2] + ML) * 1e-3
             c = cb[3]
-            v = (vh + 0.5 * dt * _static(cb, x, h, pb, p_nom, ub, KL) / m) / (1.0 + 0.5 * dt * c / m)
+            v = (vh + 0.5 * dt * _static(cb, x, h, pb, p_nom, ub, KL) / m) / (
+                1.0 + 0.5 * dt * c / m
+            )
         if not (abs(x) < 1e6) or not (abs(v) < 1e12) or not (abs(h) < 1e12):
             return -1, k + 1
         xo[k + 1] = x
@@ -355,11 +372,21 @@ def _quasi_static(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, KL, x0, h0, xo,
     return 0, N
 
 
-def simulate(model: ForceModel, theta: Mapping[str, float | Sequence[float]], t: np.ndarray,
-             u: np.ndarray | float, p: np.ndarray | float, *, p_nom: float | None = None,
-             load: Load = Load(), x0: float = 0.0, v0: float = 0.0, h0: float = 0.0,
-             bounds: Mapping[str, tuple[float, float]] | None = None,
-             n_sub: int | None = None) -> Simulation:
+def simulate(
+    model: ForceModel,
+    theta: Mapping[str, float | Sequence[float]],
+    t: np.ndarray,
+    u: np.ndarray | float,
+    p: np.ndarray | float,
+    *,
+    p_nom: float | None = None,
+    load: Load = Load(),
+    x0: float = 0.0,
+    v0: float = 0.0,
+    h0: float = 0.0,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    n_sub: int | None = None,
+) -> Simulation:
     """Integrate the model forward from (x0 mm, v0 mm/s, h0 N) — see the module docstring.
 
     ``t`` time stamps (s), ``u`` the input force (N: measured tension, or the load's preload),
@@ -388,32 +415,98 @@ def simulate(model: ForceModel, theta: Mapping[str, float | Sequence[float]], t:
             raise ForwardError(
                 f"force in -> position out without a moving mass needs a law with a compiled "
                 f"segment (bouc-wen, duhem), not {model.law.name}: add the inertia effect or "
-                "give the load a mass")
+                "give the load a mass"
+            )
         Qs = coef.Q.copy()
         Qs[2, :] = 0.0  # a fitted m ≤ 0 is no mass: treated as 0
-        code, k = _quasi_static(law_id, t, u_eff, p_a, pn, Qs, coef.lo, coef.hi, coef.extras,
-                                coef.n_slots, float(load.stiffness_N_per_mm), float(x0),
-                                float(h0), xo, vo, ho, fo)
-        return Simulation(position=xo, velocity=vo, h=ho, tension=fo, n_sub=0,
-                          status="ok" if code == 0 else "diverged")
+        code, k = _quasi_static(
+            law_id,
+            t,
+            u_eff,
+            p_a,
+            pn,
+            Qs,
+            coef.lo,
+            coef.hi,
+            coef.extras,
+            coef.n_slots,
+            float(load.stiffness_N_per_mm),
+            float(x0),
+            float(h0),
+            xo,
+            vo,
+            ho,
+            fo,
+        )
+        return Simulation(
+            position=xo,
+            velocity=vo,
+            h=ho,
+            tension=fo,
+            n_sub=0,
+            status="ok" if code == 0 else "diverged",
+        )
     dt = float(np.median(np.diff(t)))
     ns = n_sub or substeps(model, coef, p_a, dt, load)
     if law_id is not None and model.law.state_size == 1:
-        code, k = _integrate(law_id, t, u_eff, p_a, pn, coef.Q, coef.lo, coef.hi, coef.extras,
-                             coef.n_slots, float(load.mass_kg), float(load.stiffness_N_per_mm),
-                             float(x0), float(v0), float(h0), int(ns), xo, vo, ho, fo)
+        code, k = _integrate(
+            law_id,
+            t,
+            u_eff,
+            p_a,
+            pn,
+            coef.Q,
+            coef.lo,
+            coef.hi,
+            coef.extras,
+            coef.n_slots,
+            float(load.mass_kg),
+            float(load.stiffness_N_per_mm),
+            float(x0),
+            float(v0),
+            float(h0),
+            int(ns),
+            xo,
+            vo,
+            ho,
+            fo,
+        )
     else:
-        code, k = _integrate_py(model, coef, t, u_eff, p_a, pn, load, x0, v0, h0, ns,
-                                xo, vo, ho, fo)
+        code, k = _integrate_py(
+            model, coef, t, u_eff, p_a, pn, load, x0, v0, h0, ns, xo, vo, ho, fo
+        )
     if code == -2:
-        raise ForwardError(f"the moving mass is not positive at sample {k} (pressure "
-                           f"{p_a[k]:.4g} MPa): the inertia law left its range")
-    return Simulation(position=xo, velocity=vo, h=ho, tension=fo, n_sub=int(ns),
-                      status="ok" if code == 0 else "diverged")
+        raise ForwardError(
+            f"the moving mass is not positive at sample {k} (pressure "
+            f"{p_a[k]:.4g} MPa): the inertia law left its range"
+        )
+    return Simulation(
+        position=xo,
+        velocity=vo,
+        h=ho,
+        tension=fo,
+        n_sub=int(ns),
+        status="ok" if code == 0 else "diverged",
+    )
 
 
-def _integrate_py(model: ForceModel, coef: Coefficients, t, u, p, p_nom, load: Load,
-                  x0, v0, h0, nsub, xo, vo, ho, fo) -> tuple[int, int]:
+def _integrate_py(
+    model: ForceModel,
+    coef: Coefficients,
+    t,
+    u,
+    p,
+    p_nom,
+    load: Load,
+    x0,
+    v0,
+    h0,
+    nsub,
+    xo,
+    vo,
+    ho,
+    fo,
+) -> tuple[int, int]:
     """The same scheme as :func:`_integrate` for laws without a compiled segment (element
     laws): the state is the law's own (``initial_state``), steppers cached per 1 kPa."""
     law = model.law
@@ -429,8 +522,15 @@ def _integrate_py(model: ForceModel, coef: Coefficients, t, u, p, p_nom, load: L
         return st
 
     def static(c, x, h, pv, uv):
-        return (c[0] * x + c[1] + h * (1.0 + c[8] * x) + (c[4] + c[5] * x) * x * x
-                + (c[6] + c[7] * x) * (pv - p_nom) - uv - load.stiffness_N_per_mm * x)
+        return (
+            c[0] * x
+            + c[1]
+            + h * (1.0 + c[8] * x)
+            + (c[4] + c[5] * x) * x * x
+            + (c[6] + c[7] * x) * (pv - p_nom)
+            - uv
+            - load.stiffness_N_per_mm * x
+        )
 
     c0 = coef.at(float(p[0]))
     th0 = coef.law_theta(c0)
@@ -479,20 +579,25 @@ class IdentifiedPlant:
         law = doc.get("model")
         fits = doc.get("pressure_fits")
         if not isinstance(law, str) or not isinstance(fits, Mapping):
-            raise ForwardError(f"{source}: not an identification.json (no 'model' and "
-                               "'pressure_fits')")
+            raise ForwardError(
+                f"{source}: not an identification.json (no 'model' and 'pressure_fits')"
+            )
         try:
             self.model = ForceModel(law, [get_effect(e) for e in doc.get("effects") or []])
         except (KeyError, ValueError, PmalabError) as exc:
             raise ForwardError(f"{source}: {exc}") from None
         self.laws: dict[str, tuple[float, float, float]] = {}
         for n, q in fits.items():
-            if (not isinstance(q, list) or len(q) != 3
-                    or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in q)):
+            if (
+                not isinstance(q, list)
+                or len(q) != 3
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in q)
+            ):
                 raise ForwardError(f"{source}: pressure_fits.{n}: expected [q0, q1, q2]")
             self.laws[str(n)] = (float(q[0]), float(q[1]), float(q[2]))
-        self.bounds = {n: (float(b[0]), float(b[1]))
-                       for n, b in (doc.get("parameter_bounds") or {}).items()}
+        self.bounds = {
+            n: (float(b[0]), float(b[1])) for n, b in (doc.get("parameter_bounds") or {}).items()
+        }
         self.output = str(doc.get("output") or "force")
         self.initial = str((doc.get("method") or {}).get("initial_state_validation") or "estimate")
         self.pressure_range = tuple(doc.get("pressure_range_MPa") or (float("nan"),) * 2)

@@ -80,9 +80,11 @@ class ErrorFall:
         if not n:
             return "no validation run was predicted by both models: no error fall to report"
         verb = "falls" if self.fall_percent >= 0 else "RISES"
-        line = (f"validation error {verb} {abs(self.fall_percent):.1f} % (mean nrmse "
-                f"{self.before:.4f} → {self.after:.4f}, fit {100 * (1 - self.before):.2f} % → "
-                f"{100 * (1 - self.after):.2f} %) on {n} {MEASURED_ON}")
+        line = (
+            f"validation error {verb} {abs(self.fall_percent):.1f} % (mean nrmse "
+            f"{self.before:.4f} → {self.after:.4f}, fit {100 * (1 - self.before):.2f} % → "
+            f"{100 * (1 - self.after):.2f} %) on {n} {MEASURED_ON}"
+        )
         skipped = len(self.runs) - n
         if skipped:
             line += f"; {skipped} run(s) left out (a prediction diverged)"
@@ -103,19 +105,26 @@ def error_fall(base: Mapping[str, Any], improved: Mapping[str, Any]) -> ErrorFal
         w = after.get(_key(v))
         if w is None:
             continue
-        runs.append(RunFall(run=str(v.get("run", "")),
-                            muscle_pressure_MPa=float(v.get("muscle_pressure_MPa", math.nan)),
-                            before=_finite(v.get("nrmse")), after=_finite(w.get("nrmse"))))
+        runs.append(
+            RunFall(
+                run=str(v.get("run", "")),
+                muscle_pressure_MPa=float(v.get("muscle_pressure_MPa", math.nan)),
+                before=_finite(v.get("nrmse")),
+                after=_finite(w.get("nrmse")),
+            )
+        )
     if not runs:
         return None
-    return ErrorFall(base_model=_model_name(base), improved_model=_model_name(improved),
-                     runs=tuple(runs))
+    return ErrorFall(
+        base_model=_model_name(base), improved_model=_model_name(improved), runs=tuple(runs)
+    )
 
 
 def worst_runs(diagnostics: Mapping[str, Mapping[str, Any]], n: int | None = None) -> list[str]:
     """Run keys of ``diagnosis.json`` ``diagnostics``, worst first (see :data:`WORST_BY`);
     runs without an ``rmse`` come last, in their original order."""
     keys = list(diagnostics)
-    rank = sorted(keys, key=lambda k: (-(_finite(diagnostics[k].get("rmse")) or -1.0),
-                                       keys.index(k)))
+    rank = sorted(
+        keys, key=lambda k: (-(_finite(diagnostics[k].get("rmse")) or -1.0), keys.index(k))
+    )
     return rank if n is None else rank[:n]

@@ -117,8 +117,9 @@ class Messages:
     details: list[str] = field(default_factory=list)
 
 
-def sort_messages(campaign: Iterable[str], runs: Sequence[tuple[str, Sequence[str],
-                                                                 Sequence[str]]]) -> Messages:
+def sort_messages(
+    campaign: Iterable[str], runs: Sequence[tuple[str, Sequence[str], Sequence[str]]]
+) -> Messages:
     """Sort campaign messages and per-run ``(label, warnings, notes)`` by their kind.
 
     Per-run collinearity (code ``collinear``) is one warning line for the campaign naming
@@ -135,8 +136,11 @@ def sort_messages(campaign: Iterable[str], runs: Sequence[tuple[str, Sequence[st
         else:
             (out.notes if is_note(m) else out.warnings).append(str(m))
     if held:
-        out.notes.insert(0, f"{len(held)} run(s) with role 'validation' in the run file held "
-                            f"out for validation: {', '.join(held)}")
+        out.notes.insert(
+            0,
+            f"{len(held)} run(s) with role 'validation' in the run file held "
+            f"out for validation: {', '.join(held)}",
+        )
     pairs: Counter[tuple[str, str]] = Counter()
     runs_with: set[str] = set()
     limit = ""
@@ -158,11 +162,14 @@ def sort_messages(campaign: Iterable[str], runs: Sequence[tuple[str, Sequence[st
         out.details += [f"{label}: {n}" for n in notes]
     if pairs:
         common = pairs.most_common()
-        listed = ", ".join(f"{a}/{b}" + (f" ({k} runs)" if k > 1 else " (1 run)")
-                           for (a, b), k in common[:MAX_PAIRS])
+        listed = ", ".join(
+            f"{a}/{b}" + (f" ({k} runs)" if k > 1 else " (1 run)")
+            for (a, b), k in common[:MAX_PAIRS]
+        )
         if len(common) > MAX_PAIRS:
             listed += f" and {len(common) - MAX_PAIRS} more pair(s)"
         out.warnings.append(
             f"parameters trade off (|rho| > {limit}) on {len(runs_with)} of {len(runs)} runs: "
-            f"{listed}; their per-run values are poorly determined (-v lists them per run)")
+            f"{listed}; their per-run values are poorly determined (-v lists them per run)"
+        )
     return out

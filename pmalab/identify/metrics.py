@@ -73,7 +73,9 @@ def metrics(measured: np.ndarray, predicted: np.ndarray, x: np.ndarray) -> dict:
     y = np.asarray(measured, dtype=np.float64)
     yh = np.asarray(predicted, dtype=np.float64)
     if y.shape != yh.shape or y.shape != np.shape(x):
-        raise ValueError(f"shape mismatch: measured {y.shape}, predicted {yh.shape}, x {np.shape(x)}")
+        raise ValueError(
+            f"shape mismatch: measured {y.shape}, predicted {yh.shape}, x {np.shape(x)}"
+        )
     e = yh - y
     rmse = _rms(e)
     sd = float(np.std(y))
@@ -120,8 +122,9 @@ def loop_direction(force: np.ndarray, x: np.ndarray) -> float:
     return float(np.mean(diffs)) if diffs else 0.0
 
 
-def information_criteria(rss: float, n: int, k: int, n_eff: float | None = None
-                         ) -> tuple[float, float]:
+def information_criteria(
+    rss: float, n: int, k: int, n_eff: float | None = None
+) -> tuple[float, float]:
     """(AIC, BIC) of a least-squares fit — the one definition every fit in pmalab uses.
 
     ``N_eff·ln(RSS/N) + 2k`` and ``N_eff·ln(RSS/N) + k·ln N_eff``: ``rss`` the residual sum

@@ -82,9 +82,22 @@ class ForceModel:
         scale = float(np.std(force)) if force is not None else 100.0
         ps = Params(
             [
-                Param("k", -30.0, -1e4, 1e4, "N/mm", doc="linear stiffness (tension per mm of contraction)"),
-                Param("c0", float(np.mean(force)) if force is not None else 0.0, -1e5, 1e5, "N",
-                      doc="tension offset at zero contraction"),
+                Param(
+                    "k",
+                    -30.0,
+                    -1e4,
+                    1e4,
+                    "N/mm",
+                    doc="linear stiffness (tension per mm of contraction)",
+                ),
+                Param(
+                    "c0",
+                    float(np.mean(force)) if force is not None else 0.0,
+                    -1e5,
+                    1e5,
+                    "N",
+                    doc="tension offset at zero contraction",
+                ),
             ]
         )
         for lp in self.law.params:

@@ -70,9 +70,7 @@ def _ar1_gain(a: float, stride: int = 1) -> float:
     """Variance of the third difference at ``stride`` of a unit-variance AR(1) noise (a)."""
     c = _COEF
     n = len(c)
-    return float(
-        sum(c[j] * c[m] * a ** (stride * abs(j - m)) for j in range(n) for m in range(n))
-    )
+    return float(sum(c[j] * c[m] * a ** (stride * abs(j - m)) for j in range(n) for m in range(n)))
 
 
 _G1 = np.array([_ar1_gain(a, 1) for a in _A_GRID])  # 20 at a = 0, falling with a
@@ -127,8 +125,10 @@ def _colour_ratio(d1: np.ndarray, d2: np.ndarray, v1: float) -> float:
     if v1 <= 0 or d2.size < _CHUNKS * MIN_SAMPLES:
         return 1.0
     ratio = _robust_var(d2) / v1
-    pieces = [_robust_var(b) / max(_robust_var(a), 1e-300)
-              for a, b in zip(np.array_split(d1, _CHUNKS), np.array_split(d2, _CHUNKS), strict=True)]
+    pieces = [
+        _robust_var(b) / max(_robust_var(a), 1e-300)
+        for a, b in zip(np.array_split(d1, _CHUNKS), np.array_split(d2, _CHUNKS), strict=True)
+    ]
     se = float(np.std(pieces, ddof=1)) / math.sqrt(_CHUNKS)
     return ratio if ratio > 1.0 + 2.0 * se else 1.0
 

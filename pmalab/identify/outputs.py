@@ -128,8 +128,11 @@ def _inputs(runs: list[tuple[Run, str]]) -> list[dict]:
 
 def _metric_block(m: dict) -> dict:
     return {
-        "rmse": m["rmse"], "nrmse": m["nrmse"], "fit_percent": m["fit_percent"],
-        "max_error": m["max_error"], "energy_error_percent": m["energy_error_percent"],
+        "rmse": m["rmse"],
+        "nrmse": m["nrmse"],
+        "fit_percent": m["fit_percent"],
+        "max_error": m["max_error"],
+        "energy_error_percent": m["energy_error_percent"],
         "energy_measured_mJ_per_cycle": m.get("energy_measured_mJ_per_cycle"),
         "energy_model_mJ_per_cycle": m.get("energy_model_mJ_per_cycle"),
         "branch_rmse": dict(m["branch_rmse"]),
@@ -152,15 +155,22 @@ def _output_error_block(cf) -> dict | None:
         "rmse_position_m": [v * 1e-3 for v in oe.rmse_mm],
         "nrmse_position": list(oe.nrmse),
         "rmse_position_m_start": [v * 1e-3 for v in oe.rmse_mm_start],
-        "initial_state": {"x0_mm": oe.state["x0"], "v0_mm_per_s": oe.state["v0"],
-                          "h0_N": oe.state["h0"]},
+        "initial_state": {
+            "x0_mm": oe.state["x0"],
+            "v0_mm_per_s": oe.state["v0"],
+            "h0_N": oe.state["h0"],
+        },
         "substeps_per_sample": list(oe.n_sub),
         "orders": dict(oe.degree),
         "stderr_at_mean_pressure": dict(oe.stderr),
-        "nfev": oe.nfev, "success": oe.success, "message": oe.message,
-        "note": ("free-run simulation of the position from the measured force and pressure "
-                 "(velocity Verlet, implicit damping, exact hysteresis segments, inputs "
-                 "linear between samples); start state estimated per run"),
+        "nfev": oe.nfev,
+        "success": oe.success,
+        "message": oe.message,
+        "note": (
+            "free-run simulation of the position from the measured force and pressure "
+            "(velocity Verlet, implicit damping, exact hysteresis segments, inputs "
+            "linear between samples); start state estimated per run"
+        ),
     }
 
 
@@ -174,38 +184,61 @@ def identification_dict(res: Identification) -> dict:
     runs_out = []
     for rf, (_, q) in zip(cf.runs, res.quadratic_predictions()):
         r = rf.result
-        runs_out.append({
-            "file": rf.file, "run": rf.run, "role": "identification",
-            "muscle_pressure_MPa": rf.p_nom, "frequency_Hz": rf.frequency_Hz,
-            "waveform": rf.waveform,
-            "parameters": r.values,
-            "stderr": r.stderr,
-            "correlation": {"names": list(r.names), "matrix": np.asarray(r.correlation).tolist()},
-            "fixed": list(r.fixed),
-            "warnings": list(r.warnings),
-            "notes": list(r.notes),
-            "messages": [as_message(m).to_dict() for m in [*r.warnings, *r.notes]],
-            **_metric_block(r.metrics),
-            "n_samples": r.n_samples, "n_eff": r.n_eff, "n_free": r.n_free,
-            "aic": r.aic, "bic": r.bic, "condition_number": r.condition_number,
-            "quadratic_model": {"fit_percent": q["fit_percent"], "nrmse": q["nrmse"],
-                                "rmse": q["rmse"]},
-        })
+        runs_out.append(
+            {
+                "file": rf.file,
+                "run": rf.run,
+                "role": "identification",
+                "muscle_pressure_MPa": rf.p_nom,
+                "frequency_Hz": rf.frequency_Hz,
+                "waveform": rf.waveform,
+                "parameters": r.values,
+                "stderr": r.stderr,
+                "correlation": {
+                    "names": list(r.names),
+                    "matrix": np.asarray(r.correlation).tolist(),
+                },
+                "fixed": list(r.fixed),
+                "warnings": list(r.warnings),
+                "notes": list(r.notes),
+                "messages": [as_message(m).to_dict() for m in [*r.warnings, *r.notes]],
+                **_metric_block(r.metrics),
+                "n_samples": r.n_samples,
+                "n_eff": r.n_eff,
+                "n_free": r.n_free,
+                "aic": r.aic,
+                "bic": r.bic,
+                "condition_number": r.condition_number,
+                "quadratic_model": {
+                    "fit_percent": q["fit_percent"],
+                    "nrmse": q["nrmse"],
+                    "rmse": q["rmse"],
+                },
+            }
+        )
     val_out = []
     for v in res.validation:
         run = v.run
-        val_out.append({
-            "file": run.file, "run": run.name, "role": "validation",
-            "muscle_pressure_MPa": run.nominal_pressure, "frequency_Hz": run.frequency,
-            "waveform": str(run.attrs.get("waveform", "")),
-            "status": v.status, "message": v.message,
-            "extrapolated": cf.extrapolates(float(run.nominal_pressure)),
-            **_metric_block(v.metrics),
-        })
+        val_out.append(
+            {
+                "file": run.file,
+                "run": run.name,
+                "role": "validation",
+                "muscle_pressure_MPa": run.nominal_pressure,
+                "frequency_Hz": run.frequency,
+                "waveform": str(run.attrs.get("waveform", "")),
+                "status": v.status,
+                "message": v.message,
+                "extrapolated": cf.extrapolates(float(run.nominal_pressure)),
+                **_metric_block(v.metrics),
+            }
+        )
     warnings = list(res.warnings)
     for rf in cf.runs:
         warnings += [f"{rf.label}: {w}" for w in rf.result.warnings]
-    all_runs = [(r, "identification") for r in res.runs] + [(v.run, "validation") for v in res.validation]
+    all_runs = [(r, "identification") for r in res.runs] + [
+        (v.run, "validation") for v in res.validation
+    ]
     out = {
         "model": model.law.name,
         "model_full": model.name,
@@ -234,7 +267,7 @@ def identification_dict(res: Identification) -> dict:
         "messages": [as_message(m).to_dict() for m in [*res.notes, *res.warnings]],
         "method": {
             "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
-                   "scale) then joint scipy least_squares (trf, bounds) on free-run error",
+            "scale) then joint scipy least_squares (trf, bounds) on free-run error",
             "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
             "stderr": STDERR_METHOD,
             "initial_state_validation": res.initial,
@@ -244,8 +277,9 @@ def identification_dict(res: Identification) -> dict:
                 "of all identification runs at once (per-run h0, each run's residual / (its "
                 "per-run rmse * sqrt(N))), order 0-2 per parameter from the per-run fits and "
                 "a Wald/BIC test on the joint fit; theta clipped into the law's bounds"
-                if cf.pressure_model == "joint" else
-                "theta(p) = q0 + q1 p + q2 p^2 (p in MPa), weighted by 1/stderr"),
+                if cf.pressure_model == "joint"
+                else "theta(p) = q0 + q1 p + q2 p^2 (p in MPa), weighted by 1/stderr"
+            ),
         },
     }
     return _clean(out)
@@ -258,17 +292,25 @@ def _joint_block(cf) -> dict | None:
         return None
     return {
         "runs": [rf.label for rf in cf.runs],
-        "nrmse": list(j.nrmse), "mean_nrmse": j.mean_nrmse,
+        "nrmse": list(j.nrmse),
+        "mean_nrmse": j.mean_nrmse,
         "nrmse_per_run_quadratics": list(cf.per_run_nrmse),
-        "mean_nrmse_per_run_quadratics": (float(np.mean(cf.per_run_nrmse))
-                                          if cf.per_run_nrmse else None),
-        "nrmse_start": list(j.nrmse_start), "mean_nrmse_start": j.mean_nrmse_start,
-        "orders": dict(j.degree), "constants": dict(j.constants), "h0": list(j.h0),
+        "mean_nrmse_per_run_quadratics": (
+            float(np.mean(cf.per_run_nrmse)) if cf.per_run_nrmse else None
+        ),
+        "nrmse_start": list(j.nrmse_start),
+        "mean_nrmse_start": j.mean_nrmse_start,
+        "orders": dict(j.degree),
+        "constants": dict(j.constants),
+        "h0": list(j.h0),
         # record nuisances (e.g. a load cell's drift rate): one value per run, in "runs" order
         "per_run": {n: [float(v) for v in vals] for n, vals in j.nuisance.items()},
         "legendre": {n: np.asarray(c).tolist() for n, c in j.legendre.items()},
         "legendre_stderr": {n: np.asarray(c).tolist() for n, c in j.legendre_stderr.items()},
-        "n_eff": j.n_eff, "bic": j.bic, "nfev": j.nfev, "success": j.success,
+        "n_eff": j.n_eff,
+        "bic": j.bic,
+        "nfev": j.nfev,
+        "success": j.success,
         "message": j.message,
         "note": "nrmse of the free-run prediction on the subsampled identification runs",
     }
@@ -287,18 +329,24 @@ def write_predictions(res: Identification, path: Path) -> None:
     """The identification's ``predictions.h5`` (:mod:`pmalab.identify.predictions`)."""
     cf = res.campaign
     name = cf.model.name
-    items = [PredictionItem(run, "identification", rf.result.predict(run), name, fq)
-             for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions())]
+    items = [
+        PredictionItem(run, "identification", rf.result.predict(run), name, fq)
+        for rf, run, (fq, _) in zip(cf.runs, res.runs, res.quadratic_predictions())
+    ]
     oe = cf.output_error
     if oe is not None:
         for it, xm in zip(items, oe.positions):
             it.position_model = xm
-    items += [PredictionItem(v.run, "validation", v.force_model, name,
-                             position_model=v.position_model) for v in res.validation]
+    items += [
+        PredictionItem(v.run, "validation", v.force_model, name, position_model=v.position_model)
+        for v in res.validation
+    ]
     write_predictions_file(path, items, name)
 
 
-def write_outputs(res: Identification, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
+def write_outputs(
+    res: Identification, out_dir: str | Path, force: bool = False
+) -> tuple[Path, Path]:
     """Write ``out_dir/identification.json`` and ``out_dir/predictions.h5``."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -307,10 +355,12 @@ def write_outputs(res: Identification, out_dir: str | Path, force: bool = False)
     hpath = check_output(out / "predictions.h5", force)
     doc = identification_dict(res)
     out.mkdir(parents=True, exist_ok=True)
-    write_together({
-        jpath: lambda p: p.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n"),
-        hpath: lambda p: write_predictions(res, p),
-    })
+    write_together(
+        {
+            jpath: lambda p: p.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n"),
+            hpath: lambda p: write_predictions(res, p),
+        }
+    )
     return jpath, hpath
 
 
@@ -372,8 +422,13 @@ class Identification:
 
         rows = []
         for rf in self.campaign.runs:
-            row = {"run": rf.label, "p_MPa": rf.p_nom, "f_Hz": rf.frequency_Hz,
-                   "fit_percent": rf.result.fit_percent, "nrmse": rf.result.nrmse}
+            row = {
+                "run": rf.label,
+                "p_MPa": rf.p_nom,
+                "f_Hz": rf.frequency_Hz,
+                "fit_percent": rf.result.fit_percent,
+                "nrmse": rf.result.nrmse,
+            }
             for p in rf.result.params:
                 row[p.name] = p.value
                 row[f"{p.name}_stderr"] = p.stderr
@@ -388,9 +443,18 @@ class Identification:
         import pandas as pd
 
         return pd.DataFrame(
-            [{"parameter": n, "q0": pf.coef[0], "q1": pf.coef[1], "q2": pf.coef[2],
-              "degree": pf.degree, "r2": pf.r2, "method": pf.method}
-             for n, pf in self.campaign.pressure.items()]
+            [
+                {
+                    "parameter": n,
+                    "q0": pf.coef[0],
+                    "q1": pf.coef[1],
+                    "q2": pf.coef[2],
+                    "degree": pf.degree,
+                    "r2": pf.r2,
+                    "method": pf.method,
+                }
+                for n, pf in self.campaign.pressure.items()
+            ]
         ).set_index("parameter")
 
     @property
@@ -401,13 +465,21 @@ class Identification:
         rows = []
         for v in self.validation:
             m = v.metrics
-            rows.append({"run": v.run.label, "p_MPa": v.run.nominal_pressure,
-                         "f_Hz": v.run.frequency, "status": v.status,
-                         "fit_percent": m["fit_percent"],
-                         "nrmse": m["nrmse"], "rmse_N": m["rmse"], "max_error_N": m["max_error"],
-                         "energy_error_percent": m["energy_error_percent"],
-                         "stretch_rmse_N": m["branch_rmse"]["stretch"],
-                         "release_rmse_N": m["branch_rmse"]["release"]})
+            rows.append(
+                {
+                    "run": v.run.label,
+                    "p_MPa": v.run.nominal_pressure,
+                    "f_Hz": v.run.frequency,
+                    "status": v.status,
+                    "fit_percent": m["fit_percent"],
+                    "nrmse": m["nrmse"],
+                    "rmse_N": m["rmse"],
+                    "max_error_N": m["max_error"],
+                    "energy_error_percent": m["energy_error_percent"],
+                    "stretch_rmse_N": m["branch_rmse"]["stretch"],
+                    "release_rmse_N": m["branch_rmse"]["release"],
+                }
+            )
         return pd.DataFrame(rows).set_index("run") if rows else pd.DataFrame()
 
     # ---- plots (matplotlib only)
@@ -423,12 +495,19 @@ class Identification:
         if which in ("all", "identification"):
             for rf, run in zip(self.campaign.runs, self.runs):
                 fm = rf.result.predict(run)
-                panels.append((f"{rf.label}\nfit {rf.result.fit_percent:.1f} %", run.position,
-                               run.force, fm))
+                panels.append(
+                    (f"{rf.label}\nfit {rf.result.fit_percent:.1f} %", run.position, run.force, fm)
+                )
         if which in ("all", "validation"):
             for v in self.validation:
-                panels.append((f"{v.run.label} (validation)\nfit {v.fit_percent:.1f} %",
-                               v.run.position, v.run.force, v.force_model))
+                panels.append(
+                    (
+                        f"{v.run.label} (validation)\nfit {v.fit_percent:.1f} %",
+                        v.run.position,
+                        v.run.force,
+                        v.force_model,
+                    )
+                )
         n = max(len(panels), 1)
         nc = min(ncols, n)
         nr = int(np.ceil(n / nc))
@@ -436,13 +515,21 @@ class Identification:
         for ax, (title, x, f, fm) in zip(axes.flat, panels):
             # the measurement as a wide band underneath, the model thinner on top: both
             # stay visible where they agree, and the band shows where the model leaves it
-            ax.plot(x, f, color="0.55", lw=2.4, alpha=0.8, label="measured",
-                    solid_capstyle="round", zorder=1)
+            ax.plot(
+                x,
+                f,
+                color="0.55",
+                lw=2.4,
+                alpha=0.8,
+                label="measured",
+                solid_capstyle="round",
+                zorder=1,
+            )
             ax.plot(x, fm, color="#1f77b4", lw=0.9, label=self.model.name, zorder=2)
             ax.set_title(title, fontsize=8)
             ax.set_xlabel("contraction x (mm)")
             ax.set_ylabel("tension F (N)")
-        for ax in list(axes.flat)[len(panels):]:
+        for ax in list(axes.flat)[len(panels) :]:
             ax.set_visible(False)
         if panels:
             axes.flat[0].legend(fontsize=7)
@@ -465,7 +552,7 @@ class Identification:
             ax.plot(pp, pf(pp), lw=1)
             ax.set_title(f"{name}  (R² {pf.r2:.3f})", fontsize=9)
             ax.set_xlabel("muscle pressure (MPa)")
-        for ax in list(axes.flat)[len(names):]:
+        for ax in list(axes.flat)[len(names) :]:
             ax.set_visible(False)
         fig.tight_layout()
         return fig
@@ -476,13 +563,19 @@ class Identification:
         return write_outputs(self, out_dir, force=force)
 
     def __repr__(self) -> str:
-        lines = [f"Identification({self.model.name}: {len(self.campaign.runs)} runs, "
-                 f"{len(self.validation)} validation)"]
+        lines = [
+            f"Identification({self.model.name}: {len(self.campaign.runs)} runs, "
+            f"{len(self.validation)} validation)"
+        ]
         for rf in self.campaign.runs:
-            lines.append(f"  identify  {rf.label:40s} p={rf.p_nom:.4g} MPa  fit {rf.result.fit_percent:6.2f} %")
+            lines.append(
+                f"  identify  {rf.label:40s} p={rf.p_nom:.4g} MPa  fit {rf.result.fit_percent:6.2f} %"
+            )
         for v in self.validation:
-            lines.append(f"  validate  {v.run.label:40s} p={v.run.nominal_pressure:.4g} MPa  "
-                         + ("DIVERGED" if v.diverged else f"fit {v.fit_percent:6.2f} %")
-                         + ("" if v.status == "ok" else f"  ({v.status})"))
+            lines.append(
+                f"  validate  {v.run.label:40s} p={v.run.nominal_pressure:.4g} MPa  "
+                + ("DIVERGED" if v.diverged else f"fit {v.fit_percent:6.2f} %")
+                + ("" if v.status == "ok" else f"  ({v.status})")
+            )
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)

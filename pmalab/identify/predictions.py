@@ -64,9 +64,13 @@ def write_predictions_file(path: str | Path, items: Iterable[PredictionItem], mo
         for it in items:
             run = it.run
             g = grp.create_group(_key(run, it.role, used))
-            chans = [("time", run.time, "s"), ("position", run.position, "mm"),
-                     ("muscle_pressure", run.muscle_pressure, "MPa"), ("force", run.force, "N"),
-                     ("force_model", it.force_model, "N")]
+            chans = [
+                ("time", run.time, "s"),
+                ("position", run.position, "mm"),
+                ("muscle_pressure", run.muscle_pressure, "MPa"),
+                ("force", run.force, "N"),
+                ("force_model", it.force_model, "N"),
+            ]
             if it.force_model_quadratic is not None:
                 chans.append(("force_model_quadratic", it.force_model_quadratic, "N"))
             if it.position_model is not None:
@@ -74,8 +78,14 @@ def write_predictions_file(path: str | Path, items: Iterable[PredictionItem], mo
             for name, data, unit in chans:
                 ds = g.create_dataset(name, data=np.asarray(data, dtype=np.float64))
                 ds.attrs["units"] = unit
-            g.attrs.update({
-                "role": it.role, "file": run.file, "run": run.name,
-                "muscle_pressure_MPa": float(run.nominal_pressure),
-                "frequency_Hz": float(run.frequency) if run.frequency else float("nan"),
-                "waveform": str(run.attrs.get("waveform", "")), "model": it.model})
+            g.attrs.update(
+                {
+                    "role": it.role,
+                    "file": run.file,
+                    "run": run.name,
+                    "muscle_pressure_MPa": float(run.nominal_pressure),
+                    "frequency_Hz": float(run.frequency) if run.frequency else float("nan"),
+                    "waveform": str(run.attrs.get("waveform", "")),
+                    "model": it.model,
+                }
+            )

@@ -81,14 +81,28 @@ class Signals:
         v = np.gradient(xf, t)
         a = np.gradient(v, t)
         pn = float(np.mean(p_arr)) if p_nom is None else float(p_nom)
-        return cls(t=t, x=xf, v=v, a=a, p=pf, p_nom=pn, x_raw=x_raw,
-                   frequency_Hz=frequency_Hz, cutoff_Hz=fc)
+        return cls(
+            t=t,
+            x=xf,
+            v=v,
+            a=a,
+            p=pf,
+            p_nom=pn,
+            x_raw=x_raw,
+            frequency_Hz=frequency_Hz,
+            cutoff_Hz=fc,
+        )
 
     @classmethod
     def from_run(cls, run: Run, cutoff_Hz: float | None = None) -> Signals:
-        return cls.from_arrays(run.time, run.position, run.muscle_pressure,
-                               p_nom=run.nominal_pressure, frequency_Hz=run.frequency,
-                               cutoff_Hz=cutoff_Hz)
+        return cls.from_arrays(
+            run.time,
+            run.position,
+            run.muscle_pressure,
+            p_nom=run.nominal_pressure,
+            frequency_Hz=run.frequency,
+            cutoff_Hz=cutoff_Hz,
+        )
 
     def with_position(self, x: np.ndarray) -> Signals:
         """A copy driven by another (already filtered) position, derivatives recomputed."""
@@ -105,5 +119,12 @@ class Signals:
         if stride <= 1:
             return self
         s = slice(None, None, stride)
-        return replace(self, t=self.t[s], x=self.x[s], v=self.v[s], a=self.a[s], p=self.p[s],
-                       x_raw=self.x_raw[s])
+        return replace(
+            self,
+            t=self.t[s],
+            x=self.x[s],
+            v=self.v[s],
+            a=self.a[s],
+            p=self.p[s],
+            x_raw=self.x_raw[s],
+        )

@@ -48,7 +48,7 @@ def filtfilt2(b: np.ndarray, a: np.ndarray, y: np.ndarray, padlen: int) -> np.nd
     y = np.asarray(y, dtype=np.float64)
     if padlen > 0:
         left = 2.0 * y[0] - y[padlen:0:-1]
-        right = 2.0 * y[-1] - y[-2:-(padlen + 2):-1]
+        right = 2.0 * y[-1] - y[-2 : -(padlen + 2) : -1]
         ext = np.concatenate([left, y, right])
     else:
         ext = y
@@ -56,4 +56,4 @@ def filtfilt2(b: np.ndarray, a: np.ndarray, y: np.ndarray, padlen: int) -> np.nd
     fwd = _biquad(b, a, ext, zi[0] * ext[0], zi[1] * ext[0])
     rev = fwd[::-1].copy()
     back = _biquad(b, a, rev, zi[0] * rev[0], zi[1] * rev[0])[::-1]
-    return back[padlen:back.shape[0] - padlen] if padlen > 0 else back
+    return back[padlen : back.shape[0] - padlen] if padlen > 0 else back

@@ -16,10 +16,13 @@ from __future__ import annotations
 from pmalab.lazy import lazy_exports
 from pmalab.reports.errors import ReportError
 
-__getattr__, _names = lazy_exports(__name__, {
-    "build_report": "pmalab.reports.build",
-    "plan_pages": "pmalab.reports.build",
-    "save_figure": "pmalab.reports.style",
-    "load_report_dir": "pmalab.reports.data",
-})
+__getattr__, _names = lazy_exports(
+    __name__,
+    {
+        "build_report": "pmalab.reports.build",
+        "plan_pages": "pmalab.reports.build",
+        "save_figure": "pmalab.reports.style",
+        "load_report_dir": "pmalab.reports.data",
+    },
+)
 __all__ = ["ReportError", *_names]

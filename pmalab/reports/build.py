@@ -83,7 +83,7 @@ class Page:
 
 
 def _chunks(seq: Sequence[Any], n: int) -> list[Sequence[Any]]:
-    return [seq[i:i + n] for i in range(0, len(seq), n)]
+    return [seq[i : i + n] for i in range(0, len(seq), n)]
 
 
 def _part(i: int, n: int) -> str:
@@ -119,8 +119,9 @@ def plan_pages(data: ReportData) -> list[Page]:
     ident, diag = data.identification, data.diagnosis
     pages: list[Page] = []
     # identification runs by pressure level (stable: equal pressures keep their order)
-    id_rows: list[dict] = (sorted(ident["runs"], key=lambda r: r["muscle_pressure_MPa"])
-                           if ident else [])
+    id_rows: list[dict] = (
+        sorted(ident["runs"], key=lambda r: r["muscle_pressure_MPa"]) if ident else []
+    )
     val_rows: list[dict] = list(ident.get("validation") or []) if ident else []
 
     # datasets/provenance
@@ -130,8 +131,15 @@ def plan_pages(data: ReportData) -> list[Page]:
         pc = _chunks(prov_rows, PROVENANCE_ROWS_PER_PAGE) or [[]]
         for i, chunk in enumerate(pc):
             title = "Datasets, provenance and recorded timing" + _part(i, len(pc))
-            pages.append(Page(title, f"provenance-{i + 1}", lambda b=blocks if i == 0 else [],
-                              c=chunk, t=title: provenance_figure(b, c, title=t)))
+            pages.append(
+                Page(
+                    title,
+                    f"provenance-{i + 1}",
+                    lambda b=blocks if i == 0 else [], c=chunk, t=title: provenance_figure(
+                        b, c, title=t
+                    ),
+                )
+            )
 
     # fit metrics (validation rows borrow waveform/frequency from their traces)
     tr_by_key = {_key(t.file, t.run): t for t in data.traces}
@@ -142,11 +150,16 @@ def plan_pages(data: ReportData) -> list[Page]:
             r.setdefault("frequency_Hz", t.frequency_Hz)
     if id_rows or val_rows:
         rows = [{**r, "role": "identification"} for r in id_rows] + [
-            {**r, "role": "validation"} for r in val_rows]
+            {**r, "role": "validation"} for r in val_rows
+        ]
         for i, chunk in enumerate(_chunks(rows, 18)):
-            pages.append(Page("Fit quality table" + _part(i, math.ceil(len(rows) / 18)),
-                              f"metrics-{i + 1}",
-                              lambda c=chunk: metrics_table_figure(c)))
+            pages.append(
+                Page(
+                    "Fit quality table" + _part(i, math.ceil(len(rows) / 18)),
+                    f"metrics-{i + 1}",
+                    lambda c=chunk: metrics_table_figure(c),
+                )
+            )
 
     # time histories and loops: identification runs, else the diagnosis base model's runs
     id_traces, id_fits = _ordered(data.traces_with_role("identification"), id_rows)
@@ -158,14 +171,19 @@ def plan_pages(data: ReportData) -> list[Page]:
     th = _chunks(id_traces, TIME_PER_PAGE)
     for i, chunk in enumerate(th):
         title = f"Time histories — {what}" + _part(i, len(th))
-        pages.append(Page(title, f"time-{i + 1}",
-                          lambda c=chunk, t=title: time_history_figure(c, title=t)))
+        pages.append(
+            Page(title, f"time-{i + 1}", lambda c=chunk, t=title: time_history_figure(c, title=t))
+        )
     lp = list(zip(_chunks(id_traces, LOOPS_PER_PAGE), _chunks(id_fits, LOOPS_PER_PAGE)))
     for i, (chunk, fits) in enumerate(lp):
         title = f"Measured vs model loops per pressure level — {what}" + _part(i, len(lp))
-        pages.append(Page(title, f"loops-{i + 1}",
-                          lambda c=chunk, f=fits, t=title: loops_figure(c, title=t,
-                                                                         fit_percent=f)))
+        pages.append(
+            Page(
+                title,
+                f"loops-{i + 1}",
+                lambda c=chunk, f=fits, t=title: loops_figure(c, title=t, fit_percent=f),
+            )
+        )
 
     # parameters
     if ident and id_rows and ident["parameter_names"]:
@@ -177,34 +195,66 @@ def plan_pages(data: ReportData) -> list[Page]:
         vps = [float(v["muscle_pressure_MPa"]) for v in val_rows]
         pc = _chunks(names, PARAMS_PER_PAGE)
         for i, chunk in enumerate(pc):
-            title = ("Parameters against muscle pressure: per-run fits and the pressure laws"
-                     + _part(i, len(pc)))
-            pages.append(Page(title, f"parameters-{i + 1}", lambda c=chunk, t=title:
-                              _parameter_page(ident, id_rows, c, vps, t)))
+            title = (
+                "Parameters against muscle pressure: per-run fits and the pressure laws"
+                + _part(i, len(pc))
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"parameters-{i + 1}",
+                    lambda c=chunk, t=title: _parameter_page(ident, id_rows, c, vps, t),
+                )
+            )
         # typed messages (identification.json "messages"); an older file's plain
         # "warnings" list reads as warnings
-        msgs: list[str] = ([*read_messages(ident["messages"])] if ident.get("messages")
-                           else list(ident.get("warnings") or []))
+        msgs: list[str] = (
+            [*read_messages(ident["messages"])]
+            if ident.get("messages")
+            else list(ident.get("warnings") or [])
+        )
         for r in id_rows:  # run messages, the method's details left out
-            run_msgs: list[str] = ([*read_messages(r["messages"])] if r.get("messages")
-                                   else list(r.get("warnings") or []))
+            run_msgs: list[str] = (
+                [*read_messages(r["messages"])]
+                if r.get("messages")
+                else list(r.get("warnings") or [])
+            )
             head = f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): "
-            msgs += [m if not isinstance(m, Message) else
-                     Message(m.kind, m.code, head + m.text, **m.data)
-                     for m in run_msgs if not is_detail(m)]
+            msgs += [
+                m
+                if not isinstance(m, Message)
+                else Message(m.kind, m.code, head + m.text, **m.data)
+                for m in run_msgs
+                if not is_detail(m)
+            ]
         msgs = [m for m in msgs if not is_detail(m)]
         # what to check first, then what was done (the terminal's warning:/note: split)
-        warnings = ([f"warning: {w}" for w in msgs if not is_note(w)]
-                    + [f"note: {w}" for w in msgs if is_note(w)])
+        warnings = [f"warning: {w}" for w in msgs if not is_note(w)] + [
+            f"note: {w}" for w in msgs if is_note(w)
+        ]
         fixed_all = [n for n in names if all(n in (r.get("fixed") or []) for r in id_rows)]
         tc = _chunks(id_rows, TABLE_RUNS_PER_PAGE)
         for i, chunk in enumerate(tc):
             title = "Identified parameters (value ± standard error) and identifiability" + _part(
-                i, len(tc))
-            pages.append(Page(title, f"parameter-table-{i + 1}", lambda c=chunk, t=title:
-                              parameter_table_figure(names, c, fits, stats, units=units,
-                                                     warnings=warnings, state_parameters=states,
-                                                     fixed_all=fixed_all, title=t)))
+                i, len(tc)
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"parameter-table-{i + 1}",
+                    lambda c=chunk, t=title: parameter_table_figure(
+                        names,
+                        c,
+                        fits,
+                        stats,
+                        units=units,
+                        warnings=warnings,
+                        state_parameters=states,
+                        fixed_all=fixed_all,
+                        title=t,
+                    ),
+                )
+            )
         # warnings that do not fit under the tables get pages of their own
         if len(bullet_lines(warnings)) > table_page_warning_capacity(len(names), bool(fits)):
             per_page, groups, cur, n = 2 * WARNINGS_LINES_PER_COLUMN, [], [], 0
@@ -218,76 +268,142 @@ def plan_pages(data: ReportData) -> list[Page]:
             groups.append(cur)
             for i, g in enumerate(groups):
                 title = "Identifiability and fit warnings (all)" + _part(i, len(groups))
-                pages.append(Page(title, f"warnings-{i + 1}",
-                                  lambda g=g, t=title: warnings_figure(g, title=t)))
-        corr = [{"title": f"{r['run']}  (p = {r['muscle_pressure_MPa']:.3f} MPa)",
-                 "names": r["correlation"]["names"], "matrix": r["correlation"]["matrix"]}
-                for r in id_rows if r.get("correlation") and r["correlation"]["names"]]
+                pages.append(
+                    Page(
+                        title, f"warnings-{i + 1}", lambda g=g, t=title: warnings_figure(g, title=t)
+                    )
+                )
+        corr = [
+            {
+                "title": f"{r['run']}  (p = {r['muscle_pressure_MPa']:.3f} MPa)",
+                "names": r["correlation"]["names"],
+                "matrix": r["correlation"]["matrix"],
+            }
+            for r in id_rows
+            if r.get("correlation") and r["correlation"]["names"]
+        ]
         cc = _chunks(corr, CORR_PER_PAGE)
         for i, chunk in enumerate(cc):
             title = "Parameter correlation (identifiability); |ρ| > 0.95 outlined" + _part(
-                i, len(cc))
-            pages.append(Page(title, f"correlation-{i + 1}",
-                              lambda c=chunk, t=title: correlation_figure(c, title=t)))
+                i, len(cc)
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"correlation-{i + 1}",
+                    lambda c=chunk, t=title: correlation_figure(c, title=t),
+                )
+            )
 
     # validation overlays
     val_traces, val_fits = _ordered(data.traces_with_role("validation"), val_rows)
-    vc = list(zip(_chunks(val_traces, VALIDATION_PER_PAGE),
-                  _chunks(val_fits, VALIDATION_PER_PAGE)))
+    vc = list(zip(_chunks(val_traces, VALIDATION_PER_PAGE), _chunks(val_fits, VALIDATION_PER_PAGE)))
     by_position = bool(ident) and ident.get("output") == "position"
     for i, (chunk, fits_) in enumerate(vc):
         if by_position and all(t.position_model is not None for t in chunk):
-            title = ("Validation: simulated position (output error), free run from the "
-                     "measured force" + _part(i, len(vc)))
-            pages.append(Page(title, f"validation-{i + 1}", lambda c=chunk, t=title:
-                              position_validation_figure(c, title=t)))
+            title = (
+                "Validation: simulated position (output error), free run from the "
+                "measured force" + _part(i, len(vc))
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"validation-{i + 1}",
+                    lambda c=chunk, t=title: position_validation_figure(c, title=t),
+                )
+            )
             continue
         title = "Validation: pressure-quadratic model, free-run prediction" + _part(i, len(vc))
-        pages.append(Page(title, f"validation-{i + 1}", lambda c=chunk, f=fits_, t=title:
-                          validation_figure(c, fit_percent=f, title=t)))
+        pages.append(
+            Page(
+                title,
+                f"validation-{i + 1}",
+                lambda c=chunk, f=fits_, t=title: validation_figure(c, fit_percent=f, title=t),
+            )
+        )
 
     # diagnosis
     if diag:
         diags = diag.get("diagnostics") or {}
         final_name = _final_model_name(diag)
-        per_run = [{"label": k, "nrmse": d.get("nrmse"), "nrmse_final": d.get("nrmse_final")}
-                   for k, d in diags.items()]
+        per_run = [
+            {"label": k, "nrmse": d.get("nrmse"), "nrmse_final": d.get("nrmse_final")}
+            for k, d in diags.items()
+        ]
         if any(r["nrmse"] is not None for r in per_run) or diag.get("campaign_diagnostics"):
-            pages.append(Page("Where the base model fails across the campaign", "campaign",
-                              lambda: campaign_figure(
-                                  [r for r in per_run if r["nrmse"] is not None],
-                                  diag.get("campaign_diagnostics"), final_model=final_name)))
+            pages.append(
+                Page(
+                    "Where the base model fails across the campaign",
+                    "campaign",
+                    lambda: campaign_figure(
+                        [r for r in per_run if r["nrmse"] is not None],
+                        diag.get("campaign_diagnostics"),
+                        final_model=final_name,
+                    ),
+                )
+            )
         # residual panels for the worst runs (one definition with `pmalab diagnose`)
-        drawable = [(k, diags[k]) for k in worst_runs(diags)
-                    if diags[k].get("binned") or diags[k].get("acf") or diags[k].get("ccf_input")]
+        drawable = [
+            (k, diags[k])
+            for k in worst_runs(diags)
+            if diags[k].get("binned") or diags[k].get("acf") or diags[k].get("ccf_input")
+        ]
         shown = drawable[:MAX_RESIDUAL_PAGES]
         for i, (label, d) in enumerate(shown):
             title = f"Residual diagnostics — {label}"
             if len(drawable) > len(shown):
                 title += f" (worst {i + 1} of {len(drawable)} runs)"
-            pages.append(Page(title, f"residuals-{i + 1}",
-                              lambda lb=label, dd=d: residual_diagnostics_figure(lb, dd)))
+            pages.append(
+                Page(
+                    title,
+                    f"residuals-{i + 1}",
+                    lambda lb=label, dd=d: residual_diagnostics_figure(lb, dd),
+                )
+            )
         # base vs final model, when the ladder added effects
         if final_name is not None:
             finals = {_key(t.file, t.run): t for t in data.traces_with_role("diagnosis-final")}
             order = {k: i for i, k in enumerate(worst_runs(diags))}
-            pairs = [(t, finals[_key(t.file, t.run)]) for t in data.traces_with_role("diagnosis")
-                     if _key(t.file, t.run) in finals]
+            pairs = [
+                (t, finals[_key(t.file, t.run)])
+                for t in data.traces_with_role("diagnosis")
+                if _key(t.file, t.run) in finals
+            ]
             pairs.sort(key=lambda p: (order.get(p[0].label, len(order)), -p[0].nrmse))
             if pairs:
                 chosen = pairs[:BEFORE_AFTER_RUNS]
-                pages.append(Page("The error falling: base model vs final model", "before-after",
-                                  lambda c=chosen: before_after_figure(
-                                      c, base_name=f"base {diag['model']}",
-                                      final_name=final_name)))
+                pages.append(
+                    Page(
+                        "The error falling: base model vs final model",
+                        "before-after",
+                        lambda c=chosen: before_after_figure(
+                            c, base_name=f"base {diag['model']}", final_name=final_name
+                        ),
+                    )
+                )
         if diag["ranking"] or diag.get("ladder"):
-            pages.append(Page("Effect ranking and ladder", "effects", lambda: effects_figure(
-                diag["ranking"], diag.get("ladder") or [], ambiguous=diag.get("ambiguous") or [],
-                suggested_experiment=diag.get("suggested_experiment"),
-                summary=diag.get("summary"), model=diag["model"])))
+            pages.append(
+                Page(
+                    "Effect ranking and ladder",
+                    "effects",
+                    lambda: effects_figure(
+                        diag["ranking"],
+                        diag.get("ladder") or [],
+                        ambiguous=diag.get("ambiguous") or [],
+                        suggested_experiment=diag.get("suggested_experiment"),
+                        summary=diag.get("summary"),
+                        model=diag["model"],
+                    ),
+                )
+            )
         if has_active_rounds(diag):
-            pages.append(Page("Active identification: experiments run and the ranking after each",
-                              "active", lambda: active_figure(diag)))
+            pages.append(
+                Page(
+                    "Active identification: experiments run and the ranking after each",
+                    "active",
+                    lambda: active_figure(diag),
+                )
+            )
 
     if ident and data.improved:
         pages += _comparison_pages(data)
@@ -309,23 +425,38 @@ def _comparison_pages(data: ReportData) -> list[Page]:
     bname, iname = model_name(base), model_name(imp)
     fall = error_fall(base, imp)
     headline = fall.sentence() if fall else "no validation run was predicted by both models"
-    pages = [Page("Base vs improved: validation error per run, parameter changes", "compare",
-                  lambda: compare_figure(base, imp, headline, base_name=bname,
-                                         improved_name=iname))]
-    added = [n for n in imp.get("parameter_names") or []
-             if n not in (base.get("parameter_names") or [])]
+    pages = [
+        Page(
+            "Base vs improved: validation error per run, parameter changes",
+            "compare",
+            lambda: compare_figure(base, imp, headline, base_name=bname, improved_name=iname),
+        )
+    ]
+    added = [
+        n for n in imp.get("parameter_names") or [] if n not in (base.get("parameter_names") or [])
+    ]
     rows = sorted(imp.get("runs") or [], key=lambda r: r["muscle_pressure_MPa"])
     if added and rows:
         vps = [float(v["muscle_pressure_MPa"]) for v in imp.get("validation") or []]
         pc = _chunks(added, PARAMS_PER_PAGE)
         for i, chunk in enumerate(pc):
-            title = (f"Added effect ({', '.join(imp.get('effects') or []) or 'improved model'}): "
-                     "parameters ± s.e. against pressure" + _part(i, len(pc)))
-            pages.append(Page(title, f"added-parameters-{i + 1}", lambda c=chunk, t=title:
-                              _parameter_page(imp, rows, c, vps, t)))
+            title = (
+                f"Added effect ({', '.join(imp.get('effects') or []) or 'improved model'}): "
+                "parameters ± s.e. against pressure" + _part(i, len(pc))
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"added-parameters-{i + 1}",
+                    lambda c=chunk, t=title: _parameter_page(imp, rows, c, vps, t),
+                )
+            )
     # the runs the error-fall figure is measured on, else the identification runs
-    imp_tr = {_key(t.file, t.run): t for t in data.traces
-              if t.role in (IMPROVED + "validation", IMPROVED + "identification")}
+    imp_tr = {
+        _key(t.file, t.run): t
+        for t in data.traces
+        if t.role in (IMPROVED + "validation", IMPROVED + "identification")
+    }
     val_traces, _ = _ordered(data.traces_with_role("validation"), base.get("validation") or [])
     key_runs = [t for t in val_traces if _key(t.file, t.run) in imp_tr][:KEY_RUNS]
     if not key_runs:
@@ -333,37 +464,54 @@ def _comparison_pages(data: ReportData) -> list[Page]:
         key_runs = sorted(ids, key=lambda t: -t.nrmse)[:KEY_RUNS]
     pairs = [(t, imp_tr[_key(t.file, t.run)]) for t in key_runs]
     if pairs:
-        pages.append(Page("Base vs improved: measured vs model loops (same |error| scale)",
-                          "compare-loops", lambda: before_after_figure(
-                              pairs, base_name=f"base: {bname}",
-                              final_name=f"improved: {iname}",
-                              title="Base vs improved: measured vs model loops (same |error| "
-                                    "scale per run)")))
+        pages.append(
+            Page(
+                "Base vs improved: measured vs model loops (same |error| scale)",
+                "compare-loops",
+                lambda: before_after_figure(
+                    pairs,
+                    base_name=f"base: {bname}",
+                    final_name=f"improved: {iname}",
+                    title="Base vs improved: measured vs model loops (same |error| scale per run)",
+                ),
+            )
+        )
     for i, (b, m) in enumerate(pairs):
         lin = linear_component(base, b)
         if lin is None:
             continue
         title = f"Hysteretic component F − (k·x + c0), base vs improved — {b.run}"
-        pages.append(Page(title, f"hysteresis-{i + 1}", lambda b=b, m=m, lin=lin, t=title:
-                          hysteresis_component_figure(b, m, lin, base_name=bname,
-                                                      improved_name=iname, title=t)))
+        pages.append(
+            Page(
+                title,
+                f"hysteresis-{i + 1}",
+                lambda b=b, m=m, lin=lin, t=title: hysteresis_component_figure(
+                    b, m, lin, base_name=bname, improved_name=iname, title=t
+                ),
+            )
+        )
     return pages
 
 
-def _parameter_page(doc: dict, rows: list[dict], names: Sequence[str], vps: list[float],
-                    title: str) -> Figure:
+def _parameter_page(
+    doc: dict, rows: list[dict], names: Sequence[str], vps: list[float], title: str
+) -> Figure:
     """Parameters against pressure for ``names`` of one identification document."""
     nan = float("nan")
     stats = doc.get("pressure_fit_stats") or {}
     return parameters_vs_pressure_figure(
-        names, [float(r["muscle_pressure_MPa"]) for r in rows],
+        names,
+        [float(r["muscle_pressure_MPa"]) for r in rows],
         {n: [r["parameters"].get(n, nan) for r in rows] for n in names},
         {n: [(r.get("stderr") or {}).get(n) for r in rows] for n in names},
-        doc.get("pressure_fits") or {}, {n: (stats.get(n) or {}) for n in names},
-        units=_units(doc), validation_pressures=vps,
+        doc.get("pressure_fits") or {},
+        {n: (stats.get(n) or {}) for n in names},
+        units=_units(doc),
+        validation_pressures=vps,
         state_parameters=list(doc.get("state_parameters") or ["h0"]),
         fixed=[n for n in names if rows and all(n in (r.get("fixed") or []) for r in rows)],
-        title=title)
+        title=title,
+    )
 
 
 def _final_model_name(diag: dict) -> str | None:
@@ -383,14 +531,24 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
     # (an identify and a diagnose directory merged) are left out
     shown: list[Trace] = []
     listed: set[tuple[str, str]] = set()
-    for t in sorted((t for t in data.traces if t.role in order),
-                    key=lambda t: (order.index(t.role), t.muscle_pressure_MPa)):
+    for t in sorted(
+        (t for t in data.traces if t.role in order),
+        key=lambda t: (order.index(t.role), t.muscle_pressure_MPa),
+    ):
         if _key(t.file, t.run) not in listed:
             listed.add(_key(t.file, t.run))
             shown.append(t)
     for t in shown:
-        datasets.append({"role": t.role, "label": t.label, "p": t.muscle_pressure_MPa,
-                         "f": t.frequency_Hz, "waveform": t.waveform, **timing_stats(t.time)})
+        datasets.append(
+            {
+                "role": t.role,
+                "label": t.label,
+                "p": t.muscle_pressure_MPa,
+                "f": t.frequency_Hz,
+                "waveform": t.waveform,
+                **timing_stats(t.time),
+            }
+        )
     effects = list(doc.get("effects") or [])
     summary = (data.diagnosis or {}).get("summary")
     inputs = list((data.identification or {}).get("inputs") or [])
@@ -404,12 +562,18 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
         fall = error_fall(data.identification, data.improved)
         headline = fall.sentence() if fall else None
     return title_page_figure(
-        model=data.model, effects=effects,
+        model=data.model,
+        effects=effects,
         improved_model=model_name(data.improved) if data.improved else None,
         headline=headline,
         directory=_directories(data),
-        created=str(doc.get("created", "")), version=str(doc.get("pmalab_version", "")),
-        inputs=inputs, datasets=datasets, summary=summary, contents=contents)
+        created=str(doc.get("created", "")),
+        version=str(doc.get("pmalab_version", "")),
+        inputs=inputs,
+        datasets=datasets,
+        summary=summary,
+        contents=contents,
+    )
 
 
 def _directories(data: ReportData, limit: int = 110) -> str:
@@ -437,8 +601,15 @@ def draw_page(page: Page, data: ReportData, i: int, n: int) -> Figure:
 
 def _footer(fig: Figure, data: ReportData, i: int, n: int) -> None:
     with mpl.rc_context(style.RC):
-        fig.text(0.99, 0.005, f"pmalab report · {data.model} · {_names(data)} · "
-                 f"page {i}/{n}", ha="right", va="bottom", fontsize=8, color="0.4")
+        fig.text(
+            0.99,
+            0.005,
+            f"pmalab report · {data.model} · {_names(data)} · page {i}/{n}",
+            ha="right",
+            va="bottom",
+            fontsize=8,
+            color="0.4",
+        )
 
 
 def build_report(
@@ -472,10 +643,13 @@ def build_report(
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
         if len(controls) != len(inputs):
-            raise ReportError(f"{inputs[0] if inputs[0] not in controls else inputs[-1]}: give "
-                              "control run files (pmalab control) without result directories")
-        return build_control_report(controls, out, force, png_dir=png_dir, svg_dir=svg_dir,
-                                    progress=progress)
+            raise ReportError(
+                f"{inputs[0] if inputs[0] not in controls else inputs[-1]}: give "
+                "control run files (pmalab control) without result directories"
+            )
+        return build_control_report(
+            controls, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+        )
     try:
         check_output(out, force)
     except OutputExistsError:
@@ -484,8 +658,17 @@ def build_report(
         raise ReportError(str(exc)) from None
     data = load_report_dir(directory)
     pages = plan_pages(data)
-    specs = [PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n))
-             for p in pages]
-    return write_pdf(out, specs, title=f"pmalab report: {data.model} ({_names(data)})",
-                     subject="pneumatic muscle identification", force=force, png_dir=png_dir,
-                     svg_dir=svg_dir, progress=progress, bar=bar)
+    specs = [
+        PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n)) for p in pages
+    ]
+    return write_pdf(
+        out,
+        specs,
+        title=f"pmalab report: {data.model} ({_names(data)})",
+        subject="pneumatic muscle identification",
+        force=force,
+        png_dir=png_dir,
+        svg_dir=svg_dir,
+        progress=progress,
+        bar=bar,
+    )

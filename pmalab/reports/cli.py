@@ -19,10 +19,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         "then the model identified with --add) to draw them side by side, plus optionally a "
         "diagnosis directory.  Pages for parts the directories lack are left out.",
     )
-    p.add_argument("directories", nargs="+", metavar="DIR",
-                   help="BASE_DIR [IMPROVED_DIR] [DIAG_DIR]: identification directories "
-                   "(base first) and/or a diagnosis directory, in any mix; or 'pmalab "
-                   "control' run files (CONTROL.h5: a page per experiment)")
+    p.add_argument(
+        "directories",
+        nargs="+",
+        metavar="DIR",
+        help="BASE_DIR [IMPROVED_DIR] [DIAG_DIR]: identification directories "
+        "(base first) and/or a diagnosis directory, in any mix; or 'pmalab "
+        "control' run files (CONTROL.h5: a page per experiment)",
+    )
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     exp = p.add_mutually_exclusive_group()
@@ -40,9 +44,15 @@ def run_report(args: argparse.Namespace) -> int:
     def line(text: str) -> None:
         print(text, flush=True)
 
-    out = build_report(args.directories, args.out, args.force, png_dir=args.png,
-                       svg_dir=args.svg, progress=line if level >= VERBOSE else None,
-                       bar=show_progress(args))
+    out = build_report(
+        args.directories,
+        args.out,
+        args.force,
+        png_dir=args.png,
+        svg_dir=args.svg,
+        progress=line if level >= VERBOSE else None,
+        bar=show_progress(args),
+    )
     if level > 0:
         print(f"report written: {out}", flush=True)
     return 0

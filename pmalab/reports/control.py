@@ -61,7 +61,9 @@ def load_control_file(path: str | Path) -> ControlFileData:
             out.append(ControlRunData(r.name, attrs, str(attrs.get("status", "completed")), data))
     except PmalabError as exc:
         raise ReportError(str(exc)) from None
-    title = str(root.get("experiment") or p.stem) + (" [model in the loop]" if root.get("plant") else "")
+    title = str(root.get("experiment") or p.stem) + (
+        " [model in the loop]" if root.get("plant") else ""
+    )
     return ControlFileData(str(p), title, root, out)
 
 
@@ -84,7 +86,8 @@ def build_control_report(
         raise ReportError(str(exc)) from None
     files = [load_control_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], Figure]]] = [
-        ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))]
+        ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))
+    ]
     pairs = sim_to_real_pairs(files)
     if pairs:  # a model-in-the-loop run and a rig run of the same experiment
         pages.append(("sim-to-real", lambda: sim_to_real_figure(pairs)))
@@ -94,8 +97,23 @@ def build_control_report(
     specs = [PageSpec(slug, slug, lambda i, n, make=make: make()) for slug, make in pages]
 
     def footer(fig, i: int, n: int) -> None:
-        fig.text(0.99, 0.005, f"pmalab control report · page {i}/{n}", ha="right",
-                 va="bottom", fontsize=8, color="0.4")
+        fig.text(
+            0.99,
+            0.005,
+            f"pmalab control report · page {i}/{n}",
+            ha="right",
+            va="bottom",
+            fontsize=8,
+            color="0.4",
+        )
 
-    return write_pdf(out, specs, title="pmalab control report", force=force, png_dir=png_dir,
-                     svg_dir=svg_dir, progress=progress, footer=footer)
+    return write_pdf(
+        out,
+        specs,
+        title="pmalab control report",
+        force=force,
+        png_dir=png_dir,
+        svg_dir=svg_dir,
+        progress=progress,
+        footer=footer,
+    )

@@ -137,8 +137,16 @@ class _Doc:
     def fail(self, where: str, msg: str) -> ReportError:
         return ReportError(f"{self.path}: {where}: {msg}" if where else f"{self.path}: {msg}")
 
-    def get(self, obj: dict, key: str, where: str, kind: str, *, required: bool = True,
-            nullable: bool = False) -> Any:
+    def get(
+        self,
+        obj: dict,
+        key: str,
+        where: str,
+        kind: str,
+        *,
+        required: bool = True,
+        nullable: bool = False,
+    ) -> Any:
         at = f"{where}.{key}" if where else key
         if not isinstance(obj, dict):
             raise self.fail(where, "expected an object")
@@ -237,13 +245,14 @@ def check_identification(obj: dict, path: Path) -> dict:
             cn = doc.get(corr, "names", f"{w}.correlation", "list")
             m = doc.get(corr, "matrix", f"{w}.correlation", "list")
             if len(m) != len(cn):
-                raise doc.fail(f"{w}.correlation.matrix",
-                               f"has {len(m)} rows for {len(cn)} names")
+                raise doc.fail(f"{w}.correlation.matrix", f"has {len(m)} rows for {len(cn)} names")
             for j, row in enumerate(m):
                 vals = doc.numbers(row, f"{w}.correlation.matrix[{j}]", nullable=True)
                 if len(vals) != len(cn):
-                    raise doc.fail(f"{w}.correlation.matrix[{j}]",
-                                   f"has {len(vals)} entries for {len(cn)} names")
+                    raise doc.fail(
+                        f"{w}.correlation.matrix[{j}]",
+                        f"has {len(vals)} entries for {len(cn)} names",
+                    )
         for k in ("fixed", "warnings"):
             v = doc.get(r, k, w, "list", required=False)
             for j, x in enumerate(v or []):
@@ -318,11 +327,11 @@ def check_diagnosis(obj: dict, path: Path) -> dict:
             if c is None:
                 continue
             lags = doc.numbers(doc.get(c, "lags_s", f"{w}.{kind}", "list"), f"{w}.{kind}.lags_s")
-            vals = doc.numbers(doc.get(c, "values", f"{w}.{kind}", "list"),
-                               f"{w}.{kind}.values", nullable=True)
+            vals = doc.numbers(
+                doc.get(c, "values", f"{w}.{kind}", "list"), f"{w}.{kind}.values", nullable=True
+            )
             if len(lags) != len(vals):
-                raise doc.fail(f"{w}.{kind}.values",
-                               f"has {len(vals)} values for {len(lags)} lags")
+                raise doc.fail(f"{w}.{kind}.values", f"has {len(vals)} values for {len(lags)} lags")
             doc.get(c, "bound95", f"{w}.{kind}", "number", required=False)
         doc.get(d, "worst_region", w, "str", required=False)
         doc.get(d, "nrmse", w, "number", required=False, nullable=True)
@@ -397,25 +406,35 @@ def read_predictions(path: Path) -> list[Trace]:
             attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             role = attrs.get("role")
             if not isinstance(role, str) or not role:
-                raise ReportError(f"{where}: attr 'role': expected a string such as "
-                                  f"{', '.join(ROLES)}, got {role!r}")
+                raise ReportError(
+                    f"{where}: attr 'role': expected a string such as "
+                    f"{', '.join(ROLES)}, got {role!r}"
+                )
             freq = attrs.get("frequency_Hz")
             xm = None
             if "position_model" in g:
                 xm = np.asarray(cast(h5py.Dataset, g["position_model"])[()], dtype=np.float64)
                 if xm.shape != chans["time"].shape:
-                    raise ReportError(f"{where}/position_model: {xm.shape[0] if xm.ndim else 0} "
-                                      f"samples, time has {n['time']}")
-            out.append(Trace(
-                position_model=xm,
-                key=str(key), role=str(role), file=str(attrs.get("file", "")),
-                run=str(attrs.get("run", key)),
-                muscle_pressure_MPa=float(attrs.get("muscle_pressure_MPa",
-                                                    np.mean(chans["muscle_pressure"]))),
-                frequency_Hz=None if freq is None else float(freq),
-                waveform=str(attrs.get("waveform", "")), model=str(attrs.get("model", "")),
-                **chans,
-            ))
+                    raise ReportError(
+                        f"{where}/position_model: {xm.shape[0] if xm.ndim else 0} "
+                        f"samples, time has {n['time']}"
+                    )
+            out.append(
+                Trace(
+                    position_model=xm,
+                    key=str(key),
+                    role=str(role),
+                    file=str(attrs.get("file", "")),
+                    run=str(attrs.get("run", key)),
+                    muscle_pressure_MPa=float(
+                        attrs.get("muscle_pressure_MPa", np.mean(chans["muscle_pressure"]))
+                    ),
+                    frequency_Hz=None if freq is None else float(freq),
+                    waveform=str(attrs.get("waveform", "")),
+                    model=str(attrs.get("model", "")),
+                    **chans,
+                )
+            )
         return out
 
 
@@ -444,19 +463,27 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
         given[d.resolve()] = d
         ident, diag = d / IDENTIFICATION_JSON, d / DIAGNOSIS_JSON
         if not ident.exists() and not diag.exists():
-            raise ReportError(f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
-                              "(run 'pmalab identify' or 'pmalab diagnose' with --out there)")
+            raise ReportError(
+                f"{d}: holds neither {IDENTIFICATION_JSON} nor {DIAGNOSIS_JSON} "
+                "(run 'pmalab identify' or 'pmalab diagnose' with --out there)"
+            )
         if diag.exists() and DIAGNOSIS_JSON in seen:
-            raise ReportError(f"{diag}: a second {DIAGNOSIS_JSON} (the first is in "
-                              f"{seen[DIAGNOSIS_JSON]}); give one diagnosis directory")
+            raise ReportError(
+                f"{diag}: a second {DIAGNOSIS_JSON} (the first is in "
+                f"{seen[DIAGNOSIS_JSON]}); give one diagnosis directory"
+            )
         second = ident.exists() and IDENTIFICATION_JSON in seen
         if second and data.improved is not None:
-            raise ReportError(f"{ident}: a third {IDENTIFICATION_JSON}; give at most two "
-                              "identification directories (BASE_DIR IMPROVED_DIR)")
+            raise ReportError(
+                f"{ident}: a third {IDENTIFICATION_JSON}; give at most two "
+                "identification directories (BASE_DIR IMPROVED_DIR)"
+            )
         if second and diag.exists():
-            raise ReportError(f"{d}: holds the second {IDENTIFICATION_JSON} and a "
-                              f"{DIAGNOSIS_JSON}; give the improved identification its own "
-                              "directory")
+            raise ReportError(
+                f"{d}: holds the second {IDENTIFICATION_JSON} and a "
+                f"{DIAGNOSIS_JSON}; give the improved identification its own "
+                "directory"
+            )
         if ident.exists():
             obj, _ = _load_json(ident)
             if second:
@@ -481,8 +508,10 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
 
 def _ident_runs(doc: dict) -> set[tuple[str, str]]:
     """(file name, run) of every identification and validation row of a document."""
-    return {(Path(str(r.get("file") or "")).name, str(r.get("run", "")))
-            for r in [*doc.get("runs", []), *doc.get("validation", [])]}
+    return {
+        (Path(str(r.get("file") or "")).name, str(r.get("run", "")))
+        for r in [*doc.get("runs", []), *doc.get("validation", [])]
+    }
 
 
 def _check_same_runs(data: ReportData, seen: dict[str, Path]) -> None:
@@ -495,13 +524,15 @@ def _check_same_runs(data: ReportData, seen: dict[str, Path]) -> None:
     keys = _ident_runs(base)
     where = seen[IDENTIFICATION_JSON]
     if data.improved is not None and not keys & _ident_runs(data.improved):
-        other = next(d for d in data.directories if d != where and
-                     (d / IDENTIFICATION_JSON).exists())
+        other = next(
+            d for d in data.directories if d != where and (d / IDENTIFICATION_JSON).exists()
+        )
         raise ReportError(
             f"{other}: its identification shares no run with {where}'s (files "
             f"{', '.join(sorted({f for f, _ in _ident_runs(data.improved)}))} against "
             f"{', '.join(sorted({f for f, _ in keys}))}): BASE_DIR and IMPROVED_DIR must "
-            "identify the same runs")
+            "identify the same runs"
+        )
     diag = (data.diagnosis or {}).get("diagnostics") or {}
     if diag:
         dkeys = set()
@@ -515,4 +546,5 @@ def _check_same_runs(data: ReportData, seen: dict[str, Path]) -> None:
                 f"{seen[DIAGNOSIS_JSON]}: its diagnosis shares no run with {where}'s "
                 f"identification (files {', '.join(sorted({f for f, _ in dkeys}))} against "
                 f"{', '.join(sorted({f for f, _ in keys}))}): give directories of the same "
-                "runs")
+                "runs"
+            )

@@ -51,12 +51,14 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
     # the campaign's own held-out runs), as identified after that round — the evidence the
     # round added.  Mixing runs of different rounds in one mean would read as the error rising.
     groups: list[tuple[str, dict[str, Any], set[str]]] = [
-        ("campaign's held-out runs", initial, set((initial.get("per_run") or {}).get("base", {})))]
+        ("campaign's held-out runs", initial, set((initial.get("per_run") or {}).get("base", {})))
+    ]
     for r in rounds:
         names = set(r.get("recorded_runs") or [])
         v = r.get("verdict") or {}
-        labels = {lb for lb in (v.get("per_run") or {}).get("base", {})
-                  if lb.rsplit(":", 1)[-1] in names}
+        labels = {
+            lb for lb in (v.get("per_run") or {}).get("base", {}) if lb.rsplit(":", 1)[-1] in names
+        }
         groups.append((f"round {r['round']}'s runs", v, labels))
     xs = list(range(len(groups)))
     names = ["base", *_candidates(initial, rounds)]
@@ -68,9 +70,15 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
             ys.append(sum(vals) / len(vals) if vals else float("nan"))
         # markers only: the groups hold different runs, a line between them is no trend
         off = 0.08 * (k - (len(names) - 1) / 2)
-        ax.plot([x + off for x in xs], ys, "s" if name == "base" else "o", ms=8, ls="none",
-                color="0.5" if name == "base" else None,
-                label="base model" if name == "base" else f"+ {name}")
+        ax.plot(
+            [x + off for x in xs],
+            ys,
+            "s" if name == "base" else "o",
+            ms=8,
+            ls="none",
+            color="0.5" if name == "base" else None,
+            label="base model" if name == "base" else f"+ {name}",
+        )
     ax.set_xticks(xs, [g[0] for g in groups], rotation=15, ha="right")
     ax.set_xlim(-0.5, len(xs) - 0.5)
     ax.set_ylabel("validation NRMSE on those runs")
@@ -78,28 +86,59 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
     ax.set_title("Each candidate on the runs each round recorded")
     ax.legend(loc="best", framealpha=0.9)
     axt.axis("off")
-    lines = [*textwrap.wrap(f"Started: first {initial.get('first') or '-'}"
-                            + (f", ambiguous {', '.join(initial['ambiguous'])}"
-                               if initial.get("ambiguous") else ", not ambiguous"), 72), ""]
+    lines = [
+        *textwrap.wrap(
+            f"Started: first {initial.get('first') or '-'}"
+            + (
+                f", ambiguous {', '.join(initial['ambiguous'])}"
+                if initial.get("ambiguous")
+                else ", not ambiguous"
+            ),
+            72,
+        ),
+        "",
+    ]
     for r in rounds:
         e, v = r["experiment"], r.get("verdict") or {}
         sep = r.get("expected_separation") or {}
-        lines += textwrap.wrap(f"Round {r['round']}: {e.get('label', '')} — "
-                               f"{r.get('rig_time_s', 0):.0f} s of rig time, "
-                               f"{len(r.get('recorded_runs') or [])} runs", 72,
-                               subsequent_indent="    ")
-        lines += textwrap.wrap(f"why: {e.get('reason', '')}", 72, initial_indent="  ",
-                               subsequent_indent="    ")
+        lines += textwrap.wrap(
+            f"Round {r['round']}: {e.get('label', '')} — "
+            f"{r.get('rig_time_s', 0):.0f} s of rig time, "
+            f"{len(r.get('recorded_runs') or [])} runs",
+            72,
+            subsequent_indent="    ",
+        )
+        lines += textwrap.wrap(
+            f"why: {e.get('reason', '')}", 72, initial_indent="  ", subsequent_indent="    "
+        )
         lines += textwrap.wrap(
             f"expected separation {float(sep.get('min_x_floor', 0)):.1f}× the noise floor → "
-            f"first {v.get('first') or '-'}" + (f", ambiguous {', '.join(v['ambiguous'])}"
-                                               if v.get("ambiguous") else ", not ambiguous"),
-            72, initial_indent="  ", subsequent_indent="    ")
+            f"first {v.get('first') or '-'}"
+            + (
+                f", ambiguous {', '.join(v['ambiguous'])}"
+                if v.get("ambiguous")
+                else ", not ambiguous"
+            ),
+            72,
+            initial_indent="  ",
+            subsequent_indent="    ",
+        )
         lines.append("")
     if not rounds:
         lines.append("No experiment was run.")
-    lines += textwrap.wrap(f"Stopped: {act.get('stop', '')} ({float(act.get('rig_time_s', 0)):.0f} "
-                           f"s of {float(act.get('budget_s', 0)):.0f} s rig time).", 72)
-    axt.text(0.0, 1.0, "\n".join(lines), va="top", ha="left", fontsize=8.5, family="monospace",
-             transform=axt.transAxes)
+    lines += textwrap.wrap(
+        f"Stopped: {act.get('stop', '')} ({float(act.get('rig_time_s', 0)):.0f} "
+        f"s of {float(act.get('budget_s', 0)):.0f} s rig time).",
+        72,
+    )
+    axt.text(
+        0.0,
+        1.0,
+        "\n".join(lines),
+        va="top",
+        ha="left",
+        fontsize=8.5,
+        family="monospace",
+        transform=axt.transAxes,
+    )
     return fig

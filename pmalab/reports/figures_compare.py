@@ -29,8 +29,16 @@ def _nrmse(row: Mapping[str, Any]) -> float:
     return float(v) if isinstance(v, int | float) and math.isfinite(v) else math.nan
 
 
-def _bars(ax, labels: Sequence[str], before: Sequence[float], after: Sequence[float], *,
-          base_name: str, improved_name: str, title: str) -> None:
+def _bars(
+    ax,
+    labels: Sequence[str],
+    before: Sequence[float],
+    after: Sequence[float],
+    *,
+    base_name: str,
+    improved_name: str,
+    title: str,
+) -> None:
     xs = np.arange(len(labels), dtype=float)
     w = 0.38
     ax.bar(xs - w / 2, before, w, color=style.NOT_SIGNIFICANT, label=f"base: {base_name}")
@@ -66,25 +74,46 @@ def compare_figure(
     base → improved, per identification run.  ``headline`` is the error-fall sentence
     (:func:`pmalab.identify.headline.error_fall`), printed under the title."""
     fig = style.new_figure(title)
-    names = [n for n in base.get("parameter_names") or [] if n in
-             (improved.get("parameter_names") or [])]
+    names = [
+        n for n in base.get("parameter_names") or [] if n in (improved.get("parameter_names") or [])
+    ]
     runs_b = sorted(base.get("runs") or [], key=lambda r: r["muscle_pressure_MPa"])
     by_run = {(r.get("file"), r.get("run")): r for r in improved.get("runs") or []}
-    pairs = [(r, by_run[(r.get("file"), r.get("run"))]) for r in runs_b
-             if (r.get("file"), r.get("run")) in by_run]
+    pairs = [
+        (r, by_run[(r.get("file"), r.get("run"))])
+        for r in runs_b
+        if (r.get("file"), r.get("run")) in by_run
+    ]
     gs = fig.add_gridspec(3, 2, height_ratios=[0.3, 1.0, 0.95 if pairs and names else 0.01])
     head = fig.add_subplot(gs[0, :])
     head.axis("off")
-    head.text(0.5, 1.0, "\n".join(textwrap.wrap(headline[:1].upper() + headline[1:], 125)),
-              ha="center", va="top", fontsize=10.5, fontweight="bold",
-              transform=head.transAxes)
-    head.legend(handles=[Patch(color=style.NOT_SIGNIFICANT, label=f"base: {base_name}"),
-                         Patch(color=style.SIGNIFICANT, label=f"improved: {improved_name}")],
-                loc="lower center", ncols=2, frameon=False, fontsize=9)
+    head.text(
+        0.5,
+        1.0,
+        "\n".join(textwrap.wrap(headline[:1].upper() + headline[1:], 125)),
+        ha="center",
+        va="top",
+        fontsize=10.5,
+        fontweight="bold",
+        transform=head.transAxes,
+    )
+    head.legend(
+        handles=[
+            Patch(color=style.NOT_SIGNIFICANT, label=f"base: {base_name}"),
+            Patch(color=style.SIGNIFICANT, label=f"improved: {improved_name}"),
+        ],
+        loc="lower center",
+        ncols=2,
+        frameon=False,
+        fontsize=9,
+    )
     val_b = list(base.get("validation") or [])
     val_i = {(v.get("file"), v.get("run")): v for v in improved.get("validation") or []}
-    vpairs = [(v, val_i[(v.get("file"), v.get("run"))]) for v in val_b
-              if (v.get("file"), v.get("run")) in val_i]
+    vpairs = [
+        (v, val_i[(v.get("file"), v.get("run"))])
+        for v in val_b
+        if (v.get("file"), v.get("run")) in val_i
+    ]
     ax = fig.add_subplot(gs[1, 0])
     if vpairs:
         before = [_nrmse(b) for b, _ in vpairs]
@@ -95,20 +124,35 @@ def compare_figure(
             labels.append("mean")
             before.append(float(np.mean([before[i] for i in ok])))
             after.append(float(np.mean([after[i] for i in ok])))
-        _bars(ax, labels, before, after, base_name=base_name, improved_name=improved_name,
-              title="Validation runs: free-run prediction through the pressure laws")
+        _bars(
+            ax,
+            labels,
+            before,
+            after,
+            base_name=base_name,
+            improved_name=improved_name,
+            title="Validation runs: free-run prediction through the pressure laws",
+        )
     else:
         ax.axis("off")
         ax.text(0.5, 0.5, "no validation run predicted by both models", ha="center")
     ax2 = fig.add_subplot(gs[1, 1])
-    quad = [(r, i) for r, i in pairs if (r.get("quadratic_model") or {}).get("nrmse") is not None
-            and (i.get("quadratic_model") or {}).get("nrmse") is not None]
+    quad = [
+        (r, i)
+        for r, i in pairs
+        if (r.get("quadratic_model") or {}).get("nrmse") is not None
+        and (i.get("quadratic_model") or {}).get("nrmse") is not None
+    ]
     if quad:
-        _bars(ax2, [f"{float(r['muscle_pressure_MPa']):.2f}" for r, _ in quad],
-              [float(r["quadratic_model"]["nrmse"]) for r, _ in quad],
-              [float(i["quadratic_model"]["nrmse"]) for _, i in quad],
-              base_name=base_name, improved_name=improved_name,
-              title="Identification runs predicted through the pressure laws")
+        _bars(
+            ax2,
+            [f"{float(r['muscle_pressure_MPa']):.2f}" for r, _ in quad],
+            [float(r["quadratic_model"]["nrmse"]) for r, _ in quad],
+            [float(i["quadratic_model"]["nrmse"]) for _, i in quad],
+            base_name=base_name,
+            improved_name=improved_name,
+            title="Identification runs predicted through the pressure laws",
+        )
         ax2.set_xlabel("muscle pressure of the identification run (MPa)")
         for t in ax2.texts:  # too many bars for value labels
             t.set_visible(False)
@@ -121,16 +165,27 @@ def compare_figure(
         for n in names:
             row = [n, unit_of(n, base.get("parameter_units"))]
             for r, i in shown:
-                row.append(f"{_fmt((r.get('parameters') or {}).get(n))} → "
-                           f"{_fmt((i.get('parameters') or {}).get(n))}")
+                row.append(
+                    f"{_fmt((r.get('parameters') or {}).get(n))} → "
+                    f"{_fmt((i.get('parameters') or {}).get(n))}"
+                )
             cells.append(row)
-        headr = ["parameter", "unit"] + [f"p = {float(r['muscle_pressure_MPa']):.3f} MPa"
-                                          for r, _ in shown]
+        headr = ["parameter", "unit"] + [
+            f"p = {float(r['muscle_pressure_MPa']):.3f} MPa" for r, _ in shown
+        ]
         k = len(shown)
-        _table(tab, cells, headr, col_widths=[0.09, 0.12] + [min(0.78 / max(k, 1), 0.2)] * k,
-               fontsize=8.0, row_height=1.2)
-        tab.set_title("Shared parameters per identification run: base → improved "
-                      "(each run fitted alone)", fontsize=9.5)
+        _table(
+            tab,
+            cells,
+            headr,
+            col_widths=[0.09, 0.12] + [min(0.78 / max(k, 1), 0.2)] * k,
+            fontsize=8.0,
+            row_height=1.2,
+        )
+        tab.set_title(
+            "Shared parameters per identification run: base → improved (each run fitted alone)",
+            fontsize=9.5,
+        )
     return fig
 
 
@@ -177,12 +232,20 @@ def hysteresis_component_figure(
     top = float(np.percentile(0.5 * (e[:-1] + e[1:]), ERROR_PERCENTILE)) if e.size > 1 else 1.0
     norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
     lc = None
-    for j, (t, name) in enumerate(((base, f"base: {base_name}"),
-                                   (improved, f"improved: {improved_name}"))):
+    for j, (t, name) in enumerate(
+        ((base, f"base: {base_name}"), (improved, f"improved: {improved_name}"))
+    ):
         lin = k * t.position + c0
         a0, a1 = axes[0, j], axes[1, j]
-        lc = error_loop(a0, t.position, t.force - lin, t.force_model - lin, norm=norm,
-                        measured_lw=1.6, model_lw=0.9)
+        lc = error_loop(
+            a0,
+            t.position,
+            t.force - lin,
+            t.force_model - lin,
+            norm=norm,
+            measured_lw=1.6,
+            model_lw=0.9,
+        )
         a0.set_ylabel("F − (k·x + c0) (N)")
         a0.set_xlabel("")
         rms = float(np.sqrt(np.mean(t.error**2)))
@@ -196,14 +259,32 @@ def hysteresis_component_figure(
     axes[0, 1].sharey(axes[0, 0])
     axes[1, 1].sharey(axes[1, 0])
     if lc is not None:
-        fig.colorbar(lc, ax=list(axes[0, :]), label=style.ABS_ERROR, shrink=0.9, pad=0.01,
-                     aspect=30, extend="max" if float(np.max(e, initial=0.0)) > top else "neither")
+        fig.colorbar(
+            lc,
+            ax=list(axes[0, :]),
+            label=style.ABS_ERROR,
+            shrink=0.9,
+            pad=0.01,
+            aspect=30,
+            extend="max" if float(np.max(e, initial=0.0)) > top else "neither",
+        )
     cap = fig.add_subplot(gs[2, :])
     cap.axis("off")
-    cap.text(0.0, 0.5, "\n".join(textwrap.wrap(
-        f"{base.label}: {base.describe()}.  k·x + c0 with k = {k:.4g} N/mm, c0 = {c0:.4g} N "
-        "(the base model's linear component) is removed from the measured tension and from both "
-        "models, leaving the hysteretic part the laws must reproduce; the loop is thin in the "
-        "F–x plane, so this is where a model's failure shows.", 160)), fontsize=8,
-        va="center", color="0.25", transform=cap.transAxes)
+    cap.text(
+        0.0,
+        0.5,
+        "\n".join(
+            textwrap.wrap(
+                f"{base.label}: {base.describe()}.  k·x + c0 with k = {k:.4g} N/mm, c0 = {c0:.4g} N "
+                "(the base model's linear component) is removed from the measured tension and from both "
+                "models, leaving the hysteretic part the laws must reproduce; the loop is thin in the "
+                "F–x plane, so this is where a model's failure shows.",
+                160,
+            )
+        ),
+        fontsize=8,
+        va="center",
+        color="0.25",
+        transform=cap.transAxes,
+    )
     return fig

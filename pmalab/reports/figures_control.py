@@ -72,8 +72,11 @@ def response_figure(f: ControlFileData) -> Figure:
     pos = runs[0].loop == "position"
     fig = style.new_figure(f"{f.title}: response, error and pressure")
     axes = fig.subplots(3, 1, sharex=True)
-    yname, rname = (("position", "position_reference") if pos
-                    else ("muscle_pressure", "muscle_pressure_reference"))
+    yname, rname = (
+        ("position", "position_reference")
+        if pos
+        else ("muscle_pressure", "muscle_pressure_reference")
+    )
     unit = "mm" if pos else "MPa"
     ref_drawn = False
     for r in runs:
@@ -87,11 +90,23 @@ def response_figure(f: ControlFileData) -> Figure:
         lbl = r.controller + ("" if r.status == "completed" else f" ({r.status})")
         _plot(axes[0], t, d[yname], color=_colour(r.controller), label=lbl)
         _plot(axes[1], t, d[rname] - d[yname], color=_colour(r.controller), label=r.controller)
-        _plot(axes[2], t, d["muscle_pressure"], color=_colour(r.controller),
-              label=f"{r.controller}: measured")
+        _plot(
+            axes[2],
+            t,
+            d["muscle_pressure"],
+            color=_colour(r.controller),
+            label=f"{r.controller}: measured",
+        )
         if pos and "muscle_pressure_reference" in d:
-            _plot(axes[2], t, d["muscle_pressure_reference"], color=_colour(r.controller),
-                  ls=":", lw=0.8, label=f"{r.controller}: desired p_d")
+            _plot(
+                axes[2],
+                t,
+                d["muscle_pressure_reference"],
+                color=_colour(r.controller),
+                ls=":",
+                lw=0.8,
+                label=f"{r.controller}: desired p_d",
+            )
     axes[0].set_ylabel("Contraction x (mm)" if pos else style.PRESSURE)
     axes[1].set_ylabel(f"Error r − y ({unit})")
     axes[1].axhline(0.0, color="0.5", lw=0.6)
@@ -103,9 +118,12 @@ def response_figure(f: ControlFileData) -> Figure:
 
 
 GAIN_LABELS = {
-    "outer_kp": "outer Kp (N/mm)", "outer_ki": "outer Ki (N/(mm·s))",
-    "outer_kd": "outer Kd (N·s/mm)", "inner_kp": "inner Kp (MPa/MPa)",
-    "inner_ki": "inner Ki (1/s)", "inner_kd": "inner Kd (s)",
+    "outer_kp": "outer Kp (N/mm)",
+    "outer_ki": "outer Ki (N/(mm·s))",
+    "outer_kd": "outer Kd (N·s/mm)",
+    "inner_kp": "inner Kp (MPa/MPa)",
+    "inner_ki": "inner Ki (1/s)",
+    "inner_kd": "inner Kd (s)",
 }
 
 
@@ -150,8 +168,16 @@ def _fmt(v: Any, spec: str = ".3g", unit: str = "") -> str:
     return format(v, spec) + (f" {unit}" if unit else "")
 
 
-METRIC_COLUMNS = ("experiment", "controller", "status", "overshoot", "rise", "settling (2 %)",
-                  "steady-state error", "RMS error")
+METRIC_COLUMNS = (
+    "experiment",
+    "controller",
+    "status",
+    "overshoot",
+    "rise",
+    "settling (2 %)",
+    "steady-state error",
+    "RMS error",
+)
 
 
 def metrics_rows(files: Sequence[ControlFileData]) -> list[list[str]]:
@@ -163,12 +189,18 @@ def metrics_rows(files: Sequence[ControlFileData]) -> list[list[str]]:
             settle = _fmt(m.get("settling_time_s"), ".2f", "s")
             if m.get("kind") == "square" and m.get("settled") is False:
                 settle = "never settles"
-            rows.append([
-                f.title, r.controller, "ok" if r.status == "completed" else r.status[:40],
-                _fmt(m.get("overshoot_pct"), ".1f", "%"), _fmt(m.get("rise_time_s"), ".2f", "s"),
-                settle, _fmt(m.get("steady_state_error"), ".3g", u),
-                _fmt(m.get("rms_error"), ".3g", u),
-            ])
+            rows.append(
+                [
+                    f.title,
+                    r.controller,
+                    "ok" if r.status == "completed" else r.status[:40],
+                    _fmt(m.get("overshoot_pct"), ".1f", "%"),
+                    _fmt(m.get("rise_time_s"), ".2f", "s"),
+                    settle,
+                    _fmt(m.get("steady_state_error"), ".3g", u),
+                    _fmt(m.get("rms_error"), ".3g", u),
+                ]
+            )
     return rows
 
 
@@ -193,8 +225,9 @@ def seed_rows(files: Sequence[ControlFileData]) -> list[str]:
             continue
         for paper, figs in seeds.items():
             if isinstance(figs, dict) and figs:
-                txt = ", ".join(_seed_figure(k, v) for k, v in figs.items()
-                                if isinstance(v, int | float))
+                txt = ", ".join(
+                    _seed_figure(k, v) for k, v in figs.items() if isinstance(v, int | float)
+                )
                 lines.append(f"{f.title} — {paper}: {txt}")
     return lines
 
@@ -208,16 +241,19 @@ def metrics_table_figure(files: Sequence[ControlFileData], title: str) -> Figure
     ax = fig.add_axes((0.03, 0.30, 0.94, 0.62))
     ax.axis("off")
     if rows:
-        tab = ax.table(cellText=rows, colLabels=list(METRIC_COLUMNS), loc="upper center",
-                       cellLoc="center")
+        tab = ax.table(
+            cellText=rows, colLabels=list(METRIC_COLUMNS), loc="upper center", cellLoc="center"
+        )
         tab.auto_set_font_size(False)
         tab.set_fontsize(8)
         tab.scale(1.0, 1.25)
-    notes = ["Metrics as python-control's step_info, per step of the square (y0 = value before "
-             "the step): rise 10→90 %, settling within 2 % of the final value (mean of the "
-             "step's last 0.1 s), overshoot relative to it (largest over the steps); "
-             "steady-state error |r − y_final| (largest); RMS error over the run.",
-             "Papers' figures (measured on their rig; not the same manipulator):"]
+    notes = [
+        "Metrics as python-control's step_info, per step of the square (y0 = value before "
+        "the step): rise 10→90 %, settling within 2 % of the final value (mean of the "
+        "step's last 0.1 s), overshoot relative to it (largest over the steps); "
+        "steady-state error |r − y_final| (largest); RMS error over the run.",
+        "Papers' figures (measured on their rig; not the same manipulator):",
+    ]
     notes += seed_rows(files) or ["(none stored with these experiments)"]
     fig.text(0.03, 0.27, "\n".join(notes), va="top", fontsize=8, wrap=True)
     return fig
@@ -229,8 +265,9 @@ def _reference_text(r: ControlRunData) -> str:
     return str(p.get("reference", "")) if isinstance(p, dict) else ""
 
 
-def sim_to_real_pairs(files: Sequence[ControlFileData]
-                      ) -> list[tuple[ControlRunData, ControlRunData, str]]:
+def sim_to_real_pairs(
+    files: Sequence[ControlFileData],
+) -> list[tuple[ControlRunData, ControlRunData, str]]:
     """(rig run, model-in-the-loop run, reference) for every controller and reference
     recorded both on a rig and with the identified model as plant (root attr ``plant``)."""
     plant = [(r, f) for f in files if f.attrs.get("plant") for r in f.runs]
@@ -260,8 +297,11 @@ def sim_to_real_figure(pairs: Sequence[tuple[ControlRunData, ControlRunData, str
         ae = fig.add_subplot(gs[i, 1], sharex=ax)
         col = _colour(rr.controller)
         pos = rr.loop == "position"
-        yname, rname = (("position", "position_reference") if pos
-                        else ("muscle_pressure", "muscle_pressure_reference"))
+        yname, rname = (
+            ("position", "position_reference")
+            if pos
+            else ("muscle_pressure", "muscle_pressure_reference")
+        )
         unit = "mm" if pos else "MPa"
         d = rr.data
         if "time" in d and rname in d:
@@ -286,12 +326,31 @@ def sim_to_real_figure(pairs: Sequence[tuple[ControlRunData, ControlRunData, str
     for rr, rp, ref in pairs:
         u = str(rr.metrics.get("unit", ""))
         for r, what in ((rr, "rig"), (rp, "model in the loop")):
-            rows.append([rr.controller, ref, what, _m(r, "overshoot_pct", ".1f", "%"),
-                         _m(r, "settling_time_s", ".2f", "s"), _m(r, "rms_error", ".3g", u),
-                         _m(r, "max_error", ".3g", u)])
-    tab = at.table(cellText=rows, colLabels=["controller", "reference", "plant", "overshoot",
-                                             "settling", "RMS error", "max error"],
-                   loc="center", cellLoc="center")
+            rows.append(
+                [
+                    rr.controller,
+                    ref,
+                    what,
+                    _m(r, "overshoot_pct", ".1f", "%"),
+                    _m(r, "settling_time_s", ".2f", "s"),
+                    _m(r, "rms_error", ".3g", u),
+                    _m(r, "max_error", ".3g", u),
+                ]
+            )
+    tab = at.table(
+        cellText=rows,
+        colLabels=[
+            "controller",
+            "reference",
+            "plant",
+            "overshoot",
+            "settling",
+            "RMS error",
+            "max error",
+        ],
+        loc="center",
+        cellLoc="center",
+    )
     tab.auto_set_font_size(False)
     tab.set_fontsize(8)
     return fig

@@ -53,8 +53,10 @@ def plot_binned(ax: Axes, variable: str, binned: Mapping[str, Any]) -> None:
     mean = np.array([np.nan if v is None else float(v) for v in binned["mean"]])
     yerr = _ci(binned.get("ci95"), len(centers))
     unit = str(binned.get("unit") or "")
-    categorical = any(isinstance(c, str) for c in centers) or variable in ("velocity_sign",
-                                                                          "branch")
+    categorical = any(isinstance(c, str) for c in centers) or variable in (
+        "velocity_sign",
+        "branch",
+    )
     if categorical:
         ticks = BRANCH_TICKS if variable == "branch" else SIGN_TICKS
         xs = np.arange(len(centers), dtype=float)
@@ -68,8 +70,7 @@ def plot_binned(ax: Axes, variable: str, binned: Mapping[str, Any]) -> None:
         if unit == "MPa" and x.size and np.nanmax(np.abs(x)) < 0.05:
             # small pressure deviations read better in kPa
             x, unit = x * 1e3, "kPa"
-        ax.errorbar(x, mean, yerr=yerr, fmt="o-", color=style.MODEL, ms=3.5, capsize=2.5,
-                    lw=0.9)
+        ax.errorbar(x, mean, yerr=yerr, fmt="o-", color=style.MODEL, ms=3.5, capsize=2.5, lw=0.9)
         name = BINNED_VARIABLES.get(variable, variable)
         ax.set_xlabel(f"{name} ({unit})" if unit and unit not in ("-", "–") else name)
         ax.xaxis.set_major_locator(MaxNLocator(5))  # 8 pt labels stay apart in a 4-column grid
@@ -110,22 +111,39 @@ def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
         i, j = branches.index(str(c["branch"])), parts.index(str(c["position"]))
         rms[i, j] = np.nan if c.get("rms") is None else float(c["rms"])
         mean[i, j] = np.nan if c.get("mean") is None else float(c["mean"])
-    ax.imshow(rms, cmap=style.ERROR_CMAP, aspect="auto",
-                   vmin=0.0, vmax=max(float(np.nanmax(rms, initial=0.0)), 1e-12))
+    ax.imshow(
+        rms,
+        cmap=style.ERROR_CMAP,
+        aspect="auto",
+        vmin=0.0,
+        vmax=max(float(np.nanmax(rms, initial=0.0)), 1e-12),
+    )
     ax.grid(False)
     ax.set_xticks(range(len(parts)), [p.replace(" contraction", "") for p in parts])
     ax.set_xlabel("part of the stroke (contraction)")
-    ax.set_yticks(range(len(branches)), [b.split(" (")[0].replace(" branch", "") + "\n("
-                                          + b.split(" (")[1] if " (" in b else b
-                                          for b in branches])
+    ax.set_yticks(
+        range(len(branches)),
+        [
+            b.split(" (")[0].replace(" branch", "") + "\n(" + b.split(" (")[1] if " (" in b else b
+            for b in branches
+        ],
+    )
     vmax = float(np.nanmax(rms, initial=0.0))
     for i in range(rms.shape[0]):
         for j in range(rms.shape[1]):
             if np.isfinite(rms[i, j]):
-                txt = f"{rms[i, j]:.3g} N" + (f"\nmean {mean[i, j]:+.2g}"
-                                             if np.isfinite(mean[i, j]) else "")
-                ax.text(j, i, txt, ha="center", va="center", fontsize=8,
-                        color="white" if rms[i, j] < 0.6 * vmax else "black")
+                txt = f"{rms[i, j]:.3g} N" + (
+                    f"\nmean {mean[i, j]:+.2g}" if np.isfinite(mean[i, j]) else ""
+                )
+                ax.text(
+                    j,
+                    i,
+                    txt,
+                    ha="center",
+                    va="center",
+                    fontsize=8,
+                    color="white" if rms[i, j] < 0.6 * vmax else "black",
+                )
     # every cell carries its value, so no colour bar (it would widen one grid column)
     ax.set_title("R.m.s. residual by loop region (N)")
 
@@ -138,8 +156,16 @@ def plot_phase(ax: Axes, phase: Mapping[str, Any]) -> None:
             v = np.array([np.nan if x is None else float(x) for x in phase[key]])
             ax.plot(c, v, mk, color=colour, ms=3.5, label=key)
     ax.axvspan(90.0, 270.0, color="0.9", zorder=0)
-    ax.text(180.0, 0.02, "stretch (x falling)", transform=ax.get_xaxis_transform(),
-            ha="center", va="bottom", fontsize=8, color="0.35")
+    ax.text(
+        180.0,
+        0.02,
+        "stretch (x falling)",
+        transform=ax.get_xaxis_transform(),
+        ha="center",
+        va="bottom",
+        fontsize=8,
+        color="0.35",
+    )
     ax.axhline(0.0, color="0.3", lw=0.7)
     ax.set_xlim(0.0, 360.0)
     ax.set_xticks([0, 90, 180, 270, 360])
@@ -160,8 +186,9 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
     fig = style.new_figure(title)
     panels: list[tuple[str, Any]] = []
     binned = diag.get("binned") or {}
-    order = [v for v in BINNED_VARIABLES if v in binned] + [v for v in binned
-                                                            if v not in BINNED_VARIABLES]
+    order = [v for v in BINNED_VARIABLES if v in binned] + [
+        v for v in binned if v not in BINNED_VARIABLES
+    ]
     if "branch" in binned and "velocity_sign" in binned:
         # the same split of the samples (ẋ < 0 is the stretch branch): one panel, not two
         order.remove("velocity_sign")
@@ -200,8 +227,9 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
     return fig
 
 
-def plot_ranking(ax: Axes, ranking: Sequence[Mapping[str, Any]],
-                 ambiguous: Sequence[str] = ()) -> tuple[BarContainer, BarContainer]:
+def plot_ranking(
+    ax: Axes, ranking: Sequence[Mapping[str, Any]], ambiguous: Sequence[str] = ()
+) -> tuple[BarContainer, BarContainer]:
     """Horizontal bars, best effect on top: NRMSE before (grey outline) and after adding
     each effect (green if significant, grey otherwise). Returns (before, after) bars."""
     n = len(ranking)
@@ -226,15 +254,28 @@ def plot_ranking(ax: Axes, ranking: Sequence[Mapping[str, Any]],
             txt += f", {float(r['gain_x_floor']):.2g}× floor"
         if r.get("n_params") is not None:
             txt += f", +{int(r['n_params'])} par."
-        ax.text(float(r["nrmse_after"]) + 0.01 * xmax, yi - h / 2, txt, va="center",
-                fontsize=8, fontweight="bold" if r["significant"] else "normal")
+        ax.text(
+            float(r["nrmse_after"]) + 0.01 * xmax,
+            yi - h / 2,
+            txt,
+            va="center",
+            fontsize=8,
+            fontweight="bold" if r["significant"] else "normal",
+        )
     ax.set_xlim(0, xmax * 1.55)
     ax.set_xlabel("validation NRMSE")
     ax.set_title("Effect ranking (best first)")
-    ax.legend(handles=[b0, Line2D([], [], color=style.SIGNIFICANT, lw=6, label="after: significant"),
-                       Line2D([], [], color=style.NOT_SIGNIFICANT, lw=6,
-                              label="after: not significant")],
-              loc="upper center", bbox_to_anchor=(0.5, -0.12), ncols=3, frameon=False)
+    ax.legend(
+        handles=[
+            b0,
+            Line2D([], [], color=style.SIGNIFICANT, lw=6, label="after: significant"),
+            Line2D([], [], color=style.NOT_SIGNIFICANT, lw=6, label="after: not significant"),
+        ],
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.12),
+        ncols=3,
+        frameon=False,
+    )
     ax.grid(axis="y", visible=False)
     return b0, b1
 
@@ -302,20 +343,31 @@ def effects_figure(
     if summary:
         lines += textwrap.wrap("Summary: " + summary, width)
     if ambiguous:
-        lines += textwrap.wrap("Ambiguous (explain the residual about equally well): "
-                               + ", ".join(ambiguous), width)
+        lines += textwrap.wrap(
+            "Ambiguous (explain the residual about equally well): " + ", ".join(ambiguous), width
+        )
         if suggested_experiment:
             lines += textwrap.wrap("Suggested experiment: " + suggested_experiment, width)
     for r in ranking[:4]:
         if r.get("explanation"):
-            lines += textwrap.wrap(f"{r['effect']}: {_first_sentence(str(r['explanation']))}",
-                                   width, subsequent_indent="    ")
+            lines += textwrap.wrap(
+                f"{r['effect']}: {_first_sentence(str(r['explanation']))}",
+                width,
+                subsequent_indent="    ",
+            )
     if len(lines) > 12:
         lines = [*lines[:11], "… (more in diagnosis.json)"]
     # x from the page's left margin (figure coordinates), y from the text panel: long
     # lines stay on the page whatever width the ranking's labels take
-    tx.text(0.03, 1.0, "\n".join(lines), va="top", fontsize=9, linespacing=1.4,
-            transform=blended_transform_factory(fig.transFigure, tx.transAxes))
+    tx.text(
+        0.03,
+        1.0,
+        "\n".join(lines),
+        va="top",
+        fontsize=9,
+        linespacing=1.4,
+        transform=blended_transform_factory(fig.transFigure, tx.transAxes),
+    )
     return fig
 
 
@@ -353,8 +405,13 @@ def campaign_figure(
     base = [np.nan if r.get("nrmse") is None else float(r["nrmse"]) for r in rows]
     has_final = final_model is not None and any(r.get("nrmse_final") is not None for r in rows)
     w = 0.38 if has_final else 0.6
-    ax.bar(xs - (w / 2 if has_final else 0.0), base, width=w, color=style.NOT_SIGNIFICANT,
-           label="base model")
+    ax.bar(
+        xs - (w / 2 if has_final else 0.0),
+        base,
+        width=w,
+        color=style.NOT_SIGNIFICANT,
+        label="base model",
+    )
     if has_final:
         fin = [np.nan if r.get("nrmse_final") is None else float(r["nrmse_final"]) for r in rows]
         ax.bar(xs + w / 2, fin, width=w, color=style.SIGNIFICANT, label=f"final: {final_model}")

@@ -115,8 +115,17 @@ def plot_parameter_vs_pressure(
     if stderr is not None:
         se = np.array([np.nan if s is None else float(s) for s in stderr])
         se = np.where(np.isfinite(se), se, 0.0)
-    ax.errorbar(p, v, yerr=se, fmt="o", color=style.MEASURED, ms=4, capsize=3,
-                label="each run fitted alone ± s.e.", zorder=3)
+    ax.errorbar(
+        p,
+        v,
+        yerr=se,
+        fmt="o",
+        color=style.MEASURED,
+        ms=4,
+        capsize=3,
+        label="each run fitted alone ± s.e.",
+        zorder=3,
+    )
     allp = np.concatenate([p, np.asarray(validation_pressures, dtype=float)])
     shown = list(v[np.isfinite(v)])
     st = stat or {}
@@ -127,14 +136,28 @@ def plot_parameter_vs_pressure(
         joint = st.get("method") == "joint"
         if fit is not None and all(q is not None for q in fit) and not state:
             curve = quadratic(fit, pp)
-            ax.plot(pp, curve, color=style.MODEL, lw=1.6, zorder=2,
-                    label="law used for prediction" + (" (joint fit)" if joint else ""))
+            ax.plot(
+                pp,
+                curve,
+                color=style.MODEL,
+                lw=1.6,
+                zorder=2,
+                label="law used for prediction" + (" (joint fit)" if joint else ""),
+            )
             shown += list(curve[np.isfinite(curve)])
         prq = st.get("per_run_quadratic")
         if joint and prq and all(q is not None for q in prq) and not state:
             curve = quadratic(prq, pp)
-            ax.plot(pp, curve, color=style.MODEL, lw=0.9, ls="--", alpha=0.7, zorder=2,
-                    label="quadratic through the points")
+            ax.plot(
+                pp,
+                curve,
+                color=style.MODEL,
+                lw=0.9,
+                ls="--",
+                alpha=0.7,
+                zorder=2,
+                label="quadratic through the points",
+            )
             shown += list(curve[np.isfinite(curve)])
     if shown and se is not None and np.any(se > 0):
         # y range from the values and the laws, not from huge error bars of a poorly
@@ -144,11 +167,20 @@ def plot_parameter_vs_pressure(
         ylo, yhi = lo - 0.15 * span, hi + 0.15 * span
         if np.any(v - se < ylo) or np.any(v + se > yhi):
             ax.set_ylim(ylo, yhi)
-            ax.text(0.99, 0.02, "some error bars clipped", transform=ax.transAxes,
-                    ha="right", va="bottom", fontsize=8, color="0.35")
+            ax.text(
+                0.99,
+                0.02,
+                "some error bars clipped",
+                transform=ax.transAxes,
+                ha="right",
+                va="bottom",
+                fontsize=8,
+                color="0.35",
+            )
     for i, vp in enumerate(validation_pressures):
-        ax.axvline(vp, color=style.VALIDATION, ls=":", lw=0.8,
-                   label="validation p" if i == 0 else None)
+        ax.axvline(
+            vp, color=style.VALIDATION, ls=":", lw=0.8, label="validation p" if i == 0 else None
+        )
     title = f"{name} ({unit})" if unit and unit not in ("–", "-") else name
     law = f"fixed at {_fmt(v[0])} (not fitted)" if fixed and v.size else law_text(st, state=state)
     ax.set_title(f"{title}\n{law}", fontsize=9)
@@ -182,11 +214,16 @@ def parameters_vs_pressure_figure(
     for i, ax in enumerate(axes):
         name = parameter_names[i]
         plot_parameter_vs_pressure(
-            ax, name, pressures, values[name],
+            ax,
+            name,
+            pressures,
+            values[name],
             None if stderr is None else stderr.get(name),
             None if pressure_fits is None else pressure_fits.get(name),
-            stat=None if stats is None else stats.get(name), unit=unit_of(name, units),
-            validation_pressures=validation_pressures, state=name in state_parameters,
+            stat=None if stats is None else stats.get(name),
+            unit=unit_of(name, units),
+            validation_pressures=validation_pressures,
+            state=name in state_parameters,
             fixed=name in fixed,
         )
     if axes:
@@ -194,19 +231,28 @@ def parameters_vs_pressure_figure(
         for ax in axes:
             for h, lab in zip(*ax.get_legend_handles_labels()):
                 handles.setdefault(lab, h)
-        joint = any(((stats or {}).get(n) or {}).get("method") == "joint"
-                    for n in parameter_names)
-        caption = ("The joint law is refined on the free-run error of all runs at once, so "
-                   "it need not pass through the per-run points (collinear parameters trade "
-                   "off run by run)." if joint else "")
+        joint = any(((stats or {}).get(n) or {}).get("method") == "joint" for n in parameter_names)
+        caption = (
+            "The joint law is refined on the free-run error of all runs at once, so "
+            "it need not pass through the per-run points (collinear parameters trade "
+            "off run by run)."
+            if joint
+            else ""
+        )
         spare = [ax for ax in fig.axes if not ax.get_visible()]
         if spare:  # an empty grid cell holds the legend and the caption
             box = spare[0]
             box.set_visible(True)
             box.axis("off")
-            leg = box.legend(handles.values(), handles.keys(), loc="center", frameon=False,
-                             title="\n".join(textwrap.wrap(caption, 52)) or None,
-                             title_fontsize=8.5, fontsize=8.5)
+            leg = box.legend(
+                handles.values(),
+                handles.keys(),
+                loc="center",
+                frameon=False,
+                title="\n".join(textwrap.wrap(caption, 52)) or None,
+                title_fontsize=8.5,
+                fontsize=8.5,
+            )
             leg.get_title().set_color("0.3")
         else:
             axes[0].legend(handles.values(), handles.keys(), loc="best")
@@ -226,12 +272,24 @@ def coef_text(q: Sequence[float | None]) -> list[str]:
     return out
 
 
-def _table(ax: Axes, cells: list[list[str]], col_labels: list[str], *,
-           col_widths: Sequence[float] | None = None, highlight: Set[tuple[int, int]] = frozenset(),
-           fontsize: float = 8.5, row_height: float = 1.35):
+def _table(
+    ax: Axes,
+    cells: list[list[str]],
+    col_labels: list[str],
+    *,
+    col_widths: Sequence[float] | None = None,
+    highlight: Set[tuple[int, int]] = frozenset(),
+    fontsize: float = 8.5,
+    row_height: float = 1.35,
+):
     ax.axis("off")
-    tab = ax.table(cellText=cells, colLabels=col_labels, loc="upper center", cellLoc="center",
-                   colWidths=col_widths)
+    tab = ax.table(
+        cellText=cells,
+        colLabels=col_labels,
+        loc="upper center",
+        cellLoc="center",
+        colWidths=col_widths,
+    )
     tab.auto_set_font_size(False)
     tab.set_fontsize(fontsize)
     tab.scale(1.0, row_height)
@@ -268,17 +326,31 @@ def table_page_warning_capacity(n_params: int, has_fits: bool) -> int:
     return max(int(height_pt / (8.5 * 1.35)) - 2, 2)
 
 
-def _text_block(ax: Axes, heading: str, lines: Sequence[str], *, width: int = 150,
-                max_lines: int = 14, more: str = "more lines") -> None:
+def _text_block(
+    ax: Axes,
+    heading: str,
+    lines: Sequence[str],
+    *,
+    width: int = 150,
+    max_lines: int = 14,
+    more: str = "more lines",
+) -> None:
     ax.axis("off")
     wrapped = bullet_lines(lines, width)
     if len(wrapped) > max_lines:
         extra = len(wrapped) - max_lines + 1
         wrapped = [*wrapped[: max_lines - 1], f"  … ({extra} {more})"]
     ax.text(0.0, 1.0, heading, fontweight="bold", va="top", transform=ax.transAxes)
-    ax.annotate("\n".join(wrapped) if wrapped else "none", (0.0, 1.0),
-                xycoords="axes fraction", xytext=(0, -17), textcoords="offset points",
-                va="top", fontsize=8.5, linespacing=1.35)
+    ax.annotate(
+        "\n".join(wrapped) if wrapped else "none",
+        (0.0, 1.0),
+        xycoords="axes fraction",
+        xytext=(0, -17),
+        textcoords="offset points",
+        va="top",
+        fontsize=8.5,
+        linespacing=1.35,
+    )
 
 
 @style.styled
@@ -304,11 +376,15 @@ def parameter_table_figure(
     """
     fig = style.new_figure(title)
     has_fits = bool(pressure_fits)
-    ratios = [max(len(parameter_names), 1) + 1.5, (len(parameter_names) + 1.5) if has_fits else 0.01,
-              _TEXT_SHARE]
+    ratios = [
+        max(len(parameter_names), 1) + 1.5,
+        (len(parameter_names) + 1.5) if has_fits else 0.01,
+        _TEXT_SHARE,
+    ]
     axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": ratios})
-    head = ["parameter", "unit"] + [f"p = {r['muscle_pressure_MPa']:.3f} MPa\n{r.get('run', '')}"
-                                    for r in runs]
+    head = ["parameter", "unit"] + [
+        f"p = {r['muscle_pressure_MPa']:.3f} MPa\n{r.get('run', '')}" for r in runs
+    ]
     cells, hi = [], set()
     for i, name in enumerate(parameter_names):
         row = [name, unit_of(name, units)]
@@ -328,12 +404,22 @@ def parameter_table_figure(
     n = len(runs)
     widths = [0.1, 0.08] + [min(0.82 / max(n, 1), 0.2)] * n
     _table(axes[0], cells, head, col_widths=widths, highlight=hi)
-    axes[0].set_title("Each run fitted alone; shaded: relative standard error > 50 % "
-                      "(poorly determined on that run)", loc="left", fontsize=8.5,
-                      color="0.3")
+    axes[0].set_title(
+        "Each run fitted alone; shaded: relative standard error > 50 % "
+        "(poorly determined on that run)",
+        loc="left",
+        fontsize=8.5,
+        color="0.3",
+    )
     if has_fits:
-        head2 = ["parameter", "unit", "q0", "q1 (per MPa)", "q2 (per MPa²)",
-                 "θ(p) = q0 + q1·p + q2·p²"]
+        head2 = [
+            "parameter",
+            "unit",
+            "q0",
+            "q1 (per MPa)",
+            "q2 (per MPa²)",
+            "θ(p) = q0 + q1·p + q2·p²",
+        ]
         cells2 = []
         for name in parameter_names:
             q = list((pressure_fits or {}).get(name) or [])
@@ -349,9 +435,13 @@ def parameter_table_figure(
         _table(axes[1], cells2, head2, col_widths=[0.1, 0.08, 0.14, 0.14, 0.14, 0.3])
     else:
         axes[1].axis("off")
-    _text_block(axes[2], "Warnings and notes of the identification", list(warnings),
-                max_lines=table_page_warning_capacity(len(parameter_names), has_fits),
-                more="more lines: all warnings are on the next page")
+    _text_block(
+        axes[2],
+        "Warnings and notes of the identification",
+        list(warnings),
+        max_lines=table_page_warning_capacity(len(parameter_names), has_fits),
+        more="more lines: all warnings are on the next page",
+    )
     return fig
 
 
@@ -385,9 +475,16 @@ def correlation_figure(
                     if not np.isfinite(v):
                         continue
                     strong = abs(v) > CORR_WARN and r != c
-                    ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=fs,
-                            color="white" if abs(v) > 0.6 else "black",
-                            fontweight="bold" if strong else "normal")
+                    ax.text(
+                        c,
+                        r,
+                        f"{v:.2f}",
+                        ha="center",
+                        va="center",
+                        fontsize=fs,
+                        color="white" if abs(v) > 0.6 else "black",
+                        fontweight="bold" if strong else "normal",
+                    )
                     if strong:
                         ax.add_patch(_outline(c, r))
     if im is not None:
@@ -423,14 +520,21 @@ def metrics_table_figure(
     fig = style.new_figure(title)
     nrow = len(rows)
     axes = fig.subplots(3, 1, gridspec_kw={"height_ratios": [nrow + 1.2, 5.0, 1.6]})
-    head = ["role", "run", "p\n(MPa)", "f\n(Hz)", "waveform"] + [h for _, h, _ in
-                                                              METRIC_COLUMNS] + [
-        "RMSE\nstretch (N)", "RMSE\nrelease (N)"]
+    head = (
+        ["role", "run", "p\n(MPa)", "f\n(Hz)", "waveform"]
+        + [h for _, h, _ in METRIC_COLUMNS]
+        + ["RMSE\nstretch (N)", "RMSE\nrelease (N)"]
+    )
     cells, hi = [], set()
     for i, r in enumerate(rows):
         f = r.get("frequency_Hz")
-        row = [str(r.get("role", "")), f"{Path(str(r.get('file', ''))).name}:{r.get('run', '')}",
-               f"{r['muscle_pressure_MPa']:.4g}", _fmt(f, 3), str(r.get("waveform") or "—")]
+        row = [
+            str(r.get("role", "")),
+            f"{Path(str(r.get('file', ''))).name}:{r.get('run', '')}",
+            f"{r['muscle_pressure_MPa']:.4g}",
+            _fmt(f, 3),
+            str(r.get("waveform") or "—"),
+        ]
         for k, _, spec in METRIC_COLUMNS:
             v = r.get(k)
             row.append("—" if v is None or not math.isfinite(v) else format(v, spec))
@@ -442,8 +546,12 @@ def metrics_table_figure(
     widths = [0.085, 0.22, 0.05, 0.04, 0.06, 0.065, 0.065, 0.05, 0.075, 0.085, 0.08, 0.08]
     _table(axes[0], cells, head, col_widths=widths, highlight=hi, row_height=1.6)
     ax = axes[1]
-    fits = [float(r["fit_percent"]) if r.get("fit_percent") is not None
-            else 100.0 * (1.0 - float(r["nrmse"])) for r in rows]
+    fits = [
+        float(r["fit_percent"])
+        if r.get("fit_percent") is not None
+        else 100.0 * (1.0 - float(r["nrmse"]))
+        for r in rows
+    ]
     colours = [style.VALIDATION if r.get("role") == "validation" else style.MODEL for r in rows]
     xs = np.arange(nrow)
     ax.bar(xs, fits, color=colours, width=0.6)
@@ -456,13 +564,18 @@ def metrics_table_figure(
     ax.set_ylabel("fit (%)")
     ax.set_title("Fit per run (blue: identification, red: validation)")
     ax.grid(axis="x", visible=False)
-    _text_block(axes[2], "Notes", [
-        "NRMSE = RMS error / standard deviation of the measured tension; fit % = 100·(1 − NRMSE).",
-        "Validation rows: the pressure-quadratic model's free-run prediction of runs not used "
-        "for identification (shaded).",
-        "Stretch branch: x decreasing (muscle lengthening, higher tension); release: x increasing.",
-        *notes,
-    ], max_lines=8)
+    _text_block(
+        axes[2],
+        "Notes",
+        [
+            "NRMSE = RMS error / standard deviation of the measured tension; fit % = 100·(1 − NRMSE).",
+            "Validation rows: the pressure-quadratic model's free-run prediction of runs not used "
+            "for identification (shaded).",
+            "Stretch branch: x decreasing (muscle lengthening, higher tension); release: x increasing.",
+            *notes,
+        ],
+        max_lines=8,
+    )
     return fig
 
 
@@ -482,7 +595,14 @@ def warnings_figure(
     lines = bullet_lines(warnings, 95)
     for j, ax in enumerate(axes):
         ax.axis("off")
-        chunk = lines[j * WARNINGS_LINES_PER_COLUMN:(j + 1) * WARNINGS_LINES_PER_COLUMN]
-        ax.text(0.0, 1.0, "\n".join(chunk), va="top", fontsize=8.5, linespacing=1.35,
-                transform=ax.transAxes)
+        chunk = lines[j * WARNINGS_LINES_PER_COLUMN : (j + 1) * WARNINGS_LINES_PER_COLUMN]
+        ax.text(
+            0.0,
+            1.0,
+            "\n".join(chunk),
+            va="top",
+            fontsize=8.5,
+            linespacing=1.35,
+            transform=ax.transAxes,
+        )
     return fig

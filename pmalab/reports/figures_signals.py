@@ -66,15 +66,23 @@ def error_loop(
         # would otherwise paint the rest of the loop in the lowest colour
         top = float(np.percentile(seg_err, ERROR_PERCENTILE)) if seg_err.size else 0.0
         norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
-    ax.plot(x, f, color=style.MEASURED_BAND, lw=measured_lw, label=measured_label, zorder=1,
-            solid_capstyle="round")
+    ax.plot(
+        x,
+        f,
+        color=style.MEASURED_BAND,
+        lw=measured_lw,
+        label=measured_label,
+        zorder=1,
+        solid_capstyle="round",
+    )
     lc = LineCollection(list(segs), cmap=style.ERROR_CMAP, norm=norm, linewidths=model_lw, zorder=2)
     lc.set_array(seg_err)
     ax.add_collection(lc)
     ax.autoscale_view()
     # legend proxy: a LineCollection's own handle would show its unused default colour
-    ax.add_line(Line2D([], [], color=style.ERROR_CMAP(0.55), lw=model_lw,
-                       label="model (colour = |error|)"))
+    ax.add_line(
+        Line2D([], [], color=style.ERROR_CMAP(0.55), lw=model_lw, label="model (colour = |error|)")
+    )
     ax.set_xlabel(style.POSITION)
     ax.set_ylabel(style.FORCE)
     return lc
@@ -89,8 +97,15 @@ def _colorbar(fig: Figure, lc: LineCollection, ax: Axes) -> None:
     arr = np.asarray(lc.get_array(), dtype=float)
     vmax = lc.norm.vmax
     over = bool(arr.size) and isinstance(vmax, float | int) and float(arr.max()) > float(vmax)
-    fig.colorbar(lc, ax=ax, label=style.ABS_ERROR, shrink=0.85, pad=0.01, aspect=30,
-                 extend="max" if over else "neither")
+    fig.colorbar(
+        lc,
+        ax=ax,
+        label=style.ABS_ERROR,
+        shrink=0.85,
+        pad=0.01,
+        aspect=30,
+        extend="max" if over else "neither",
+    )
 
 
 @style.styled
@@ -124,8 +139,9 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
     error, and muscle pressure against time."""
     fig = style.new_figure(title)
     n = len(traces)
-    axes = fig.subplots(4, n, squeeze=False, sharex="col",
-                        gridspec_kw={"height_ratios": [1, 1.6, 0.9, 0.9]})
+    axes = fig.subplots(
+        4, n, squeeze=False, sharex="col", gridspec_kw={"height_ratios": [1, 1.6, 0.9, 0.9]}
+    )
     for j, t in enumerate(traces):
         s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
         tt = t.time[s]
@@ -137,14 +153,16 @@ def time_history_figure(traces: Sequence[Trace], *, title: str = "Time histories
         a1.plot(tt, t.force_model[s], color=style.MODEL, lw=1.0, alpha=0.9, label="model")
         a1.set_ylabel(style.FORCE)
         # above the panel: a legend inside would cover the periodic curves
-        a1.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
-                  borderaxespad=0.1)
+        a1.legend(
+            loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False, borderaxespad=0.1
+        )
         a2.plot(tt, t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
         rms = float(np.sqrt(np.mean(t.error**2)))
-        a2.set_title(f"residual: RMSE {rms:.3g} N, fit {t.fit_percent:.1f} %", loc="left",
-                     fontsize=8.5)
+        a2.set_title(
+            f"residual: RMSE {rms:.3g} N, fit {t.fit_percent:.1f} %", loc="left", fontsize=8.5
+        )
         a3.plot(tt, t.muscle_pressure[s], color="#8c564b", lw=0.5)
         a3.set_ylabel("p (MPa)")
         a3.set_xlabel(style.TIME)
@@ -172,12 +190,12 @@ def validation_figure(
         a0.legend(loc="best")
         s = style.decimate(t.time.shape[0], TIME_MAX_POINTS)
         a1.plot(t.time[s], t.force[s], color=style.MEASURED, label="measured")
-        a1.plot(t.time[s], t.force_model[s], color=style.VALIDATION, alpha=0.9,
-                label="predicted")
+        a1.plot(t.time[s], t.force_model[s], color=style.VALIDATION, alpha=0.9, label="predicted")
         a1.set_ylabel(style.FORCE)
         # above the panel: a legend inside would cover the periodic curves
-        a1.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
-                  borderaxespad=0.1)
+        a1.legend(
+            loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False, borderaxespad=0.1
+        )
         a2.plot(t.time[s], t.error[s], color=style.VALIDATION, lw=0.5)
         a2.axhline(0.0, color="0.4", lw=0.6)
         a2.set_ylabel(style.RESIDUAL)
@@ -207,8 +225,11 @@ def position_validation_figure(
         a0.plot(t.time[s], t.position[s], color=style.MEASURED, lw=1.4, label="measured")
         a0.plot(t.time[s], xm[s], color=style.VALIDATION, alpha=0.9, lw=0.7, label="simulated")
         a0.set_ylabel("Contraction x (mm)")
-        a0.set_title(f"{t.label}\n{t.describe()}\nrms error {rmse * 1e-3:.3g} m "
-                     f"(nrmse {rmse / max(float(np.std(t.position)), 1e-12):.4f})", fontsize=10)
+        a0.set_title(
+            f"{t.label}\n{t.describe()}\nrms error {rmse * 1e-3:.3g} m "
+            f"(nrmse {rmse / max(float(np.std(t.position)), 1e-12):.4f})",
+            fontsize=10,
+        )
         a1.plot(t.time[s], e[s], color=style.VALIDATION, lw=0.5)
         a1.axhline(0.0, color="0.4", lw=0.6)
         a1.set_ylabel("x − x_model (mm)")
@@ -254,9 +275,15 @@ def before_after_figure(
             ax.set_title(f"{head}{label}\nfit {t.fit_percent:.1f} %", fontsize=9)
             if i == 0 and j == 0:
                 ax.legend(loc="best")
-        fig.colorbar(lc, ax=list(axes[:, j]), label=style.ABS_ERROR, shrink=0.85, pad=0.01,
-                     aspect=40, extend="max" if float(np.max(e)) > float(norm.vmax or 0.0)
-                     else "neither")
+        fig.colorbar(
+            lc,
+            ax=list(axes[:, j]),
+            label=style.ABS_ERROR,
+            shrink=0.85,
+            pad=0.01,
+            aspect=40,
+            extend="max" if float(np.max(e)) > float(norm.vmax or 0.0) else "neither",
+        )
         axes[1, j].sharex(axes[0, j])
         axes[1, j].sharey(axes[0, j])
     return fig

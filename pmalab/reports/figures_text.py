@@ -79,8 +79,15 @@ def title_page_figure(
     ``datasets``: dicts with role, label, p, f, waveform and the :func:`timing_stats` keys.
     """
     fig = style.new_figure(None, layout=False)
-    fig.text(0.5, 0.96, "Pneumatic muscle identification report", ha="center", va="top",
-             fontsize=20, fontweight="bold")
+    fig.text(
+        0.5,
+        0.96,
+        "Pneumatic muscle identification report",
+        ha="center",
+        va="top",
+        fontsize=20,
+        fontweight="bold",
+    )
     sub = f"model: {model}" + (f"  +  {', '.join(effects)}" if effects else "  (base model)")
     if improved_model:
         sub += f"   →   improved: {improved_model}"
@@ -100,8 +107,14 @@ def title_page_figure(
 
     def block(lines: Sequence[str], size: float = 9.0, gap: float = 0.022) -> None:
         nonlocal y
-        fig.text(0.05, y, "\n".join(lines), va="top", fontsize=size,
-                 linespacing=1.4 if size == 9.0 else 1.35)
+        fig.text(
+            0.05,
+            y,
+            "\n".join(lines),
+            va="top",
+            fontsize=size,
+            linespacing=1.4 if size == 9.0 else 1.35,
+        )
         y -= _LINE[size] * len(lines) + gap
 
     if inputs:
@@ -131,27 +144,56 @@ def title_page_figure(
         fit = int((y - 0.032 - below) / TITLE_ROW) - 1  # rows under a header row
         if fit < len(datasets):
             fit = int((y - 0.032 - below - _LINE[8.5]) / TITLE_ROW) - 1
-        rows = list(datasets)[:max(fit, TITLE_MIN_RUNS)]
+        rows = list(datasets)[: max(fit, TITLE_MIN_RUNS)]
         h = TITLE_ROW * (len(rows) + 1)
         heading("Runs and sampling (from the prediction files)")
         ax = fig.add_axes((0.05, y - h, 0.9, h))
-        head = ["role", "run", "p (MPa)", "f (Hz)", "waveform", "duration (s)", "samples",
-                "rate (Hz)", "jitter σ(Δt) (ms)", "max Δt (ms)"]
+        head = [
+            "role",
+            "run",
+            "p (MPa)",
+            "f (Hz)",
+            "waveform",
+            "duration (s)",
+            "samples",
+            "rate (Hz)",
+            "jitter σ(Δt) (ms)",
+            "max Δt (ms)",
+        ]
         cells = []
         for r in rows:
             f = r.get("f")
-            cells.append([r.get("role", ""), r.get("label", ""), f"{r['p']:.4g}",
-                          "—" if f is None else f"{f:g}", r.get("waveform") or "—",
-                          f"{r['duration_s']:.2f}", f"{int(r['samples'])}",
-                          f"{r['rate_Hz']:.1f}", f"{r['jitter_ms']:.3f}",
-                          f"{r['max_dt_ms']:.2f}"])
-        _table(ax, cells, head, col_widths=[0.1, 0.2, 0.07, 0.06, 0.08, 0.09, 0.08, 0.08,
-                                            0.12, 0.09], row_height=1.05)
+            cells.append(
+                [
+                    r.get("role", ""),
+                    r.get("label", ""),
+                    f"{r['p']:.4g}",
+                    "—" if f is None else f"{f:g}",
+                    r.get("waveform") or "—",
+                    f"{r['duration_s']:.2f}",
+                    f"{int(r['samples'])}",
+                    f"{r['rate_Hz']:.1f}",
+                    f"{r['jitter_ms']:.3f}",
+                    f"{r['max_dt_ms']:.2f}",
+                ]
+            )
+        _table(
+            ax,
+            cells,
+            head,
+            col_widths=[0.1, 0.2, 0.07, 0.06, 0.08, 0.09, 0.08, 0.08, 0.12, 0.09],
+            row_height=1.05,
+        )
         y -= h + 0.012
         extra = len(datasets) - len(rows)
         if extra > 0:
-            fig.text(0.05, y, f"… {extra} more run(s) (all in the fit quality table)",
-                     fontsize=8.5, va="top")
+            fig.text(
+                0.05,
+                y,
+                f"… {extra} more run(s) (all in the fit quality table)",
+                fontsize=8.5,
+                va="top",
+            )
             y -= _LINE[8.5]
         y -= 0.02
     if headline:
@@ -177,13 +219,25 @@ def title_page_figure(
             per = room
             items = [*items[: per * cols - 1], f"… {len(items) - per * cols + 1} more pages"]
         for col in range(cols):
-            chunk = items[col * per:(col + 1) * per]
+            chunk = items[col * per : (col + 1) * per]
             if chunk:
-                fig.text(0.05 + (0.9 / cols) * col, y, "\n".join(chunk), va="top",
-                         fontsize=8.5, linespacing=1.35)
-    fig.text(0.5, 0.035, "Sign convention: x = contraction in mm (positive = shorter than "
-             "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
-             ha="center", fontsize=8, color="0.3")
+                fig.text(
+                    0.05 + (0.9 / cols) * col,
+                    y,
+                    "\n".join(chunk),
+                    va="top",
+                    fontsize=8.5,
+                    linespacing=1.35,
+                )
+    fig.text(
+        0.5,
+        0.035,
+        "Sign convention: x = contraction in mm (positive = shorter than "
+        "nominal), F = tension in N, p = gauge pressure in MPa; residuals are F − F_model.",
+        ha="center",
+        fontsize=8,
+        color="0.3",
+    )
     return fig
 
 
@@ -192,8 +246,9 @@ def _text_width_pt(text: str, size: float) -> float:
     from matplotlib.font_manager import FontProperties
     from matplotlib.textpath import TextToPath
 
-    w, _, _ = TextToPath().get_text_width_height_descent(text, FontProperties(size=size),
-                                                         ismath=False)
+    w, _, _ = TextToPath().get_text_width_height_descent(
+        text, FontProperties(size=size), ismath=False
+    )
     return float(w)
 
 
@@ -273,8 +328,10 @@ def summarize_provenance(
         structured = "file_attrs" in prov or "runs" in prov
         if prov.get("sha256"):
             size = prov.get("size_bytes")
-            lines.append(f"sha256 {str(prov['sha256'])[:16]}…"
-                         + (f", {float(size) / 1e6:.1f} MB" if size is not None else ""))
+            lines.append(
+                f"sha256 {str(prov['sha256'])[:16]}…"
+                + (f", {float(size) / 1e6:.1f} MB" if size is not None else "")
+            )
         fa = prov.get("file_attrs") if structured else prov
         fa = fa if isinstance(fa, Mapping) else {}
         for key, label in FILE_KEYS:
@@ -282,8 +339,11 @@ def summarize_provenance(
                 lines.append(f"{label}: {_short(fa[key])}")
         rig = decode_attr(fa.get("rig"), parse_json=True)
         if isinstance(rig, Mapping):
-            parts = [f"{k}={_short(rig[k], 40)}" for k in ("kind", "rig_file", "clock", "seed")
-                     if k in rig]
+            parts = [
+                f"{k}={_short(rig[k], 40)}"
+                for k in ("kind", "rig_file", "clock", "seed")
+                if k in rig
+            ]
             lines.append("rig: " + ", ".join(parts))
         elif isinstance(rig, str) and rig:
             lines.append(f"rig: {_short(rig)}")
@@ -305,18 +365,27 @@ def summarize_provenance(
                 continue
             tm_v = a.get("timing")
             tm: Mapping[str, Any] = tm_v if isinstance(tm_v, Mapping) else {}
-            rows.append({
-                "run": f"{Path(file).name}:{name}", "role": a.get("role", ""),
-                "status": a.get("status", ""),
-                "p": a.get("muscle_pressure_MPa"), "f": a.get("frequency_Hz"),
-                "waveform": a.get("waveform", ""), "cycles": a.get("cycles"),
-                "duration_s": tm.get("duration_s"), "samples": tm.get("n_samples"),
-                "late": tm.get("late"), "missed": tm.get("missed"),
-                "p99_ms": None if tm.get("lateness_p99_s") is None
-                else 1e3 * float(tm["lateness_p99_s"]),
-                "max_ms": None if tm.get("lateness_max_s") is None
-                else 1e3 * float(tm["lateness_max_s"]),
-            })
+            rows.append(
+                {
+                    "run": f"{Path(file).name}:{name}",
+                    "role": a.get("role", ""),
+                    "status": a.get("status", ""),
+                    "p": a.get("muscle_pressure_MPa"),
+                    "f": a.get("frequency_Hz"),
+                    "waveform": a.get("waveform", ""),
+                    "cycles": a.get("cycles"),
+                    "duration_s": tm.get("duration_s"),
+                    "samples": tm.get("n_samples"),
+                    "late": tm.get("late"),
+                    "missed": tm.get("missed"),
+                    "p99_ms": None
+                    if tm.get("lateness_p99_s") is None
+                    else 1e3 * float(tm["lateness_p99_s"]),
+                    "max_ms": None
+                    if tm.get("lateness_max_s") is None
+                    else 1e3 * float(tm["lateness_max_s"]),
+                }
+            )
     return blocks, rows
 
 
@@ -354,17 +423,61 @@ def provenance_figure(
         y -= 0.0205 * len(wrapped) + 0.025
         lines_left -= len(wrapped)
     if rows:
-        head = ["run", "role", "status", "p\n(MPa)", "f\n(Hz)", "waveform", "cycles",
-                "duration\n(s)", "samples", "late", "missed", "lateness\np99 (ms)",
-                "lateness\nmax (ms)"]
-        cells = [[r["run"], _cell(r["role"]), _cell(r["status"]), _cell(r["p"], ".4g"),
-                  _cell(r["f"], "g"), _cell(r["waveform"]), _cell(r["cycles"], "g"),
-                  _cell(r["duration_s"], ".2f"), _cell(r["samples"], ".0f"),
-                  _cell(r["late"], ".0f"), _cell(r["missed"], ".0f"), _cell(r["p99_ms"], ".3f"),
-                  _cell(r["max_ms"], ".3f")] for r in rows]
+        head = [
+            "run",
+            "role",
+            "status",
+            "p\n(MPa)",
+            "f\n(Hz)",
+            "waveform",
+            "cycles",
+            "duration\n(s)",
+            "samples",
+            "late",
+            "missed",
+            "lateness\np99 (ms)",
+            "lateness\nmax (ms)",
+        ]
+        cells = [
+            [
+                r["run"],
+                _cell(r["role"]),
+                _cell(r["status"]),
+                _cell(r["p"], ".4g"),
+                _cell(r["f"], "g"),
+                _cell(r["waveform"]),
+                _cell(r["cycles"], "g"),
+                _cell(r["duration_s"], ".2f"),
+                _cell(r["samples"], ".0f"),
+                _cell(r["late"], ".0f"),
+                _cell(r["missed"], ".0f"),
+                _cell(r["p99_ms"], ".3f"),
+                _cell(r["max_ms"], ".3f"),
+            ]
+            for r in rows
+        ]
         h = min(0.027 * (len(rows) + 2), y - 0.06)
         fig.text(0.04, y, "Runs as recorded", fontweight="bold", fontsize=10, va="top")
         ax = fig.add_axes((0.04, y - 0.03 - h, 0.92, h))
-        _table(ax, cells, head, col_widths=[0.2, 0.09, 0.07, 0.05, 0.045, 0.07, 0.05, 0.06,
-                                            0.06, 0.04, 0.05, 0.07, 0.07], row_height=1.25)
+        _table(
+            ax,
+            cells,
+            head,
+            col_widths=[
+                0.2,
+                0.09,
+                0.07,
+                0.05,
+                0.045,
+                0.07,
+                0.05,
+                0.06,
+                0.06,
+                0.04,
+                0.05,
+                0.07,
+                0.07,
+            ],
+            row_height=1.25,
+        )
     return fig

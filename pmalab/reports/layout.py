@@ -143,23 +143,30 @@ def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX)
     W, H = fig.bbox.width, fig.bbox.height
     out = []
     for t, c in zip(texts, boxes):
-        if c[:, 0].min() < -tol or c[:, 1].min() < -tol or c[:, 0].max() > W + tol \
-                or c[:, 1].max() > H + tol:
+        if (
+            c[:, 0].min() < -tol
+            or c[:, 1].min() < -tol
+            or c[:, 0].max() > W + tol
+            or c[:, 1].max() > H + tol
+        ):
             out.append(f"{_name(t)} leaves the page")
     # the plot areas of drawn axes (colour bars included): a text of another axes (or of
     # the figure) must not run into them, as a long title into the next column's colour bar
-    areas = [(ax, ax.patch.get_window_extent(renderer)) for ax in fig.axes
-             if ax.get_visible() and ax.axison]
+    areas = [
+        (ax, ax.patch.get_window_extent(renderer))
+        for ax in fig.axes
+        if ax.get_visible() and ax.axison
+    ]
     for t, c in zip(texts, boxes):
         own = _owner(t)
         for ax, area in areas:
             if ax is own or ax in _related(own):
                 continue
-            quad = np.array([[area.x0, area.y0], [area.x1, area.y0], [area.x1, area.y1],
-                             [area.x0, area.y1]])
+            quad = np.array(
+                [[area.x0, area.y0], [area.x1, area.y0], [area.x1, area.y1], [area.x0, area.y1]]
+            )
             if _overlap(c, quad, tol):
-                out.append(f"{_name(t)} runs into the plot area of "
-                           f"{_axes_name(ax)}")
+                out.append(f"{_name(t)} runs into the plot area of {_axes_name(ax)}")
     lo, hi = np.array([c.min(axis=0) for c in boxes]), np.array([c.max(axis=0) for c in boxes])
     for i in range(len(texts)):
         for j in range(i + 1, len(texts)):

@@ -34,11 +34,19 @@ class PageSpec:
     make: Callable[[int, int], Figure]  # (page number, page count) -> figure
 
 
-def write_pdf(out: Path, pages: Sequence[PageSpec], *, title: str, subject: str = "",
-              force: bool = False, png_dir: str | Path | None = None,
-              svg_dir: str | Path | None = None,
-              progress: Callable[[str], None] | None = None, bar: bool = False,
-              footer: Callable[[Figure, int, int], None] | None = None) -> Path:
+def write_pdf(
+    out: Path,
+    pages: Sequence[PageSpec],
+    *,
+    title: str,
+    subject: str = "",
+    force: bool = False,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: bool = False,
+    footer: Callable[[Figure, int, int], None] | None = None,
+) -> Path:
     """Render ``pages`` into ``out`` (see the module docstring); returns ``out``."""
     exports: list[tuple[Path, str]] = []
     for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
@@ -61,9 +69,18 @@ def write_pdf(out: Path, pages: Sequence[PageSpec], *, title: str, subject: str 
     if subject:
         meta["Subject"] = subject
     try:
-        with PdfPages(tmp, metadata=meta) as pdf, tqdm(
-                total=n, desc="report", unit="page", file=sys.stderr, disable=not bar,
-                leave=False, dynamic_ncols=True) as pbar:
+        with (
+            PdfPages(tmp, metadata=meta) as pdf,
+            tqdm(
+                total=n,
+                desc="report",
+                unit="page",
+                file=sys.stderr,
+                disable=not bar,
+                leave=False,
+                dynamic_ncols=True,
+            ) as pbar,
+        ):
             for i, page in enumerate(pages, 1):
                 pbar.set_postfix_str(page.label[:48], refresh=True)
                 fig = page.make(i, n)

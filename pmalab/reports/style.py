@@ -80,8 +80,9 @@ def styled(fn: Callable[P, R]) -> Callable[P, R]:
     return wrapper
 
 
-def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDSCAPE,
-               *, layout: bool = True) -> Figure:
+def new_figure(
+    title: str | None = None, figsize: tuple[float, float] = A4_LANDSCAPE, *, layout: bool = True
+) -> Figure:
     """An empty page-sized figure with an optional page title (call under :data:`RC`);
     ``layout=False`` for free-form pages placed in figure coordinates."""
     if not layout:
@@ -92,8 +93,7 @@ def new_figure(title: str | None = None, figsize: tuple[float, float] = A4_LANDS
     fig = Figure(figsize=figsize, layout="constrained")
     # rect leaves a strip at the bottom for the page footer
     engine = cast(ConstrainedLayoutEngine, fig.get_layout_engine())
-    engine.set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05,
-               rect=(0.0, 0.025, 1.0, 0.975))
+    engine.set(w_pad=0.15, h_pad=0.12, hspace=0.06, wspace=0.05, rect=(0.0, 0.025, 1.0, 0.975))
     if title:
         fig.suptitle(title, fontweight="bold")
     return fig
@@ -108,13 +108,13 @@ def grid_shape(n: int) -> tuple[int, int]:
     return 2, 3
 
 
-
 def panel_axes(fig: Figure, n: int, nrows: int, ncols: int) -> list[Axes]:
     """An ``nrows × ncols`` grid on ``fig``; the first ``n`` axes, the unused cells hidden."""
     axes = list(fig.subplots(nrows, ncols, squeeze=False).ravel())
     for ax in axes[n:]:
         ax.set_visible(False)
     return axes[:n]
+
 
 def decimate(n: int, max_points: int) -> slice:
     """A stride that keeps at most ``max_points`` of ``n`` samples (for vector output)."""

@@ -130,7 +130,12 @@ class Block:
 
     @classmethod
     def single(
-        cls, t: float, position: float, force: float, muscle_pressure: float, cylinder_pressure: float
+        cls,
+        t: float,
+        position: float,
+        force: float,
+        muscle_pressure: float,
+        cylinder_pressure: float,
     ) -> Block:
         a = np.array
         return cls(a([t]), a([position]), a([force]), a([muscle_pressure]), a([cylinder_pressure]))
@@ -153,7 +158,9 @@ class Limits:
             raise ConfigError(f"{where}: limits: must be a table")
         names = {f.name for f in dataclasses.fields(Limits)}
         values = dataclasses.asdict(self)
-        check_keys(table, names, "{where}: limits.{key}: unknown limit (known: {known})", where=where)
+        check_keys(
+            table, names, "{where}: limits.{key}: unknown limit (known: {known})", where=where
+        )
         for key, v in table.items():
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ConfigError(f"{where}: limits.{key}: must be a number")
@@ -164,7 +171,6 @@ class Limits:
             if values[key] <= 0:
                 raise ConfigError(f"{where}: limits.{key}: must be > 0")
         return Limits(**values)
-
 
 
 # --------------------------------------------------------------------------- venting
@@ -245,6 +251,7 @@ class VentReport:
 
     def merged(self, later: VentReport) -> VentReport:
         """Per regulator, the confirmed one of two attempts (else the later)."""
+
         def pick(a: VentResult, b: VentResult) -> VentResult:
             return a if a.ok and not b.ok else b
 

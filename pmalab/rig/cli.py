@@ -35,11 +35,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("--rig", required=True, help="rig TOML file (kind = 'modbus')")
-    p.add_argument("--truth", default=None, help="truth TOML of the simulated rig (default: the rig file's [rig.emulator] truth)")
-    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default: [rig.emulator] seed)")
-    p.add_argument("--port", type=int, default=None, help="TCP port to listen on instead of the rig file's")
-    p.add_argument("--no-baud-pacing", action="store_true", help="RTU: deliver bytes at once instead of at the baud rate")
-    p.add_argument("--duration", type=float, default=None, help=argparse.SUPPRESS)  # tests: stop after N s
+    p.add_argument(
+        "--truth",
+        default=None,
+        help="truth TOML of the simulated rig (default: the rig file's [rig.emulator] truth)",
+    )
+    p.add_argument(
+        "--seed", type=int, default=None, help="sensor-noise seed (default: [rig.emulator] seed)"
+    )
+    p.add_argument(
+        "--port", type=int, default=None, help="TCP port to listen on instead of the rig file's"
+    )
+    p.add_argument(
+        "--no-baud-pacing",
+        action="store_true",
+        help="RTU: deliver bytes at once instead of at the baud rate",
+    )
+    p.add_argument(
+        "--duration", type=float, default=None, help=argparse.SUPPRESS
+    )  # tests: stop after N s
     p.set_defaults(func=run_emulate)
 
 
@@ -93,7 +107,11 @@ def run_emulate(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, old)
         emus.stop()
         m = emus.modbus.model
-        print(f"pmalab emulate: stopped ({m.reads} block reads, {m.writes} writes served)", file=sys.stderr, flush=True)
+        print(
+            f"pmalab emulate: stopped ({m.reads} block reads, {m.writes} writes served)",
+            file=sys.stderr,
+            flush=True,
+        )
     return 0
 
 
@@ -108,7 +126,8 @@ def _register_benchmark(sub: argparse._SubParsersAction) -> None:
             "OUT/test-sweep.h5 (noise-free) as pmalab run files (contraction x = -y in mm, "
             "tension = the input force u in N).  Then: pmalab identify OUT/train.h5 --output "
             "position --model bouc-wen --add inertia --add viscous-friction --validate "
-            "OUT/test-multisine.h5 OUT/test-sweep.h5 --out DIR"),
+            "OUT/test-multisine.h5 OUT/test-sweep.h5 --out DIR"
+        ),
     )
     p.add_argument("name", choices=("bouc-wen",), help="which benchmark")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the three files")

@@ -83,21 +83,38 @@ def _make_sim(
 #: every rig-file ``kind`` → its factory; a backend is one file plus one line here
 RIG_KINDS: Registry[RigFactory] = Registry("rig kind", ConfigError)
 RIG_KINDS.register("sim", _make_sim, title="the physics-based simulated rig", order=1)
-RIG_KINDS.register("modbus", make_modbus_rig, order=2,
-                   title="Modbus TCP/RTU analog I/O, SMC ITV on RS-232C, load-cell indicators")
-RIG_KINDS.register("nidaqmx", make_nidaq_rig, order=3,
-                   title="an NI DAQ card under NI-DAQmx (hardware-timed)")
-RIG_KINDS.register("labjack-t7-stream", make_t7_stream_rig, order=4,
-                   title="a LabJack T7 streaming on its own clock over Modbus TCP")
+RIG_KINDS.register(
+    "modbus",
+    make_modbus_rig,
+    order=2,
+    title="Modbus TCP/RTU analog I/O, SMC ITV on RS-232C, load-cell indicators",
+)
+RIG_KINDS.register(
+    "nidaqmx", make_nidaq_rig, order=3, title="an NI DAQ card under NI-DAQmx (hardware-timed)"
+)
+RIG_KINDS.register(
+    "labjack-t7-stream",
+    make_t7_stream_rig,
+    order=4,
+    title="a LabJack T7 streaming on its own clock over Modbus TCP",
+)
 
 
 #: rig kind → how ``--host/--port`` rewrite its ``[rig]`` table (kinds with a network link)
 TRANSPORT_OVERRIDES: dict[str, Callable[..., dict[str, Any]]] = {
-    "modbus": override_transport, "labjack-t7-stream": override_transport}
+    "modbus": override_transport,
+    "labjack-t7-stream": override_transport,
+}
 
 
-def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None = None,
-             host: str | None = None, port: int | None = None) -> Rig:
+def load_rig(
+    spec: str | Path,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
+    host: str | None = None,
+    port: int | None = None,
+) -> Rig:
     """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
 
     ``seed`` (simulated rigs: the sensor-noise seed) overrides the rig file's ``seed``;
@@ -132,8 +149,10 @@ def load_rig(spec: str | Path, *, seed: int | None = None, clock: Clock | None =
         )
     if override:
         if kind not in TRANSPORT_OVERRIDES:
-            raise ConfigError(f"--host/--port: {where} is a rig of kind {kind!r}, which has no "
-                              "network link (they apply to Modbus TCP rig files)")
+            raise ConfigError(
+                f"--host/--port: {where} is a rig of kind {kind!r}, which has no "
+                "network link (they apply to Modbus TCP rig files)"
+            )
         section = TRANSPORT_OVERRIDES[kind](section, where, host=host, port=port)
     rig = RIG_KINDS[kind](section, path, seed=seed, clock=clock)
     if "limits" in doc:

@@ -24,5 +24,4 @@ from pmalab.acquisition.live.hub import Hub
 from pmalab.acquisition.live.server import LiveServer
 from pmalab.acquisition.live.session import LiveSession
 
-__all__ = ["FileFollower", "Hub", "LiveServer", "LiveSession", "open_run_file",
-           "parse_address"]
+__all__ = ["FileFollower", "Hub", "LiveServer", "LiveSession", "open_run_file", "parse_address"]

@@ -41,20 +41,29 @@ def ring_bytes(rows: int = RING_ROWS) -> int:
 
 def run_info(spec: RunSpec, n_runs: int) -> dict[str, Any]:
     """The timeline of a run as the page needs it (s, Hz, MPa)."""
-    return {"name": spec.name, "n_runs": n_runs, "role": spec.role,
-            "muscle_pressure_MPa": spec.muscle_pressure_MPa, "waveform": spec.waveform,
-            "frequency_Hz": spec.frequency_Hz, "cycles": spec.cycles,
-            "settle_s": spec.settle_s, "ramp_s": spec.ramp_s,
-            "steady_start_s": spec.steady_start_s, "steady_end_s": spec.steady_end_s,
-            "duration_s": spec.duration_s}
+    return {
+        "name": spec.name,
+        "n_runs": n_runs,
+        "role": spec.role,
+        "muscle_pressure_MPa": spec.muscle_pressure_MPa,
+        "waveform": spec.waveform,
+        "frequency_Hz": spec.frequency_Hz,
+        "cycles": spec.cycles,
+        "settle_s": spec.settle_s,
+        "ramp_s": spec.ramp_s,
+        "steady_start_s": spec.steady_start_s,
+        "steady_end_s": spec.steady_end_s,
+        "duration_s": spec.duration_s,
+    }
 
 
 class RingFeed(RunObserver):
     """Writes every recorded sample into ``buf`` (a shared-memory ring); run events go
     to ``send`` (a pipe to the display process; failures are the runner's to ignore)."""
 
-    def __init__(self, buf: Any, n_runs: int, send: Callable[[tuple], None],
-                 rows: int = RING_ROWS) -> None:
+    def __init__(
+        self, buf: Any, n_runs: int, send: Callable[[tuple], None], rows: int = RING_ROWS
+    ) -> None:
         self.buf = buf
         self.rows = rows
         self.n_runs = n_runs
@@ -66,8 +75,9 @@ class RingFeed(RunObserver):
         pack_row, pack_head = ROW.pack_into, HEAD.pack_into
         count = [0]
 
-        def tap(t: float, x: float, f: float, pm: float, pc: float, cmd: float,
-                lateness: float) -> None:
+        def tap(
+            t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
+        ) -> None:
             add(t, x, f, pm, pc, cmd, lateness)
             s = nxt[0]
             pack_row(buf, HEADER_BYTES + (s % rows) * 64, s, index, t, x, f, pm, pc, cmd)
@@ -88,8 +98,7 @@ class RingReader:
     def __init__(self, buf: Any, rows: int = RING_ROWS) -> None:
         self.rows = rows
         self._head = np.ndarray((4,), dtype=np.int64, buffer=buf)
-        self._data = np.ndarray((rows, N_COLS), dtype=np.float64, buffer=buf,
-                                offset=HEADER_BYTES)
+        self._data = np.ndarray((rows, N_COLS), dtype=np.float64, buffer=buf, offset=HEADER_BYTES)
         self.next = 0
         self.dropped = 0
         #: (late, missed, samples) of the current run, as of the last drain

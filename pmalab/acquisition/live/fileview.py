@@ -24,8 +24,14 @@ from pmalab.acquisition.live.pump import DISPLAY_HZ, safety_text
 from pmalab.errors import RunFileError
 from pmalab.runfile import FORMAT, UNIT_FACTORS, decode_attr
 
-CHANNELS = (("t", "time"), ("x", "position"), ("f", "force"), ("pm", "muscle_pressure"),
-            ("pc", "cylinder_pressure"), ("cmd", "cylinder_pressure_command"))
+CHANNELS = (
+    ("t", "time"),
+    ("x", "position"),
+    ("f", "force"),
+    ("pm", "muscle_pressure"),
+    ("pc", "cylinder_pressure"),
+    ("cmd", "cylinder_pressure_command"),
+)
 DIGITS = {"t": 4, "x": 3, "f": 2, "pm": 4, "pc": 4, "cmd": 4}
 POLL_S = 0.2  # the recorder flushes every 0.25 s: polling faster shows nothing new
 
@@ -41,8 +47,9 @@ def open_run_file(path: Path) -> h5py.File:
         try:
             f = h5py.File(path, "r")
         except OSError as exc:
-            raise RunFileError(f"{path}: not a readable HDF5 file "
-                               f"({str(exc).splitlines()[0]})") from None
+            raise RunFileError(
+                f"{path}: not a readable HDF5 file ({str(exc).splitlines()[0]})"
+            ) from None
     if decode_attr(f.attrs.get("format")) != FORMAT or "runs" not in f:
         f.close()
         raise RunFileError(f"{path}: not a pmalab run file")
@@ -64,14 +71,21 @@ def _run_info(name: str, index: int, n_runs: int, attrs: Any) -> dict[str, Any]:
         v = a.get(key)
         return float(v) if isinstance(v, int | float) and v == v else None
 
-    return {"name": name, "n_runs": n_runs, "role": a.get("role", ""),
-            "muscle_pressure_MPa": num("muscle_pressure_MPa"),
-            "waveform": a.get("waveform", ""), "frequency_Hz": num("frequency_Hz"),
-            "cycles": num("cycles"), "settle_s": num("settle_s"), "ramp_s": num("ramp_s"),
-            "steady_start_s": num("steady_start_s") or 0.0,
-            "steady_end_s": num("steady_end_s"),
-            "duration_s": (num("steady_end_s") or 0.0) + (num("ramp_s") or 0.0) or None,
-            "sample_rate_Hz": num("sample_rate_Hz")}
+    return {
+        "name": name,
+        "n_runs": n_runs,
+        "role": a.get("role", ""),
+        "muscle_pressure_MPa": num("muscle_pressure_MPa"),
+        "waveform": a.get("waveform", ""),
+        "frequency_Hz": num("frequency_Hz"),
+        "cycles": num("cycles"),
+        "settle_s": num("settle_s"),
+        "ramp_s": num("ramp_s"),
+        "steady_start_s": num("steady_start_s") or 0.0,
+        "steady_end_s": num("steady_end_s"),
+        "duration_s": (num("steady_end_s") or 0.0) + (num("ramp_s") or 0.0) or None,
+        "sample_rate_Hz": num("sample_rate_Hz"),
+    }
 
 
 def _status(g: Any) -> str:
@@ -114,8 +128,11 @@ class FileFollower(threading.Thread):
             except (OSError, KeyError, RunFileError) as exc:  # mid-write or vanished: retry
                 error = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                 if error != self.error:  # say it once, not at every poll
-                    print(f"pmalab view: warning: {self.path}: {error} (retrying)",
-                          file=sys.stderr, flush=True)
+                    print(
+                        f"pmalab view: warning: {self.path}: {error} (retrying)",
+                        file=sys.stderr,
+                        flush=True,
+                    )
                 self.error = error
             if self.complete:
                 return
@@ -140,8 +157,10 @@ class FileFollower(threading.Thread):
                 status = _status(g)
                 if status in ("running", "pending"):
                     final = False
-                n = min((_dataset(self.path, name, g, c).shape[0]
-                         for _, c in CHANNELS[:4] if c in g), default=0)
+                n = min(
+                    (_dataset(self.path, name, g, c).shape[0] for _, c in CHANNELS[:4] if c in g),
+                    default=0,
+                )
                 if n == 0:
                     continue
                 newest = i
@@ -160,8 +179,9 @@ class FileFollower(threading.Thread):
             if final and newest >= 0:
                 self.complete = True
                 k = len(self.done)
-                self.hub.finish(f"{self.path.name}: complete ({k} run{'s' * (k != 1)} "
-                                "with samples)")
+                self.hub.finish(
+                    f"{self.path.name}: complete ({k} run{'s' * (k != 1)} with samples)"
+                )
 
     def _publish(self, i: int, g: Any, n0: int, n1: int) -> None:
         rate = decode_attr(g.attrs.get("sample_rate_Hz", 0)) or 0
@@ -177,14 +197,15 @@ class FileFollower(threading.Thread):
             units = decode_attr(g[ch].attrs.get("units"))
             factor = UNIT_FACTORS[ch].get(units)
             if factor is None:
-                raise RunFileError(f"{self.path}: run '{g.name}': channel '{ch}': unknown "
-                                   f"unit {units!r}")
+                raise RunFileError(
+                    f"{self.path}: run '{g.name}': channel '{ch}': unknown unit {units!r}"
+                )
             full = np.asarray(g[ch][n0:n1], dtype=np.float64) * factor
             raw[key] = full
             if key == "t":
                 self.t0.setdefault(i, float(full[0]) if n0 == 0 else 0.0)
                 full = full - self.t0[i]
-            pts[key] = np.round(full[start - n0::stride], DIGITS[key]).tolist()
+            pts[key] = np.round(full[start - n0 :: stride], DIGITS[key]).tolist()
         if self.margins is not None and all(k in raw for k in ("x", "f", "pm")):
             pc = raw.get("pc", np.zeros_like(raw["x"]))
             self.margins.update(raw["x"], raw["f"], raw["pm"], pc)
@@ -197,12 +218,20 @@ class FileFollower(threading.Thread):
         t = float(g["time"][-1]) - self.t0.get(i, 0.0) if g["time"].shape[0] else 0.0
         dur = info.get("duration_s") or t or 1.0
         phase = "recording" if status == "running" else status
-        return {"run": info["name"], "index": i, "n_runs": n_runs, "t": round(t, 3),
-                "duration_s": dur,
-                "progress_run": min(1.0, t / dur),
-                "progress_protocol": min(1.0, (i + min(1.0, t / dur)) / n_runs),
-                "samples": self.done.get(i, 0), "late": int(timing.get("late", 0)),
-                "missed": int(timing.get("missed", 0)), "dropped": 0, "phase": phase,
-                "message": "" if status in ("running", "completed") else status,
-                "safety": safety_text(phase, False),
-                "margins": self.margins.rows() if self.margins is not None else []}
+        return {
+            "run": info["name"],
+            "index": i,
+            "n_runs": n_runs,
+            "t": round(t, 3),
+            "duration_s": dur,
+            "progress_run": min(1.0, t / dur),
+            "progress_protocol": min(1.0, (i + min(1.0, t / dur)) / n_runs),
+            "samples": self.done.get(i, 0),
+            "late": int(timing.get("late", 0)),
+            "missed": int(timing.get("missed", 0)),
+            "dropped": 0,
+            "phase": phase,
+            "message": "" if status in ("running", "completed") else status,
+            "safety": safety_text(phase, False),
+            "margins": self.margins.rows() if self.margins is not None else [],
+        }

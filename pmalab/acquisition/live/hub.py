@@ -121,8 +121,10 @@ class Hub:
     # ----------------------------------------------------------------- consumers
     def hello_for(self, stop_allowed: bool) -> bytes:
         with self.cond:
-            runs = [{"index": r.index, "name": r.info.get("name", str(r.index)),
-                     "status": r.status} for r in self.runs.values()]
+            runs = [
+                {"index": r.index, "name": r.info.get("name", str(r.index)), "status": r.status}
+                for r in self.runs.values()
+            ]
             return sse("hello", {**self.hello, "stop_allowed": stop_allowed, "runs": runs})
 
     def wait(self, seen_version: int, timeout: float) -> int:
@@ -142,7 +144,7 @@ class Hub:
                 cur.run, cur.sent_run, cur.frame = target, target, 0
             run = self.runs.get(cur.run)
             if run is not None and cur.frame < len(run.frames):
-                out.extend(run.frames[cur.frame:])
+                out.extend(run.frames[cur.frame :])
                 cur.frame = len(run.frames)
             if self._status and cur.status_version != self._status_version:
                 out.append(self._status)

@@ -54,16 +54,23 @@ def child_main(ring_path: str, config: dict[str, Any]) -> int:
     with open(ring_path, "r+b") as fh:
         ring = mmap.mmap(fh.fileno(), ring_bytes(rows))
     hub = Hub(config["hello"])
-    pump = Pump(RingReader(ring, rows), hub, config["durations"], config["rate_Hz"],
-                Margins.from_limits(config["limits"], config["pressure_margin"]))
+    pump = Pump(
+        RingReader(ring, rows),
+        hub,
+        config["durations"],
+        config["rate_Hz"],
+        Margins.from_limits(config["limits"], config["pressure_margin"]),
+    )
     lock = threading.Lock()
 
     def on_stop() -> str:
         pump.stop_requested = True
         with lock:
             _say("stop")
-        return ("stop requested: the runner vents the regulator and closes the run at its "
-                "next sample, keeping the samples")
+        return (
+            "stop requested: the runner vents the regulator and closes the run at its "
+            "next sample, keeping the samples"
+        )
 
     try:
         server = LiveServer(hub, config["host"], config["port"], on_stop=on_stop)
@@ -103,8 +110,9 @@ class DisplayProcess:
         from pmalab.acquisition.live.feed import ring_bytes
 
         size = ring_bytes(rows)
-        fd, self._ring_path = tempfile.mkstemp(prefix="pmalab-live-", suffix=".ring",
-                                               dir=_ring_dir())
+        fd, self._ring_path = tempfile.mkstemp(
+            prefix="pmalab-live-", suffix=".ring", dir=_ring_dir()
+        )
         try:
             os.ftruncate(fd, size)
             self.ring = mmap.mmap(fd, size)
@@ -127,9 +135,17 @@ class DisplayProcess:
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
         try:
             self.proc = proc = subprocess.Popen(
-                [sys.executable, "-m", "pmalab.acquisition.live.display", self._ring_path,
-                 json.dumps(self.config)],
-                stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+                [
+                    sys.executable,
+                    "-m",
+                    "pmalab.acquisition.live.display",
+                    self._ring_path,
+                    json.dumps(self.config),
+                ],
+                stdin=subprocess.PIPE,
+                stdout=subprocess.PIPE,
+                env=env,
+            )
             assert proc.stdin is not None and proc.stdout is not None  # both are PIPEs
             ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
             line = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
@@ -139,13 +155,20 @@ class DisplayProcess:
         kind, _, rest = line.partition(" ")
         if kind != "ready":
             self.close("")
-            why = rest if kind == "error" else ("the live view did not start" + (
-                f" within {START_TIMEOUT_S:g} s" if not line else f" ({line})"))
+            why = (
+                rest
+                if kind == "error"
+                else (
+                    "the live view did not start"
+                    + (f" within {START_TIMEOUT_S:g} s" if not line else f" ({line})")
+                )
+            )
             raise ConfigError(why)
         self.port = int(rest)
         os.set_blocking(proc.stdin.fileno(), False)
-        self._watcher = threading.Thread(target=self._watch, name="pmalab-live-control",
-                                         daemon=True)
+        self._watcher = threading.Thread(
+            target=self._watch, name="pmalab-live-control", daemon=True
+        )
         self._watcher.start()
         return self.port
 

@@ -28,9 +28,14 @@ def decimated_points(rows: np.ndarray, stride: int) -> dict[str, list[float]]:
     """Display points from sample rows ``(seq, run, t, x, f, pm, pc, cmd)``: every
     ``stride``-th sample by sequence number (so consecutive batches stay on one grid)."""
     keep = rows[rows[:, 0] % stride == 0]
-    return {"t": np.round(keep[:, 2], 4).tolist(), "x": np.round(keep[:, 3], 3).tolist(),
-            "f": np.round(keep[:, 4], 2).tolist(), "pm": np.round(keep[:, 5], 4).tolist(),
-            "pc": np.round(keep[:, 6], 4).tolist(), "cmd": np.round(keep[:, 7], 4).tolist()}
+    return {
+        "t": np.round(keep[:, 2], 4).tolist(),
+        "x": np.round(keep[:, 3], 3).tolist(),
+        "f": np.round(keep[:, 4], 2).tolist(),
+        "pm": np.round(keep[:, 5], 4).tolist(),
+        "pc": np.round(keep[:, 6], 4).tolist(),
+        "cmd": np.round(keep[:, 7], 4).tolist(),
+    }
 
 
 def safety_text(status: str, stop_requested: bool) -> dict[str, str]:
@@ -40,8 +45,10 @@ def safety_text(status: str, stop_requested: bool) -> dict[str, str]:
     if status == "completed":
         return {"state": "completed", "text": "run completed"}
     if stop_requested:
-        return {"state": "stopping", "text": "stop requested: the runner vents and closes "
-                "the run at its next sample"}
+        return {
+            "state": "stopping",
+            "text": "stop requested: the runner vents and closes the run at its next sample",
+        }
     if status == "waiting":
         return {"state": "waiting", "text": "waiting for the muscle pressure to settle"}
     return {"state": "ok", "text": "within limits"}
@@ -53,8 +60,14 @@ class Pump(threading.Thread):
     ``durations`` are the protocol's run durations (s), for the progress bars.
     """
 
-    def __init__(self, reader: RingReader, hub: Hub, durations: list[float], rate_Hz: float,
-                 margins: Margins | None) -> None:
+    def __init__(
+        self,
+        reader: RingReader,
+        hub: Hub,
+        durations: list[float],
+        rate_Hz: float,
+        margins: Margins | None,
+    ) -> None:
         super().__init__(name="pmalab-live-pump", daemon=True)
         self.reader, self.hub = reader, hub
         self.events: deque[tuple[Any, ...]] = deque()
@@ -132,23 +145,35 @@ class Pump(threading.Thread):
         """Progress, counters, margins and the safety state of the current run."""
         i = self._index
         late, missed, samples = self.reader.counters
-        out: dict[str, Any] = {"index": i, "n_runs": len(self.durations),
-                               "dropped": self.reader.dropped, "stride": self.stride,
-                               "stop_requested": self.stop_requested}
+        out: dict[str, Any] = {
+            "index": i,
+            "n_runs": len(self.durations),
+            "dropped": self.reader.dropped,
+            "stride": self.stride,
+            "stop_requested": self.stop_requested,
+        }
         if i < 0:
             out["safety"] = {"state": "waiting", "text": "starting"}
             return out
         dur = self.durations[i]
         total = self._before[-1] or 1.0
-        out.update({
-            "run": self._info.get("name", str(i)), "t": round(self._t, 3), "duration_s": dur,
-            "progress_run": min(1.0, self._t / dur) if dur else 0.0,
-            "progress_protocol": min(1.0, (self._before[i] + self._t) / total),
-            # the ring's counters are the last tapped run's until this one records
-            **({"samples": 0, "late": 0, "missed": 0} if self._status == "waiting" else
-               {"samples": samples, "late": late, "missed": missed}),
-            "phase": self._status, "message": self._message,
-            "safety": safety_text(self._status, self.stop_requested),
-            "margins": self.margins.rows() if self.margins is not None else [],
-        })
+        out.update(
+            {
+                "run": self._info.get("name", str(i)),
+                "t": round(self._t, 3),
+                "duration_s": dur,
+                "progress_run": min(1.0, self._t / dur) if dur else 0.0,
+                "progress_protocol": min(1.0, (self._before[i] + self._t) / total),
+                # the ring's counters are the last tapped run's until this one records
+                **(
+                    {"samples": 0, "late": 0, "missed": 0}
+                    if self._status == "waiting"
+                    else {"samples": samples, "late": late, "missed": missed}
+                ),
+                "phase": self._status,
+                "message": self._message,
+                "safety": safety_text(self._status, self.stop_requested),
+                "margins": self.margins.rows() if self.margins is not None else [],
+            }
+        )
         return out

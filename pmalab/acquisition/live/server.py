@@ -134,8 +134,14 @@ class _Handler(BaseHTTPRequestHandler):
         client = self.client_address[0]
         host = (self.headers.get("Host") or "").rsplit(":", 1)[0]
         if not is_loopback(client):
-            self._json(403, {"ok": False, "message": f"stop is accepted only from 127.0.0.1 "
-                             f"(this request came from {client})"})
+            self._json(
+                403,
+                {
+                    "ok": False,
+                    "message": f"stop is accepted only from 127.0.0.1 "
+                    f"(this request came from {client})",
+                },
+            )
         elif host not in LOOPBACK_HOSTS or self.headers.get("X-Pmalab-Stop") != "1":
             self._json(403, {"ok": False, "message": "stop refused: not sent by the live page"})
         elif self.server.on_stop is None:
@@ -151,24 +157,34 @@ class _Handler(BaseHTTPRequestHandler):
 class LiveServer:
     """Serves ``hub`` on ``host:port`` from a background thread (port 0: any free one)."""
 
-    def __init__(self, hub: Hub, host: str, port: int,
-                 on_stop: Callable[[], str] | None = None, option: str = "--live") -> None:
+    def __init__(
+        self,
+        hub: Hub,
+        host: str,
+        port: int,
+        on_stop: Callable[[], str] | None = None,
+        option: str = "--live",
+    ) -> None:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         server_cls = type("_Srv", (_Server,), {"address_family": family})
         try:
             self.httpd: _Server = server_cls((host, port), _Handler)
         except OSError as exc:
             reason = exc.strerror or str(exc)
-            raise ConfigError(f"{option} {host}:{port}: cannot serve the live view: "
-                              f"{reason}") from None
+            raise ConfigError(
+                f"{option} {host}:{port}: cannot serve the live view: {reason}"
+            ) from None
         self.httpd.hub = hub
         self.httpd.on_stop = on_stop
         self.httpd.closing = threading.Event()
         self.host = host
         self.port = int(self.httpd.server_address[1])
-        self._thread = threading.Thread(target=self.httpd.serve_forever,
-                                        kwargs={"poll_interval": 0.2},
-                                        name="pmalab-live-http", daemon=True)
+        self._thread = threading.Thread(
+            target=self.httpd.serve_forever,
+            kwargs={"poll_interval": 0.2},
+            name="pmalab-live-http",
+            daemon=True,
+        )
 
     @property
     def url(self) -> str:

@@ -21,17 +21,30 @@ from pmalab.rig.base import Rig
 class LiveSession:
     """The live view of one recording; ``options.observer`` is set to its feed."""
 
-    def __init__(self, rig: Rig, protocol: Protocol, out: str, options: RunnerOptions,
-                 host: str, port: int, rows: int = RING_ROWS) -> None:
+    def __init__(
+        self,
+        rig: Rig,
+        protocol: Protocol,
+        out: str,
+        options: RunnerOptions,
+        host: str,
+        port: int,
+        rows: int = RING_ROWS,
+    ) -> None:
         limits = effective_limits(rig)
         config = {
-            "hello": {"mode": "live", "file": str(out), "protocol": protocol.name,
-                      "clock": "virtual" if rig.clock.virtual else "real"},
+            "hello": {
+                "mode": "live",
+                "file": str(out),
+                "protocol": protocol.name,
+                "clock": "virtual" if rig.clock.virtual else "real",
+            },
             "durations": [r.duration_s for r in protocol.runs],
             "rate_Hz": protocol.sample_rate_Hz,
             "limits": dict(limits.__dict__),
             "pressure_margin": SafetyMonitor(limits).pressure_margin,
-            "host": host, "port": port,
+            "host": host,
+            "port": port,
         }
         self.options = options
         self.display = DisplayProcess(config, rows, on_stop=options.request_stop)

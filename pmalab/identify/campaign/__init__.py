@@ -22,6 +22,15 @@ from pmalab.identify.campaign.validation import (
     validate_runs,
 )
 
-__all__ = ["CampaignFit", "ModelSpec", "RunFit", "Validation", "check_prediction",
-           "fit_and_validate", "fit_campaign", "predict_run", "refine_pressure_laws",
-           "validate_runs"]
+__all__ = [
+    "CampaignFit",
+    "ModelSpec",
+    "RunFit",
+    "Validation",
+    "check_prediction",
+    "fit_and_validate",
+    "fit_campaign",
+    "predict_run",
+    "refine_pressure_laws",
+    "validate_runs",
+]

@@ -57,8 +57,9 @@ def map_tasks(
         return []
     from tqdm import tqdm
 
-    bar = tqdm(total=len(tasks), desc=desc, file=sys.stderr, disable=not progress,
-               unit="run", leave=False)
+    bar = tqdm(
+        total=len(tasks), desc=desc, file=sys.stderr, disable=not progress, unit="run", leave=False
+    )
     try:
         if scheduler:
             return _map_dask(fn, tasks, scheduler, bar)
@@ -93,11 +94,15 @@ def _map_dask(fn: Callable[[T], R], tasks: list[T], address: str, bar: Any) -> l
         from distributed import Client
         from distributed import as_completed as dask_completed
     except ImportError:  # pragma: no cover - dask[distributed] is a dependency
-        raise PmalabError("--scheduler needs dask[distributed] (pip install 'dask[distributed]')") from None
+        raise PmalabError(
+            "--scheduler needs dask[distributed] (pip install 'dask[distributed]')"
+        ) from None
     try:
         client = Client(address, timeout=f"{SCHEDULER_TIMEOUT_S}s")
     except (OSError, TimeoutError) as exc:
-        raise PmalabError(f"--scheduler {address}: cannot connect to the Dask scheduler ({exc})") from None
+        raise PmalabError(
+            f"--scheduler {address}: cannot connect to the Dask scheduler ({exc})"
+        ) from None
     try:
         futs = client.map(fn, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futs)}

@@ -65,8 +65,10 @@ def resolve_effects(ids: Sequence[str], files: Sequence[str] = ()) -> list:
     try:
         from pmalab.identify.effects import get_effect, load_user_effects  # type: ignore[attr-defined]
     except ImportError:
-        raise PmalabError("effects are not available yet: pmalab.identify.effects has no "
-                          "get_effect/load_user_effects registry") from None
+        raise PmalabError(
+            "effects are not available yet: pmalab.identify.effects has no "
+            "get_effect/load_user_effects registry"
+        ) from None
     for f in files:
         load_user_effects(f)
     return [get_effect(i) for i in ids]
@@ -99,8 +101,10 @@ def check_free(model: ForceModel, free: Sequence[str]) -> None:
     for name in free:
         if name not in held:
             fixes = f"fixes only {', '.join(held)}" if held else "fixes no parameter"
-            raise PmalabError(f"--free {name}: model {model.name} {fixes} by default; "
-                              "every other parameter is fitted already")
+            raise PmalabError(
+                f"--free {name}: model {model.name} {fixes} by default; "
+                "every other parameter is fitted already"
+            )
 
 
 # --------------------------------------------------------------------------- results
@@ -183,8 +187,14 @@ class CampaignFit:
             th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
         return th
 
-    def predict(self, run: Run | Signals, p_nom: float | None = None, *,
-                force: np.ndarray | None = None, initial: str = "estimate") -> np.ndarray:
+    def predict(
+        self,
+        run: Run | Signals,
+        p_nom: float | None = None,
+        *,
+        force: np.ndarray | None = None,
+        initial: str = "estimate",
+    ) -> np.ndarray:
         """Free-run force (N) of ``run`` from its position and pressure (see module doc).
 
         The record parameters (h0, effect nuisances, a drifting zero) are set by ``initial``
@@ -197,8 +207,9 @@ class CampaignFit:
         else:
             sig = run
         p = sig.p_nom if p_nom is None else float(p_nom)
-        return predict_record(self.model, sig, self.theta(p), force=force, initial=initial,
-                              bounds=self.bounds)
+        return predict_record(
+            self.model, sig, self.theta(p), force=force, initial=initial, bounds=self.bounds
+        )
 
     def validate(self, run: Run, initial: str = "estimate") -> dict:
         """Metrics of this model's free-run prediction of ``run``."""
@@ -258,8 +269,9 @@ def fit_runs(
         # (and shipping the runs to them) costs more than it saves
         jobs = 1
     tasks = [(r, ship, {**kwargs, **k}) for r, k in zip(runs, kw)]
-    out = map_tasks(_fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress,
-                    desc="identify")
+    out = map_tasks(
+        _fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress, desc="identify"
+    )
     for r, res in zip(runs, out):
         res.model = fm
         res.label = r.label
@@ -285,8 +297,9 @@ def fit_campaign(
     stderr-weighted quadratics through the per-run values.
     """
     if pressure_model not in PRESSURE_MODELS:
-        raise PmalabError(f"pressure_model must be one of {', '.join(PRESSURE_MODELS)}, "
-                          f"not {pressure_model!r}")
+        raise PmalabError(
+            f"pressure_model must be one of {', '.join(PRESSURE_MODELS)}, not {pressure_model!r}"
+        )
     if not runs:
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
@@ -301,50 +314,80 @@ def fit_campaign(
     defaults = set(fm.law.default_fixed) - set(free)
     user_fixed = set(fixed or {})
     for name, value in fm.law.collinear_fixes:
-        auto = [i for i, r in enumerate(results) if name in r.fixed and name not in defaults
-                and name not in user_fixed]
+        auto = [
+            i
+            for i, r in enumerate(results)
+            if name in r.fixed and name not in defaults and name not in user_fixed
+        ]
         if not auto:
             continue
         if 2 * len(auto) >= len(results):
             redo = [i for i in range(len(results)) if name not in results[i].fixed]
             if redo:
                 fx = {**(fixed or {}), name: value}
-                again = fit_runs([runs[i] for i in redo], model, jobs=jobs, scheduler=scheduler,
-                                 progress=progress, fixed=fx, init=init, free=tuple(free),
-                                 auto_fix=False)
+                again = fit_runs(
+                    [runs[i] for i in redo],
+                    model,
+                    jobs=jobs,
+                    scheduler=scheduler,
+                    progress=progress,
+                    fixed=fx,
+                    init=init,
+                    free=tuple(free),
+                    auto_fix=False,
+                )
                 for i, r in zip(redo, again):
-                    r.warnings.append(detail(
-                        "consistent-fix", f"{name} fixed at {value:g} on every run for "
-                        f"consistent pressure quadratics (collinear on {len(auto)} of "
-                        f"{len(results)} runs)", name=name, value=value))
+                    r.warnings.append(
+                        detail(
+                            "consistent-fix",
+                            f"{name} fixed at {value:g} on every run for "
+                            f"consistent pressure quadratics (collinear on {len(auto)} of "
+                            f"{len(results)} runs)",
+                            name=name,
+                            value=value,
+                        )
+                    )
                     results[i] = r
-            warnings.append(note(
-                "collinear-fix-all", f"{name} fixed at {value:g} on all runs: collinear with "
-                f"another parameter on {len(auto)} of {len(results)} runs (see run warnings)",
-                name=name, value=value, runs=len(auto)))
+            warnings.append(
+                note(
+                    "collinear-fix-all",
+                    f"{name} fixed at {value:g} on all runs: collinear with "
+                    f"another parameter on {len(auto)} of {len(results)} runs (see run warnings)",
+                    name=name,
+                    value=value,
+                    runs=len(auto),
+                )
+            )
         else:
-            warnings.append(f"{name} was fixed at {value:g} on {len(auto)} of {len(results)} runs "
-                            "only (collinear there); its quadratic mixes fixed and fitted values")
+            warnings.append(
+                f"{name} was fixed at {value:g} on {len(auto)} of {len(results)} runs "
+                "only (collinear there); its quadratic mixes fixed and fitted values"
+            )
 
     rfs = []
     for run, res in zip(runs, results):
         p, f, w = _run_meta(run)
-        rfs.append(RunFit(file=run.file, run=run.name, p_nom=p, frequency_Hz=f, waveform=w,
-                          result=res))
+        rfs.append(
+            RunFit(file=run.file, run=run.name, p_nom=p, frequency_Hz=f, waveform=w, result=res)
+        )
     for rf in rfs:
         if rf.result.fit_percent < POOR_FIT_PERCENT:
             warnings.append(
                 f"{rf.label}: fit only {rf.result.fit_percent:.1f} % — {fm.name} misses something "
                 "on this run (see `pmalab diagnose`); it enters the pressure laws with a "
-                "weight reduced accordingly (its own rmse)")
+                "weight reduced accordingly (its own rmse)"
+            )
     pressure = pressure_fits(rfs)
     levels = sorted({round(r.p_nom, 4) for r in rfs})
     if len(levels) < 3:
-        warnings.append(f"only {len(levels)} pressure level(s) ({', '.join(f'{p:g}' for p in levels)} "
-                        "MPa): quadratics reduced to degree "
-                        f"{max(len(levels) - 1, 0)}; extrapolating in pressure is unreliable")
-    cf = CampaignFit(model=fm, runs=rfs, pressure=pressure, warnings=warnings,
-                     per_run_pressure=pressure)
+        warnings.append(
+            f"only {len(levels)} pressure level(s) ({', '.join(f'{p:g}' for p in levels)} "
+            "MPa): quadratics reduced to degree "
+            f"{max(len(levels) - 1, 0)}; extrapolating in pressure is unreliable"
+        )
+    cf = CampaignFit(
+        model=fm, runs=rfs, pressure=pressure, warnings=warnings, per_run_pressure=pressure
+    )
     if pressure_model == "joint" and len(rfs) > 1:
         refine_pressure_laws(cf, runs)
     return cf
@@ -388,8 +431,11 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     results = [rf.result for rf in rfs]
     # record nuisance parameters (e.g. a drift rate): one value per run, like h0
     state = cf.model.state_params
-    nuis_names = [n for n in cf.model.record_params if n not in state and n in names
-                  and any(r.params[n].vary for r in results)]
+    nuis_names = [
+        n
+        for n in cf.model.record_params
+        if n not in state and n in names and any(r.params[n].vary for r in results)
+    ]
     if cf.model.tares and "c0" in names and any(r.params["c0"].vary for r in results):
         # a drifting zero: each record's force offset differs by the drift accumulated
         # before it, which c0's pressure law would absorb (the runs of a campaign are
@@ -398,11 +444,12 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
         # and every predicted run gets its own (estimation.records).
         nuis_names.append("c0")
     nuisance = {n: [float(r.params[n].value) for r in results] for n in nuis_names}
-    constants = {n: float(results[0].params[n].value) for n in names
-                 if n not in state and n not in nuisance
-                 and all(not r.params[n].vary for r in results)}
-    free = [n for n in names if n not in constants and n not in state
-            and n not in nuisance]
+    constants = {
+        n: float(results[0].params[n].value)
+        for n in names
+        if n not in state and n not in nuisance and all(not r.params[n].vary for r in results)
+    }
+    free = [n for n in names if n not in constants and n not in state and n not in nuisance]
     if not free:
         return
     has_h0 = "h0" in names and any(r.params["h0"].vary for r in results)
@@ -412,31 +459,51 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     values = {n: [r.params[n].value for r in results] for n in free}
     stderr = {n: [r.params[n].stderr for r in results] for n in free}
     und = {n: [_undetermined(r, n) for r in results] for n in free}
-    start, degrees, notes = start_laws(free, pressures, values, stderr, und,
-                                       max_degree=min(2, levels - 1))
+    start, degrees, notes = start_laws(
+        free, pressures, values, stderr, und, max_degree=min(2, levels - 1)
+    )
     jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, rfs)]
     h0 = [float(r.params["h0"].value) for r in results] if has_h0 else None
     try:
         # the plain per-run quadratics are a second start (the brief's order: they may be
         # the better start when the per-run values are well determined)
-        plain = ({n: cf.pressure[n].coef for n in free},
-                 {n: cf.pressure[n].degree for n in free})
-        joint, jnotes = refine(cf.model, jruns, start, degrees, constants, bounds, h0,
-                               alternatives=[plain], nuisance_start=nuisance or None,
-                               fixed_order=[n for n in cf.model.campaign_shared if n in free])
+        plain = ({n: cf.pressure[n].coef for n in free}, {n: cf.pressure[n].degree for n in free})
+        joint, jnotes = refine(
+            cf.model,
+            jruns,
+            start,
+            degrees,
+            constants,
+            bounds,
+            h0,
+            alternatives=[plain],
+            nuisance_start=nuisance or None,
+            fixed_order=[n for n in cf.model.campaign_shared if n in free],
+        )
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
-        cf.warnings.append(f"joint refinement of the pressure laws failed ({exc}); "
-                           "using the per-run quadratics")
+        cf.warnings.append(
+            f"joint refinement of the pressure laws failed ({exc}); using the per-run quadratics"
+        )
         return
-    per_run = evaluate(cf.model, jruns, {n: cf.pressure[n].coef for n in free}, constants,
-                       bounds, h0, nuisance or None)
+    per_run = evaluate(
+        cf.model,
+        jruns,
+        {n: cf.pressure[n].coef for n in free},
+        constants,
+        bounds,
+        h0,
+        nuisance or None,
+    )
     cf.per_run_nrmse = per_run
     # a sanity check: the joint fit starts from (among others) the per-run quadratics, so it
     # only ends above them by the BIC-accepted order pruning (a small, deliberate loss)
-    if not np.isfinite(joint.mean_nrmse) or joint.mean_nrmse > JOINT_TOLERANCE * float(np.mean(per_run)):
+    if not np.isfinite(joint.mean_nrmse) or joint.mean_nrmse > JOINT_TOLERANCE * float(
+        np.mean(per_run)
+    ):
         cf.warnings.append(
             f"joint refinement did not improve on the per-run quadratics (mean nrmse "
-            f"{joint.mean_nrmse:.4f} vs {float(np.mean(per_run)):.4f}); using the per-run quadratics")
+            f"{joint.mean_nrmse:.4f} vs {float(np.mean(per_run)):.4f}); using the per-run quadratics"
+        )
         return
     new: dict[str, PressureFit] = {}
     for n, pf in cf.pressure.items():
@@ -444,13 +511,30 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
             q = joint.coef[n]
             fitted = [q[0] + q[1] * p + q[2] * p * p for p in pf.pressures]
             r2, resid = weighted_r2(pf.values, fitted, pf.stderr)
-            new[n] = PressureFit(name=n, coef=q, degree=joint.degree[n], r2=r2,
-                                 pressures=pf.pressures, values=pf.values, stderr=pf.stderr,
-                                 residuals=resid, method="joint", per_run_coef=pf.coef,
-                                 per_run_r2=pf.r2, per_run_degree=pf.degree)
+            new[n] = PressureFit(
+                name=n,
+                coef=q,
+                degree=joint.degree[n],
+                r2=r2,
+                pressures=pf.pressures,
+                values=pf.values,
+                stderr=pf.stderr,
+                residuals=resid,
+                method="joint",
+                per_run_coef=pf.coef,
+                per_run_r2=pf.r2,
+                per_run_degree=pf.degree,
+            )
         elif n in constants:
-            new[n] = replace(pf, coef=(constants[n], 0.0, 0.0), degree=0, method="joint",
-                             per_run_coef=pf.coef, per_run_r2=pf.r2, per_run_degree=pf.degree)
+            new[n] = replace(
+                pf,
+                coef=(constants[n], 0.0, 0.0),
+                degree=0,
+                method="joint",
+                per_run_coef=pf.coef,
+                per_run_r2=pf.r2,
+                per_run_degree=pf.degree,
+            )
         else:
             new[n] = pf  # h0 / record nuisance: per-run, never used for prediction
     cf.pressure = new
@@ -458,13 +542,17 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     cf.pressure_model = "joint"
     orders = ", ".join(f"{n} {joint.degree[n]}" for n in free)
     per = ", ".join(["h0"] * bool(h0 is not None) + nuis_names) or "none"
-    cf.warnings.append(note(
-        "joint-refined",
-        f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run {per}): "
-        f"mean nrmse {float(np.mean(per_run)):.4f} with the per-run quadratics -> "
-        f"{joint.mean_nrmse:.4f}; orders in p: {orders}",
-        nrmse_per_run_quadratics=float(np.mean(per_run)), nrmse=joint.mean_nrmse,
-        orders=dict(joint.degree)))
+    cf.warnings.append(
+        note(
+            "joint-refined",
+            f"pressure laws refined jointly on all {len(rfs)} runs (free-run error, per-run {per}): "
+            f"mean nrmse {float(np.mean(per_run)):.4f} with the per-run quadratics -> "
+            f"{joint.mean_nrmse:.4f}; orders in p: {orders}",
+            nrmse_per_run_quadratics=float(np.mean(per_run)),
+            nrmse=joint.mean_nrmse,
+            orders=dict(joint.degree),
+        )
+    )
     cf.warnings += notes + jnotes
     if not joint.success:
         cf.warnings.append(f"joint refinement stopped early: {joint.message}")
@@ -506,12 +594,25 @@ def refine_output_error(cf: CampaignFit, runs: Sequence[Run]) -> CampaignFit:
             continue
         q = oe.coef[n]
         vals = [float(q[0] + q[1] * p + q[2] * p * p) for p in pf.pressures]
-        pressure[n] = replace(pf, coef=tuple(q), values=vals, method="output-error",
-                              stderr=[oe.stderr.get(n)] * len(vals),
-                              residuals=[0.0] * len(vals))
+        pressure[n] = replace(
+            pf,
+            coef=tuple(q),
+            values=vals,
+            method="output-error",
+            stderr=[oe.stderr.get(n)] * len(vals),
+            residuals=[0.0] * len(vals),
+        )
     # the per-run force fits were the start: their warnings are about that start
     tag = "force-direction start (refined by output error): "
-    runs_out = [replace(rf, result=replace(rf.result, warnings=[tag + w for w in rf.result.warnings]))
-                for rf in cf.runs]
-    return replace(cf, pressure=pressure, pressure_model="output-error", output_error=oe,
-                   runs=runs_out, warnings=[*cf.warnings, *oe.notes])
+    runs_out = [
+        replace(rf, result=replace(rf.result, warnings=[tag + w for w in rf.result.warnings]))
+        for rf in cf.runs
+    ]
+    return replace(
+        cf,
+        pressure=pressure,
+        pressure_model="output-error",
+        output_error=oe,
+        runs=runs_out,
+        warnings=[*cf.warnings, *oe.notes],
+    )

@@ -51,9 +51,15 @@ class PressureFit:
 
     def stats(self) -> dict:
         """The JSON block (``pressure_fit_stats[name]``)."""
-        out = {"r2": self.r2, "degree": self.degree, "residuals": self.residuals,
-               "pressures": self.pressures, "values": self.values, "stderr": self.stderr,
-               "method": self.method}
+        out = {
+            "r2": self.r2,
+            "degree": self.degree,
+            "residuals": self.residuals,
+            "pressures": self.pressures,
+            "values": self.values,
+            "stderr": self.stderr,
+            "method": self.method,
+        }
         if self.per_run_coef is not None:
             out["per_run_quadratic"] = list(self.per_run_coef)
             out["per_run_r2"] = self.per_run_r2
@@ -73,14 +79,21 @@ def fit_quadratic(
     (:func:`~pmalab.identify.estimation.basis.fit_polynomial`)."""
     se_in = list(stderr) if stderr is not None else [None] * len(values)
     pf = fit_polynomial(pressures, values, weights(se_in, len(se_in)), max_degree=max_degree)
-    return PressureFit(name=name, coef=pf.coef, degree=pf.degree, r2=float(pf.r2),
-                       pressures=[float(v) for v in pressures], values=[float(v) for v in values],
-                       stderr=[None if s is None else float(s) for s in se_in],
-                       residuals=list(pf.residuals))
+    return PressureFit(
+        name=name,
+        coef=pf.coef,
+        degree=pf.degree,
+        r2=float(pf.r2),
+        pressures=[float(v) for v in pressures],
+        values=[float(v) for v in values],
+        stderr=[None if s is None else float(s) for s in se_in],
+        residuals=list(pf.residuals),
+    )
 
 
-def weighted_r2(values: Sequence[float], fitted: Sequence[float],
-                stderr: Sequence[float | None] | None = None) -> tuple[float, list[float]]:
+def weighted_r2(
+    values: Sequence[float], fitted: Sequence[float], stderr: Sequence[float | None] | None = None
+) -> tuple[float, list[float]]:
     """(weighted R², residuals) of per-run ``values`` about a given law's ``fitted`` values."""
     y = np.asarray(values, dtype=np.float64)
     f = np.asarray(fitted, dtype=np.float64)

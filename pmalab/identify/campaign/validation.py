@@ -26,8 +26,9 @@ DIVERGED_RANGE_FACTOR = 2.0
 VALIDATION_STATUSES = ("ok", "extrapolated", "diverged")
 
 
-def check_prediction(measured: np.ndarray, predicted: np.ndarray, what: str = "force",
-                     unit: str = "N") -> str | None:
+def check_prediction(
+    measured: np.ndarray, predicted: np.ndarray, what: str = "force", unit: str = "N"
+) -> str | None:
     """Why a prediction is unusable (non-finite, or far outside the measured force band), or None.
 
     Band: [min F − 2·range, max F + 2·range] of the measured force (N).  A model whose
@@ -42,8 +43,10 @@ def check_prediction(measured: np.ndarray, predicted: np.ndarray, what: str = "f
     rng = max(hi - lo, 1e-9)
     worst = float(np.max(np.maximum(yh - hi, lo - yh)))
     if worst > DIVERGED_RANGE_FACTOR * rng:
-        return (f"prediction leaves the measured {what} band [{lo:.4g}, {hi:.4g}] {unit} by up "
-                f"to {worst:.4g} {unit} (> {DIVERGED_RANGE_FACTOR:g}× its range)")
+        return (
+            f"prediction leaves the measured {what} band [{lo:.4g}, {hi:.4g}] {unit} by up "
+            f"to {worst:.4g} {unit} (> {DIVERGED_RANGE_FACTOR:g}× its range)"
+        )
     return None
 
 
@@ -78,8 +81,9 @@ class Validation:
         return self.status == "diverged"
 
 
-def validate_runs(cf: CampaignFit, runs: Iterable[Run],
-                  initial: str = "estimate") -> tuple[list[Validation], list[str]]:
+def validate_runs(
+    cf: CampaignFit, runs: Iterable[Run], initial: str = "estimate"
+) -> tuple[list[Validation], list[str]]:
     """Predict each held-out run with ``cf``'s pressure laws; returns (validations, warnings)."""
     out: list[Validation] = []
     warnings: list[str] = []
@@ -92,8 +96,10 @@ def validate_runs(cf: CampaignFit, runs: Iterable[Run],
         if cf.extrapolates(p):
             lo, hi = cf.pressure_range
             status = "extrapolated"
-            msg = (f"{p:g} MPa is outside the identified range [{lo:g}, {hi:g}] MPa: "
-                   "θ(p) extrapolated and clipped into the law's bounds")
+            msg = (
+                f"{p:g} MPa is outside the identified range [{lo:g}, {hi:g}] MPa: "
+                "θ(p) extrapolated and clipped into the law's bounds"
+            )
             warnings.append(f"{r.label}: {msg}")
         with np.errstate(all="ignore"):
             m = metrics(r.force, fm, sig.x)
@@ -102,7 +108,8 @@ def validate_runs(cf: CampaignFit, runs: Iterable[Run],
             status, msg = "diverged", why + (f"; {msg}" if msg else "")
             warnings.append(
                 f"{r.label}: the {cf.pressure_model} pressure-law model diverged on this "
-                f"validation run ({why}); its fit % is meaningless")
+                f"validation run ({why}); its fit % is meaningless"
+            )
         xm = None
         if cf.output == "position":
             xm, m = _position(cf, r, sig, m)
@@ -110,8 +117,17 @@ def validate_runs(cf: CampaignFit, runs: Iterable[Run],
             if why is not None and status != "diverged":
                 status, msg = "diverged", why
                 warnings.append(f"{r.label}: the simulated position diverged ({why})")
-        out.append(Validation(run=r, force_model=fm, metrics=m, x_drive=sig.x,
-                              status=status, message=msg, position_model=xm))
+        out.append(
+            Validation(
+                run=r,
+                force_model=fm,
+                metrics=m,
+                x_drive=sig.x,
+                status=status,
+                message=msg,
+                position_model=xm,
+            )
+        )
     return out, warnings
 
 
@@ -131,8 +147,15 @@ def _position(cf: CampaignFit, r: Run, sig: Signals, m: dict) -> tuple[np.ndarra
     return xm, {**m, **position_metrics(r.position, xm)}
 
 
-def fit_and_validate(train: list[Run], model, held_out: Iterable[Run], *, initial: str = "estimate",
-                     output: str = "force", **fit_kwargs) -> tuple[CampaignFit, list[Validation], list[str]]:
+def fit_and_validate(
+    train: list[Run],
+    model,
+    held_out: Iterable[Run],
+    *,
+    initial: str = "estimate",
+    output: str = "force",
+    **fit_kwargs,
+) -> tuple[CampaignFit, list[Validation], list[str]]:
     """THE identification: :func:`~pmalab.identify.campaign.fit.fit_campaign` on ``train``,
     then :func:`validate_runs` on ``held_out``.  ``pmalab identify`` and every candidate
     that ``pmalab diagnose`` scores go through this one function."""

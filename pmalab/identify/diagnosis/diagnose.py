@@ -135,20 +135,33 @@ class Diagnosis:
         """The ranking as a fixed-width text table."""
         rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
         for r in self.ranking:
-            rows.append((r["effect"], f"{r['nrmse_before']:.4f}", f"{r['nrmse_after']:.4f}",
-                         f"{r['fall_percent']:+.1f}", f"{2 * r['fall_se_percent']:.1f}",
-                         str(r["n_params"]),
-                         "yes" if r["significant"] else ("ambiguous" if r["effect"] in self.ambiguous
-                                                         else "no")))
+            rows.append(
+                (
+                    r["effect"],
+                    f"{r['nrmse_before']:.4f}",
+                    f"{r['nrmse_after']:.4f}",
+                    f"{r['fall_percent']:+.1f}",
+                    f"{2 * r['fall_se_percent']:.1f}",
+                    str(r["n_params"]),
+                    "yes"
+                    if r["significant"]
+                    else ("ambiguous" if r["effect"] in self.ambiguous else "no"),
+                )
+            )
         return _table(rows)
 
     def ladder_table(self) -> str:
         rows = [("step", "model", "added", "nrmse", "fit %")]
         for s in self.ladder:
-            rows.append((str(s["step"]), "+".join([s.get("law") or self.model, *s["effects"]]),
-                         s["added"] or (f"law {s['switched_law']}" if s.get("switched_law")
-                                        else "-"),
-                         f"{s['nrmse']:.4f}", f"{s['fit_percent']:.2f}"))
+            rows.append(
+                (
+                    str(s["step"]),
+                    "+".join([s.get("law") or self.model, *s["effects"]]),
+                    s["added"] or (f"law {s['switched_law']}" if s.get("switched_law") else "-"),
+                    f"{s['nrmse']:.4f}",
+                    f"{s['fit_percent']:.2f}",
+                )
+            )
         return _table(rows)
 
     def plot(self, path: str | Path | None = None):  # -> matplotlib Figure
@@ -165,8 +178,13 @@ class Diagnosis:
         after = [r["nrmse_after"] for r in self.ranking][::-1]
         y = np.arange(len(names))
         a1.barh(y + 0.2, before, 0.4, color="0.7", label="without")
-        a1.barh(y - 0.2, after, 0.4, label="with the effect",
-                color=["tab:green" if r["significant"] else "tab:blue" for r in self.ranking][::-1])
+        a1.barh(
+            y - 0.2,
+            after,
+            0.4,
+            label="with the effect",
+            color=["tab:green" if r["significant"] else "tab:blue" for r in self.ranking][::-1],
+        )
         a1.set_yticks(y, names)
         a1.set_xlabel("held-out nrmse")
         a1.set_title("Effect ranking")
@@ -174,8 +192,13 @@ class Diagnosis:
         steps = [s["step"] for s in self.ladder]
         a2.plot(steps, [s["nrmse"] for s in self.ladder], "o-")
         for s in self.ladder:
-            a2.annotate(s["added"] or self.model, (s["step"], s["nrmse"]),
-                        textcoords="offset points", xytext=(4, 6), fontsize=8)
+            a2.annotate(
+                s["added"] or self.model,
+                (s["step"], s["nrmse"]),
+                textcoords="offset points",
+                xytext=(4, 6),
+                fontsize=8,
+            )
         a2.set_xticks(steps)
         a2.set_xlabel("ladder step")
         a2.set_ylabel("held-out nrmse")
@@ -220,8 +243,9 @@ def suggest_experiment(ambiguous: Sequence[str]) -> str:
     return "; ".join(texts) or "repeat at other frequencies, amplitudes and pressures"
 
 
-def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
-                  ambiguous: Sequence[str]) -> list[dict[str, Any]]:
+def _ranking_json(
+    rounds: Sequence[Round], steps: Sequence[LadderStep], ambiguous: Sequence[str]
+) -> list[dict[str, Any]]:
     """The ranking, best first, with *significant* only where the ladder added the effect.
 
     An effect the ladder added at step k is scored at that step (nrmse without = the model
@@ -238,9 +262,23 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
         d["ladder_step"] = added.index(c.effect) + 1 if c.effect in added else None
         if d["ladder_step"] and d["ladder_step"] > 1:
             at = next(x for x in rounds[d["ladder_step"] - 1].candidates if x.effect == c.effect)
-            d.update({k: v for k, v in at.as_json().items()
-                      if k in ("nrmse_before", "nrmse_after", "fall_percent", "fall_se_percent",
-                               "n_params", "runs_improved", "per_run_before", "per_run_after")})
+            d.update(
+                {
+                    k: v
+                    for k, v in at.as_json().items()
+                    if k
+                    in (
+                        "nrmse_before",
+                        "nrmse_after",
+                        "fall_percent",
+                        "fall_se_percent",
+                        "n_params",
+                        "runs_improved",
+                        "per_run_before",
+                        "per_run_after",
+                    )
+                }
+            )
             d["scored_against"] = "+".join(steps[d["ladder_step"] - 1].effects)
         else:
             d["scored_against"] = "base"
@@ -250,61 +288,94 @@ def _ranking_json(rounds: Sequence[Round], steps: Sequence[LadderStep],
     return out
 
 
-def _summary(model: str, ladder: list[dict], ranking: list[dict], ambiguous: list[str],
-             floor: float, worst: tuple[str, str] | None, suggestion: str, scheme: str,
-             run_floors: Sequence[float] = (),
-             laws: Sequence[dict] = (), rest: dict | None = None) -> tuple[str, str]:
+def _summary(
+    model: str,
+    ladder: list[dict],
+    ranking: list[dict],
+    ambiguous: list[str],
+    floor: float,
+    worst: tuple[str, str] | None,
+    suggestion: str,
+    scheme: str,
+    run_floors: Sequence[float] = (),
+    laws: Sequence[dict] = (),
+    rest: dict | None = None,
+) -> tuple[str, str]:
     """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
     identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
     base, last = ladder[0], ladder[-1]
-    parts = [f"Base {model} model: validation nrmse {base['nrmse']:.4f} "
-             f"({base['nrmse'] / floor:.1f}× the noise floor {floor:.4f}; {scheme})."]
+    parts = [
+        f"Base {model} model: validation nrmse {base['nrmse']:.4f} "
+        f"({base['nrmse'] / floor:.1f}× the noise floor {floor:.4f}; {scheme})."
+    ]
     if len(ladder) == 1:
         best = ranking[0] if ranking else None
-        parts.append("No catalogue effect cuts the validation error significantly"
-                     + (f" (best: {best['effect']}, {best['nrmse_before']:.4f} → "
-                        f"{best['nrmse_after']:.4f}, {best['fall_percent']:.0f} %)." if best else "."))
+        parts.append(
+            "No catalogue effect cuts the validation error significantly"
+            + (
+                f" (best: {best['effect']}, {best['nrmse_before']:.4f} → "
+                f"{best['nrmse_after']:.4f}, {best['fall_percent']:.0f} %)."
+                if best
+                else "."
+            )
+        )
     else:
         names = ", then ".join(s["added"] or f"the {s['switched_law']} law" for s in ladder[1:])
         total = 100.0 * (1.0 - last["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
-        steps = " → ".join(f"{'+' + s['added'] if s['added'] else '→ ' + s['switched_law']} "
-                           f"{s['nrmse']:.4f}" for s in ladder[1:])
-        what = ("Ladder" if any(s.get("switched_law") for s in ladder[1:])
-                else f"Missing effect{'s' if len(ladder) > 2 else ''}")
-        parts.append(f"{what}: {names} — validation "
-                     f"nrmse {base['nrmse']:.4f} {steps} (−{total:.0f} %).")
+        steps = " → ".join(
+            f"{'+' + s['added'] if s['added'] else '→ ' + s['switched_law']} {s['nrmse']:.4f}"
+            for s in ladder[1:]
+        )
+        what = (
+            "Ladder"
+            if any(s.get("switched_law") for s in ladder[1:])
+            else f"Missing effect{'s' if len(ladder) > 2 else ''}"
+        )
+        parts.append(
+            f"{what}: {names} — validation nrmse {base['nrmse']:.4f} {steps} (−{total:.0f} %)."
+        )
     switch = next((s for s in ladder[1:] if s.get("switched_law")), None)
     if switch is not None:
         prev = ladder[switch["step"] - 1]
         fall = 100.0 * (1.0 - switch["nrmse"] / prev["nrmse"]) if prev["nrmse"] > 0 else 0.0
-        parts.append(f"The loop's shape is the {switch['switched_law']} law's: try `--model "
-                     f"{switch['switched_law']}`: {prev['nrmse']:.4f} → {switch['nrmse']:.4f} "
-                     f"(−{fall:.0f} %).")
+        parts.append(
+            f"The loop's shape is the {switch['switched_law']} law's: try `--model "
+            f"{switch['switched_law']}`: {prev['nrmse']:.4f} → {switch['nrmse']:.4f} "
+            f"(−{fall:.0f} %)."
+        )
     else:
         better = [lw for lw in laws if lw["significant"]]
         if better:
             b = better[0]
-            parts.append(f"Also significant: try `--model {b['law']}`: {b['nrmse_before']:.4f} → "
-                         f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %).")
+            parts.append(
+                f"Also significant: try `--model {b['law']}`: {b['nrmse_before']:.4f} → "
+                f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %)."
+            )
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
     if ratio < UNEXPLAINED_RATIO:
         verdict = "floor"
-        parts.append(f"The {'final ' if len(ladder) > 1 else ''}model is at {ratio:.2f}× the "
-                     "noise floor: what is left is less than any effect the significance rule "
-                     f"could call real (≥ {MIN_GAIN_X_FLOOR:g} noise floors), nothing "
-                     "structured is left to explain.")
+        parts.append(
+            f"The {'final ' if len(ladder) > 1 else ''}model is at {ratio:.2f}× the "
+            "noise floor: what is left is less than any effect the significance rule "
+            f"could call real (≥ {MIN_GAIN_X_FLOOR:g} noise floors), nothing "
+            "structured is left to explain."
+        )
     else:
         verdict = "unexplained"
         # the worst place of the FINAL model (the base model's worst runs are listed apart)
         whose = "the final model's" if len(ladder) > 1 else "the model's"
         where = f"; {whose} largest residual is on {worst[0]}: {worst[1]}" if worst else ""
-        parts.append(f"Unexplained structured residual, {ratio:.1f}× the noise floor{where} "
-                     "(a hysteresis law of another shape or an effect not in the catalogue).")
+        parts.append(
+            f"Unexplained structured residual, {ratio:.1f}× the noise floor{where} "
+            "(a hysteresis law of another shape or an effect not in the catalogue)."
+        )
         if rest and rest.get("text"):
             parts.append(rest["text"])
     if ambiguous:
-        parts.append(f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
-                     f"to separate them, {suggestion}.")
+        parts.append(
+            f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
+            f"to separate them, {suggestion}."
+        )
     return " ".join(parts), verdict
 
 
@@ -354,13 +425,24 @@ def diagnose(
         raise DiagnoseError("no identification runs left: every run is held out")
     floors = {r.label: noise_floor_nrmse(r.force, r.time) for r in split.held}
     floor = float(np.mean(list(floors.values())))
-    other_laws = [lw for lw in LAWS if lw != model] if laws is None else \
-        [lw for lw in laws if lw != model]
+    other_laws = (
+        [lw for lw in LAWS if lw != model] if laws is None else [lw for lw in laws if lw != model]
+    )
     for lw in other_laws:
         if lw not in LAWS:
             raise DiagnoseError(f"unknown law '{lw}' (choose from {', '.join(LAWS)})")
-    steps, rounds = run_ladder(split.train, split.held, model, cand, files, max_steps, jobs,
-                               progress, laws=other_laws, scheduler=scheduler)
+    steps, rounds = run_ladder(
+        split.train,
+        split.held,
+        model,
+        cand,
+        files,
+        max_steps,
+        jobs,
+        progress,
+        laws=other_laws,
+        scheduler=scheduler,
+    )
     amb = rounds[0].ambiguous if rounds else []
     suggestion = suggest_experiment(amb)
     final = steps[-1].effects
@@ -375,52 +457,108 @@ def diagnose(
         d = run_diagnostics(sig, run.force, fb)
         d["nrmse_final"] = float(np.sqrt(np.mean((run.force - ff) ** 2)) / np.std(run.force))
         d["noise_floor_nrmse"] = floors[run.label]
-        d["residual_shares"] = residual_shares(run.time, run.position, run.force - ff,
-                                               floors[run.label] * float(np.std(run.force)),
-                                               run.frequency, model_force=ff)
+        d["residual_shares"] = residual_shares(
+            run.time,
+            run.position,
+            run.force - ff,
+            floors[run.label] * float(np.std(run.force)),
+            run.frequency,
+            model_force=ff,
+        )
         diagnostics[run.label] = d
         traces.append((run, fb, ff))
         camp_items.append((sig.p_nom, run.frequency, run.force - fb))
     worst = None
     if diagnostics:
         # where the FINAL model is worst (relative to each run's noise floor)
-        i = int(np.argmax([diagnostics[r.label]["nrmse_final"] / max(floors[r.label], 1e-12)
-                           for r in split.held]))
+        i = int(
+            np.argmax(
+                [
+                    diagnostics[r.label]["nrmse_final"] / max(floors[r.label], 1e-12)
+                    for r in split.held
+                ]
+            )
+        )
         run, _, ff = traces[i]
-        worst = (run.label, str(run_diagnostics(Signals.from_run(run), run.force, ff)
-                                .get("worst_region", "")))
+        worst = (
+            run.label,
+            str(run_diagnostics(Signals.from_run(run), run.force, ff).get("worst_region", "")),
+        )
     ladder = [s.as_json() for s in steps]
-    laws_json = [{"law": c.effect, "nrmse_before": float(c.nrmse_before),
-                  "nrmse_after": float(c.nrmse_after), "fall_percent": float(100.0 * c.fall),
-                  "gain_x_floor": float(c.gain_x_floor), "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
-                  "runs_improved": float(c.runs_improved), "significant": bool(c.significant),
-                  "per_run_after": [float(v) for v in c.after.nrmse]}
-                 for c in (rounds[0].laws if rounds else [])]
+    laws_json = [
+        {
+            "law": c.effect,
+            "nrmse_before": float(c.nrmse_before),
+            "nrmse_after": float(c.nrmse_after),
+            "fall_percent": float(100.0 * c.fall),
+            "gain_x_floor": float(c.gain_x_floor),
+            "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
+            "runs_improved": float(c.runs_improved),
+            "significant": bool(c.significant),
+            "per_run_after": [float(v) for v in c.after.nrmse],
+        }
+        for c in (rounds[0].laws if rounds else [])
+    ]
     laws_json.sort(key=lambda d: (not d["significant"], -d["fall_percent"]))  # best first
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     rest = residual_next_step([d["residual_shares"] for d in diagnostics.values()])
-    summary, verdict = _summary(model, ladder, ranking, amb, floor, worst, suggestion, split.scheme,
-                                [floors[r.label] for r in split.held], laws_json, rest)
+    summary, verdict = _summary(
+        model,
+        ladder,
+        ranking,
+        amb,
+        floor,
+        worst,
+        suggestion,
+        split.scheme,
+        [floors[r.label] for r in split.held],
+        laws_json,
+        rest,
+    )
     campaign = campaign_diagnostics(camp_items)
-    rounds_json = [{"step": r.step, "ambiguous": r.ambiguous,
-                    "candidates": [c.as_json() for c in r.candidates]} for r in rounds]
-    settings = {"validation": split.scheme,
-                "held_out": [r.label for r in split.held],
-                "identification_runs": [r.label for r in split.train],
-                "identify_hint": split.identify_hint,
-                "max_steps": max_steps, "candidates": cand,
-                "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
-                           "runs (one identification per candidate)"}
-    return Diagnosis(model=model, ranking=ranking, ambiguous=list(amb),
-                     suggested_experiment=suggestion, ladder=ladder, diagnostics=diagnostics,
-                     campaign=campaign, summary=summary,
-                     noise_floor={"mean_nrmse": floor, "per_run": floors,
-                                  "method": "third differences of the measured force, robust "
-                                            "scale (pmalab.identify.noise)"},
-                     verdict=verdict, rounds=rounds_json, settings=settings, traces=traces,
-                     final_effects=list(final), laws=laws_json, final_law=final_law,
-                     residual=rest)
+    rounds_json = [
+        {
+            "step": r.step,
+            "ambiguous": r.ambiguous,
+            "candidates": [c.as_json() for c in r.candidates],
+        }
+        for r in rounds
+    ]
+    settings = {
+        "validation": split.scheme,
+        "held_out": [r.label for r in split.held],
+        "identification_runs": [r.label for r in split.train],
+        "identify_hint": split.identify_hint,
+        "max_steps": max_steps,
+        "candidates": cand,
+        "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
+        "runs (one identification per candidate)",
+    }
+    return Diagnosis(
+        model=model,
+        ranking=ranking,
+        ambiguous=list(amb),
+        suggested_experiment=suggestion,
+        ladder=ladder,
+        diagnostics=diagnostics,
+        campaign=campaign,
+        summary=summary,
+        noise_floor={
+            "mean_nrmse": floor,
+            "per_run": floors,
+            "method": "third differences of the measured force, robust "
+            "scale (pmalab.identify.noise)",
+        },
+        verdict=verdict,
+        rounds=rounds_json,
+        settings=settings,
+        traces=traces,
+        final_effects=list(final),
+        laws=laws_json,
+        final_law=final_law,
+        residual=rest,
+    )
 
 
 # --------------------------------------------------------------------------- writing
@@ -435,10 +573,12 @@ def write_outputs(diag: Diagnosis, out_dir: str | Path, force: bool = False) -> 
     jpath = check_output(d / "diagnosis.json", force)
     hpath = check_output(d / "predictions.h5", force)
     d.mkdir(parents=True, exist_ok=True)
-    write_together({
-        jpath: lambda p: p.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False)),
-        hpath: lambda p: _write_predictions(diag, p),
-    })
+    write_together(
+        {
+            jpath: lambda p: p.write_text(json.dumps(diag.to_json(), indent=1, allow_nan=False)),
+            hpath: lambda p: _write_predictions(diag, p),
+        }
+    )
     return jpath, hpath
 
 
@@ -447,8 +587,8 @@ def _write_predictions(diag: Diagnosis, hpath: Path) -> None:
     final_name = "+".join([diag.final_law or diag.model, *diag.final_effects])
     items = []
     for run, fb, ff in diag.traces:
-        items += [PredictionItem(run, "diagnosis", fb, diag.model),
-                  PredictionItem(run, "diagnosis-final", ff, final_name)]
+        items += [
+            PredictionItem(run, "diagnosis", fb, diag.model),
+            PredictionItem(run, "diagnosis-final", ff, final_name),
+        ]
     write_predictions_file(hpath, items, final_name)
-
-

@@ -61,14 +61,19 @@ def integrated_act(r: np.ndarray, max_lag: int | None = None) -> float:
     return float(min(max(tau, 1.0), n))
 
 
-
 def _ci_scale(r: np.ndarray) -> float:
     """How many raw samples make one independent one (τ_int of the residual)."""
     return integrated_act(r[:: max(1, r.shape[0] // 4000)]) * max(1, r.shape[0] // 4000)
 
 
-def binned_mean(values: np.ndarray, r: np.ndarray, tau: float, unit: str,
-                n_bins: int = N_BINS, categories: Sequence[float] | None = None) -> dict[str, Any]:
+def binned_mean(
+    values: np.ndarray,
+    r: np.ndarray,
+    tau: float,
+    unit: str,
+    n_bins: int = N_BINS,
+    categories: Sequence[float] | None = None,
+) -> dict[str, Any]:
     """Mean residual per bin of ``values`` with a 95 % CI using n_eff = n / tau per bin.
 
     ``categories``: exact category values (e.g. −1, +1) instead of equal-width bins over
@@ -114,7 +119,9 @@ def correlation(a: np.ndarray, b: np.ndarray, max_lag: int) -> np.ndarray:
     return c[lags % nfft] / norm
 
 
-def _lag_grid(t: np.ndarray, frequency_Hz: float | None, n_lags: int = 60) -> tuple[int, int, float]:
+def _lag_grid(
+    t: np.ndarray, frequency_Hz: float | None, n_lags: int = 60
+) -> tuple[int, int, float]:
     """(stride, max lag in samples, dt): lags up to one cycle (≤ 5 s), about n_lags points."""
     dt = float(np.median(np.diff(t)))
     span = min(1.0 / frequency_Hz if frequency_Hz else 2.0, 5.0, 0.5 * float(t[-1] - t[0]))
@@ -135,17 +142,23 @@ def loop_regions(x: np.ndarray, v: np.ndarray, r: np.ndarray) -> list[dict[str, 
     names = ("low contraction", "mid contraction", "high contraction")
     which = np.digitize(x, edges[1:3])  # 0, 1, 2: the stroke's thirds
     out = []
-    for bname, bmask in (("stretch branch (x falling)", v < 0), ("release branch (x rising)", v >= 0)):
+    for bname, bmask in (
+        ("stretch branch (x falling)", v < 0),
+        ("release branch (x rising)", v >= 0),
+    ):
         for i, pname in enumerate(names):
             m = bmask & (which == i)
             n = int(m.sum())
-            out.append({
-                "branch": bname, "position": pname,
-                "x_range_mm": [float(edges[i]), float(edges[i + 1])],
-                "n": n,
-                "rms": float(np.sqrt(np.mean(r[m] ** 2))) if n else None,
-                "mean": float(np.mean(r[m])) if n else None,
-            })
+            out.append(
+                {
+                    "branch": bname,
+                    "position": pname,
+                    "x_range_mm": [float(edges[i]), float(edges[i + 1])],
+                    "n": n,
+                    "rms": float(np.sqrt(np.mean(r[m] ** 2))) if n else None,
+                    "mean": float(np.mean(r[m])) if n else None,
+                }
+            )
     return out
 
 
@@ -160,8 +173,12 @@ def loop_phase(x: np.ndarray, r: np.ndarray, n_bins: int = 8) -> dict[str, Any]:
         m = which == i
         rms.append(float(np.sqrt(np.mean(r[m] ** 2))) if m.any() else None)
         mean.append(float(np.mean(r[m])) if m.any() else None)
-    return {"centers_deg": [float(c) for c in 0.5 * (edges[1:] + edges[:-1])], "rms": rms,
-            "mean": mean, "note": "0° = maximum contraction; 0°–180° stretch branch (x falling), 180°–360° release"}
+    return {
+        "centers_deg": [float(c) for c in 0.5 * (edges[1:] + edges[:-1])],
+        "rms": rms,
+        "mean": mean,
+        "note": "0° = maximum contraction; 0°–180° stretch branch (x falling), 180°–360° release",
+    }
 
 
 def describe_worst(regions: list[dict[str, Any]], total_rms: float) -> str:
@@ -172,9 +189,11 @@ def describe_worst(regions: list[dict[str, Any]], total_rms: float) -> str:
     w = max(cells, key=lambda c: c["rms"])
     sense = "model tension too low" if w["mean"] > 0 else "model tension too high"
     lo, hi = w["x_range_mm"]
-    return (f"{w['branch'].split(' (')[0]}, {w['position']} (x {lo:.1f}–{hi:.1f} mm): "
-            f"rms error {w['rms']:.3g} N ({w['rms'] / total_rms:.1f}× the run's {total_rms:.3g} N), "
-            f"mean {w['mean']:+.3g} N: {sense}")
+    return (
+        f"{w['branch'].split(' (')[0]}, {w['position']} (x {lo:.1f}–{hi:.1f} mm): "
+        f"rms error {w['rms']:.3g} N ({w['rms'] / total_rms:.1f}× the run's {total_rms:.3g} N), "
+        f"mean {w['mean']:+.3g} N: {sense}"
+    )
 
 
 def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) -> dict[str, Any]:
@@ -203,11 +222,18 @@ def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) ->
     k_peak = int(np.argmax(np.abs(ccf)))
     return {
         "binned": binned,
-        "acf": {"lags_s": [float(x) for x in lags_acf], "values": [float(x) for x in acf],
-                "bound95": bound},
-        "ccf_input": {"lags_s": [float(x) for x in lags_ccf], "values": [float(x) for x in ccf],
-                      "bound95": bound, "input": "position",
-                      "peak_lag_s": float(lags_ccf[k_peak])},
+        "acf": {
+            "lags_s": [float(x) for x in lags_acf],
+            "values": [float(x) for x in acf],
+            "bound95": bound,
+        },
+        "ccf_input": {
+            "lags_s": [float(x) for x in lags_ccf],
+            "values": [float(x) for x in ccf],
+            "bound95": bound,
+            "input": "position",
+            "peak_lag_s": float(lags_ccf[k_peak]),
+        },
         "worst_region": describe_worst(regions, total),
         "regions": regions,
         "loop_phase": loop_phase(sig.x, r),
@@ -235,8 +261,11 @@ def campaign_diagnostics(items: Sequence[tuple[float, float | None, np.ndarray]]
             per_run = [float(np.sqrt(np.mean(x**2))) for x in rs]
             mean.append(float(np.mean(allr)))
             rms.append(float(np.sqrt(np.mean(allr**2))))
-            ci.append(float(1.96 * np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
-                      if len(per_run) > 1 else None)
+            ci.append(
+                float(1.96 * np.std(per_run, ddof=1) / np.sqrt(len(per_run)))
+                if len(per_run) > 1
+                else None
+            )
         out[name] = {"centers": centers, "mean": mean, "rms": rms, "ci95_rms": ci, "unit": unit}
     return out
 
@@ -259,9 +288,14 @@ def _fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
     return float(k * (n - 1) / ((t[-1] - t[0]) * n))
 
 
-def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: float,
-                    frequency_Hz: float | None = None,
-                    model_force: np.ndarray | None = None) -> dict[str, Any]:
+def residual_shares(
+    t: np.ndarray,
+    x: np.ndarray,
+    r: np.ndarray,
+    noise_sigma_N: float,
+    frequency_Hz: float | None = None,
+    model_force: np.ndarray | None = None,
+) -> dict[str, Any]:
     """Split a held-out run's residual power beyond the noise into where it lies.
 
     ``r`` = measured − model force (N) of a free-run prediction, ``x`` the contraction
@@ -294,13 +328,26 @@ def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: 
     mean_sq = float(np.mean(r**2)) if n else 0.0
     sigma2 = float(noise_sigma_N) ** 2
     structured = max(mean_sq - sigma2, 0.0)
-    f0 = frequency_Hz if frequency_Hz and frequency_Hz > 0 else (
-        _fundamental(np.linspace(t[0], t[-1], n), np.interp(np.linspace(t[0], t[-1], n), t, x))
-        if n >= 32 else None)
-    out: dict[str, Any] = {"structured_power_N2": structured, "rms_N": float(np.sqrt(mean_sq)),
-                           "noise_sigma_N": float(noise_sigma_N), "f0_Hz": f0,
-                           "offset": 0.0, "loop": 0.0, "above_band": 0.0, "other": 0.0,
-                           "above_band_source": None}
+    f0 = (
+        frequency_Hz
+        if frequency_Hz and frequency_Hz > 0
+        else (
+            _fundamental(np.linspace(t[0], t[-1], n), np.interp(np.linspace(t[0], t[-1], n), t, x))
+            if n >= 32
+            else None
+        )
+    )
+    out: dict[str, Any] = {
+        "structured_power_N2": structured,
+        "rms_N": float(np.sqrt(mean_sq)),
+        "noise_sigma_N": float(noise_sigma_N),
+        "f0_Hz": f0,
+        "offset": 0.0,
+        "loop": 0.0,
+        "above_band": 0.0,
+        "other": 0.0,
+        "above_band_source": None,
+    }
     if structured <= 0.0 or f0 is None or n < 4 * LOOP_BINS:
         return out
     mean = float(np.mean(r))
@@ -352,17 +399,17 @@ def residual_shares(t: np.ndarray, x: np.ndarray, r: np.ndarray, noise_sigma_N: 
 #: what each share points at, in the summary's words
 RESIDUAL_NEXT = {
     "loop": "where the loop is, the same every cycle: the loop's shape (try another law, "
-            "or an effect that changes the loop)",
+    "or an effect that changes the loop)",
     "above_band": "above the motion band: a disturbance from the rig (vibration, valve, "
-                  "pickup), not the muscle",
+    "pickup), not the muscle",
     "above_band_model": "above the motion band, and the model's own: its prediction carries "
-                        "more fast content than the measurement (a term differentiating a "
-                        "noisy position: smooth the velocity it uses)",
+    "more fast content than the measurement (a term differentiating a "
+    "noisy position: smooth the velocity it uses)",
     "offset": "a constant offset between identification and validation sessions (a "
-              "systematic offset the pressure laws cannot carry: re-zero the load cell, "
-              "or identify on runs of the same session)",
+    "systematic offset the pressure laws cannot carry: re-zero the load cell, "
+    "or identify on runs of the same session)",
     "other": "in the motion band but off its harmonics: slow drift or non-periodic "
-             "behaviour within the run",
+    "behaviour within the run",
 }
 
 
@@ -373,8 +420,7 @@ def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
     w = np.array([d["structured_power_N2"] for d in per_run], float)
     if not per_run or w.sum() <= 0:
         return {**{k: 0.0 for k in keys}, "next": None, "text": ""}
-    shares = {k: float(np.sum([d[k] * wi for d, wi in zip(per_run, w)]) / w.sum())
-              for k in keys}
+    shares = {k: float(np.sum([d[k] * wi for d, wi in zip(per_run, w)]) / w.sum()) for k in keys}
     top = max(keys, key=lambda k: shares[k])
     # whose the fast part is: the model's own when it is so on most of that power
     src_w = {"model": 0.0, "measurement": 0.0}
@@ -383,14 +429,20 @@ def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
             src_w[d["above_band_source"]] += d["above_band"] * wi
     shares_src = max(src_w, key=lambda k: src_w[k]) if any(src_w.values()) else None
     ordered = sorted(keys, key=lambda k: -shares[k])
-    names = {"loop": "tied to the loop", "above_band": "above the motion band",
-             "offset": "session offset", "other": "in band, not tied to the loop"}
-    listed = ", ".join(f"{100 * shares[k]:.0f} % {names[k]}" for k in ordered
-                       if shares[k] >= 0.05)
+    names = {
+        "loop": "tied to the loop",
+        "above_band": "above the motion band",
+        "offset": "session offset",
+        "other": "in band, not tied to the loop",
+    }
+    listed = ", ".join(f"{100 * shares[k]:.0f} % {names[k]}" for k in ordered if shares[k] >= 0.05)
     nxt = top if shares[top] >= 1 / 3 else None
     why = RESIDUAL_NEXT[top]
     if top == "above_band" and shares_src == "model":
         why = RESIDUAL_NEXT["above_band_model"]
-    text = (f"Where the rest lies ({listed}): mostly {why}."
-            if nxt else (f"Where the rest lies ({listed}): no single place." if listed else ""))
+    text = (
+        f"Where the rest lies ({listed}): mostly {why}."
+        if nxt
+        else (f"Where the rest lies ({listed}): no single place." if listed else "")
+    )
     return {**shares, "above_band_source": shares_src, "next": nxt, "text": text}

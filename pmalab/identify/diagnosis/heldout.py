@@ -43,11 +43,15 @@ def choose(runs: Sequence[Run], validate: Sequence[Run] = ()) -> HeldOut:
     tagged = [r for r in runs if r.attrs.get("role") == "validation"]
     train = [r for r in runs if r.attrs.get("role") != "validation"]
     if tagged or validate:
-        return HeldOut(train, [*tagged, *validate],
-                       "validation runs (--validate and runs with role 'validation')")
+        return HeldOut(
+            train,
+            [*tagged, *validate],
+            "validation runs (--validate and runs with role 'validation')",
+        )
     levels = _levels(train)
-    by_level = {lv: [r for r in train if round(float(r.nominal_pressure), 3) == lv]
-                for lv in levels}
+    by_level = {
+        lv: [r for r in train if round(float(r.nominal_pressure), 3) == lv] for lv in levels
+    }
     held: list[Run] = []
     if len(levels) >= 3:
         interior = levels[1:-1]
@@ -66,8 +70,12 @@ def choose(runs: Sequence[Run], validate: Sequence[Run] = ()) -> HeldOut:
     if held:
         ids = {id(r) for r in held}
         names = ",".join(r.name for r in held)
-        return HeldOut([r for r in train if id(r) not in ids], held,
-                       "whole runs held out at interior pressures", f"--hold-out {names}")
+        return HeldOut(
+            [r for r in train if id(r) not in ids],
+            held,
+            "whole runs held out at interior pressures",
+            f"--hold-out {names}",
+        )
     # too small a campaign: split every run in time
     fit, val = [], []
     for r in train:
@@ -77,4 +85,6 @@ def choose(runs: Sequence[Run], validate: Sequence[Run] = ()) -> HeldOut:
         b = replace(r.window(cut - t0, t1 - t0), name=f"{r.name}[held-out]")
         fit.append(a)
         val.append(b)
-    return HeldOut(fit, val, "last third of every run held out (too few runs to hold out whole runs)")
+    return HeldOut(
+        fit, val, "last third of every run held out (too few runs to hold out whole runs)"
+    )

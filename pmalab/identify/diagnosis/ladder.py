@@ -40,11 +40,17 @@ class LadderStep:
         return 100.0 * (1.0 - self.nrmse)
 
     def as_json(self) -> dict:
-        return {"step": self.step, "effects": list(self.effects), "added": self.added,
-                "law": self.law, "switched_law": self.switched,
-                "nrmse": float(self.nrmse), "fit_percent": float(self.fit_percent),
-                "per_run": [float(v) for v in self.scored.nrmse],
-                "model": "+".join(self.effects) or "base"}
+        return {
+            "step": self.step,
+            "effects": list(self.effects),
+            "added": self.added,
+            "law": self.law,
+            "switched_law": self.switched,
+            "nrmse": float(self.nrmse),
+            "fit_percent": float(self.fit_percent),
+            "per_run": [float(v) for v in self.scored.nrmse],
+            "model": "+".join(self.effects) or "base",
+        }
 
 
 @dataclass
@@ -94,14 +100,20 @@ def run_ladder(
             break
         specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
         specs += [ModelSpec(lw, current, files) for lw in others]
-        outs = score_all(train, held, specs, jobs, progress,
-                         f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws",
-                         scheduler=scheduler)
+        outs = score_all(
+            train,
+            held,
+            specs,
+            jobs,
+            progress,
+            f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws",
+            scheduler=scheduler,
+        )
         prev = steps[-1].scored
-        cands, amb = judge([Candidate(e, prev, o, floors=floors)
-                            for e, o in zip(remaining, outs)])
-        law_cands, _ = judge([Candidate(lw, prev, o, floors=floors)
-                              for lw, o in zip(others, outs[len(remaining):])])
+        cands, amb = judge([Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)])
+        law_cands, _ = judge(
+            [Candidate(lw, prev, o, floors=floors) for lw, o in zip(others, outs[len(remaining) :])]
+        )
         rounds.append(Round(len(steps), cands, amb, law_cands))
         pool = [c for c in [*cands, *law_cands] if c.significant]
         if not pool:
@@ -110,10 +122,8 @@ def run_ladder(
         if best in law_cands:
             cur_law = best.effect
             tried.add(cur_law)
-            steps.append(LadderStep(len(steps), list(current), None, best.after, cur_law,
-                                    cur_law))
+            steps.append(LadderStep(len(steps), list(current), None, best.after, cur_law, cur_law))
         else:
             current = (*current, best.effect)
-            steps.append(LadderStep(len(steps), list(current), best.effect, best.after,
-                                    cur_law))
+            steps.append(LadderStep(len(steps), list(current), best.effect, best.after, cur_law))
     return steps, rounds

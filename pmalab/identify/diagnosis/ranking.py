@@ -123,9 +123,15 @@ def _task(spec: ModelSpec) -> Scored:
     return score(_CONTEXT["train"], _CONTEXT["held"], spec)
 
 
-def score_all(train: Sequence[Run], held: Sequence[Run], specs: Sequence[ModelSpec],
-              jobs: int = 1, progress: bool = False, desc: str = "candidates",
-              scheduler: str | None = None) -> list[Scored]:
+def score_all(
+    train: Sequence[Run],
+    held: Sequence[Run],
+    specs: Sequence[ModelSpec],
+    jobs: int = 1,
+    progress: bool = False,
+    desc: str = "candidates",
+    scheduler: str | None = None,
+) -> list[Scored]:
     """Score every model spec (in parallel over candidates: one identification each).
 
     Local processes share the runs through the fork (no copy); on a Dask cluster
@@ -133,8 +139,13 @@ def score_all(train: Sequence[Run], held: Sequence[Run], specs: Sequence[ModelSp
     if scheduler:
         from functools import partial
 
-        return map_tasks(partial(score, list(train), list(held)), list(specs),
-                         scheduler=scheduler, progress=progress, desc=desc)
+        return map_tasks(
+            partial(score, list(train), list(held)),
+            list(specs),
+            scheduler=scheduler,
+            progress=progress,
+            desc=desc,
+        )
     _CONTEXT.update(train=list(train), held=list(held))
     try:
         return map_tasks(_task, list(specs), jobs=jobs, progress=progress, desc=desc)
@@ -245,8 +256,11 @@ def judge(cands: list[Candidate]) -> tuple[list[Candidate], list[str]]:
     sig = [c for c in cands if c.significant]
     amb: list[str] = []
     if len(sig) >= 2:
-        close = [c for c in sig[1:] if c.fall >= AMBIGUITY_RATIO * sig[0].fall
-                 and not clearly_better(sig[0], c)]
+        close = [
+            c
+            for c in sig[1:]
+            if c.fall >= AMBIGUITY_RATIO * sig[0].fall and not clearly_better(sig[0], c)
+        ]
         if close:
             amb = [sig[0].effect, *(c.effect for c in close)]
     return cands, amb
@@ -257,8 +271,12 @@ def is_significant(c: Candidate) -> bool:
     least ``MIN_GAIN_X_FLOOR`` noise floors on average, and — where the runs hold at least
     ``MIN_BLOCKS`` whole cycles — cycle by cycle beyond ``MIN_BLOCK_T`` standard errors."""
     t = c.block_t
-    return bool(not c.after.diverged and c.runs_improved == 1.0
-                and c.gain_x_floor >= MIN_GAIN_X_FLOOR and (math.isnan(t) or t >= MIN_BLOCK_T))
+    return bool(
+        not c.after.diverged
+        and c.runs_improved == 1.0
+        and c.gain_x_floor >= MIN_GAIN_X_FLOOR
+        and (math.isnan(t) or t >= MIN_BLOCK_T)
+    )
 
 
 def clearly_better(a: Candidate, b: Candidate) -> bool:

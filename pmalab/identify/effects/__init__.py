@@ -62,7 +62,9 @@ def load_user_effects(path: str | Path) -> list[str]:
             tb = tb.tb_next
         if isinstance(exc, SyntaxError) and exc.lineno:
             line = f" (line {exc.lineno})"
-        raise EffectError(f"{p}: could not load effects{line}: {type(exc).__name__}: {exc}") from None
+        raise EffectError(
+            f"{p}: could not load effects{line}: {type(exc).__name__}: {exc}"
+        ) from None
     found: list[str] = []
     for _, obj in inspect.getmembers(module, inspect.isclass):
         if not issubclass(obj, Effect) or obj is Effect or obj.__module__ != mod_name:

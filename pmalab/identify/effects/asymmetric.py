@@ -55,29 +55,60 @@ class AsymmetricHysteresis(Effect):
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         return [
-            Param("asym_psi_a", 0.0, -0.95, 0.95, "-",
-                  doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; unused for Duhem"),
-            Param("asym_psi_v", 0.0, -5.0, 5.0, "1/mm",
-                  doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α"),
-            Param("asym_psi_h", 0.0, -5.0, 5.0, "1/mm",
-                  doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b"),
+            Param(
+                "asym_psi_a",
+                0.0,
+                -0.95,
+                0.95,
+                "-",
+                doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; unused for Duhem",
+            ),
+            Param(
+                "asym_psi_v",
+                0.0,
+                -5.0,
+                5.0,
+                "1/mm",
+                doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α",
+            ),
+            Param(
+                "asym_psi_h",
+                0.0,
+                -5.0,
+                5.0,
+                "1/mm",
+                doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b",
+            ),
             # the width factor 1 + g·x stays positive over the stroke (x ≤ 30 mm)
-            Param("asym_g", 0.0, -0.03, 0.2, "1/mm",
-                  doc="loop width change per mm of contraction (h scaled by 1 + g·x)"),
+            Param(
+                "asym_g",
+                0.0,
+                -0.03,
+                0.2,
+                "1/mm",
+                doc="loop width change per mm of contraction (h scaled by 1 + g·x)",
+            ),
         ]
 
     def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
         return ("asym_psi_a",) if law_name == "duhem" else ()
 
-    def law_extras(self, law_name: str, sig: Signals, theta: Mapping[str, float]) -> dict[str, float]:
+    def law_extras(
+        self, law_name: str, sig: Signals, theta: Mapping[str, float]
+    ) -> dict[str, float]:
         if law_name == "duhem":
             # ratios kept inside (−1, 1) so α and b keep their sign on both branches
-            return {"psi_alpha": float(np.tanh(theta["asym_psi_v"])),
-                    "psi_b": float(np.tanh(theta["asym_psi_h"]))}
+            return {
+                "psi_alpha": float(np.tanh(theta["asym_psi_v"])),
+                "psi_b": float(np.tanh(theta["asym_psi_h"])),
+            }
         # Bouc-Wen: the generalized shape terms and the direction-dependent path length
         # (the law integrates dx' = (1 + ψ_a·σ)·dx itself, so h is computed once)
-        return {"psi_v": float(theta["asym_psi_v"]), "psi_h": float(theta["asym_psi_h"]),
-                "psi_a": float(theta["asym_psi_a"])}
+        return {
+            "psi_v": float(theta["asym_psi_v"]),
+            "psi_h": float(theta["asym_psi_h"]),
+            "psi_a": float(theta["asym_psi_a"]),
+        }
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray | float:
         # the loop width changes along the stroke: h·(1 + g·x) = h + h·g·x

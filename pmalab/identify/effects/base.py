@@ -106,7 +106,9 @@ class Effect:
         """Signals the hysteresis law and the force terms see (default: unchanged)."""
         return sig
 
-    def law_extras(self, law_name: str, sig: Signals, theta: Mapping[str, float]) -> dict[str, float]:
+    def law_extras(
+        self, law_name: str, sig: Signals, theta: Mapping[str, float]
+    ) -> dict[str, float]:
         """Extra inputs for the hysteresis law (default: none)."""
         return {}
 

@@ -43,9 +43,7 @@ class SensorDelay(Effect):
         "frequency."
     )
 
-    experiment = (
-        "repeat at two or more frequencies: a delay's phase error grows with frequency (ωτ) while viscous force grows with velocity amplitude; or time-stamp a sharp force step on both channels"
-    )
+    experiment = "repeat at two or more frequencies: a delay's phase error grows with frequency (ωτ) while viscous force grows with velocity amplitude; or time-stamp a sharp force step on both channels"
 
     #: multi-start grid for τ (s) used by the diagnosis fitter: the least-squares cost of a
     #: time-shifted loop is multi-modal in τ (a local minimum wherever a shift lines up one
@@ -59,8 +57,16 @@ class SensorDelay(Effect):
     campaign_shared: ClassVar[tuple[str, ...]] = ("delay_tau",)
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        return [Param("delay_tau", 0.0, -0.1, 0.1, "s",
-                      doc="position channel lag behind the force channel (s)")]
+        return [
+            Param(
+                "delay_tau",
+                0.0,
+                -0.1,
+                0.1,
+                "s",
+                doc="position channel lag behind the force channel (s)",
+            )
+        ]
 
     def transform(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
         tau = float(theta["delay_tau"])

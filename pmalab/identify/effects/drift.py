@@ -34,9 +34,7 @@ class SensorDrift(Effect):
         "ones, whatever the branch or position; the autocorrelation stays high at long lags."
     )
 
-    experiment = (
-        "repeat the same run twice in a row, or record a long run: drift grows with elapsed time while loop-shape effects repeat every cycle"
-    )
+    experiment = "repeat the same run twice in a row, or record a long run: drift grows with elapsed time while loop-shape effects repeat every cycle"
 
     #: the drift rate belongs to the record (the sensor's warm-up during that run), not to
     #: the muscle: one value per run in the joint fit, never a pressure law; 0 when another

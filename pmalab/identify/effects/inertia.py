@@ -61,17 +61,16 @@ class Inertia(Effect):
         "growing with frequency squared."
     )
 
-    experiment = (
-        "repeat at a higher frequency (≥ 1 Hz): an inertial force grows with the square of the frequency, friction and delay effects only linearly"
-    )
+    experiment = "repeat at a higher frequency (≥ 1 Hz): an inertial force grows with the square of the frequency, friction and delay effects only linearly"
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # bound: a mass whose inertial force alone is 3× the force's spread at the rms
         # acceleration (a broadband record above its resonance is mostly inertia)
         arms = float(np.sqrt(np.mean(smooth_acceleration(sig) ** 2))) * 1e-3 or 1e-3
         lim = max(3.0 * force_scale / arms, 1.0)
-        return [Param("inertia_m", 0.0, -lim, lim, "kg",
-                      doc="moving mass between muscle and load cell")]
+        return [
+            Param("inertia_m", 0.0, -lim, lim, "kg", doc="moving mass between muscle and load cell")
+        ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         return -theta["inertia_m"] * smooth_acceleration(sig) * 1e-3

@@ -37,19 +37,29 @@ class PressureVariation(Effect):
         "rather than with position or velocity."
     )
 
-    experiment = (
-        "repeat with a fast regulator or a large reservoir on the muscle line: the effect must vanish when the pressure stays constant"
-    )
+    experiment = "repeat with a fast regulator or a large reservoir on the muscle line: the effect must vanish when the pressure stays constant"
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # dF/dp of a DMSP-20 is of the order of F/p ≈ 2500 N/MPa; allow a wide margin
         lim = max(10.0 * force_scale / max(sig.p_nom, 0.05), 1e4)
         half = max(float(np.max(np.abs(sig.x))), 1e-3)
         return [
-            Param("pv_g0", 0.0, -lim, lim, "N/MPa",
-                  doc="tension change per MPa of pressure deviation at x = 0"),
-            Param("pv_g1", 0.0, -lim / half, lim / half, "N/(MPa·mm)",
-                  doc="change of that sensitivity per mm of contraction"),
+            Param(
+                "pv_g0",
+                0.0,
+                -lim,
+                lim,
+                "N/MPa",
+                doc="tension change per MPa of pressure deviation at x = 0",
+            ),
+            Param(
+                "pv_g1",
+                0.0,
+                -lim / half,
+                lim / half,
+                "N/(MPa·mm)",
+                doc="change of that sensitivity per mm of contraction",
+            ),
         ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:

@@ -35,18 +35,28 @@ class NonlinearStiffness(Effect):
         "centre line is curved), independent of velocity and frequency."
     )
 
-    experiment = (
-        "run a slow loop over the full stroke: a curved static characteristic bends the loop's centre line the same way on both branches"
-    )
+    experiment = "run a slow loop over the full stroke: a curved static characteristic bends the loop's centre line the same way on both branches"
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         xm = max(float(np.max(np.abs(sig.x))), 1e-3)
         # bounds: each term at most 10 force standard deviations at the largest contraction
         return [
-            Param("stiff_k2", 0.0, -10.0 * force_scale / xm**2, 10.0 * force_scale / xm**2,
-                  "N/mm²", doc="quadratic stiffness"),
-            Param("stiff_k3", 0.0, -10.0 * force_scale / xm**3, 10.0 * force_scale / xm**3,
-                  "N/mm³", doc="cubic stiffness"),
+            Param(
+                "stiff_k2",
+                0.0,
+                -10.0 * force_scale / xm**2,
+                10.0 * force_scale / xm**2,
+                "N/mm²",
+                doc="quadratic stiffness",
+            ),
+            Param(
+                "stiff_k3",
+                0.0,
+                -10.0 * force_scale / xm**3,
+                10.0 * force_scale / xm**3,
+                "N/mm³",
+                doc="cubic stiffness",
+            ),
         ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:

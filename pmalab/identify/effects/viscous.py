@@ -33,15 +33,21 @@ class ViscousFriction(Effect):
         "growing with test frequency."
     )
 
-    experiment = (
-        "repeat at two or more frequencies and amplitudes with a triangle wave: viscous force is constant along each constant-speed branch and jumps at reversals, while a channel delay only shifts the loop in time"
-    )
+    experiment = "repeat at two or more frequencies and amplitudes with a triangle wave: viscous force is constant along each constant-speed branch and jumps at reversals, while a channel delay only shifts the loop in time"
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         vmax = float(np.max(np.abs(sig.v))) or 1.0
         # bound: a viscous force up to 3 force standard deviations at the peak velocity
-        return [Param("visc_c", 0.0, 0.0, 3.0 * force_scale / vmax, "N·s/mm",
-                      doc="viscous coefficient (tension rise per mm/s of stretching speed)")]
+        return [
+            Param(
+                "visc_c",
+                0.0,
+                0.0,
+                3.0 * force_scale / vmax,
+                "N·s/mm",
+                doc="viscous coefficient (tension rise per mm/s of stretching speed)",
+            )
+        ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
         return -theta["visc_c"] * sig.v

@@ -76,8 +76,9 @@ def rss_floor(y: np.ndarray, w: np.ndarray) -> float:
     return y.size * (1e-9 * max(scale, 1e-300)) ** 2
 
 
-def weights(stderr: Sequence[float | None] | None, n: int, *,
-            floor_at_median: bool = False) -> np.ndarray:
+def weights(
+    stderr: Sequence[float | None] | None, n: int, *, floor_at_median: bool = False
+) -> np.ndarray:
     """1/stderr weights; missing or zero stderrs get the median of the others (not ∞).
 
     ``floor_at_median``: stderrs are also floored at their median, so no single
@@ -105,9 +106,14 @@ class PolyFit:
         return q0 + q1 * p + q2 * p * p
 
 
-def fit_polynomial(p: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndarray,
-                   w: np.ndarray | None = None, *,
-                   max_degree: int = 2, select: bool = False) -> PolyFit:
+def fit_polynomial(
+    p: Sequence[float] | np.ndarray,
+    y: Sequence[float] | np.ndarray,
+    w: np.ndarray | None = None,
+    *,
+    max_degree: int = 2,
+    select: bool = False,
+) -> PolyFit:
     """Weighted least squares of ``y`` on p, order ≤ ``max_degree`` (≤ levels − 1).
 
     ``select``: choose the order by BIC with an unknown noise scale, where a residual sum
@@ -141,8 +147,12 @@ def fit_polynomial(p: Sequence[float] | np.ndarray, y: Sequence[float] | np.ndar
     q = [0.0, 0.0, 0.0]
     q[: deg + 1] = [float(v) for v in c]
     res = y_a - np.vander(p_a, 3, increasing=True) @ np.asarray(q)
-    return PolyFit(coef=(q[0], q[1], q[2]), degree=deg, r2=weighted_r2(y_a, y_a - res, w_a),
-                   residuals=tuple(float(v) for v in res))
+    return PolyFit(
+        coef=(q[0], q[1], q[2]),
+        degree=deg,
+        r2=weighted_r2(y_a, y_a - res, w_a),
+        residuals=tuple(float(v) for v in res),
+    )
 
 
 def weighted_r2(y: np.ndarray, fitted: np.ndarray, w: np.ndarray) -> float:

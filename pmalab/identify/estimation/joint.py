@@ -92,8 +92,13 @@ def prepare(run: Run, error_scale: float | None = None) -> Record:
     sd = max(float(np.std(force)), 1e-9)
     sigma = sd if error_scale is None or not np.isfinite(error_scale) else error_scale
     sigma = max(float(sigma), 1e-3 * sd)
-    return Record(label=run.label, p_nom=float(run.nominal_pressure), sig=s, force=force,
-                  weight=1.0 / (sigma * math.sqrt(force.shape[0])))
+    return Record(
+        label=run.label,
+        p_nom=float(run.nominal_pressure),
+        sig=s,
+        force=force,
+        weight=1.0 / (sigma * math.sqrt(force.shape[0])),
+    )
 
 
 # --------------------------------------------------------------------------- result
@@ -138,11 +143,27 @@ class JointFit:
 
 
 # --------------------------------------------------------------------------- the problem
-def _problem(model: ForceModel, runs: Sequence[Record], basis: PressureBasis,
-             free: Sequence[str], degree: dict[str, int], constants: dict[str, float],
-             bounds: dict[str, tuple[float, float]], run_params: Sequence[str]) -> Problem:
-    return Problem(model, runs, free=free, degree=degree, constants=constants, bounds=bounds,
-                   run_params=run_params, cap=RESID_CAP, basis=basis)
+def _problem(
+    model: ForceModel,
+    runs: Sequence[Record],
+    basis: PressureBasis,
+    free: Sequence[str],
+    degree: dict[str, int],
+    constants: dict[str, float],
+    bounds: dict[str, tuple[float, float]],
+    run_params: Sequence[str],
+) -> Problem:
+    return Problem(
+        model,
+        runs,
+        free=free,
+        degree=degree,
+        constants=constants,
+        bounds=bounds,
+        run_params=run_params,
+        cap=RESID_CAP,
+        basis=basis,
+    )
 
 
 def _solve(prob: Problem, z0: np.ndarray, max_nfev: int):
@@ -250,29 +271,57 @@ def refine(
         b1 = information_criteria(float(e1 @ e1), rows, prob.n_var, n_eff)[1]
         b2 = information_criteria(float(e2 @ e2), rows, prob2.n_var, n_eff)[1]
         if b2 > b1:
-            notes.append(detail("joint-order", f"joint fit: kept pressure orders (lowering {', '.join(dropped)} "
-                         "raised the joint BIC)"))
+            notes.append(
+                detail(
+                    "joint-order",
+                    f"joint fit: kept pressure orders (lowering {', '.join(dropped)} "
+                    "raised the joint BIC)",
+                )
+            )
             break
-        notes.append(detail("joint-order", "joint fit: pressure order lowered where the joint data do not support "
-                     f"it (Wald/BIC): {', '.join(dropped)}"))
+        notes.append(
+            detail(
+                "joint-order",
+                "joint fit: pressure order lowered where the joint data do not support "
+                f"it (Wald/BIC): {', '.join(dropped)}",
+            )
+        )
         prob, sol, se, n_eff, bic, deg = prob2, sol2, se2, n_eff2, bic2, deg2
 
     coef = {n: basis.to_monomial(sol.x[prob.slices[n]]) for n in free}
     leg = {n: np.array(sol.x[prob.slices[n]]) for n in free}
     leg_se = {n: np.array(se[prob.slices[n]]) for n in free}
     rv = prob.run_values(sol.x)
-    fit = JointFit(coef=coef, degree=deg, constants=dict(constants), h0=rv.get("h0", []),
-                   nrmse=prob.per_run_nrmse(sol.x), nrmse_start=nr_start, bounds=dict(bounds),
-                   basis=basis, n_eff=n_eff, bic=bic, nfev=nfev, success=bool(sol.success),
-                   message=str(sol.message), legendre=leg, legendre_stderr=leg_se,
-                   nuisance={n: rv[n] for n in nuis})
+    fit = JointFit(
+        coef=coef,
+        degree=deg,
+        constants=dict(constants),
+        h0=rv.get("h0", []),
+        nrmse=prob.per_run_nrmse(sol.x),
+        nrmse_start=nr_start,
+        bounds=dict(bounds),
+        basis=basis,
+        n_eff=n_eff,
+        bic=bic,
+        nfev=nfev,
+        success=bool(sol.success),
+        message=str(sol.message),
+        legendre=leg,
+        legendre_stderr=leg_se,
+        nuisance={n: rv[n] for n in nuis},
+    )
     return fit, notes
 
 
-def evaluate(model: ForceModel, runs: Sequence[Record], coef: Mapping[str, Sequence[float]],
-             constants: dict[str, float], bounds: dict[str, tuple[float, float]],
-             h0: Sequence[float] | None,
-             nuisance: Mapping[str, Sequence[float]] | None = None) -> list[float]:
+def evaluate(
+    model: ForceModel,
+    runs: Sequence[Record],
+    coef: Mapping[str, Sequence[float]],
+    constants: dict[str, float],
+    bounds: dict[str, tuple[float, float]],
+    h0: Sequence[float] | None,
+    nuisance: Mapping[str, Sequence[float]] | None = None,
+) -> list[float]:
     """Per-run nrmse (subsampled free run) of the monomial pressure laws ``coef``.
 
     Each run's h0 (and record nuisance parameters, starting from ``nuisance``) is fitted
@@ -283,8 +332,7 @@ def evaluate(model: ForceModel, runs: Sequence[Record], coef: Mapping[str, Seque
     nuis = dict(nuisance or {})
     free = [n for n in coef if n not in constants and n != "h0" and n not in nuis]
     run_params = (["h0"] if h0 is not None else []) + list(nuis)
-    prob = _problem(model, runs, basis, free, dict.fromkeys(free, 2), constants, bounds,
-                    run_params)
+    prob = _problem(model, runs, basis, free, dict.fromkeys(free, 2), constants, bounds, run_params)
     z = prob.z_from({n: basis.from_monomial(coef[n], 2) for n in free}, nuis)
     with one_blas_thread():
         z = fit_record_params(prob, z, max_nfev=10)  # each run's best start state
@@ -329,22 +377,35 @@ def start_laws(
         if 2 * int(bad.sum()) >= bad.shape[0] and max_degree > 0 and smooth < SMOOTH_R2:
             out[n] = max_degree
             start[n] = (float(np.median(y_all)), 0.0, 0.0)
-            notes.append(detail("poorly-determined", f"{n}: poorly determined per run (collinear with another parameter or "
-                         f"at a bound on {int(bad.sum())} of {bad.shape[0]} runs; per-run values "
-                         f"wander, unweighted R² {smooth:.2f}): no per-run quadratic — the joint "
-                         "fit starts from their median and keeps only the pressure terms all "
-                         "runs together support"))
+            notes.append(
+                detail(
+                    "poorly-determined",
+                    f"{n}: poorly determined per run (collinear with another parameter or "
+                    f"at a bound on {int(bad.sum())} of {bad.shape[0]} runs; per-run values "
+                    f"wander, unweighted R² {smooth:.2f}): no per-run quadratic — the joint "
+                    "fit starts from their median and keeps only the pressure terms all "
+                    "runs together support",
+                )
+            )
             continue
         good = ~bad if int((~bad).sum()) > max_degree + 1 else np.ones_like(bad)
         p = p_all[good]
-        w = weights([s for s, g in zip(stderr[n], good) if g], int(good.sum()),
-                    floor_at_median=True)
+        w = weights(
+            [s for s, g in zip(stderr[n], good) if g], int(good.sum()), floor_at_median=True
+        )
         pf = fit_polynomial(p, y_all[good], w, max_degree=max_degree, select=True)
         levels = np.unique(np.round(p, 4)).shape[0]
         md = min(max_degree, max(levels - 1, 0))
         out[n] = pf.degree
         start[n] = pf.coef
         if pf.degree < md:
-            notes.append(detail("pressure-order", f"{n}: pressure order {pf.degree} (BIC over its per-run values; "
-                         f"order {md} not supported)", name=n, order=pf.degree))
+            notes.append(
+                detail(
+                    "pressure-order",
+                    f"{n}: pressure order {pf.degree} (BIC over its per-run values; "
+                    f"order {md} not supported)",
+                    name=n,
+                    order=pf.degree,
+                )
+            )
     return start, out, notes

@@ -64,18 +64,30 @@ class PositionProblem(Problem):
 
     analytic_linear = False
 
-    def __init__(self, model: ForceModel, data: Sequence[PositionData], *, n_sub: Sequence[int],
-                 **kw) -> None:
-        recs = [Record(d.label, d.p_nom, d.sig, np.asarray(d.position, dtype=np.float64))
-                for d in data]
+    def __init__(
+        self, model: ForceModel, data: Sequence[PositionData], *, n_sub: Sequence[int], **kw
+    ) -> None:
+        recs = [
+            Record(d.label, d.p_nom, d.sig, np.asarray(d.position, dtype=np.float64)) for d in data
+        ]
         super().__init__(model, recs, **kw)
         self.inputs = [np.asarray(d.force, dtype=np.float64) for d in data]
         self.n_sub = list(n_sub)
 
     def output(self, i: int, th: Mapping[str, float]) -> np.ndarray:
         r = self.records[i]
-        s = simulate(self.model, th, r.sig.t, self.inputs[i], r.sig.p, p_nom=r.p_nom,
-                     x0=th["x0"], v0=th["v0"], h0=th["h0"], n_sub=self.n_sub[i])
+        s = simulate(
+            self.model,
+            th,
+            r.sig.t,
+            self.inputs[i],
+            r.sig.p,
+            p_nom=r.p_nom,
+            x0=th["x0"],
+            v0=th["v0"],
+            h0=th["h0"],
+            n_sub=self.n_sub[i],
+        )
         return s.position
 
 
@@ -110,25 +122,41 @@ def state_names(model: ForceModel, theta: Mapping[str, float]) -> tuple[str, ...
     return STATE if m > 0 else ("x0", "h0")
 
 
-def position_data(label: str, sig: Signals, force: np.ndarray, position: np.ndarray) -> PositionData:
-    return PositionData(label, float(sig.p_nom), sig, np.asarray(force, dtype=np.float64),
-                        np.asarray(position, dtype=np.float64))
+def position_data(
+    label: str, sig: Signals, force: np.ndarray, position: np.ndarray
+) -> PositionData:
+    return PositionData(
+        label,
+        float(sig.p_nom),
+        sig,
+        np.asarray(force, dtype=np.float64),
+        np.asarray(position, dtype=np.float64),
+    )
 
 
-def _n_sub(model: ForceModel, theta: Mapping[str, float], d: PositionData,
-           bounds: Mapping[str, tuple[float, float]] | None) -> int:
+def _n_sub(
+    model: ForceModel,
+    theta: Mapping[str, float],
+    d: PositionData,
+    bounds: Mapping[str, tuple[float, float]] | None,
+) -> int:
     coef = Coefficients(model, theta, bounds)
     dt = float(np.median(np.diff(d.sig.t)))
     n = substeps(model, coef, d.sig.p, dt, Load())
     return max(1, int(math.ceil(1.5 * n)))
 
 
-def _state_bounds(data: Sequence[PositionData], hb: tuple[float, float]) -> dict[str, tuple[float, float]]:
+def _state_bounds(
+    data: Sequence[PositionData], hb: tuple[float, float]
+) -> dict[str, tuple[float, float]]:
     xs = np.concatenate([d.position for d in data])
     span = float(np.ptp(xs)) + 1e-3
     vmax = max(float(np.max(np.abs(d.sig.v))) for d in data) + 1.0
-    return {"x0": (float(np.min(xs)) - span, float(np.max(xs)) + span),
-            "v0": (-5.0 * vmax, 5.0 * vmax), "h0": hb}
+    return {
+        "x0": (float(np.min(xs)) - span, float(np.max(xs)) + span),
+        "v0": (-5.0 * vmax, 5.0 * vmax),
+        "h0": hb,
+    }
 
 
 def start_state(d: PositionData, h0: float = 0.0) -> dict[str, float]:
@@ -136,10 +164,15 @@ def start_state(d: PositionData, h0: float = 0.0) -> dict[str, float]:
     return {"x0": float(d.sig.x[0]), "v0": float(d.sig.v[0]), "h0": float(h0)}
 
 
-def fit_output_error(model: ForceModel, data: Sequence[PositionData],
-                     start: Mapping[str, Sequence[float]], degree: Mapping[str, int],
-                     held: Mapping[str, Sequence[float]], h0: Sequence[float],
-                     bounds: Mapping[str, tuple[float, float]]) -> OutputErrorFit:
+def fit_output_error(
+    model: ForceModel,
+    data: Sequence[PositionData],
+    start: Mapping[str, Sequence[float]],
+    degree: Mapping[str, int],
+    held: Mapping[str, Sequence[float]],
+    h0: Sequence[float],
+    bounds: Mapping[str, tuple[float, float]],
+) -> OutputErrorFit:
     """Refine the pressure laws ``start`` (monomial q per free parameter, orders ``degree``;
     ``held``: fixed parameters' laws) on the simulated position of ``data``."""
     pressures = [d.p_nom for d in data]
@@ -155,10 +188,15 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
             held = {**held, mass: (0.0, 0.0, 0.0)}
             free.remove(mass)
             start = {n: q for n, q in start.items() if n != mass}
-            notes.append(note(
-                "oe-massless", f"{mass} held at 0 in the output-error fit: the force-direction "
-                f"fit found no positive moving mass ({m0:.3g} kg), so the position is "
-                "simulated quasi-statically (force balance per sample)", mass_kg=m0))
+            notes.append(
+                note(
+                    "oe-massless",
+                    f"{mass} held at 0 in the output-error fit: the force-direction "
+                    f"fit found no positive moving mass ({m0:.3g} kg), so the position is "
+                    "simulated quasi-statically (force balance per sample)",
+                    mass_kg=m0,
+                )
+            )
         else:
             # a mass far below the start would need more sub-steps than were sized
             lo_m, hi_m = b.get(mass, (-np.inf, np.inf))
@@ -166,24 +204,39 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
     b.update(_state_bounds(data, b.get("h0", (-1e4, 1e4))))
     th_start = []
     for d in data:
-        th = {n: float(np.polyval(list(reversed(list(q))), d.p_nom)) for n, q in {**start, **held}.items()}
+        th = {
+            n: float(np.polyval(list(reversed(list(q))), d.p_nom))
+            for n, q in {**start, **held}.items()
+        }
         th_start.append(th)
     n_sub = [_n_sub(model, {**th, **start_state(d)}, d, b) for th, d in zip(th_start, data)]
     constants = {n: float(held[n][0]) for n in held}  # held laws are constants (order 0)
     states = state_names(model, th_start[0])
     constants.update({s: 0.0 for s in STATE if s not in states})
-    prob = PositionProblem(model, data, n_sub=n_sub, free=free, degree=dict(degree),
-                           constants=constants, bounds=b, run_params=list(states), basis=basis)
+    prob = PositionProblem(
+        model,
+        data,
+        n_sub=n_sub,
+        free=free,
+        degree=dict(degree),
+        constants=constants,
+        bounds=b,
+        run_params=list(states),
+        basis=basis,
+    )
     for rec, d in zip(prob.records, data):
         rec.weight = 1.0 / (max(float(np.std(d.position)), 1e-9) * math.sqrt(rec.n))
     st = [start_state(d, h) for d, h in zip(data, h0)]
-    z0 = prob.z_from({n: basis.from_monomial(start[n], int(degree[n])) for n in free},
-                     {s: [v[s] for v in st] for s in states})
+    z0 = prob.z_from(
+        {n: basis.from_monomial(start[n], int(degree[n])) for n in free},
+        {s: [v[s] for v in st] for s in states},
+    )
     lo, hi = prob.z_bounds()
     z0 = np.clip(z0, lo, hi)
     rm0 = prob.per_run_rmse(z0)
-    sol = solve(prob.residual, prob.jac, z0, lo, hi, tol=TOL,
-                max_nfev=NFEV_PER_VAR * (prob.n_var + 1))
+    sol = solve(
+        prob.residual, prob.jac, z0, lo, hi, tol=TOL, max_nfev=NFEV_PER_VAR * (prob.n_var + 1)
+    )
     z = sol.x if sol.cost <= 0.5 * float(prob.residual(z0) @ prob.residual(z0)) else z0
     u = uncertainty(prob.jac(z), prob.residual(z), prob.rows)
     coef = {n: basis.to_monomial(z[prob.slices[n]]) for n in free}
@@ -200,18 +253,30 @@ def fit_output_error(model: ForceModel, data: Sequence[PositionData],
     ths = prob.thetas(z)
     rm = prob.per_run_rmse(z)
     return OutputErrorFit(
-        coef=coef, degree={n: int(degree[n]) for n in free}, stderr=se,
+        coef=coef,
+        degree={n: int(degree[n]) for n in free},
+        stderr=se,
         labels=[d.label for d in data],
         state={s: [float(th.get(s, 0.0)) for th in ths] for s in STATE},
-        rmse_mm=rm, nrmse=[r / max(float(np.std(d.position)), 1e-12) for r, d in zip(rm, data)],
-        rmse_mm_start=rm0, n_sub=n_sub, nfev=int(sol.nfev), success=bool(sol.success),
-        message=str(sol.message), positions=[prob.output(i, th) for i, th in enumerate(ths)],
-        notes=notes)
+        rmse_mm=rm,
+        nrmse=[r / max(float(np.std(d.position)), 1e-12) for r, d in zip(rm, data)],
+        rmse_mm_start=rm0,
+        n_sub=n_sub,
+        nfev=int(sol.nfev),
+        success=bool(sol.success),
+        message=str(sol.message),
+        positions=[prob.output(i, th) for i, th in enumerate(ths)],
+        notes=notes,
+    )
 
 
-def estimate_state(model: ForceModel, theta: Mapping[str, float], d: PositionData,
-                   bounds: Mapping[str, tuple[float, float]] | None = None,
-                   n_sub: int | None = None) -> tuple[dict[str, float], int]:
+def estimate_state(
+    model: ForceModel,
+    theta: Mapping[str, float],
+    d: PositionData,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    n_sub: int | None = None,
+) -> tuple[dict[str, float], int]:
     """(x0, v0, h0) of a record fitted on its first :data:`INITIAL_WINDOW_S` with the muscle
     parameters ``theta`` held, and the sub-steps used."""
     dt = float(np.median(np.diff(d.sig.t)))
@@ -223,8 +288,16 @@ def estimate_state(model: ForceModel, theta: Mapping[str, float], d: PositionDat
     ns = n_sub or _n_sub(model, {**th, **start_state(d)}, d, b)
     states = state_names(model, th)
     th.update({s: 0.0 for s in STATE if s not in states})
-    prob = PositionProblem(model, [win], n_sub=[ns], free=[], degree={}, constants=th,
-                           bounds=b, run_params=list(states))
+    prob = PositionProblem(
+        model,
+        [win],
+        n_sub=[ns],
+        free=[],
+        degree={},
+        constants=th,
+        bounds=b,
+        run_params=list(states),
+    )
     st = start_state(d)
     z0 = np.clip(prob.z_from({}, {s: [st[s]] for s in states}), *prob.z_bounds())
     lo, hi = prob.z_bounds()
@@ -235,14 +308,29 @@ def estimate_state(model: ForceModel, theta: Mapping[str, float], d: PositionDat
     return out, ns
 
 
-def predict_position(model: ForceModel, theta: Mapping[str, float], d: PositionData,
-                     bounds: Mapping[str, tuple[float, float]] | None = None) -> tuple[np.ndarray, dict[str, float]]:
+def predict_position(
+    model: ForceModel,
+    theta: Mapping[str, float],
+    d: PositionData,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+) -> tuple[np.ndarray, dict[str, float]]:
     """Free-run position (mm) of a record from its force input, its start state estimated
     (:func:`estimate_state`); returns (position, start state)."""
     st, ns = estimate_state(model, theta, d, bounds)
     th = {**theta, **st}
-    s = simulate(model, th, d.sig.t, d.force, d.sig.p, p_nom=d.p_nom, x0=st["x0"],
-                 v0=st["v0"], h0=st["h0"], n_sub=ns, bounds=bounds)
+    s = simulate(
+        model,
+        th,
+        d.sig.t,
+        d.force,
+        d.sig.p,
+        p_nom=d.p_nom,
+        x0=st["x0"],
+        v0=st["v0"],
+        h0=st["h0"],
+        n_sub=ns,
+        bounds=bounds,
+    )
     return s.position, st
 
 
@@ -253,12 +341,17 @@ def position_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, f
     sd = max(float(np.std(measured)), 1e-12)
     dev = float(np.linalg.norm(measured - np.mean(measured))) or 1e-12
     fit = 100.0 * (1.0 - float(np.linalg.norm(e)) / dev) if np.isfinite(rmse) else float("nan")
-    return {"rmse_position_mm": rmse, "rmse_position_m": rmse * 1e-3,
-            "nrmse_position": rmse / sd, "fit_percent_position": fit}
+    return {
+        "rmse_position_mm": rmse,
+        "rmse_position_m": rmse * 1e-3,
+        "nrmse_position": rmse / sd,
+        "fit_percent_position": fit,
+    }
 
 
 def _head(sig: Signals, m: int) -> Signals:
     from dataclasses import replace
 
-    return replace(sig, t=sig.t[:m], x=sig.x[:m], v=sig.v[:m], a=sig.a[:m], p=sig.p[:m],
-                   x_raw=sig.x_raw[:m])
+    return replace(
+        sig, t=sig.t[:m], x=sig.x[:m], v=sig.v[:m], a=sig.a[:m], p=sig.p[:m], x_raw=sig.x_raw[:m]
+    )

@@ -68,10 +68,19 @@ class Problem:
     prediction becomes a large finite cost instead of inf), None for no cap.
     """
 
-    def __init__(self, model: ForceModel, records: Sequence[Record], *, free: Sequence[str],
-                 degree: Mapping[str, int], constants: Mapping[str, float],
-                 bounds: Mapping[str, tuple[float, float]], run_params: Sequence[str] = (),
-                 cap: float | None = None, basis: PressureBasis | None = None) -> None:
+    def __init__(
+        self,
+        model: ForceModel,
+        records: Sequence[Record],
+        *,
+        free: Sequence[str],
+        degree: Mapping[str, int],
+        constants: Mapping[str, float],
+        bounds: Mapping[str, tuple[float, float]],
+        run_params: Sequence[str] = (),
+        cap: float | None = None,
+        basis: PressureBasis | None = None,
+    ) -> None:
         self.model, self.records = model, list(records)
         self.free = list(free)
         self.degree = {n: int(degree[n]) for n in self.free}
@@ -112,8 +121,11 @@ class Problem:
             lo[self.block(j)], hi[self.block(j)] = self.bounds.get(rn, (-np.inf, np.inf))
         return lo, hi
 
-    def z_from(self, coefs: Mapping[str, Sequence[float] | np.ndarray],
-               run_values: Mapping[str, Sequence[float]] | None = None) -> np.ndarray:
+    def z_from(
+        self,
+        coefs: Mapping[str, Sequence[float] | np.ndarray],
+        run_values: Mapping[str, Sequence[float]] | None = None,
+    ) -> np.ndarray:
         """z from Legendre coefficients per free parameter (padded/truncated to its order)
         and per-run values per run parameter (default 0)."""
         z = np.zeros(self.n_var)
@@ -166,12 +178,18 @@ class Problem:
             e = (self.output(i, th) - r.force) * r.weight
         if self.cap is not None:
             if not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > self.cap:
-                e = np.clip(np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
-                            -self.cap, self.cap)
+                e = np.clip(
+                    np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
+                    -self.cap,
+                    self.cap,
+                )
         elif not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > RUNAWAY_N:
             # a runaway state: large and finite (squares stay representable)
-            e = np.clip(np.nan_to_num(e, nan=RUNAWAY_N, posinf=RUNAWAY_N, neginf=-RUNAWAY_N),
-                        -RUNAWAY_N, RUNAWAY_N)
+            e = np.clip(
+                np.nan_to_num(e, nan=RUNAWAY_N, posinf=RUNAWAY_N, neginf=-RUNAWAY_N),
+                -RUNAWAY_N,
+                RUNAWAY_N,
+            )
         return e
 
     def residual(self, z: np.ndarray) -> np.ndarray:
@@ -189,7 +207,7 @@ class Problem:
         ths = self.thetas(z)
         raw = self.raw(z)
         J = np.zeros((self.n_rows, self.n_var))
-        for n in ([] if run_only else self.free):
+        for n in [] if run_only else self.free:
             lo, hi = self.bounds.get(n, (-np.inf, np.inf))
             sl = self.slices[n]
             for i, th in enumerate(ths):
@@ -226,7 +244,9 @@ class Problem:
     def per_run_rmse(self, z: np.ndarray) -> list[float]:
         """Each run's rmse (N) of the unweighted residual."""
         e = self.residual(z)
-        return [float(np.sqrt(e[s] @ e[s] / r.n)) / r.weight for r, s in zip(self.records, self.rows)]
+        return [
+            float(np.sqrt(e[s] @ e[s] / r.n)) / r.weight for r, s in zip(self.records, self.rows)
+        ]
 
     def per_run_nrmse(self, z: np.ndarray) -> list[float]:
         return [rm / r.sd for rm, r in zip(self.per_run_rmse(z), self.records)]

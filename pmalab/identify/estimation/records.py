@@ -41,10 +41,12 @@ INITIAL_WINDOW_S = 0.05
 RECORD_NFEV = 12
 
 #: the note every prediction with a drifting-zero effect carries (JSON warnings)
-TARE_NOTE = ("record zero estimated on each predicted run: the model has a drifting-zero effect "
-             "(sensor-drift), so each record's force offset (c0) and drift rate are record "
-             "parameters — fitted per run in identification and estimated on each predicted "
-             "run (initial='estimate') with every muscle parameter held")
+TARE_NOTE = (
+    "record zero estimated on each predicted run: the model has a drifting-zero effect "
+    "(sensor-drift), so each record's force offset (c0) and drift rate are record "
+    "parameters — fitted per run in identification and estimated on each predicted "
+    "run (initial='estimate') with every muscle parameter held"
+)
 
 
 def record_names(model: ForceModel) -> tuple[str, ...]:
@@ -73,8 +75,15 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
     def cat(a: np.ndarray) -> np.ndarray:
         return np.concatenate([a[:P], a])
 
-    aug = replace(sig, t=np.concatenate([sig.t[:P] - shift, sig.t]), x=cat(sig.x), v=cat(sig.v),
-                  a=cat(sig.a), p=cat(sig.p), x_raw=cat(sig.x_raw))
+    aug = replace(
+        sig,
+        t=np.concatenate([sig.t[:P] - shift, sig.t]),
+        x=cat(sig.x),
+        v=cat(sig.v),
+        a=cat(sig.a),
+        p=cat(sig.p),
+        x_raw=cat(sig.x_raw),
+    )
     return aug, P
 
 
@@ -117,9 +126,13 @@ def fit_record_params(prob: Problem, z: np.ndarray, max_nfev: int = RECORD_NFEV)
     return z
 
 
-def estimate_record(model: ForceModel, sig: Signals, force: np.ndarray,
-                    theta: Mapping[str, float],
-                    bounds: Mapping[str, tuple[float, float]] | None = None) -> dict[str, float]:
+def estimate_record(
+    model: ForceModel,
+    sig: Signals,
+    force: np.ndarray,
+    theta: Mapping[str, float],
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+) -> dict[str, float]:
     """``theta`` with the record parameters fitted on this record (muscle parameters held)."""
     th = dict(theta)
     names = [n for n in record_names(model) if n in th]
@@ -128,19 +141,29 @@ def estimate_record(model: ForceModel, sig: Signals, force: np.ndarray,
     b = dict(bounds or {})
     for n in names:
         b.setdefault(n, (-np.inf, np.inf))
-    prob = Problem(model, [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
-                   free=[], degree={}, constants={k: v for k, v in th.items() if k not in names},
-                   bounds=b, run_params=names)
+    prob = Problem(
+        model,
+        [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
+        free=[],
+        degree={},
+        constants={k: v for k, v in th.items() if k not in names},
+        bounds=b,
+        run_params=names,
+    )
     # start: the pressure law's c0 (a drifting zero), every other record parameter at 0
-    z = fit_record_params(prob, prob.z_from({}, {n: [th[n] if n == "c0" else 0.0]
-                                                 for n in names}))
+    z = fit_record_params(prob, prob.z_from({}, {n: [th[n] if n == "c0" else 0.0] for n in names}))
     th.update({n: v[0] for n, v in prob.run_values(z).items()})
     return th
 
 
-def predict_record(model: ForceModel, sig: Signals, theta: Mapping[str, float],
-                   force: np.ndarray | None = None, initial: str = "estimate",
-                   bounds: Mapping[str, tuple[float, float]] | None = None) -> np.ndarray:
+def predict_record(
+    model: ForceModel,
+    sig: Signals,
+    theta: Mapping[str, float],
+    force: np.ndarray | None = None,
+    initial: str = "estimate",
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+) -> np.ndarray:
     """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``.
 
     ``theta``: the muscle parameters (record parameters in it are replaced).

@@ -62,7 +62,6 @@ COND_LIMIT = 1e8
 FIX_TOLERANCE = 0.01  # accept an identifiability fix if nrmse rises by < 1 % (relative)
 
 
-
 class FitError(PmalabError):
     """A fit cannot be done on this input (too short, constant position...)."""
 
@@ -103,8 +102,9 @@ class FitResult:
     def stderr(self) -> dict[str, float | None]:
         return {p.name: p.stderr for p in self.params}
 
-    def predict(self, sig: Signals | Run, *, initial: str | None = None,
-                force: np.ndarray | None = None) -> np.ndarray:
+    def predict(
+        self, sig: Signals | Run, *, initial: str | None = None, force: np.ndarray | None = None
+    ) -> np.ndarray:
         """Force (N) along ``sig``.  ``initial=None``: the fitted h0 (the fitted run itself);
         otherwise the record parameters are set as
         :func:`~pmalab.identify.estimation.records.predict_record` describes (another run)."""
@@ -116,8 +116,10 @@ class FitResult:
         return predict_record(self.model, sig, self.values, force=force, initial=initial)
 
     def summary(self) -> str:
-        lines = [f"{self.model.name}: fit {self.fit_percent:.2f} %  rmse {self.rmse:.3g} N  "
-                 f"nrmse {self.nrmse:.4f}"]
+        lines = [
+            f"{self.model.name}: fit {self.fit_percent:.2f} %  rmse {self.rmse:.3g} N  "
+            f"nrmse {self.nrmse:.4f}"
+        ]
         for p in self.params:
             se = "fixed" if not p.vary else (f"± {p.stderr:.3g}" if p.stderr is not None else "± ?")
             lines.append(f"  {p.name:>10} = {p.value:12.6g} {se} {p.unit}")
@@ -158,8 +160,9 @@ def _lstsq(cols: Sequence[np.ndarray], y: np.ndarray) -> tuple[np.ndarray, float
     return coef, float(r @ r)
 
 
-def _grid_starts(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
-                 fixed: dict[str, float]) -> list[dict[str, float]]:
+def _grid_starts(
+    model: ForceModel, sig: Signals, force: np.ndarray, ps: Params, fixed: dict[str, float]
+) -> list[dict[str, float]]:
     """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
     law = model.law
     base = {p.name: p.value for p in ps}
@@ -201,17 +204,22 @@ def _grid_starts(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
     return [th for _, th in scored[:2]] or [base]
 
 
-def _problem(model: ForceModel, sig: Signals, force: np.ndarray, ps: Params,
-             label: str = "") -> Problem:
+def _problem(
+    model: ForceModel, sig: Signals, force: np.ndarray, ps: Params, label: str = ""
+) -> Problem:
     """The run as a one-record estimation problem: every free parameter order 0 in
     pressure, the law's start state as the per-run block."""
     free = [p.name for p in ps if p.vary]
     shared = [n for n in free if n not in model.state_params]
-    return Problem(model, [Record(label, sig.p_nom, sig, force)], free=shared,
-                   degree=dict.fromkeys(shared, 0),
-                   constants={p.name: p.value for p in ps if not p.vary},
-                   bounds={p.name: (p.lo, p.hi) for p in ps},
-                   run_params=[n for n in free if n in model.state_params])
+    return Problem(
+        model,
+        [Record(label, sig.p_nom, sig, force)],
+        free=shared,
+        degree=dict.fromkeys(shared, 0),
+        constants={p.name: p.value for p in ps if not p.vary},
+        bounds={p.name: (p.lo, p.hi) for p in ps},
+        run_params=[n for n in free if n in model.state_params],
+    )
 
 
 def _names(prob: Problem) -> list[str]:
@@ -255,12 +263,21 @@ SECOND_START_NRMSE = 0.05
 def _refine(prob: Problem, start: dict[str, float], max_nfev: int | None = None):
     z0 = prob.z_from({n: [start[n]] for n in prob.free}, {n: [start[n]] for n in prob.run_params})
     lo, hi = prob.z_bounds()
-    res = solve(prob.residual, prob.jac, z0, lo, hi, tol=TOL,
-                max_nfev=max_nfev or NFEV_PER_PARAM * (prob.n_var + 1))
+    res = solve(
+        prob.residual,
+        prob.jac,
+        z0,
+        lo,
+        hi,
+        tol=TOL,
+        max_nfev=max_nfev or NFEV_PER_PARAM * (prob.n_var + 1),
+    )
     return res.x, res
 
 
-def _refine_starts(prob: Problem, starts: list[dict[str, float]]) -> tuple[np.ndarray, OptimizeResult]:
+def _refine_starts(
+    prob: Problem, starts: list[dict[str, float]]
+) -> tuple[np.ndarray, OptimizeResult]:
     """Refine the best start; try the next ones only if the fit stays poor; then the
     multi-start grid of any multi-modal effect parameter (``Effect.multistart``)."""
     best = None
@@ -278,8 +295,9 @@ def _refine_starts(prob: Problem, starts: list[dict[str, float]]) -> tuple[np.nd
     if grid:
         th_best = _theta(prob, best[0])
         short = max(10, NFEV_PER_PARAM * (prob.n_var + 1) // 4)
-        tries = [_refine(prob, {**th_best, n: float(v)}, short)
-                 for n, vals in grid.items() for v in vals]
+        tries = [
+            _refine(prob, {**th_best, n: float(v)}, short) for n, vals in grid.items() for v in vals
+        ]
         cand = min(tries, key=lambda t: t[1].cost)
         if cand[1].cost < best[1].cost:
             polished = _refine(prob, _theta(prob, cand[0]))
@@ -310,8 +328,7 @@ _BASE_FITS: dict[tuple, dict[str, float]] = {}
 _BASE_FITS_MAX = 512
 
 
-def _base_key(model: ForceModel, sig: Signals, force: np.ndarray,
-              fixed: dict[str, float]) -> tuple:
+def _base_key(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[str, float]) -> tuple:
     h = hashlib.blake2b(digest_size=16)
     for a in (sig.t, sig.x, force):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
@@ -324,13 +341,19 @@ def _remember(key: tuple, theta: dict[str, float]) -> None:
     _BASE_FITS[key] = dict(theta)
 
 
-def _fit_once(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[str, float],
-              init: dict[str, float]) -> tuple[Params, Problem, OptimizeResult]:
+def _fit_once(
+    model: ForceModel,
+    sig: Signals,
+    force: np.ndarray,
+    fixed: dict[str, float],
+    init: dict[str, float],
+) -> tuple[Params, Problem, OptimizeResult]:
     ps = model.params(sig, force)
     for name in list(fixed) + list(init):
         if name not in ps:
-            raise FitError(f"unknown parameter '{name}' for model {model.name} "
-                           f"(has: {', '.join(ps.names())})")
+            raise FitError(
+                f"unknown parameter '{name}' for model {model.name} (has: {', '.join(ps.names())})"
+            )
     for name, v in fixed.items():
         ps[name].value = float(v)
         ps[name].vary = False
@@ -342,8 +365,9 @@ def _fit_once(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[st
         base_ps = base_model.params(sig, force)
 
         def grid() -> list[dict[str, float]]:
-            return _grid_starts(base_model, sig, force, base_ps,
-                                {k: v for k, v in fixed.items() if k in base_ps})
+            return _grid_starts(
+                base_model, sig, force, base_ps, {k: v for k, v in fixed.items() if k in base_ps}
+            )
 
         if not model.effects:
             starts = [{**ps.values(), **g, **init, **fixed} for g in grid()]
@@ -414,12 +438,16 @@ def _fit_run(
     init = dict(init or {})
     warnings: list[str] = []
     ps0 = model.params(sig, force)
-    fix: dict[str, float] = {k: (ps0[k].value if v is None else float(v))
-                             for k, v in model.held_fixed().items() if k not in free and k in ps0}
+    fix: dict[str, float] = {
+        k: (ps0[k].value if v is None else float(v))
+        for k, v in model.held_fixed().items()
+        if k not in free and k in ps0
+    }
     for k, v in (fixed or {}).items():
         if k not in ps0:
-            raise FitError(f"unknown parameter '{k}' for model {model.name} "
-                           f"(has: {', '.join(ps0.names())})")
+            raise FitError(
+                f"unknown parameter '{k}' for model {model.name} (has: {', '.join(ps0.names())})"
+            )
         fix[k] = float(init.get(k, ps0[k].value)) if v is None else float(v)
 
     # fit on ≤ SAMPLES_PER_CYCLE samples per excitation cycle (the laws are rate independent
@@ -450,10 +478,15 @@ def _fit_run(
             ps2, prob2, res2 = _fit_once(model, sig_f, force_f, fix2, init)
             pred2, met2 = full(prob2, res2)
             if met2["nrmse"] <= met["nrmse"] * (1.0 + FIX_TOLERANCE) + 1e-12:
-                warnings.append(detail(
-                    "auto-fix",
-                    f"{partners}: not identifiable on this run; fixed {name} = {value:g} "
-                    f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})", name=name, value=value))
+                warnings.append(
+                    detail(
+                        "auto-fix",
+                        f"{partners}: not identifiable on this run; fixed {name} = {value:g} "
+                        f"(nrmse {met['nrmse']:.4f} -> {met2['nrmse']:.4f})",
+                        name=name,
+                        value=value,
+                    )
+                )
                 fix, ps, prob, res, pred, met = fix2, ps2, prob2, res2, pred2, met2
                 auto_fixed.add(name)
                 se, corr, cond, n_eff = _uncertainty(prob, res)
@@ -461,7 +494,8 @@ def _fit_run(
             else:
                 warnings.append(
                     f"{partners}: kept {name} free — fixing it at {value:g} raised nrmse "
-                    f"{met['nrmse']:.4f} -> {met2['nrmse']:.4f}; their stderrs are large")
+                    f"{met['nrmse']:.4f} -> {met2['nrmse']:.4f}; their stderrs are large"
+                )
 
     done = {n for n in auto_fixed if n in names}
     notes: list[str] = []
@@ -473,17 +507,34 @@ def _fit_run(
             # c0 is the tension extrapolated to x = 0, away from the data; with the offset
             # taken at the data's centre (c0 + k·mean x) the pair is not collinear, so this
             # is a parametrisation artefact, not an identifiability problem
-            notes.append(detail("c0-extrapolated",
-                                f"rho({a},{b})={r:+.3f} only because c0 is extrapolated to x = 0 "
-                                f"(data centred at x = {xm:.3g} mm; centred offset: "
-                                f"rho={rc:+.3f})", a=a, b=b, rho=r))
+            notes.append(
+                detail(
+                    "c0-extrapolated",
+                    f"rho({a},{b})={r:+.3f} only because c0 is extrapolated to x = 0 "
+                    f"(data centred at x = {xm:.3g} mm; centred offset: "
+                    f"rho={rc:+.3f})",
+                    a=a,
+                    b=b,
+                    rho=r,
+                )
+            )
             continue
         if a not in done and b not in done:
-            warnings.append(warn("collinear", f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these "
-                                 "parameters trade off", a=a, b=b, rho=r, limit=RHO_LIMIT))
+            warnings.append(
+                warn(
+                    "collinear",
+                    f"rho({a},{b})={r:+.3f}: |rho| > {RHO_LIMIT}; these parameters trade off",
+                    a=a,
+                    b=b,
+                    rho=r,
+                    limit=RHO_LIMIT,
+                )
+            )
     if cond > COND_LIMIT:
-        warnings.append(f"condition number of scaled J^T J is {cond:.3g} (> {COND_LIMIT:.0e}): "
-                        "some parameter combination is poorly determined")
+        warnings.append(
+            f"condition number of scaled J^T J is {cond:.3g} (> {COND_LIMIT:.0e}): "
+            "some parameter combination is poorly determined"
+        )
     for i, name in enumerate(names):
         p = ps[name]
         p.stderr = None if not np.isfinite(se[i]) else float(se[i])
@@ -497,19 +548,35 @@ def _fit_run(
         warnings.append(f"optimizer did not converge: {res.message}")
     ld = loop_direction(force, sig.x)
     if ld < 0:
-        warnings.append(f"measured loop runs anti-physically (tension {abs(ld):.3g} N lower while "
-                        "stretching): check the position sign / channel mapping")
+        warnings.append(
+            f"measured loop runs anti-physically (tension {abs(ld):.3g} N lower while "
+            "stretching): check the position sign / channel mapping"
+        )
 
     N = force.shape[0]
     p_free = len(names)
     sse = float(np.sum((pred - force) ** 2))
     aic, bic = information_criteria(sse, N, p_free, n_eff)
     return FitResult(
-        model=model, params=ps, names=list(names), correlation=corr, warnings=warnings,
-        fixed=[p.name for p in ps if not p.vary], rmse=met["rmse"], nrmse=met["nrmse"],
-        fit_percent=met["fit_percent"], cost=float(res.cost), n_free=p_free, n_samples=N,
-        n_eff=float(n_eff), aic=aic, bic=bic,
-        condition_number=cond, metrics=met, label=label, notes=notes,
+        model=model,
+        params=ps,
+        names=list(names),
+        correlation=corr,
+        warnings=warnings,
+        fixed=[p.name for p in ps if not p.vary],
+        rmse=met["rmse"],
+        nrmse=met["nrmse"],
+        fit_percent=met["fit_percent"],
+        cost=float(res.cost),
+        n_free=p_free,
+        n_samples=N,
+        n_eff=float(n_eff),
+        aic=aic,
+        bic=bic,
+        condition_number=cond,
+        metrics=met,
+        label=label,
+        notes=notes,
     )
 
 
@@ -529,5 +596,8 @@ def _centred_corr(corr: np.ndarray, names: list[str], se: np.ndarray, xm: float)
 
 def default_fixed_notes(model: ForceModel, free: Sequence[str] = ()) -> list[Message]:
     """Human-readable notes on the law's default fixes (for campaign-level warnings)."""
-    return [note("default-fix", why, name=k, value=model.law.default_fixed.get(k))
-            for k, why in model.law.default_fixed_why.items() if k not in free]
+    return [
+        note("default-fix", why, name=k, value=model.law.default_fixed.get(k))
+        for k, why in model.law.default_fixed_why.items()
+        if k not in free
+    ]

@@ -62,15 +62,30 @@ def inside(z0: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.clip(z0, lo + 1e-9 * span, hi - 1e-9 * span)
 
 
-def solve(residual: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], np.ndarray],
-          z0: np.ndarray, lo: np.ndarray, hi: np.ndarray, *, max_nfev: int,
-          tol: float = 1e-8) -> OptimizeResult:
+def solve(
+    residual: Callable[[np.ndarray], np.ndarray],
+    jac: Callable[[np.ndarray], np.ndarray],
+    z0: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    *,
+    max_nfev: int,
+    tol: float = 1e-8,
+) -> OptimizeResult:
     """Bounded nonlinear least squares from ``z0`` (see the module docstring)."""
     with one_blas_thread():
-        return least_squares(residual, inside(np.asarray(z0, float), lo, hi),
-                             jac=jac,  # pyright: ignore[reportArgumentType]  (scipy's stubs: str only)
-                             bounds=(lo, hi), method="trf", x_scale="jac", ftol=tol,
-                             xtol=tol, gtol=tol, max_nfev=max_nfev)
+        return least_squares(
+            residual,
+            inside(np.asarray(z0, float), lo, hi),
+            jac=jac,  # pyright: ignore[reportArgumentType]  (scipy's stubs: str only)
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            ftol=tol,
+            xtol=tol,
+            gtol=tol,
+            max_nfev=max_nfev,
+        )
 
 
 def autocorr1(r: np.ndarray) -> float:

@@ -143,6 +143,7 @@ def play_basis(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     cols = np.empty((x.shape[0], thresholds.shape[0]))
     one = np.ones(1)
     for i, r in enumerate(thresholds):
-        cols[:, i] = slide_h(np.ascontiguousarray(x, dtype=np.float64), one,
-                             np.array([float(r)]), 0.0)
+        cols[:, i] = slide_h(
+            np.ascontiguousarray(x, dtype=np.float64), one, np.array([float(r)]), 0.0
+        )
     return cols

@@ -106,18 +106,21 @@ class HysteresisLaw:
         return {p.name: p.init for p in self.params}
 
     # ------------------------------------------------------------------ evaluation
-    def h(self, x: np.ndarray, theta: Mapping[str, float],
-          extras: Mapping[str, float] | None = None) -> np.ndarray:
+    def h(
+        self, x: np.ndarray, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
+    ) -> np.ndarray:
         """h (N) at every sample of the position path ``x`` (mm); h[0] = theta['h0']."""
         raise NotImplementedError
 
-    def stepper(self, theta: Mapping[str, float],
-                extras: Mapping[str, float] | None = None) -> Callable[[float, float, float], float]:
+    def stepper(
+        self, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
+    ) -> Callable[[float, float, float], float]:
         """A fast ``step(h, x_prev, x) -> h`` with the parameters bound (for 500 Hz loops)."""
         raise NotImplementedError
 
-    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0,
-                      direction: float = 1.0) -> Any:
+    def initial_state(
+        self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0
+    ) -> Any:
         """The stepper's state at a record's start with hysteretic force ``h0`` (N) whose
         first motion is toward contraction (``direction`` +1) or stretch (−1) — the state
         :meth:`h` starts from."""
@@ -135,8 +138,14 @@ class HysteresisLaw:
         :meth:`stepper` is used instead, at Python speed)."""
         return None
 
-    def step(self, h: float, x_prev: float, x: float, theta: Mapping[str, float],
-             extras: Mapping[str, float] | None = None) -> float:
+    def step(
+        self,
+        h: float,
+        x_prev: float,
+        x: float,
+        theta: Mapping[str, float],
+        extras: Mapping[str, float] | None = None,
+    ) -> float:
         """Advance the state h (N) along one position segment x_prev → x (mm).
 
         Exactly one segment of the integrator :meth:`h` uses, so running the law forward

@@ -151,17 +151,26 @@ def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0,
 def bw_kernel(hk, x0, x1, prm):
     """One segment with prm = (A, beta, gamma, n, h0, psi_v, psi_h, psi_x, x_c, psi_a)."""
     if prm[3] == 1.0:
-        return bw1_segment(hk, x0, x1, prm[0], prm[1], prm[2], prm[5], prm[6], prm[7],
-                           prm[8], prm[9])
-    return bw_segment(hk, x0, x1, prm[0], prm[1], prm[2], prm[3], prm[5], prm[6], prm[7],
-                      prm[8], prm[9])
+        return bw1_segment(
+            hk, x0, x1, prm[0], prm[1], prm[2], prm[5], prm[6], prm[7], prm[8], prm[9]
+        )
+    return bw_segment(
+        hk, x0, x1, prm[0], prm[1], prm[2], prm[3], prm[5], prm[6], prm[7], prm[8], prm[9]
+    )
 
 
 def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
     e = extras or {}
-    return (float(theta["A"]), float(theta["beta"]), float(theta["gamma"]),
-            float(e.get("psi_v", 0.0)), float(e.get("psi_h", 0.0)), float(e.get("psi_x", 0.0)),
-            float(e.get("x_c", 0.0)), float(e.get("psi_a", 0.0)))
+    return (
+        float(theta["A"]),
+        float(theta["beta"]),
+        float(theta["gamma"]),
+        float(e.get("psi_v", 0.0)),
+        float(e.get("psi_h", 0.0)),
+        float(e.get("psi_x", 0.0)),
+        float(e.get("x_c", 0.0)),
+        float(e.get("psi_a", 0.0)),
+    )
 
 
 class BoucWen(HysteresisLaw):
@@ -188,8 +197,9 @@ class BoucWen(HysteresisLaw):
         for lam_a in np.geomspace(0.5, 64.0, 8) / R:  # approach rate to saturation, 1/mm
             for ratio in (0.25, 1.0, 3.0):  # decay rate after a reversal / lam_a
                 lam_o = ratio * lam_a
-                out.append({"beta": 0.5 * (lam_o + lam_a), "gamma": 0.5 * (lam_o - lam_a),
-                            "n": 1.0})
+                out.append(
+                    {"beta": 0.5 * (lam_o + lam_a), "gamma": 0.5 * (lam_o - lam_a), "n": 1.0}
+                )
         return out
 
     def scale_valid(self, theta: Mapping[str, float]) -> bool:
@@ -207,8 +217,9 @@ class BoucWen(HysteresisLaw):
         A, beta, gamma, pv, ph, px, xc, pa = _args(theta, extras)
         if float(theta["n"]) == 1.0:
             return bouc_wen_h1(x, A, beta, gamma, float(theta["h0"]), pv, ph, px, xc, pa)
-        return bouc_wen_h(x, A, beta, gamma, float(theta["n"]), float(theta["h0"]),
-                          pv, ph, px, xc, pa)
+        return bouc_wen_h(
+            x, A, beta, gamma, float(theta["n"]), float(theta["h0"]), pv, ph, px, xc, pa
+        )
 
     def kernel(self):
         return bw_kernel
@@ -217,10 +228,13 @@ class BoucWen(HysteresisLaw):
         A, beta, gamma, pv, ph, px, xc, pa = _args(theta, extras)
         n = float(theta["n"])
         if n == 1.0:
+
             def step1(h: float, x_prev: float, x: float) -> float:
                 return bw1_segment(h, x_prev, x, A, beta, gamma, pv, ph, px, xc, pa)
+
             return step1
 
         def step(h: float, x_prev: float, x: float) -> float:
             return bw_segment(h, x_prev, x, A, beta, gamma, n, pv, ph, px, xc, pa)
+
         return step

@@ -62,15 +62,27 @@ def duhem_h(x, alpha, a, b, h0, psi_alpha=0.0, psi_b=0.0):
 
 def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
     e = extras or {}
-    return (float(theta["alpha"]), float(theta["a"]), float(theta["b"]),
-            float(e.get("psi_alpha", 0.0)), float(e.get("psi_b", 0.0)))
+    return (
+        float(theta["alpha"]),
+        float(theta["a"]),
+        float(theta["b"]),
+        float(e.get("psi_alpha", 0.0)),
+        float(e.get("psi_b", 0.0)),
+    )
 
 
 class Duhem(HysteresisLaw):
     name = "duhem"
     order = 2
     params = (
-        LawParam("alpha", 1.0, 1e-4, 100.0, "1/mm", "rate at which h approaches a·x (inverse memory length)"),
+        LawParam(
+            "alpha",
+            1.0,
+            1e-4,
+            100.0,
+            "1/mm",
+            "rate at which h approaches a·x (inverse memory length)",
+        ),
         LawParam("a", 0.0, -1e4, 1e4, "N/mm", "slope of the anhysteretic curve"),
         LawParam("b", -50.0, -1e4, 1e4, "N/mm", "initial slope of h after a reversal"),
         LawParam("h0", 0.0, -1e4, 1e4, "N", "initial hysteretic force"),
@@ -93,8 +105,9 @@ class Duhem(HysteresisLaw):
 
     def h(self, x, theta, extras=None):
         alpha, a, b, pa, pb = _args(theta, extras)
-        return duhem_h(np.ascontiguousarray(x, dtype=np.float64), alpha, a, b,
-                       float(theta["h0"]), pa, pb)
+        return duhem_h(
+            np.ascontiguousarray(x, dtype=np.float64), alpha, a, b, float(theta["h0"]), pa, pb
+        )
 
     def kernel(self):
         return duhem_kernel
@@ -104,4 +117,5 @@ class Duhem(HysteresisLaw):
 
         def step(h: float, x_prev: float, x: float) -> float:
             return duhem_segment(h, x_prev, x, alpha, a, b, pa, pb)
+
         return step

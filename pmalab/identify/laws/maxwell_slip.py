@@ -38,10 +38,14 @@ class MaxwellSlip(HysteresisLaw):
     order = 3
     title = "Maxwell-slip (elasto-slide elements)"
     params = (
-        *(LawParam(n, 10.0, 0.0, 1e4, "N/mm", f"stiffness of element {i + 1}")
-          for i, n in enumerate(_K)),
-        *(LawParam(n, 0.5 * 3.0**i, 1e-3, 50.0, "mm", f"slip displacement of element {i + 1}")
-          for i, n in enumerate(_D)),
+        *(
+            LawParam(n, 10.0, 0.0, 1e4, "N/mm", f"stiffness of element {i + 1}")
+            for i, n in enumerate(_K)
+        ),
+        *(
+            LawParam(n, 0.5 * 3.0**i, 1e-3, 50.0, "mm", f"slip displacement of element {i + 1}")
+            for i, n in enumerate(_D)
+        ),
         LawParam("h0", 0.0, -1e4, 1e4, "N", "initial hysteretic force"),
     )
     state_size = ELEMENTS
@@ -59,8 +63,11 @@ class MaxwellSlip(HysteresisLaw):
         k = coef[:ELEMENTS]
         out = {n: float(min(max(ki, 1e-3), 1e4)) for n, ki in zip(_K, k)}
         out.update({n: float(di) for n, di in zip(_D, d)})
-        out.update(k=float(coef[ELEMENTS] - coef[ELEMENTS + 1]),
-                   c0=float(coef[ELEMENTS + 2] - coef[ELEMENTS + 3]), h0=0.0)
+        out.update(
+            k=float(coef[ELEMENTS] - coef[ELEMENTS + 1]),
+            c0=float(coef[ELEMENTS + 2] - coef[ELEMENTS + 3]),
+            h0=0.0,
+        )
         return out
 
     def h(self, x, theta, extras=None):

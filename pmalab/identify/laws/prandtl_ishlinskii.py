@@ -43,9 +43,10 @@ class PrandtlIshlinskii(HysteresisLaw):
     order = 4
     title = "Prandtl-Ishlinskii (play operators)"
     params = (
-        *(LawParam(n, 1.0, 0.0, 1e4, "N/mm",
-                   f"weight of the play operator of threshold {r:g} mm") for n, r in
-          zip(_W, THRESHOLDS_MM)),
+        *(
+            LawParam(n, 1.0, 0.0, 1e4, "N/mm", f"weight of the play operator of threshold {r:g} mm")
+            for n, r in zip(_W, THRESHOLDS_MM)
+        ),
         LawParam("h0", 0.0, -1e4, 1e4, "N", "initial hysteretic force"),
     )
     state_size = len(THRESHOLDS_MM)
@@ -68,8 +69,7 @@ class PrandtlIshlinskii(HysteresisLaw):
         w = np.zeros(len(_W))
         w[use] = coef[:nb]
         out = {n: float(min(max(wi, 0.0), 1e4)) for n, wi in zip(_W, w)}
-        out.update(k=float(coef[nb] - coef[nb + 1]), c0=float(coef[nb + 2] - coef[nb + 3]),
-                   h0=0.0)
+        out.update(k=float(coef[nb] - coef[nb + 1]), c0=float(coef[nb + 2] - coef[nb + 3]), h0=0.0)
         return out
 
     def h(self, x, theta, extras=None):

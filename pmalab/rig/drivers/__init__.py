@@ -25,7 +25,11 @@ from pmalab.rig.base import Clock, Rig
 
 
 def make_modbus_rig(
-    section: dict[str, Any], rig_file: Path | None = None, *, seed: int = 0, clock: Clock | None = None
+    section: dict[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int = 0,
+    clock: Clock | None = None,
 ) -> Rig:
     """``RIG_KINDS["modbus"]``: build a rig of Modbus/serial devices from a ``[rig]`` table."""
     from pmalab.rig.drivers.rigfile import make_modbus_rig as make
@@ -34,8 +38,11 @@ def make_modbus_rig(
 
 
 def make_t7_stream_rig(
-    section: dict[str, Any], rig_file: Path | None = None, *, seed: int | None = None,
-    clock: Clock | None = None
+    section: dict[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
 ) -> Rig:
     """``RIG_KINDS["labjack-t7-stream"]``: a LabJack T7 streaming over Modbus TCP."""
     from pmalab.rig.drivers.t7_stream import make_t7_stream_rig as make
@@ -44,8 +51,11 @@ def make_t7_stream_rig(
 
 
 def make_nidaq_rig(
-    section: dict[str, Any], rig_file: Path | None = None, *, seed: int | None = None,
-    clock: Clock | None = None
+    section: dict[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
 ) -> Rig:
     """``RIG_KINDS["nidaqmx"]``: an NI-DAQmx device (imported only when such a rig is built)."""
     from pmalab.rig.drivers.nidaqmx_rig import make_nidaq_rig as make

@@ -39,7 +39,9 @@ class Calibration:
     tare: float = 0.0
 
     @classmethod
-    def two_point(cls, raw0: float, value0: float, raw1: float, value1: float, tare: float = 0.0) -> Calibration:
+    def two_point(
+        cls, raw0: float, value0: float, raw1: float, value1: float, tare: float = 0.0
+    ) -> Calibration:
         if raw1 == raw0:
             raise ValueError("two-point calibration needs two different raw values")
         slope = (value1 - value0) / (raw1 - raw0)
@@ -51,8 +53,9 @@ class Calibration:
             value = value * raw + c
         return value - self.tare
 
-    def apply(self, raw: np.ndarray, raw_range: tuple[float, float] | None, where: str
-              ) -> np.ndarray:
+    def apply(
+        self, raw: np.ndarray, raw_range: tuple[float, float] | None, where: str
+    ) -> np.ndarray:
         """A block of raw values (volts, of a hardware-timed stream) → values, refusing
         the first raw value outside ``raw_range`` (a broken wire or an unpowered sensor)
         with one :class:`~pmalab.errors.RigError` line naming ``where``."""
@@ -60,8 +63,10 @@ class Calibration:
         if raw_range is not None:
             bad = np.flatnonzero((v < raw_range[0]) | (v > raw_range[1]))
             if bad.size:
-                raise RigError(f"{where} reads {v[bad[0]]:.3f} V, outside raw_range "
-                               f"{list(raw_range)}: broken wire or sensor unpowered?")
+                raise RigError(
+                    f"{where} reads {v[bad[0]]:.3f} V, outside raw_range "
+                    f"{list(raw_range)}: broken wire or sensor unpowered?"
+                )
         c = self.coefficients
         if len(c) == 2:
             return c[0] + c[1] * v - self.tare
@@ -105,7 +110,9 @@ def parse_calibration(table: Mapping[str, Any], where: str) -> Calibration:
             or any(not isinstance(p, Sequence) or len(p) != 2 for p in pts)
         ):
             raise ConfigError(f"{where}.points: expected [[raw0, value0], [raw1, value1]]")
-        (r0, v0), (r1, v1) = ((_float(a, f"{where}.points"), _float(b, f"{where}.points")) for a, b in pts)
+        (r0, v0), (r1, v1) = (
+            (_float(a, f"{where}.points"), _float(b, f"{where}.points")) for a, b in pts
+        )
         if r0 == r1:
             raise ConfigError(f"{where}.points: the two raw values must differ")
         return Calibration.two_point(r0, v0, r1, v1, tare)
@@ -166,7 +173,9 @@ def parse_codec(table: Mapping[str, Any], defaults: Mapping[str, Any], where: st
     scale = _float(get("scale", 1.0), f"{where}.scale")
     if scale == 0:
         raise ConfigError(f"{where}.scale: must not be zero")
-    return RegisterCodec(data_type, word_order, scale, _float(get("offset", 0.0), f"{where}.offset"))
+    return RegisterCodec(
+        data_type, word_order, scale, _float(get("offset", 0.0), f"{where}.offset")
+    )
 
 
 def _float(x: Any, where: str) -> float:

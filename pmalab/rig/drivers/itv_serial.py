@@ -122,7 +122,9 @@ class ItvSerialRegulator(PressureRegulator):
         reply = self._command(f"SET {int(n)}")
         if reply != "OK":
             self.stats.bad_frames += 1
-            raise RigError(f"{self.name} {self.adapter.name}: SET {n} answered {reply!r}, expected 'OK'")
+            raise RigError(
+                f"{self.name} {self.adapter.name}: SET {n} answered {reply!r}, expected 'OK'"
+            )
         self._sent = int(n)
 
     def _run_writer(self) -> None:
@@ -147,7 +149,9 @@ class ItvSerialRegulator(PressureRegulator):
         parts = reply.split()
         if len(parts) != 2 or parts[0] != "MON" or not parts[1].isdigit():
             self.stats.bad_frames += 1
-            raise RigError(f"{self.name} {self.adapter.name}: MON answered {reply!r}, expected 'MON n'")
+            raise RigError(
+                f"{self.name} {self.adapter.name}: MON answered {reply!r}, expected 'MON n'"
+            )
         return int(parts[1])
 
     # ----------------------------------------------------------------- regulator API
@@ -156,7 +160,9 @@ class ItvSerialRegulator(PressureRegulator):
         try:
             self.adapter.open()
         except (OSError, TransportError) as exc:
-            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})") from exc
+            raise RigError(
+                f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})"
+            ) from exc
         try:
             self.monitor_pressure()
         except RigError:
@@ -166,13 +172,17 @@ class ItvSerialRegulator(PressureRegulator):
     def set_pressure(self, mpa: float) -> None:
         """Queue ``mpa`` MPa for the writer thread; raise a fault the thread met earlier."""
         if not -1e-9 <= mpa <= self.max_pressure_MPa + 1e-9:
-            raise RigError(f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa")
+            raise RigError(
+                f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa"
+            )
         with self._cv:
             if self._error is not None:
                 raise self._error
             if self._worker is None:
                 self._stop = False
-                self._worker = threading.Thread(target=self._run_writer, name="itv-writer", daemon=True)
+                self._worker = threading.Thread(
+                    target=self._run_writer, name="itv-writer", daemon=True
+                )
                 self._worker.start()
             self._pending = self.counts_for(mpa)
             self._cv.notify()
@@ -188,7 +198,9 @@ class ItvSerialRegulator(PressureRegulator):
                 if self._pending is None or self._pending == self._sent:
                     return
             time.sleep(0.001)
-        raise RigError(f"{self.name} {self.adapter.name}: setpoint not acknowledged within {timeout} s")
+        raise RigError(
+            f"{self.name} {self.adapter.name}: setpoint not acknowledged within {timeout} s"
+        )
 
     def _stop_writer(self) -> None:
         with self._cv:
@@ -212,7 +224,9 @@ class ItvSerialRegulator(PressureRegulator):
         try:
             self.set_counts(0)
         except Exception as exc:  # must never raise
-            res = VentResult.failed(f"SET 0 not acknowledged by {self.adapter.name}: {one_line(exc)}")
+            res = VentResult.failed(
+                f"SET 0 not acknowledged by {self.adapter.name}: {one_line(exc)}"
+            )
             return lambda: res
         self.last_command_MPa = 0.0
         deadline = time.perf_counter() + self.vent_confirm_s
@@ -225,13 +239,17 @@ class ItvSerialRegulator(PressureRegulator):
                 p = self.monitor_pressure()
             except Exception as exc:
                 return VentResult.confirmed(
-                    f"SET 0 acknowledged by {where}; MON read-back failed: {one_line(exc)}")
+                    f"SET 0 acknowledged by {where}; MON read-back failed: {one_line(exc)}"
+                )
             if p <= self.vent_threshold_MPa:
-                return VentResult.confirmed(f"SET 0 acknowledged by {where}, output reads {p:.3f} MPa")
+                return VentResult.confirmed(
+                    f"SET 0 acknowledged by {where}, output reads {p:.3f} MPa"
+                )
             if time.perf_counter() >= deadline:
                 return VentResult.failed(
                     f"SET 0 acknowledged by {where}, but the output still reads {p:.3f} MPa "
-                    f"after {self.vent_confirm_s:g} s")
+                    f"after {self.vent_confirm_s:g} s"
+                )
             time.sleep(0.02)
 
     def close(self) -> None:

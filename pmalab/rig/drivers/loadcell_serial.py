@@ -61,7 +61,9 @@ def parse_line(line: bytes, received_at: float = 0.0) -> WeightReading:
 class LoadCellIndicator:
     """Reads the indicator's stream on a thread; :meth:`force` returns the newest value."""
 
-    def __init__(self, adapter: Adapter, stale_after_s: float = 0.5, name: str = "load-cell indicator") -> None:
+    def __init__(
+        self, adapter: Adapter, stale_after_s: float = 0.5, name: str = "load-cell indicator"
+    ) -> None:
         self.adapter = adapter
         self.stale_after_s = float(stale_after_s)
         self.name = name
@@ -80,7 +82,9 @@ class LoadCellIndicator:
         try:
             self.adapter.open()
         except (OSError, TransportError) as exc:
-            raise RigError(f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})") from exc
+            raise RigError(
+                f"{self.name} {self.adapter.name}: cannot open ({one_line(exc)})"
+            ) from exc
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="loadcell-reader", daemon=True)
         self._thread.start()
@@ -90,7 +94,9 @@ class LoadCellIndicator:
                 return
             time.sleep(0.005)
         self.close()
-        raise RigError(f"{self.name} {self.adapter.name}: no weight line within {wait_s} s (wrong port or baud rate?)")
+        raise RigError(
+            f"{self.name} {self.adapter.name}: no weight line within {wait_s} s (wrong port or baud rate?)"
+        )
 
     def _run(self) -> None:
         while not self._stop.is_set():
@@ -134,7 +140,9 @@ class LoadCellIndicator:
             self.stats.timeouts += 1
             self.stats.failures += 1
             extra = f" ({self._error})" if self._error else ""
-            raise RigError(f"{self.name} {self.adapter.name}: no weight line for more than {self.stale_after_s} s{extra}")
+            raise RigError(
+                f"{self.name} {self.adapter.name}: no weight line for more than {self.stale_after_s} s{extra}"
+            )
         if overload or r.overload:
             self.stats.out_of_range += 1
             self.stats.failures += 1

@@ -117,7 +117,9 @@ class ModbusSampler(Sampler):
         end = max(c.address + c.codec.width for c in channels)
         self.count = end - self.start_address
         if self.count > 125:
-            raise ValueError(f"analog inputs span {self.count} registers; one Modbus read carries at most 125")
+            raise ValueError(
+                f"analog inputs span {self.count} registers; one Modbus read carries at most 125"
+            )
         self.last_probe: ProbeResult | None = None
         #: other devices to release with the sampler (serial indicator, ITV regulators)
         self.closers: list[Callable[[], None]] = []
@@ -144,7 +146,9 @@ class ModbusSampler(Sampler):
 
     def read_values(self) -> dict[str, float]:
         """One block read, calibrated (no timestamp)."""
-        values = self.link.read_registers(self.start_address, self.count, self.function, self._convert)
+        values = self.link.read_registers(
+            self.start_address, self.count, self.function, self._convert
+        )
         for name, source in self.extra.items():
             values[name] = source()
         return values
@@ -228,7 +232,9 @@ class ModbusSampler(Sampler):
             )
         fallback = [r for r in FALLBACK_RATES_HZ if r <= min(res.sustainable_Hz, rate)]
         if not fallback:
-            raise RigError(f"{where}: sustainable rate {res.sustainable_Hz:.1f} Hz is too low to record")
+            raise RigError(
+                f"{where}: sustainable rate {res.sustainable_Hz:.1f} Hz is too low to record"
+            )
         self.sample_rate_Hz = fallback[0]
         return res
 
@@ -285,7 +291,9 @@ class ModbusAnalogOutput(PressureRegulator):
 
     def set_pressure(self, mpa: float) -> None:
         if not -1e-9 <= mpa <= self.max_pressure_MPa + 1e-9:
-            raise RigError(f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa")
+            raise RigError(
+                f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa"
+            )
         self.link.write_registers(self.address, self.codec.encode(self.raw_for(max(mpa, 0.0))))
         self.last_command_MPa = float(mpa)
 
@@ -304,7 +312,8 @@ class ModbusAnalogOutput(PressureRegulator):
             last = link.last_error if link.last_error is not None else exc
             res = VentResult.failed(
                 f"zero write to register {self.address} not acknowledged after "
-                f"{link.retries + 1} attempts; last: {one_line(last)}")
+                f"{link.retries + 1} attempts; last: {one_line(last)}"
+            )
             return lambda: res
         self.last_command_MPa = 0.0
         return lambda: self._confirm_vent(zero, raw0)
@@ -315,17 +324,22 @@ class ModbusAnalogOutput(PressureRegulator):
             back = link.read_registers(self.address, len(zero), FC_READ_HOLDING)
         except Exception as exc:
             last = link.last_error if link.last_error is not None else exc
-            how = ("the device does not read outputs back"
-                   if isinstance(last, DeviceExceptionReply) and last.code in (1, 2)
-                   else f"read-back failed: {one_line(last)}")
+            how = (
+                "the device does not read outputs back"
+                if isinstance(last, DeviceExceptionReply) and last.code in (1, 2)
+                else f"read-back failed: {one_line(last)}"
+            )
             return VentResult.confirmed(
-                f"zero write to register {self.address} acknowledged by {link.adapter.name}; {how}")
+                f"zero write to register {self.address} acknowledged by {link.adapter.name}; {how}"
+            )
         if list(back) != list(zero):
             return VentResult.failed(
                 f"zero write to register {self.address} acknowledged, but it reads back "
-                f"{self.codec.decode(list(back)):.4g} instead of {raw0:g}")
+                f"{self.codec.decode(list(back)):.4g} instead of {raw0:g}"
+            )
         return VentResult.confirmed(
-            f"write acknowledged by {link.adapter.name}, register {self.address} reads back {raw0:g}")
+            f"write acknowledged by {link.adapter.name}, register {self.address} reads back {raw0:g}"
+        )
 
 
 class RegulatedMuscleSupply(MusclePressureSupply):

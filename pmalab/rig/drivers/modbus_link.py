@@ -94,7 +94,6 @@ class LinkStats:
             self.out_of_range += 1
 
 
-
 class RetriesExhausted(Exception):
     """Every attempt of :func:`exchange_with_retries` failed; ``last`` is the last fault."""
 
@@ -206,7 +205,11 @@ class ModbusLink:
         ``convert(registers)`` (optional) turns them into values and may raise
         :class:`ValueOutOfRange`, which is counted and retried like any other fault.
         """
-        cls = ReadHoldingRegistersRequest if function == FC_READ_HOLDING else ReadInputRegistersRequest
+        cls = (
+            ReadHoldingRegistersRequest
+            if function == FC_READ_HOLDING
+            else ReadInputRegistersRequest
+        )
         pdu = cls(address=address, count=count, dev_id=self.device_id)
 
         def check(data: bytes) -> Any:
@@ -278,7 +281,9 @@ class ModbusLink:
                 self.stats.stale_replies += 1
                 continue
             if unit != self.device_id:
-                raise FrameError(f"{self.adapter.name}: reply from unit {unit}, expected {self.device_id}")
+                raise FrameError(
+                    f"{self.adapter.name}: reply from unit {unit}, expected {self.device_id}"
+                )
             return body
 
     def _receive_rtu(self, function: int) -> bytes:
@@ -302,7 +307,9 @@ class ModbusLink:
         if not FramerRTU.check_CRC(frame[:-2], crc):
             raise FrameError(f"{self.adapter.name}: CRC error in reply {frame.hex(' ')}")
         if head[0] != self.device_id:
-            raise FrameError(f"{self.adapter.name}: reply from device {head[0]}, expected {self.device_id}")
+            raise FrameError(
+                f"{self.adapter.name}: reply from device {head[0]}, expected {self.device_id}"
+            )
         return frame[1:-2]
 
     def _decode(self, data: bytes, function: int) -> ModbusPDU:
@@ -326,7 +333,11 @@ class ModbusLink:
         return reply
 
     def _check_read(self, data: bytes, function: int, count: int) -> list[int]:
-        if len(data) >= 2 and data[0] == function and (data[1] != 2 * count or len(data) != 2 + 2 * count):
+        if (
+            len(data) >= 2
+            and data[0] == function
+            and (data[1] != 2 * count or len(data) != 2 + 2 * count)
+        ):
             raise FrameError(
                 f"{self.adapter.name}: reply carries {len(data) - 2} bytes, expected {2 * count}"
             )
@@ -335,7 +346,9 @@ class ModbusLink:
     def _check_write(self, data: bytes, address: int, count: int) -> None:
         reply = self._decode(data, FC_WRITE_MULTIPLE)
         if reply.address != address or reply.count != count:
-            raise FrameError(f"{self.adapter.name}: write echo {reply.address}/{reply.count} mismatch")
+            raise FrameError(
+                f"{self.adapter.name}: write echo {reply.address}/{reply.count} mismatch"
+            )
 
 
 def one_line(exc: BaseException | None) -> str:

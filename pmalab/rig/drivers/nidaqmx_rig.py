@@ -66,9 +66,9 @@ TERMINALS = ("DEFAULT", "RSE", "NRSE", "DIFF", "PSEUDO_DIFF")
 #: DAQmx error codes a run can meet, and what they mean at the rig
 DAQMX_MEANINGS = {
     -200279: "buffer overflow: the program did not read the samples before the device "
-             "overwrote them",
+    "overwrote them",
     -200284: "timeout: the samples asked for did not arrive (sample clock stopped, or the "
-             "device is gone)",
+    "device is gone)",
     -201003: "device cannot be accessed: removed, unpowered or reset",
     -50405: "transfer stopped: the device was removed or lost power (USB)",
     -200473: "read before the task was started",
@@ -99,8 +99,10 @@ def _nidaqmx():
         import nidaqmx.errors  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
         import nidaqmx.stream_readers  # pyright: ignore[reportMissingImports]  # optional: pmalab[nidaq]
     except ImportError:
-        raise ConfigError("rig kind 'nidaqmx' needs NI's driver (NI-DAQmx) and the nidaqmx "
-                          "package: pip install 'pmalab[nidaq]'") from None
+        raise ConfigError(
+            "rig kind 'nidaqmx' needs NI's driver (NI-DAQmx) and the nidaqmx "
+            "package: pip install 'pmalab[nidaq]'"
+        ) from None
     return nidaqmx
 
 
@@ -139,8 +141,11 @@ class NidaqRigSpec:
 
 
 def _pair(x: Any, where: str) -> tuple[float, float]:
-    if (not isinstance(x, list | tuple) or len(x) != 2
-            or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in x)):
+    if (
+        not isinstance(x, list | tuple)
+        or len(x) != 2
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in x)
+    ):
         raise ConfigError(f"{where}: expected [low, high] in volts")
     lo, hi = float(x[0]), float(x[1])
     if not lo < hi:
@@ -157,13 +162,26 @@ def _pos(x: Any, where: str, lo: float, hi: float) -> float:
 def parse_nidaq_rig(section: Mapping[str, Any], rig_file: Path | None = None) -> NidaqRigSpec:
     """The ``[rig]`` table of a ``kind = "nidaqmx"`` rig file (module doc); one-line errors."""
     where = str(rig_file) if rig_file else "rig"
-    top = {"name", "device", "buffer_s", "read_block_s", "read_timeout_s", "vent_confirm_s",
-           "vent_confirm_MPa", "inputs", "outputs"}
-    check_keys(section, top, "{where}: rig.{key}: unknown key for kind 'nidaqmx' (known: {known})",
-               where=where)
+    top = {
+        "name",
+        "device",
+        "buffer_s",
+        "read_block_s",
+        "read_timeout_s",
+        "vent_confirm_s",
+        "vent_confirm_MPa",
+        "inputs",
+        "outputs",
+    }
+    check_keys(
+        section,
+        top,
+        "{where}: rig.{key}: unknown key for kind 'nidaqmx' (known: {known})",
+        where=where,
+    )
     device = section.get("device")
     if not isinstance(device, str) or not device:
-        raise ConfigError(f"{where}: rig.device: missing (the NI device name, e.g. \"Dev1\")")
+        raise ConfigError(f'{where}: rig.device: missing (the NI device name, e.g. "Dev1")')
     inputs_t = section.get("inputs")
     if not isinstance(inputs_t, Mapping):
         raise ConfigError(f"{where}: [rig.inputs]: missing (one table per sensor channel)")
@@ -174,14 +192,20 @@ def parse_nidaq_rig(section: Mapping[str, Any], rig_file: Path | None = None) ->
             raise ConfigError(f"{w}: unknown channel (known: {', '.join(INPUTS)})")
         if not isinstance(t, Mapping):
             raise ConfigError(f"{w}: must be a table")
-        check_keys(t, {"channel", "terminal", "range_V", "raw_range", "points", "polynomial",
-                       "tare"}, "{w}: {key}: unknown key (known: {known})", w=w)
+        check_keys(
+            t,
+            {"channel", "terminal", "range_V", "raw_range", "points", "polynomial", "tare"},
+            "{w}: {key}: unknown key (known: {known})",
+            w=w,
+        )
         ch = t.get("channel")
         if not isinstance(ch, str) or not ch.startswith("ai"):
-            raise ConfigError(f"{w}.channel: expected an analog input such as \"ai0\", got {ch!r}")
+            raise ConfigError(f'{w}.channel: expected an analog input such as "ai0", got {ch!r}')
         term = str(t.get("terminal", "DEFAULT")).upper()
         if term not in TERMINALS:
-            raise ConfigError(f"{w}.terminal: {t.get('terminal')!r} (known: {', '.join(TERMINALS)})")
+            raise ConfigError(
+                f"{w}.terminal: {t.get('terminal')!r} (known: {', '.join(TERMINALS)})"
+            )
         rng = _pair(t.get("range_V", [-10.0, 10.0]), f"{w}.range_V")
         raw = _pair(t["raw_range"], f"{w}.raw_range") if "raw_range" in t else None
         inputs.append(AiSpec(name, ch, term, rng, raw, parse_calibration(t, w)))
@@ -194,38 +218,56 @@ def parse_nidaq_rig(section: Mapping[str, Any], rig_file: Path | None = None) ->
         raise ConfigError(f"{where}: [rig.inputs]: {', '.join(sorted(dup))} used twice")
     outputs_t = section.get("outputs", {})
     if not isinstance(outputs_t, Mapping) or "cylinder_regulator" not in outputs_t:
-        raise ConfigError(f"{where}: [rig.outputs.cylinder_regulator]: missing (the cylinder's "
-                          "regulator on an analog output)")
+        raise ConfigError(
+            f"{where}: [rig.outputs.cylinder_regulator]: missing (the cylinder's "
+            "regulator on an analog output)"
+        )
     outputs = {}
     for name, t in outputs_t.items():
         w = f"{where}: [rig.outputs.{name}]"
         if name not in VENT_SENSOR:
             raise ConfigError(f"{w}: unknown output (known: {', '.join(VENT_SENSOR)})")
-        check_keys(t, {"channel", "range_V", "points", "polynomial", "max_pressure_MPa"},
-                   "{w}: {key}: unknown key (known: {known})", w=w)
+        check_keys(
+            t,
+            {"channel", "range_V", "points", "polynomial", "max_pressure_MPa"},
+            "{w}: {key}: unknown key (known: {known})",
+            w=w,
+        )
         ch = t.get("channel")
         if not isinstance(ch, str) or not ch.startswith("ao"):
-            raise ConfigError(f"{w}.channel: expected an analog output such as \"ao0\", got {ch!r}")
-        outputs[name] = AoSpec(name, ch, _pair(t.get("range_V", [0.0, 10.0]), f"{w}.range_V"),
-                               parse_calibration(t, w),
-                               _pos(t.get("max_pressure_MPa", 0.9), f"{w}.max_pressure_MPa",
-                                    0.0, 1.2))
+            raise ConfigError(f'{w}.channel: expected an analog output such as "ao0", got {ch!r}')
+        outputs[name] = AoSpec(
+            name,
+            ch,
+            _pair(t.get("range_V", [0.0, 10.0]), f"{w}.range_V"),
+            parse_calibration(t, w),
+            _pos(t.get("max_pressure_MPa", 0.9), f"{w}.max_pressure_MPa", 0.0, 1.2),
+        )
         if VENT_SENSOR[name] not in {i.name for i in inputs}:
-            raise ConfigError(f"{w}: needs [rig.inputs.{VENT_SENSOR[name]}]: its vent is "
-                              "confirmed by that pressure falling")
+            raise ConfigError(
+                f"{w}: needs [rig.inputs.{VENT_SENSOR[name]}]: its vent is "
+                "confirmed by that pressure falling"
+            )
     return NidaqRigSpec(
-        name=str(section.get("name", f"NI-DAQmx {device}")), device=device, inputs=inputs,
+        name=str(section.get("name", f"NI-DAQmx {device}")),
+        device=device,
+        inputs=inputs,
         outputs=outputs,
         buffer_s=_pos(section.get("buffer_s", 2.0), f"{where}: rig.buffer_s", 0.1, 60.0),
-        read_block_s=_pos(section.get("read_block_s", 0.01), f"{where}: rig.read_block_s",
-                          0.001, 0.5),
-        read_timeout_s=_pos(section.get("read_timeout_s", 1.0), f"{where}: rig.read_timeout_s",
-                            0.05, 30.0),
-        vent_confirm_s=_pos(section.get("vent_confirm_s", 2.0), f"{where}: rig.vent_confirm_s",
-                            0.05, 30.0),
-        vent_confirm_MPa=_pos(section.get("vent_confirm_MPa", 0.03),
-                              f"{where}: rig.vent_confirm_MPa", 0.001, 0.5),
-        path=rig_file)
+        read_block_s=_pos(
+            section.get("read_block_s", 0.01), f"{where}: rig.read_block_s", 0.001, 0.5
+        ),
+        read_timeout_s=_pos(
+            section.get("read_timeout_s", 1.0), f"{where}: rig.read_timeout_s", 0.05, 30.0
+        ),
+        vent_confirm_s=_pos(
+            section.get("vent_confirm_s", 2.0), f"{where}: rig.vent_confirm_s", 0.05, 30.0
+        ),
+        vent_confirm_MPa=_pos(
+            section.get("vent_confirm_MPa", 0.03), f"{where}: rig.vent_confirm_MPa", 0.001, 0.5
+        ),
+        path=rig_file,
+    )
 
 
 # --------------------------------------------------------------------------- devices
@@ -259,10 +301,13 @@ class NidaqSampler(Sampler):
                 task.ai_channels.add_ai_voltage_chan(
                     f"{self.spec.device}/{ai.channel}",
                     terminal_config=getattr(TerminalConfiguration, ai.terminal),
-                    min_val=ai.range_V[0], max_val=ai.range_V[1])
+                    min_val=ai.range_V[0],
+                    max_val=ai.range_V[1],
+                )
             buffer = max(int(rate * self.spec.buffer_s), 2 * self._block(rate))
-            task.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.CONTINUOUS,
-                                            samps_per_chan=buffer)
+            task.timing.cfg_samp_clk_timing(
+                rate, sample_mode=AcquisitionType.CONTINUOUS, samps_per_chan=buffer
+            )
         except Exception:
             task.close()
             raise
@@ -285,8 +330,9 @@ class NidaqSampler(Sampler):
             self.task.start()
         except Exception as exc:
             self.stop()
-            raise RigError(f"{self.spec.device}: cannot start the analog-input task: "
-                           f"{daqmx_line(exc)}") from None
+            raise RigError(
+                f"{self.spec.device}: cannot start the analog-input task: {daqmx_line(exc)}"
+            ) from None
         self.running = True
         self.failed = None
         self.k = 0
@@ -306,8 +352,11 @@ class NidaqSampler(Sampler):
     def _convert(self, volts: np.ndarray, check: bool = True) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}
         for i, ai in enumerate(self.spec.inputs):
-            val = ai.calibration.apply(volts[i], ai.raw_range if check else None,
-                                       f"{self.spec.device}/{ai.channel} ({ai.name})")
+            val = ai.calibration.apply(
+                volts[i],
+                ai.raw_range if check else None,
+                f"{self.spec.device}/{ai.channel} ({ai.name})",
+            )
             out[ai.name] = val
         return out
 
@@ -317,13 +366,15 @@ class NidaqSampler(Sampler):
         n = self._block(self.sample_rate_Hz)
         buf = np.zeros((len(self.spec.inputs), n))
         try:
-            got = self.reader.read_many_sample(buf, number_of_samples_per_channel=n,
-                                               timeout=self.spec.read_timeout_s)
+            got = self.reader.read_many_sample(
+                buf, number_of_samples_per_channel=n, timeout=self.spec.read_timeout_s
+            )
         except Exception as exc:
             self.running = False
             self.failed = daqmx_line(exc)
-            raise RigError(f"{self.spec.device}: acquisition stopped after {self.k} samples: "
-                           f"{self.failed}") from None
+            raise RigError(
+                f"{self.spec.device}: acquisition stopped after {self.k} samples: {self.failed}"
+            ) from None
         got = int(got) if got is not None else n
         buf = buf[:, :got]
         vals = self._convert(buf)
@@ -335,8 +386,13 @@ class NidaqSampler(Sampler):
             if len(v):
                 self._latest[name] = float(v[-1])
         zeros = np.zeros(got)
-        return Block(t, vals["position"], vals["force"], vals["muscle_pressure"],
-                     vals.get("cylinder_pressure", zeros))
+        return Block(
+            t,
+            vals["position"],
+            vals["force"],
+            vals["muscle_pressure"],
+            vals.get("cylinder_pressure", zeros),
+        )
 
     def read_now(self, name: str) -> float:
         """The latest value of one sensor (engineering units), for vent confirmation: from
@@ -347,8 +403,9 @@ class NidaqSampler(Sampler):
             avail = int(self.task.in_stream.avail_samp_per_chan)
             if avail > 0:
                 buf = np.zeros((len(self.spec.inputs), avail))
-                self.reader.read_many_sample(buf, number_of_samples_per_channel=avail,
-                                             timeout=self.spec.read_timeout_s)
+                self.reader.read_many_sample(
+                    buf, number_of_samples_per_channel=avail, timeout=self.spec.read_timeout_s
+                )
                 self.k += avail  # read for the confirmation; the run has ended
                 return float(self._convert(buf[:, -1:], check=False)[name][-1])
             return self._latest.get(name, float("nan"))
@@ -359,14 +416,18 @@ class NidaqSampler(Sampler):
             task.ai_channels.add_ai_voltage_chan(
                 f"{self.spec.device}/{ai.channel}",
                 terminal_config=getattr(TerminalConfiguration, ai.terminal),
-                min_val=ai.range_V[0], max_val=ai.range_V[1])
+                min_val=ai.range_V[0],
+                max_val=ai.range_V[1],
+            )
             v = float(task.read())
         return float(ai.calibration(v))
 
     def stats(self) -> dict[str, Any]:
-        return {"blocks_read": self.stats_counts["blocks"],
-                "samples_read": self.stats_counts["samples"],
-                "stream_error": self.failed}
+        return {
+            "blocks_read": self.stats_counts["blocks"],
+            "samples_read": self.stats_counts["samples"],
+            "stream_error": self.failed,
+        }
 
 
 class NidaqRegulator(PressureRegulator):
@@ -376,8 +437,15 @@ class NidaqRegulator(PressureRegulator):
     own pressure sensor to fall below ``vent_confirm_MPa`` (module doc).
     """
 
-    def __init__(self, spec: AoSpec, device: str, sampler: NidaqSampler, confirm_s: float,
-                 confirm_MPa: float, sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(
+        self,
+        spec: AoSpec,
+        device: str,
+        sampler: NidaqSampler,
+        confirm_s: float,
+        confirm_MPa: float,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
         self.spec = spec
         self.device = device
         self.sampler = sampler
@@ -394,9 +462,11 @@ class NidaqRegulator(PressureRegulator):
             ni = _nidaqmx()
             task = ni.Task()
             try:
-                task.ao_channels.add_ao_voltage_chan(f"{self.device}/{self.spec.channel}",
-                                                     min_val=self.spec.range_V[0],
-                                                     max_val=self.spec.range_V[1])
+                task.ao_channels.add_ao_voltage_chan(
+                    f"{self.device}/{self.spec.channel}",
+                    min_val=self.spec.range_V[0],
+                    max_val=self.spec.range_V[1],
+                )
             except Exception:
                 task.close()
                 raise
@@ -409,13 +479,15 @@ class NidaqRegulator(PressureRegulator):
 
     def set_pressure(self, mpa: float) -> None:
         if not -1e-9 <= mpa <= self.max_pressure_MPa + 1e-9:
-            raise RigError(f"{self.name}: command {mpa:.4f} MPa outside 0–"
-                           f"{self.max_pressure_MPa} MPa")
+            raise RigError(
+                f"{self.name}: command {mpa:.4f} MPa outside 0–{self.max_pressure_MPa} MPa"
+            )
         try:
             self._open().write(self.volts_for(max(mpa, 0.0)))
         except Exception as exc:
-            raise RigError(f"{self.device}/{self.spec.channel} ({self.name}): write failed: "
-                           f"{daqmx_line(exc)}") from None
+            raise RigError(
+                f"{self.device}/{self.spec.channel} ({self.name}): write failed: {daqmx_line(exc)}"
+            ) from None
         self.last_command_MPa = float(mpa)
 
     def vent(self) -> VentResult:
@@ -441,16 +513,21 @@ class NidaqRegulator(PressureRegulator):
             try:
                 last = self.sampler.read_now(sensor)
             except Exception as exc:
-                return VentResult.failed(f"{v0:g} V written to {where}, but {sensor} cannot be "
-                                         f"read back: {daqmx_line(exc)}")
+                return VentResult.failed(
+                    f"{v0:g} V written to {where}, but {sensor} cannot be "
+                    f"read back: {daqmx_line(exc)}"
+                )
             polls += 1
             if last == last and last <= self.confirm_MPa:
-                return VentResult.confirmed(f"{v0:g} V written to {where}; {sensor} reads "
-                                            f"{last:.3f} MPa")
+                return VentResult.confirmed(
+                    f"{v0:g} V written to {where}; {sensor} reads {last:.3f} MPa"
+                )
             if time.monotonic() > deadline or polls > 10_000:
                 shown = f"{last:.3f} MPa" if last == last else "no reading"
-                return VentResult.failed(f"{v0:g} V written to {where}, but {sensor} still "
-                                         f"reads {shown} after {self.confirm_s:g} s")
+                return VentResult.failed(
+                    f"{v0:g} V written to {where}, but {sensor} still "
+                    f"reads {shown} after {self.confirm_s:g} s"
+                )
             self.sleep(0.01)
 
     def close(self) -> None:
@@ -460,8 +537,13 @@ class NidaqRegulator(PressureRegulator):
 
 
 # --------------------------------------------------------------------------- building
-def make_nidaq_rig(section: Mapping[str, Any], rig_file: Path | None = None, *,
-                   seed: int | None = None, clock: Clock | None = None) -> Rig:
+def make_nidaq_rig(
+    section: Mapping[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
+) -> Rig:
     """``RIG_KINDS["nidaqmx"]``: parse, open the device's channels, vent, build the rig."""
     spec = parse_nidaq_rig(section, rig_file)
     _nidaqmx()
@@ -482,23 +564,39 @@ def make_nidaq_rig(section: Mapping[str, Any], rig_file: Path | None = None, *,
         except Exception as exc:
             for r in regs.values():
                 r.close()
-            raise ConfigError(f"{where}: [rig.outputs.{name}] {spec.device}/{o.channel}: "
-                              f"{daqmx_line(exc)}") from None
+            raise ConfigError(
+                f"{where}: [rig.outputs.{name}] {spec.device}/{o.channel}: {daqmx_line(exc)}"
+            ) from None
         regs[name] = reg
-    supply = (RegulatedMuscleSupply(regs["muscle_regulator"]) if "muscle_regulator" in regs
-              else ManualMuscleSupply())
+    supply = (
+        RegulatedMuscleSupply(regs["muscle_regulator"])
+        if "muscle_regulator" in regs
+        else ManualMuscleSupply()
+    )
     info: dict[str, Any] = {
         "kind": "nidaqmx",
         "name": spec.name,
         "rig_file": str(rig_file) if rig_file else None,
         "device": spec.device,
         "time_base": "device sample clock",
-        "channels": {a.name: {"channel": f"{spec.device}/{a.channel}", "terminal": a.terminal,
-                              "range_V": list(a.range_V), "calibration": a.calibration.as_dict(),
-                              "raw_range": list(a.raw_range) if a.raw_range else None}
-                     for a in spec.inputs},
-        "outputs": {n: {"channel": f"{spec.device}/{o.channel}", "range_V": list(o.range_V),
-                        "calibration": o.calibration.as_dict()} for n, o in spec.outputs.items()},
+        "channels": {
+            a.name: {
+                "channel": f"{spec.device}/{a.channel}",
+                "terminal": a.terminal,
+                "range_V": list(a.range_V),
+                "calibration": a.calibration.as_dict(),
+                "raw_range": list(a.raw_range) if a.raw_range else None,
+            }
+            for a in spec.inputs
+        },
+        "outputs": {
+            n: {
+                "channel": f"{spec.device}/{o.channel}",
+                "range_V": list(o.range_V),
+                "calibration": o.calibration.as_dict(),
+            }
+            for n, o in spec.outputs.items()
+        },
         "read_block_s": spec.read_block_s,
         "buffer_s": spec.buffer_s,
     }

@@ -72,12 +72,20 @@ class TransportSpec:
 
     @property
     def endpoint(self) -> str:
-        return f"tcp://{self.host}:{self.port}" if self.type == "tcp" else f"rtu://{self.port}@{self.baudrate}"
+        return (
+            f"tcp://{self.host}:{self.port}"
+            if self.type == "tcp"
+            else f"rtu://{self.port}@{self.baudrate}"
+        )
 
     def adapter(self) -> Adapter:
         if self.type == "tcp":
-            return SocketAdapter(self.host, int(self.port), connect_timeout=max(1.0, self.timeout_s))
-        return SerialAdapter(str(self.port), self.baudrate, self.bytesize, self.parity, self.stopbits)
+            return SocketAdapter(
+                self.host, int(self.port), connect_timeout=max(1.0, self.timeout_s)
+            )
+        return SerialAdapter(
+            str(self.port), self.baudrate, self.bytesize, self.parity, self.stopbits
+        )
 
 
 @dataclass
@@ -142,8 +150,10 @@ def read_modbus_rig_file(path: str | Path) -> ModbusRigSpec:
     section = dict(section)
     kind = section.pop("kind", None)
     if kind not in ("modbus", "labjack-t7-stream"):
-        raise ConfigError(f"{path}: rig.kind: {kind!r} is not 'modbus' or "
-                          "'labjack-t7-stream' (nothing to emulate)")
+        raise ConfigError(
+            f"{path}: rig.kind: {kind!r} is not 'modbus' or "
+            "'labjack-t7-stream' (nothing to emulate)"
+        )
     for key in ("buffer_size_bytes", "ain_calibration"):  # stream-only keys
         section.pop(key, None)
     rs = parse_modbus_rig(section, path)
@@ -157,9 +167,15 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
     path = rig_file
     text = ""
     where = str(path) if path else "rig"
-    data = {"rig": section, **{k: section[k] for k in ("transport", "inputs", "outputs", "indicator") if k in section}}
+    data = {
+        "rig": section,
+        **{k: section[k] for k in ("transport", "inputs", "outputs", "indicator") if k in section},
+    }
     check_keys(
-        section, SECTION_KEYS, "{where}: rig.{key}: unknown key for kind 'modbus' (known: {known})", where=where
+        section,
+        SECTION_KEYS,
+        "{where}: rig.{key}: unknown key for kind 'modbus' (known: {known})",
+        where=where,
     )
     rig = section
     tr = _table(data, "transport", where)
@@ -167,7 +183,9 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
     if ttype not in ("tcp", "rtu"):
         raise ConfigError(f"{where}: [rig.transport] type {ttype!r} is not 'tcp' or 'rtu'")
     if ttype == "rtu" and not isinstance(tr.get("port"), str):
-        raise ConfigError(f"{where}: [rig.transport] port must be a serial device path for type = 'rtu'")
+        raise ConfigError(
+            f"{where}: [rig.transport] port must be a serial device path for type = 'rtu'"
+        )
     transport = TransportSpec(
         type=ttype,
         host=str(tr.get("host", "127.0.0.1")),
@@ -217,7 +235,9 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
         indicator = IndicatorSpec(
             port=ind["port"],
             baudrate=int(ind.get("baudrate", 9600)),
-            stale_after_s=_num(ind.get("stale_after_s", 0.5), f"{where}: [rig.indicator] stale_after_s", 0.01),
+            stale_after_s=_num(
+                ind.get("stale_after_s", 0.5), f"{where}: [rig.indicator] stale_after_s", 0.01
+            ),
         )
 
     outs = data.get("outputs", {})
@@ -237,7 +257,9 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
         name=str(rig.get("name", "modbus rig")),
         sample_rate_Hz=rate,
         allow_reduced_rate=bool(rig.get("allow_reduced_rate", False)),
-        probe_samples=_int(rig.get("probe_samples", 300), f"{where}: [rig] probe_samples", 0, 100000),
+        probe_samples=_int(
+            rig.get("probe_samples", 300), f"{where}: [rig] probe_samples", 0, 100000
+        ),
         transport=transport,
         function=FC_READ_HOLDING if fn_name == "holding" else FC_READ_INPUT,
         channels=channels,
@@ -280,8 +302,9 @@ def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
     raise ConfigError(f"{w} type {otype!r} is not 'analog' or 'itv-serial'")
 
 
-def override_transport(section: Mapping[str, Any], where: str, *, host: str | None = None,
-                       port: int | None = None) -> dict[str, Any]:
+def override_transport(
+    section: Mapping[str, Any], where: str, *, host: str | None = None, port: int | None = None
+) -> dict[str, Any]:
     """A copy of a ``[rig]`` table with ``[rig.transport]`` host/port replaced (``pmalab run
     --host/--port``); only for Modbus TCP (an RTU port is a serial device in the file)."""
     out = dict(section)
@@ -290,8 +313,10 @@ def override_transport(section: Mapping[str, Any], where: str, *, host: str | No
     ttype = str(tr.get("type", "tcp")).lower()
     if ttype != "tcp":
         flag = "--host" if host is not None else "--port"
-        raise ConfigError(f"{flag}: {where} talks Modbus {ttype.upper()} on a serial port; "
-                          "--host/--port apply to Modbus TCP rig files")
+        raise ConfigError(
+            f"{flag}: {where} talks Modbus {ttype.upper()} on a serial port; "
+            "--host/--port apply to Modbus TCP rig files"
+        )
     if host is not None:
         tr["host"] = host
     if port is not None:
@@ -302,7 +327,11 @@ def override_transport(section: Mapping[str, Any], where: str, *, host: str | No
 
 # --------------------------------------------------------------------------- building
 def make_modbus_rig(
-    section: Mapping[str, Any], rig_file: Path | None = None, *, seed: int | None = None, clock: Clock | None = None
+    section: Mapping[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
 ) -> Rig:
     """The ``RIG_KINDS["modbus"]`` factory: parse the ``[rig]`` table, connect, check."""
     return build_modbus_rig(parse_modbus_rig(section, rig_file), seed=seed, clock=clock)
@@ -342,14 +371,20 @@ def build_modbus_rig(
     try:
         link.connect()
     except RigError as exc:
-        fail(RigError(f"{where}: {exc} (device off or wrong address/port? for a try without hardware: pmalab emulate --rig {where})"))
+        fail(
+            RigError(
+                f"{where}: {exc} (device off or wrong address/port? for a try without hardware: pmalab emulate --rig {where})"
+            )
+        )
     opened.append(link)
 
     indicator = None
     extra: dict[str, Any] = {}
     extra_stats: dict[str, Any] = {}
     if rs.indicator is not None:
-        indicator = LoadCellIndicator(SerialAdapter(rs.indicator.port, rs.indicator.baudrate), rs.indicator.stale_after_s)
+        indicator = LoadCellIndicator(
+            SerialAdapter(rs.indicator.port, rs.indicator.baudrate), rs.indicator.stale_after_s
+        )
         try:
             indicator.connect()
         except RigError as exc:
@@ -403,7 +438,11 @@ def build_modbus_rig(
                 reg.set_counts(0)  # type: ignore[attr-defined]
         except RigError as exc:
             if isinstance(link.last_error, DeviceExceptionReply) and link.last_error.code in (1, 2):
-                fail(ConfigError(f"{where}: [rig.outputs.{oname}] address {o.address} rejected ({link.last_error}); wrong register map?"))
+                fail(
+                    ConfigError(
+                        f"{where}: [rig.outputs.{oname}] address {o.address} rejected ({link.last_error}); wrong register map?"
+                    )
+                )
             fail(RigError(f"{where}: [rig.outputs.{oname}] {exc}"))
 
     cyl = regulators["cylinder_regulator"]
@@ -412,7 +451,9 @@ def build_modbus_rig(
         sampler.probe_companion = lambda: link.write_registers(cyl.address, zero)
     timing: dict[str, Any] = {
         "requested_rate_Hz": rs.sample_rate_Hz,
-        "probe": "block read + cylinder regulator write" if sampler.probe_companion else "block read",
+        "probe": "block read + cylinder regulator write"
+        if sampler.probe_companion
+        else "block read",
     }
     if probe and rs.probe_samples > 0:
         try:
@@ -434,7 +475,11 @@ def build_modbus_rig(
         "rig_file": str(rs.path) if rs.path else None,
         "transport": t.endpoint,
         "device_id": t.device_id,
-        "input_block": {"address": sampler.start_address, "count": sampler.count, "function": rs.function},
+        "input_block": {
+            "address": sampler.start_address,
+            "count": sampler.count,
+            "function": rs.function,
+        },
         "channels": {
             c.name: {
                 "address": c.address,
@@ -458,8 +503,12 @@ def build_modbus_rig(
 def _make_output(o: OutputSpec, link: ModbusLink) -> PressureRegulator:
     if o.type == "analog":
         assert o.calibration is not None
-        return ModbusAnalogOutput(link, o.address, o.codec, o.calibration, o.raw_range, o.max_pressure_MPa, o.name)
-    reg = ItvSerialRegulator(SerialAdapter(o.port, o.baudrate), o.max_pressure_MPa, o.timeout_s, o.retries, o.name)
+        return ModbusAnalogOutput(
+            link, o.address, o.codec, o.calibration, o.raw_range, o.max_pressure_MPa, o.name
+        )
+    reg = ItvSerialRegulator(
+        SerialAdapter(o.port, o.baudrate), o.max_pressure_MPa, o.timeout_s, o.retries, o.name
+    )
     reg.connect()
     return reg
 
@@ -502,5 +551,7 @@ def _check_overlap(channels: list[AnalogChannel], where: str) -> None:
     for c in channels:
         for a in range(c.address, c.address + c.codec.width):
             if a in used:
-                raise ConfigError(f"{where}: [rig.inputs.{c.name}] register {a} already used by {used[a]}")
+                raise ConfigError(
+                    f"{where}: [rig.inputs.{c.name}] register {a} already used by {used[a]}"
+                )
             used[a] = c.name

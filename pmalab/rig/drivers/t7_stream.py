@@ -67,8 +67,7 @@ FATAL = (2942, 2943)
 
 #: the T7's nominal ±10 V calibration (binary code → volts), used unless the rig file gives
 #: the device's own (``ain_calibration``, read from its flash with LabJack Kipling)
-NOMINAL = {"positive_slope": 0.000315805780, "negative_slope": -0.000315805800,
-           "center": 33523.0}
+NOMINAL = {"positive_slope": 0.000315805780, "negative_slope": -0.000315805800, "center": 33523.0}
 
 
 def float32_words(v: float) -> list[int]:
@@ -88,8 +87,9 @@ def codes_to_volts(codes: np.ndarray, cal: Mapping[str, float] = NOMINAL) -> np.
     """16-bit stream codes → volts (±10 V range), piecewise-linear about the center code."""
     c = np.asarray(codes, dtype=float)
     center = cal["center"]
-    return np.where(c < center, (center - c) * cal["negative_slope"],
-                    (c - center) * cal["positive_slope"])
+    return np.where(
+        c < center, (center - c) * cal["negative_slope"], (c - center) * cal["positive_slope"]
+    )
 
 
 def volts_to_codes(volts: np.ndarray, cal: Mapping[str, float] = NOMINAL) -> np.ndarray:
@@ -105,9 +105,16 @@ class T7StreamSampler(Sampler):
 
     hardware_timed = True
 
-    def __init__(self, link: Any, channels: list, *, buffer_size_bytes: int = 32768,
-                 read_timeout_s: float = 1.0, ain_calibration: Mapping[str, float] | None = None,
-                 sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(
+        self,
+        link: Any,
+        channels: list,
+        *,
+        buffer_size_bytes: int = 32768,
+        read_timeout_s: float = 1.0,
+        ain_calibration: Mapping[str, float] | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
         self.link = link
         self.channels = list(channels)
         self.n_ch = len(self.channels)
@@ -119,8 +126,13 @@ class T7StreamSampler(Sampler):
         self.sample_rate_Hz = 500.0
         self.k = 0
         self.running = False
-        self.counts = {"reads": 0, "scans": 0, "skipped_scans": 0, "dummy_scans": 0,
-                       "empty_reads": 0}
+        self.counts = {
+            "reads": 0,
+            "scans": 0,
+            "skipped_scans": 0,
+            "dummy_scans": 0,
+            "empty_reads": 0,
+        }
         self.last_status = 0
         self.closers: list[Callable[[], None]] = []
 
@@ -190,8 +202,7 @@ class T7StreamSampler(Sampler):
             self.last_status = status
             if status in FATAL:
                 self.running = False
-                raise RigError(f"T7 stream status {status} ({STATUS[status]}) after "
-                               f"{self.k} scans")
+                raise RigError(f"T7 stream status {status} ({STATUS[status]}) after {self.k} scans")
             if status == 2941:  # the recovery ended: `info` scans were skipped
                 self.k += info
                 self.counts["skipped_scans"] += info
@@ -204,30 +215,45 @@ class T7StreamSampler(Sampler):
                 break
             self.counts["empty_reads"] += 1
             if time.monotonic() > deadline:
-                raise RigError(f"T7 stream: no scans for {self.read_timeout_s:g} s "
-                               f"(status {status}: {STATUS.get(status, 'unknown')})")
+                raise RigError(
+                    f"T7 stream: no scans for {self.read_timeout_s:g} s "
+                    f"(status {status}: {STATUS.get(status, 'unknown')})"
+                )
             self.sleep(min(0.005, 4 * period))
         volts = codes_to_volts(scans, self.cal)
         out: dict[str, np.ndarray] = {}
         for i, c in enumerate(self.channels):
-            out[c.name] = c.calibration.apply(volts[:, i], c.raw_range,
-                                              f"T7 stream: AIN at address {c.address} ({c.name})")
+            out[c.name] = c.calibration.apply(
+                volts[:, i], c.raw_range, f"T7 stream: AIN at address {c.address} ({c.name})"
+            )
         m = len(scans)
         t = (self.k + np.arange(m)) / self.sample_rate_Hz
         self.k += m
         self.counts["scans"] += m
         zeros = np.zeros(m)
-        return Block(t, out["position"], out["force"], out["muscle_pressure"],
-                     out.get("cylinder_pressure", zeros))
+        return Block(
+            t,
+            out["position"],
+            out["force"],
+            out["muscle_pressure"],
+            out.get("cylinder_pressure", zeros),
+        )
 
     def stats(self) -> dict[str, Any]:
         """The link's fault counters and the stream's (scans, skipped, dummies, reads)."""
-        return {"modbus": self.link.stats.as_dict(),
-                "stream": dict(self.counts, last_status=self.last_status)}
+        return {
+            "modbus": self.link.stats.as_dict(),
+            "stream": dict(self.counts, last_status=self.last_status),
+        }
 
 
-def make_t7_stream_rig(section: Mapping[str, Any], rig_file: Path | None = None, *,
-                       seed: int | None = None, clock: Clock | None = None) -> Rig:
+def make_t7_stream_rig(
+    section: Mapping[str, Any],
+    rig_file: Path | None = None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
+) -> Rig:
     """``RIG_KINDS["labjack-t7-stream"]``: a ``modbus`` rig whose inputs are streamed."""
     from pmalab.config import check_keys
     from pmalab.rig.drivers.modbus_daq import ModbusSampler
@@ -238,25 +264,40 @@ def make_t7_stream_rig(section: Mapping[str, Any], rig_file: Path | None = None,
     buf = section.pop("buffer_size_bytes", 32768)
     cal = section.pop("ain_calibration", None)
     if not isinstance(buf, int) or buf < 256 or buf & (buf - 1):
-        raise ConfigError(f"{where}: rig.buffer_size_bytes: must be a power of 2 ≥ 256, "
-                          f"got {buf!r}")
+        raise ConfigError(
+            f"{where}: rig.buffer_size_bytes: must be a power of 2 ≥ 256, got {buf!r}"
+        )
     if cal is not None:
-        check_keys(cal, set(NOMINAL), "{where}: rig.ain_calibration.{key}: unknown key "
-                   "(known: {known})", where=where)
+        check_keys(
+            cal,
+            set(NOMINAL),
+            "{where}: rig.ain_calibration.{key}: unknown key (known: {known})",
+            where=where,
+        )
         cal = {**NOMINAL, **{k: float(v) for k, v in cal.items()}}
     section.setdefault("probe_samples", 0)  # the polled-rate probe does not apply
     spec = parse_modbus_rig(section, rig_file)
     if spec.function != 3:
-        raise ConfigError(f"{where}: [rig.inputs] function: the stream reads STREAM_DATA_CR "
-                          "with FC3 (\"holding\")")
+        raise ConfigError(
+            f'{where}: [rig.inputs] function: the stream reads STREAM_DATA_CR with FC3 ("holding")'
+        )
     rig = build_modbus_rig(spec, seed=seed or 0, clock=clock, probe=False)
     polled = cast(ModbusSampler, rig.sampler)  # what build_modbus_rig makes
-    sampler = T7StreamSampler(polled.link, polled.channels, buffer_size_bytes=buf,
-                              ain_calibration=cal)
+    sampler = T7StreamSampler(
+        polled.link, polled.channels, buffer_size_bytes=buf, ain_calibration=cal
+    )
     sampler.closers = list(getattr(polled, "closers", []))
     rig.sampler = sampler
-    rig.info.update({"kind": "labjack-t7-stream", "time_base": "device sample clock",
-                     "stream": {"buffer_size_bytes": buf, "ain_calibration": cal or NOMINAL,
-                                "mode": "command-response (STREAM_DATA_CR)"}})
+    rig.info.update(
+        {
+            "kind": "labjack-t7-stream",
+            "time_base": "device sample clock",
+            "stream": {
+                "buffer_size_bytes": buf,
+                "ain_calibration": cal or NOMINAL,
+                "mode": "command-response (STREAM_DATA_CR)",
+            },
+        }
+    )
     rig.info.pop("timing", None)
     return rig

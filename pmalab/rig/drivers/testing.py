@@ -28,7 +28,9 @@ CLOSE = b"<close>"
 class ProtocolAdapter(Adapter):
     """An adapter that checks written bytes against a script and replies from it."""
 
-    def __init__(self, pairs: Sequence[tuple[bytes | None, bytes | None]], name: str = "fake") -> None:
+    def __init__(
+        self, pairs: Sequence[tuple[bytes | None, bytes | None]], name: str = "fake"
+    ) -> None:
         self.pairs = list(pairs)
         self.name = name
         self.index = 0
@@ -103,7 +105,9 @@ class ProtocolAdapter(Adapter):
 
 @contextmanager
 def expected_protocol(
-    make: Callable[[ProtocolAdapter], T], pairs: Sequence[tuple[bytes | None, bytes | None]], **kw: Any
+    make: Callable[[ProtocolAdapter], T],
+    pairs: Sequence[tuple[bytes | None, bytes | None]],
+    **kw: Any,
 ) -> Iterator[T]:
     """Build a driver on a :class:`ProtocolAdapter` replaying ``pairs``; check all were used."""
     adapter = ProtocolAdapter(pairs, **kw)

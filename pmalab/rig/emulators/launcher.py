@@ -54,12 +54,18 @@ class EmulatorSet:
         if self.bridge is not None:
             out[-1] += f" (pty {self.bridge.server_path} <-> {self.bridge.client_path})"
             if self.spec.transport.type == "rtu":
-                out.append(f"  rig file port {self.spec.transport.port} -> {self.bridge.client_path}")
+                out.append(
+                    f"  rig file port {self.spec.transport.port} -> {self.bridge.client_path}"
+                )
         for name, itv in self.itvs.items():
-            out.append(f"SMC ITV (RS-232C) for {name}: {itv.path} (rig file port {self.spec.outputs[name].port})")
+            out.append(
+                f"SMC ITV (RS-232C) for {name}: {itv.path} (rig file port {self.spec.outputs[name].port})"
+            )
         if self.indicator is not None:
             assert self.spec.indicator is not None
-            out.append(f"load-cell indicator: {self.indicator.path} (rig file port {self.spec.indicator.port})")
+            out.append(
+                f"load-cell indicator: {self.indicator.path} (rig file port {self.spec.indicator.port})"
+            )
         return out
 
     def rig_spec(self) -> ModbusRigSpec:
@@ -127,7 +133,9 @@ def start_emulators(
     if baud_pacing is None:
         baud_pacing = bool(emu.get("baud_pacing", True))
     watchdog_s = emu.get("watchdog_s")
-    if watchdog_s is not None and (isinstance(watchdog_s, bool) or not isinstance(watchdog_s, (int, float)) or watchdog_s <= 0):
+    if watchdog_s is not None and (
+        isinstance(watchdog_s, bool) or not isinstance(watchdog_s, (int, float)) or watchdog_s <= 0
+    ):
         raise ConfigError(f"{where}: rig.emulator.watchdog_s: must be a number of seconds > 0")
     plant = EmulatedPlant(truth, seed=seed)
 
@@ -136,8 +144,14 @@ def start_emulators(
     try:
         bridge = None
         if spec.transport.type == "tcp":
-            port = int(spec.transport.port) if tcp_port is None else (tcp_port or free_tcp_port(spec.transport.host))
-            modbus = ModbusEmulator(spec, plant, host=spec.transport.host, port=port, watchdog_s=watchdog_s)
+            port = (
+                int(spec.transport.port)
+                if tcp_port is None
+                else (tcp_port or free_tcp_port(spec.transport.host))
+            )
+            modbus = ModbusEmulator(
+                spec, plant, host=spec.transport.host, port=port, watchdog_s=watchdog_s
+            )
         else:
             bridge = PtyBridge(spec.transport.baudrate if baud_pacing else None).start()
             started.append(bridge)
@@ -156,7 +170,13 @@ def start_emulators(
         for name, o in spec.outputs.items():
             if o.type == "itv-serial":
                 target = "cylinder" if name == "cylinder_regulator" else "muscle"
-                itv = ItvEmulator(plant, o.max_pressure_MPa, baudrate=o.baudrate, pace=serial_pacing, target=target).start()
+                itv = ItvEmulator(
+                    plant,
+                    o.max_pressure_MPa,
+                    baudrate=o.baudrate,
+                    pace=serial_pacing,
+                    target=target,
+                ).start()
                 started.append(itv)
                 itvs[name] = itv
                 if make_links:
@@ -164,7 +184,9 @@ def start_emulators(
         indicator = None
         if spec.indicator is not None:
             rate = float(emu.get("indicator_rate_Hz", 50.0))
-            indicator = IndicatorEmulator(plant, rate, baudrate=spec.indicator.baudrate, pace=serial_pacing).start()
+            indicator = IndicatorEmulator(
+                plant, rate, baudrate=spec.indicator.baudrate, pace=serial_pacing
+            ).start()
             started.append(indicator)
             if make_links:
                 links.append(link_path(indicator.path, spec.indicator.port))

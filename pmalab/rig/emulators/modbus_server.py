@@ -162,24 +162,29 @@ class StreamEngine:
         self.capacity = 0  # samples
 
     def blocks(self) -> list[tuple[int, int, bool]]:
-        return [(self.CONFIG[0], self.CONFIG[1] - self.CONFIG[0], False),
-                (self.SCANLIST[0], self.SCANLIST[1] - self.SCANLIST[0], False),
-                (self.ENABLE[0], self.ENABLE[1] - self.ENABLE[0], False),
-                (self.DATA[0], self.DATA[1] - self.DATA[0], True)]
+        return [
+            (self.CONFIG[0], self.CONFIG[1] - self.CONFIG[0], False),
+            (self.SCANLIST[0], self.SCANLIST[1] - self.SCANLIST[0], False),
+            (self.ENABLE[0], self.ENABLE[1] - self.ENABLE[0], False),
+            (self.DATA[0], self.DATA[1] - self.DATA[0], True),
+        ]
 
     def owns(self, address: int) -> bool:
-        return any(lo <= address < hi for lo, hi in (self.CONFIG, self.SCANLIST, self.DATA,
-                                                     self.ENABLE))
+        return any(
+            lo <= address < hi for lo, hi in (self.CONFIG, self.SCANLIST, self.DATA, self.ENABLE)
+        )
 
     def _u32(self, a: int) -> int:
         return (self.words.get(a, 0) << 16) | self.words.get(a + 1, 0)
 
     def _f32(self, a: int) -> float:
-        return struct.unpack(">f", struct.pack(">HH", self.words.get(a, 0),
-                                               self.words.get(a + 1, 0)))[0]
+        return struct.unpack(
+            ">f", struct.pack(">HH", self.words.get(a, 0), self.words.get(a + 1, 0))
+        )[0]
 
-    def action(self, fc: int, base: int, address: int, count: int, registers: list[int],
-               set_values: Any) -> ExcCodes | None:
+    def action(
+        self, fc: int, base: int, address: int, count: int, registers: list[int], set_values: Any
+    ) -> ExcCodes | None:
         """``registers`` is the device's register array starting at address ``base``."""
         if fc in (6, 16) and set_values:
             if self.DATA[0] <= address < self.DATA[1]:
@@ -205,8 +210,10 @@ class StreamEngine:
         n = self._u32(4004)
         rate = self._f32(4002)
         if not (0 < n <= 128 and 0 < rate * n <= 100_000) or self._u32(4016) != AUTO_TARGET_CR:
-            raise ValueError(f"stream: bad configuration (addresses {n}, rate {rate}, "
-                             f"auto target {self._u32(4016)})")
+            raise ValueError(
+                f"stream: bad configuration (addresses {n}, rate {rate}, "
+                f"auto target {self._u32(4016)})"
+            )
         self.addresses = [self._u32(self.SCANLIST[0] + 2 * i) for i in range(n)]
         by_addr = {c.address: c for c in self.model.inputs}
         missing = [a for a in self.addresses if a not in by_addr]
@@ -243,8 +250,12 @@ class StreamEngine:
                 self.skipping = 0
             with plant.lock:
                 out = plant.physics.advance_and_sample(t)
-            values = {"position": out[1], "force": out[2], "muscle_pressure": out[3],
-                      "cylinder_pressure": out[4]}
+            values = {
+                "position": out[1],
+                "force": out[2],
+                "muscle_pressure": out[3],
+                "cylinder_pressure": out[4],
+            }
             volts = [c.calibration.inverse(float(values[c.name]), c.raw_range) for c in chans]
             self.buffer.append(("scan", volts_to_codes(np.array(volts)).tolist()))
             self.samples += n
@@ -275,7 +286,9 @@ class StreamEngine:
 class ModbusDeviceModel:
     """Register map + physics coupling of one emulated analog I/O module."""
 
-    def __init__(self, spec: ModbusRigSpec, plant: EmulatedPlant, faults: FaultPlan | None = None) -> None:
+    def __init__(
+        self, spec: ModbusRigSpec, plant: EmulatedPlant, faults: FaultPlan | None = None
+    ) -> None:
         self.spec = spec
         self.plant = plant
         self.faults = faults or FaultPlan()
@@ -294,7 +307,8 @@ class ModbusDeviceModel:
             outputs.update(range(o.address, o.address + o.codec.width))
         #: (start, count, read-only) register runs: inputs are read-only, outputs writable
         self.blocks = [(a, n, True) for a, n in register_runs(inputs)] + [
-            (a, n, False) for a, n in register_runs(outputs)]
+            (a, n, False) for a, n in register_runs(outputs)
+        ]
         self.runs = register_runs(inputs | outputs)
         #: the unit id answered: 0 = any (Modbus TCP, as a T7), else the rig file's (RTU)
         self.device_id = spec.transport.device_id if spec.transport.type == "rtu" else 0
@@ -311,8 +325,10 @@ class ModbusDeviceModel:
     def sim_device(self) -> SimDevice:
         """The pymodbus ``SimDevice``: inputs read-only, outputs writable; unit
         :attr:`device_id` (0 answers any unit id, as a T7 does)."""
-        data = [SimData(address=a, count=n, values=0, datatype=DataType.REGISTERS, readonly=ro)
-                for a, n, ro in sorted(self.blocks)]
+        data = [
+            SimData(address=a, count=n, values=0, datatype=DataType.REGISTERS, readonly=ro)
+            for a, n, ro in sorted(self.blocks)
+        ]
         return SimDevice(id=self.device_id, simdata=data, action=self.action)
 
     # ------------------------------------------------------------------ callback
@@ -332,16 +348,22 @@ class ModbusDeviceModel:
             if function_code in BIT_FUNCTIONS:
                 return ExcCodes.ILLEGAL_ADDRESS
             if self.stream.owns(address):
-                return self.stream.action(function_code, start_address, address, count,
-                                          registers, set_values)
+                return self.stream.action(
+                    function_code, start_address, address, count, registers, set_values
+                )
             if function_code in (3, 4) and address < self.in_hi and address + count > self.in_lo:
                 self.reads += 1
                 self._fill_inputs(start_address, registers)
             elif function_code in (6, 16) and set_values:
                 return self._apply_outputs(address, [int(v) for v in set_values])
         except Exception as exc:  # a device reports a fault, it does not print a traceback
-            log.warning("emulated module: function %d at %d: %s: %s", function_code, address,
-                        type(exc).__name__, exc)
+            log.warning(
+                "emulated module: function %d at %d: %s: %s",
+                function_code,
+                address,
+                type(exc).__name__,
+                exc,
+            )
             return ExcCodes.DEVICE_FAILURE
         return None
 
@@ -374,7 +396,10 @@ class ModbusDeviceModel:
             if address > lo or end < hi:  # misaligned or partial
                 return ExcCodes.ILLEGAL_ADDRESS
             raw = o.codec.decode(values[lo - address : hi - address])
-            if not (math.isfinite(raw) and o.raw_range[0] - RANGE_SLACK <= raw <= o.raw_range[1] + RANGE_SLACK):
+            if not (
+                math.isfinite(raw)
+                and o.raw_range[0] - RANGE_SLACK <= raw <= o.raw_range[1] + RANGE_SLACK
+            ):
                 return ExcCodes.ILLEGAL_VALUE
             assert o.calibration is not None
             mpa = o.calibration(raw)
@@ -403,7 +428,9 @@ class ModbusDeviceModel:
         return True
 
     # ------------------------------------------------------------------ wire faults
-    def make_trace_packet(self, framing: str, on_disconnect: Callable[[], None]) -> Callable[[bool, bytes], bytes]:
+    def make_trace_packet(
+        self, framing: str, on_disconnect: Callable[[], None]
+    ) -> Callable[[bool, bytes], bytes]:
         """pymodbus ``trace_packet`` hook: alter outgoing frames per the fault plan."""
 
         def trace(sending: bool, data: bytes) -> bytes:
@@ -449,7 +476,9 @@ class ModbusEmulator:
         self.watchdog_s = watchdog_s
         self.framing = spec.transport.type
         self.host = host
-        self.port = int(port if port is not None else spec.transport.port) if self.framing == "tcp" else 0
+        self.port = (
+            int(port if port is not None else spec.transport.port) if self.framing == "tcp" else 0
+        )
         self.serial_port = serial_port
         self.baudrate = baudrate or spec.transport.baudrate
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -484,14 +513,19 @@ class ModbusEmulator:
         trace = self.model.make_trace_packet(self.framing, self._drop_connections)
         device = self.model.sim_device()
         if self.framing == "tcp":
-            self._server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=trace,
-                                           custom_pdu=STRICT_PDUS)
+            self._server = ModbusTcpServer(
+                device, address=(self.host, self.port), trace_packet=trace, custom_pdu=STRICT_PDUS
+            )
         else:  # an RS-485 device ignores frames for other units
             if self.serial_port is None:  # reported by start()
                 raise ValueError("an RTU emulator needs serial_port (the serial bridge's path)")
             self._server = ModbusSerialServer(
-                device, port=self.serial_port, baudrate=self.baudrate, trace_packet=trace,
-                custom_pdu=STRICT_PDUS, ignore_missing_devices=True,
+                device,
+                port=self.serial_port,
+                baudrate=self.baudrate,
+                trace_packet=trace,
+                custom_pdu=STRICT_PDUS,
+                ignore_missing_devices=True,
             )
             self._server.context = SingleUnitCore(device)
         await self._server.serve_forever(background=True)
@@ -511,7 +545,9 @@ class ModbusEmulator:
                 start, _, registers, _ = next(iter(runtime.block.values()))
                 for o, _ in self.model.outputs:
                     assert o.calibration is not None
-                    raw0 = min(max(o.calibration.inverse(0.0, o.raw_range), o.raw_range[0]), o.raw_range[1])
+                    raw0 = min(
+                        max(o.calibration.inverse(0.0, o.raw_range), o.raw_range[0]), o.raw_range[1]
+                    )
                     words = o.codec.encode(raw0)
                     k = o.address - start
                     registers[k : k + len(words)] = words
@@ -537,7 +573,9 @@ class ModbusEmulator:
         if not self._ready.wait(timeout):
             raise RuntimeError(f"Modbus emulator on {self.endpoint} did not start")
         if self._error is not None:
-            raise RuntimeError(f"Modbus emulator on {self.endpoint}: {self._error}") from self._error
+            raise RuntimeError(
+                f"Modbus emulator on {self.endpoint}: {self._error}"
+            ) from self._error
         return self
 
     def stop(self) -> None:

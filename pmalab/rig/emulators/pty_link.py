@@ -80,8 +80,12 @@ class PtyBridge:
         self.baudrate = baudrate
         self._stop = threading.Event()
         self._threads = [
-            threading.Thread(target=self._pump, args=(self.b, self.a, True), daemon=True, name="pty-bridge-c2s"),
-            threading.Thread(target=self._pump, args=(self.a, self.b, False), daemon=True, name="pty-bridge-s2c"),
+            threading.Thread(
+                target=self._pump, args=(self.b, self.a, True), daemon=True, name="pty-bridge-c2s"
+            ),
+            threading.Thread(
+                target=self._pump, args=(self.a, self.b, False), daemon=True, name="pty-bridge-s2c"
+            ),
         ]
 
     @property

@@ -92,7 +92,11 @@ class ItvEmulator(_PtyDevice):
                 return "OUT OF RANGE"
             self.setpoint_counts = n
             mpa = n / FULL_SCALE * self.max_pressure_MPa
-            (self.plant.command_cylinder if self.target == "cylinder" else self.plant.command_muscle)(mpa)
+            (
+                self.plant.command_cylinder
+                if self.target == "cylinder"
+                else self.plant.command_muscle
+            )(mpa)
             return "OK"
         return "UNKNOWN COMMAND"
 

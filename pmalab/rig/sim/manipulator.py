@@ -87,13 +87,25 @@ class ManipulatorSpec:
         for k, v in asdict(self).items():
             if not math.isfinite(v):
                 raise RigError(f"manipulator: {k}: must be a finite number")
-        positive = ("radius_mm", "inertia_kg_m2", "volume_cm3", "fill_time_constant_s",
-                    "smoothing_velocity_mm_s", "stop_stiffness_N_per_mm")
+        positive = (
+            "radius_mm",
+            "inertia_kg_m2",
+            "volume_cm3",
+            "fill_time_constant_s",
+            "smoothing_velocity_mm_s",
+            "stop_stiffness_N_per_mm",
+        )
         for k in positive:
             if getattr(self, k) <= 0:
                 raise RigError(f"manipulator: {k}: must be > 0")
-        for k in ("spring_N_per_mm", "spring_preload_N", "bearing_viscous_N_s_per_mm",
-                  "bearing_coulomb_N", "stop_damping_N_s_per_mm", "dvolume_cm3_per_mm"):
+        for k in (
+            "spring_N_per_mm",
+            "spring_preload_N",
+            "bearing_viscous_N_s_per_mm",
+            "bearing_coulomb_N",
+            "stop_damping_N_s_per_mm",
+            "dvolume_cm3_per_mm",
+        ):
             if getattr(self, k) < 0:
                 raise RigError(f"manipulator: {k}: must be ≥ 0")
         if self.stop_min_mm >= self.stop_max_mm:
@@ -262,13 +274,13 @@ def advance_measure(w, mq, pend, ptr, hist, noise, t_target):
 
     Returns bit 0 = non-finite state, bit 1 = noise block used up.
     """
-    rc = _advance(w[K.O_ST:K.O_PAR], w[K.O_PAR:K.O_MPAR], mq, pend, ptr, hist, t_target)
+    rc = _advance(w[K.O_ST : K.O_PAR], w[K.O_PAR : K.O_MPAR], mq, pend, ptr, hist, t_target)
     return rc | K.measure(w, ptr, hist, noise)
 
 
 @njit(cache=True)  # see _KERNEL_STAMP
 def advance_only(w, mq, pend, ptr, hist, t_target):
-    return _advance(w[K.O_ST:K.O_PAR], w[K.O_PAR:K.O_MPAR], mq, pend, ptr, hist, t_target)
+    return _advance(w[K.O_ST : K.O_PAR], w[K.O_PAR : K.O_MPAR], mq, pend, ptr, hist, t_target)
 
 
 def _drop_stale_cache() -> None:
@@ -330,8 +342,9 @@ class ManipulatorPhysics:
         self._out = self._w[K.O_OUT : K.N_W]
         self._mq = _manip_params(self.spec, truth)
         reg = truth.section("regulator")
-        self.max_MPa = min(float(reg["max_pressure_MPa"]),
-                           float(truth.section("muscle")["max_pressure_MPa"]))
+        self.max_MPa = min(
+            float(reg["max_pressure_MPa"]), float(truth.section("muscle")["max_pressure_MPa"])
+        )
         levels = 2 ** int(reg["bits"]) - 1
         self._q_per_mpa = levels / float(reg["max_pressure_MPa"])
         self._mpa_per_q = float(reg["max_pressure_MPa"]) / levels
@@ -379,16 +392,19 @@ class ManipulatorPhysics:
             self._diverged()
 
     def _diverged(self) -> None:
-        raise RigError(f"simulated manipulator: the physics left its envelope at "
-                       f"t = {self.time:.3f} s (non-finite state)")
+        raise RigError(
+            f"simulated manipulator: the physics left its envelope at "
+            f"t = {self.time:.3f} s (non-finite state)"
+        )
 
     def advance_and_sample(self, t: float) -> np.ndarray:
         """Advance to ``t`` and measure: (time, position from home, force, p_muscle, 0).
 
         The returned array is reused by the next call: copy it to keep it.
         """
-        rc = advance_measure(self._w, self._mq, self._pend, self._ptr, self._hist,
-                             self._noise, float(t))
+        rc = advance_measure(
+            self._w, self._mq, self._pend, self._ptr, self._hist, self._noise, float(t)
+        )
         if rc:
             if rc & 1:
                 self._diverged()
@@ -401,8 +417,9 @@ class ManipulatorPhysics:
         """Command the muscle's regulator (MPa): quantised, applied after the dead time."""
         mpa = float(mpa)
         if not -1e-9 <= mpa <= self.max_MPa + 1e-9:  # also rejects NaN
-            raise RigError(f"simulated muscle regulator: command {mpa:g} MPa outside "
-                           f"0–{self.max_MPa:g} MPa")
+            raise RigError(
+                f"simulated muscle regulator: command {mpa:g} MPa outside 0–{self.max_MPa:g} MPa"
+            )
         mpa = min(max(mpa, 0.0), self.max_MPa)
         self._command = mpa
         q = round(mpa * self._q_per_mpa) * self._mpa_per_q
@@ -487,8 +504,13 @@ def make_sim_manipulator(
     physics = ManipulatorPhysics(truth, spec, seed)
     if clock.now() > physics.time:
         physics.advance_to(clock.now())
-    lim = limits or Limits(max_muscle_pressure_MPa=physics.max_MPa, max_cylinder_pressure_MPa=0.9,
-                           max_force_N=2000.0, min_position_mm=-3.0, max_position_mm=27.0)
+    lim = limits or Limits(
+        max_muscle_pressure_MPa=physics.max_MPa,
+        max_cylinder_pressure_MPa=0.9,
+        max_force_N=2000.0,
+        min_position_mm=-3.0,
+        max_position_mm=27.0,
+    )
     info = {
         "kind": "sim-manipulator",
         "truth": physics.truth.source,

@@ -20,8 +20,13 @@ class _Advances(Protocol):
 class SimulatedRegulator(PressureRegulator):
     """An ITV-class regulator whose output is a physics model's command (MPa gauge)."""
 
-    def __init__(self, physics: _Advances, clock: Clock, max_pressure_MPa: float,
-                 command: Callable[[float], None]) -> None:
+    def __init__(
+        self,
+        physics: _Advances,
+        clock: Clock,
+        max_pressure_MPa: float,
+        command: Callable[[float], None],
+    ) -> None:
         self.physics = physics
         self.clock = clock
         self.max_pressure_MPa = max_pressure_MPa
