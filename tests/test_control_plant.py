@@ -51,7 +51,7 @@ def test_every_controller_runs_against_the_identified_model(controller, tmp_path
     assert np.sqrt(np.mean((x[late] - r[late]) ** 2)) < 2.0
 
 
-def test_a_law_without_a_compiled_forward_segment_is_one_line(tmp_path, capsys):
+def test_an_identification_missing_its_law_parameters_is_one_line(tmp_path, capsys):
     doc = json.loads(SHIPPED_IDENTIFICATION.read_text())
     doc["model"] = "prandtl-ishlinskii"
     bad = tmp_path / "identification.json"

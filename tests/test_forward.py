@@ -75,7 +75,7 @@ def test_python_loop_equals_the_compiled_loop():
     fast = simulate(model, _theta(), t, u, 0.0, x0=0.2, v0=1.0, h0=3.0)
     coef = Coefficients(model, _theta())
     xo, vo, ho, fo = (np.full(t.size, np.nan) for _ in range(4))
-    code, _ = _integrate_py(model, coef, t, u, np.zeros(t.size), 0.0, Load(), 0.2, 1.0, 3.0,
+    code, _, _ = _integrate_py(model, coef, t, u, np.zeros(t.size), 0.0, Load(), 0.2, 1.0, 3.0,
                             fast.n_sub, xo, vo, ho, fo)
     assert code == 0
     np.testing.assert_allclose(xo, fast.position, rtol=0, atol=1e-9)

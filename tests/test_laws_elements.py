@@ -107,6 +107,14 @@ def test_controllers_run_with_element_laws(campaign, tmp_path, law):
         m = run.attrs["metrics"]
         # the law's hysteresis is inverted in the loop: the 20 mm sine is tracked to ~mm
         assert m["completed"] and m["rms_error"] < 3.0, m
+    # the element law as the plant (model in the loop: its state carried sample to sample)
+    out = tmp_path / "plant.h5"
+    rc, text = _cli(["control", "--controller", "pid", "--reference", "sine:0.2Hz:20mm",
+                     "--model", str(tmp_path / "id"), "--plant", str(tmp_path / "id"),
+                     "--duration", "6", "--out", str(out)])
+    assert rc == 0, text
+    m = read_runs(out)[0].attrs["metrics"]
+    assert m["completed"] and m["rms_error"] < 3.0, m
 
 
 def test_identify_several_laws_ranks_them_and_writes_one_identification_each(campaign, tmp_path):

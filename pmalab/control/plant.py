@@ -40,6 +40,7 @@ from pmalab.identify.forward import (
     IdentifiedPlant,
     Load,
     _integrate,
+    _integrate_py,
     substeps,
 )
 from pmalab.rig.base import Clock, Limits, VirtualClock
@@ -68,13 +69,12 @@ class PlantPhysics:
         self.plant = plant
         model = plant.model
         kern = model.law.kernel()
-        if kern not in _KERNELS or model.law.state_size != 1:
-            raise ConfigError(
-                f"--plant {plant.source}: law '{model.law.name}' has no compiled "
-                "forward segment; model-in-the-loop runs Bouc-Wen and Duhem "
-                "identifications"
-            )
-        self.law_id = _KERNELS[kern]
+        # a law with a compiled segment runs in the compiled loop; an element law (its
+        # state a vector) in the same scheme in Python, its state carried between samples
+        self.law_id: int | None = (
+            _KERNELS.get(kern) if kern is not None and model.law.state_size == 1 else None
+        )
+        self._state: Any = None
         self.truth = truth or default_truth()
         self.spec = (spec or ManipulatorSpec()).checked()
         # the rig's own geometry and home (same coordinates as a rig run of the experiment)
@@ -164,6 +164,27 @@ class PlantPhysics:
         self._uu[:] = self.load.preload_N
         xo, vo, ho, fo = self._buf
         c = self.coef
+        if self.law_id is None:
+            code, _, self._state = _integrate_py(
+                self.plant.model,
+                c,
+                self._tt,
+                self._uu,
+                self._pp,
+                0.0,
+                self.load,
+                self._x,
+                self._v,
+                self._h,
+                self.n_sub,
+                xo,
+                vo,
+                ho,
+                fo,
+                state=self._state,
+            )
+            self._finish(code, t1, p1)
+            return
         code, _ = _integrate(
             self.law_id,
             self._tt,
@@ -186,6 +207,10 @@ class PlantPhysics:
             ho,
             fo,
         )
+        self._finish(code, t1, p1)
+
+    def _finish(self, code: int, t1: float, p1: float) -> None:
+        xo, vo, ho, fo = self._buf
         if code != 0:
             raise RigError(
                 f"plant-model manipulator: the identified model ran away at "

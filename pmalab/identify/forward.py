@@ -472,7 +472,7 @@ def simulate(
             fo,
         )
     else:
-        code, k = _integrate_py(
+        code, k, _ = _integrate_py(
             model, coef, t, u_eff, p_a, pn, load, x0, v0, h0, ns, xo, vo, ho, fo
         )
     if code == -2:
@@ -506,9 +506,12 @@ def _integrate_py(
     vo,
     ho,
     fo,
-) -> tuple[int, int]:
+    state: Any = None,
+) -> tuple[int, int, Any]:
     """The same scheme as :func:`_integrate` for laws without a compiled segment (element
-    laws): the state is the law's own (``initial_state``), steppers cached per 1 kPa."""
+    laws): the state is the law's own (``initial_state`` from ``h0``, or ``state`` carried
+    over from a previous call), steppers cached per 1 kPa.  Returns (code, samples, the
+    law's state at the end)."""
     law = model.law
 
     steppers: dict[int, Callable[..., Any]] = {}
@@ -534,7 +537,8 @@ def _integrate_py(
 
     c0 = coef.at(float(p[0]))
     th0 = coef.law_theta(c0)
-    state = law.initial_state(th0, h0, 1.0)
+    if state is None:
+        state = law.initial_state(th0, h0, 1.0)
     x, v = float(x0), float(v0)
     h = law.output(state)
     xo[0], vo[0], ho[0] = x, v, h
@@ -551,7 +555,7 @@ def _integrate_py(
             ca = coef.at(pa)
             m = (ca[2] + load.mass_kg) * 1e-3
             if m <= 0:
-                return -2, k
+                return -2, k, state
             vh = (v + 0.5 * dt * static(ca, x, h, pa, ua) / m) / (1.0 + 0.5 * dt * ca[3] / m)
             xn = x + dt * vh
             state = stepper(0.5 * (pa + pb))(state, x, xn)
@@ -561,10 +565,10 @@ def _integrate_py(
             m = (cb[2] + load.mass_kg) * 1e-3
             v = (vh + 0.5 * dt * static(cb, x, h, pb, ub) / m) / (1.0 + 0.5 * dt * cb[3] / m)
         if not (abs(x) < RUNAWAY_MM and abs(v) < 1e12 and abs(h) < 1e12):
-            return -1, k + 1
+            return -1, k + 1, state
         xo[k + 1], vo[k + 1], ho[k + 1] = x, v, h
         fo[k + 1] = static(cb, x, h, p[k + 1], 0.0) + load.stiffness_N_per_mm * x - cb[3] * v
-    return 0, t.shape[0]
+    return 0, t.shape[0], state
 
 
 # --------------------------------------------------------------------------- identified plant
