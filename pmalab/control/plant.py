@@ -26,7 +26,6 @@ everywhere in pmalab: s, mm, N, MPa gauge.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +42,12 @@ from pmalab.identify.forward import (
     _integrate_py,
     substeps,
 )
-from pmalab.rig.base import Clock, Limits, VirtualClock
+from pmalab.rig.base import Clock, Limits
 from pmalab.rig.manipulator import ManipulatorGeometry, ManipulatorRig
 from pmalab.rig.sim.manipulator import (
     ManipulatorPhysics,
-    ManipulatorRegulator,
-    ManipulatorSampler,
     ManipulatorSpec,
+    assemble_manipulator,
 )
 from pmalab.rig.sim.truth import Truth, default_truth
 
@@ -273,32 +271,11 @@ def make_plant_manipulator(
         plant = IdentifiedPlant.read(model_dir)
     except ForwardError as exc:
         raise ConfigError(f"--plant: {exc}") from None
-    clock = clock if clock is not None else VirtualClock()
     physics = PlantPhysics(plant, truth, spec)
-    if clock.now() > physics.time:
-        physics.advance_to(clock.now())
-    lim = limits or Limits(
-        max_muscle_pressure_MPa=physics.max_MPa,
-        max_cylinder_pressure_MPa=0.9,
-        max_force_N=2000.0,
-        min_position_mm=-3.0,
-        max_position_mm=27.0,
-    )
     info = {
         "kind": "plant-model-manipulator",
         "truth": f"plant model {plant.source}",
         "plant": plant.source,
         "plant_law": plant.model.name,
-        "manipulator": asdict(physics.spec),
-        "home_contraction_mm": physics.home_contraction_mm,
-        "clock": "virtual" if clock.virtual else "real",
-        "physics": physics,
     }
-    return ManipulatorRig(
-        clock=clock,
-        sampler=ManipulatorSampler(physics, clock),  # type: ignore[arg-type]
-        muscle_regulator=ManipulatorRegulator(physics, clock),  # type: ignore[arg-type]
-        geometry=physics.geometry,
-        limits=lim,
-        info=info,
-    )
+    return assemble_manipulator(physics, info, clock=clock, limits=limits)

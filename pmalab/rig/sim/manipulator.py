@@ -500,8 +500,29 @@ def make_sim_manipulator(
     mismatch the controller has to survive).  Limits default to the DMSP-20's 0.6 MPa and a
     travel of −3 … 27 mm from home.
     """
-    clock = clock if clock is not None else VirtualClock()
     physics = ManipulatorPhysics(truth, spec, seed)
+    info = {
+        "kind": "sim-manipulator",
+        "truth": physics.truth.source,
+        "enabled_effects": physics.truth.enabled_effects(),
+        "seed": physics.seed,
+    }
+    return assemble_manipulator(physics, info, clock=clock, limits=limits)
+
+
+def assemble_manipulator(
+    physics: Any,
+    info: dict[str, Any],
+    *,
+    clock: Clock | None = None,
+    limits: Limits | None = None,
+) -> ManipulatorRig:
+    """A :class:`~pmalab.rig.manipulator.ManipulatorRig` around a manipulator physics
+    object (:class:`ManipulatorPhysics` or any with its interface: ``time``,
+    ``advance_to``, ``advance_and_sample``, ``set_command``, ``max_MPa``, ``geometry``,
+    ``spec``, ``home_contraction_mm``): its sampler, regulator, clock (virtual by default)
+    and limits (the DMSP-20's rating and a travel of −3 … 27 mm from home by default)."""
+    clock = clock if clock is not None else VirtualClock()
     if clock.now() > physics.time:
         physics.advance_to(clock.now())
     lim = limits or Limits(
@@ -512,12 +533,9 @@ def make_sim_manipulator(
         max_position_mm=27.0,
     )
     info = {
-        "kind": "sim-manipulator",
-        "truth": physics.truth.source,
-        "enabled_effects": physics.truth.enabled_effects(),
+        **info,
         "manipulator": asdict(physics.spec),
         "home_contraction_mm": physics.home_contraction_mm,
-        "seed": physics.seed,
         "clock": "virtual" if clock.virtual else "real",
         "physics": physics,
     }
@@ -531,4 +549,4 @@ def make_sim_manipulator(
     )
 
 
-__all__ = ["ManipulatorPhysics", "ManipulatorSpec", "make_sim_manipulator"]
+__all__ = ["ManipulatorPhysics", "ManipulatorSpec", "assemble_manipulator", "make_sim_manipulator"]
