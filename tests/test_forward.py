@@ -227,3 +227,34 @@ def test_simulate_bad_model_dir_is_one_line(tmp_path, capsys, bench):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "identification.json" in err[0]
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_simulate_pressure_in_moves_a_load_to_the_static_balance(tmp_path):
+    # the shipped identification driven by a pressure step, moving a 5 kg load on a spring
+    from pmalab.control.model import SHIPPED_IDENTIFICATION
+    from pmalab.identify.forward import IdentifiedPlant
+    from pmalab.runfile import Run, read_runs, write_runs
+
+    t = np.arange(3000) / 500.0
+    p = np.where(t < 1.0, 0.3, 0.45)
+    run = Run("step", t, np.full(t.size, 10.0), np.zeros(t.size), p,
+              attrs={"muscle_pressure_MPa": 0.4, "waveform": "step", "frequency_Hz": 0.1})
+    write_runs(tmp_path / "in.h5", [run])
+    out = tmp_path / "sim.h5"
+    assert main(["simulate", str(SHIPPED_IDENTIFICATION), str(tmp_path / "in.h5"), "--input",
+                 "pressure", "--load-mass", "5", "--load-stiffness", "10", "--preload", "100",
+                 "--whole-run", "--out", str(out)]) == 0
+    (sim,) = read_runs(out)
+    x = sim.position
+    assert np.all(np.isfinite(x)) and sim.attrs["simulated_input"] == "pressure"
+    assert np.ptp(x[-200:]) < 0.05  # at rest at the end
+    # at rest the muscle's tension (its own h included) holds preload + spring (averaged
+    # over the last 0.4 s: a lightly damped load still rings by a few hundredths of a mm)
+    assert abs(np.mean(sim.force[-200:] - (100.0 + 10.0 * x[-200:]))) < 0.3
+    # more pressure, more contraction (the muscle pulls harder)
+    assert x[-1] > x[int(0.9 * 500)] + 1.0
+    # a load without mass cannot be driven by pressure: one line, nothing written
+    assert main(["simulate", str(SHIPPED_IDENTIFICATION), str(tmp_path / "in.h5"), "--input",
+                 "pressure", "--out", str(tmp_path / "none.h5")]) != 0
+    assert not (tmp_path / "none.h5").exists()
+    assert IdentifiedPlant.read("identification-bouc-wen").model.law.name == "bouc-wen"
