@@ -42,7 +42,7 @@ import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -52,6 +52,7 @@ from pmalab.control.metrics import summarize
 from pmalab.control.model import IdentifiedModel
 from pmalab.control.reference import Reference
 from pmalab.control.runner import GAINS, ControlRun, run_attrs, signals_of
+from pmalab.identify.schema import ControlMetrics, ControlSummary
 from pmalab.paths import check_output, output_failure
 
 
@@ -199,11 +200,12 @@ class ControlRunWriter:
         self._guard(lambda: self.w.finish(run.status))
 
 
-def run_summary(run: ControlRun) -> dict[str, Any]:
-    """The end-of-run facts of ``run`` (its ``summary`` dataset)."""
+def run_summary(run: ControlRun) -> ControlSummary:
+    """The end-of-run facts of ``run`` (its ``summary`` dataset,
+    :class:`pmalab.identify.schema.ControlSummary`)."""
     p = run.signals["muscle_pressure"]
     return {
-        "metrics": run_metrics(run),
+        "metrics": cast(ControlMetrics, run_metrics(run)),
         "vent": run.attrs.get("vent"),
         "vent_confirmed": run.attrs.get("vent_confirmed"),
         "wall_time_s": run.wall_s,

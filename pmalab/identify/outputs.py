@@ -61,6 +61,7 @@ from pmalab.identify.predictions import (  # noqa: F401  (the format's names, re
     PredictionItem,
     write_predictions_file,
 )
+from pmalab.identify.schema import IdentificationDoc
 from pmalab.identify.signals import Signals
 from pmalab.paths import check_output, write_together
 from pmalab.runfile import Run, decode_attr
@@ -174,8 +175,9 @@ def _output_error_block(cf) -> dict | None:
     }
 
 
-def identification_dict(res: Identification) -> dict:
-    """The ``identification.json`` content of an :class:`Identification`."""
+def identification_dict(res: Identification) -> IdentificationDoc:
+    """The ``identification.json`` content of an :class:`Identification`
+    (:class:`pmalab.identify.schema.IdentificationDoc`)."""
     cf = res.campaign
     model = cf.model
     names = cf.parameter_names
@@ -239,7 +241,7 @@ def identification_dict(res: Identification) -> dict:
     all_runs = [(r, "identification") for r in res.runs] + [
         (v.run, "validation") for v in res.validation
     ]
-    out = {
+    out: dict[str, Any] = {
         "model": model.law.name,
         "model_full": model.name,
         "effects": [e.id for e in model.effects],

@@ -39,6 +39,7 @@ from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
 from pmalab.identify.noise import noise_floor_nrmse
 from pmalab.identify.predictions import PredictionItem, write_predictions_file
+from pmalab.identify.schema import DiagnosisDoc
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
@@ -110,7 +111,8 @@ class Diagnosis:
         """The first effect the ladder added (None when nothing is significant)."""
         return self.ladder[1]["added"] if len(self.ladder) > 1 else None
 
-    def to_json(self) -> dict[str, Any]:
+    def to_json(self) -> DiagnosisDoc:
+        """The ``diagnosis.json`` content (:class:`pmalab.identify.schema.DiagnosisDoc`)."""
         out = {
             "model": self.model,
             "ranking": self.ranking,
