@@ -38,3 +38,23 @@ def test_control_files_and_result_directories_are_not_mixed(control_dir, tmp_pat
     assert rc != 0
     assert "without result directories" in capsys.readouterr().err
     assert not (tmp_path / "r.pdf").exists()
+
+
+def test_metrics_json_round_trips_through_its_typed_reader(control_dir, tmp_path):
+    import json
+
+    from pmalab.errors import PmalabError
+    from pmalab.identify.schema import read_control_metrics
+
+    path = control_dir / "metrics.json"
+    doc = json.loads(path.read_text())
+    assert read_control_metrics(path) == doc
+    assert {r["controller"] for r in doc["results"]} == {"pid", "sn-pid"}
+    # a damaged copy: one line naming the key path
+    del doc["results"][1]["metrics"]["rms_error"]
+    bad = tmp_path / "metrics.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(PmalabError) as e:
+        read_control_metrics(bad)
+    msg = str(e.value)
+    assert "\n" not in msg and "results[1].metrics" in msg and "rms_error" in msg

@@ -123,6 +123,10 @@ def test_identify_several_laws_ranks_them_and_writes_one_identification_each(cam
                      "bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip", "--out", str(out), "-q"])
     assert rc == 0, text
     table = json.loads((out / "laws.json").read_text())
+    # the typed reader reads what the writer wrote, unchanged
+    from pmalab.identify.schema import read_laws
+
+    assert read_laws(out / "laws.json") == table
     names = [r["law"] for r in table["laws"]]
     assert sorted(names) == ["bouc-wen", "duhem", "maxwell-slip", "prandtl-ishlinskii"]
     vals = [r["validation_nrmse"] for r in table["laws"]]

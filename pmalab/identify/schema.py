@@ -485,6 +485,47 @@ class ControlSummary(TypedDict):
     n_samples: int
 
 
+class LawRow(TypedDict):
+    """One law of ``identify --model a,b,c`` (``laws.json``), nrmse of force."""
+
+    law: str
+    #: mean held-out nrmse (None without held-out runs)
+    validation_nrmse: float | None
+    validation_per_run: list[float]
+    identification_nrmse: float
+    parameters_per_run: int
+    directory: str
+    #: validation nrmse / the held-out runs' noise floor
+    x_floor: float | None
+
+
+class LawsDoc(TypedDict):
+    """``laws.json``: the laws ranked, best first."""
+
+    noise_floor_nrmse: float | None
+    laws: list[LawRow]
+
+
+class ExperimentResult(TypedDict):
+    """One (experiment, controller) run of ``pmalab control --experiments``."""
+
+    experiment: str
+    reference: str
+    controller: str
+    status: str
+    metrics: ControlMetrics
+    seeds: NotRequired[Any]
+
+
+class ControlMetricsDoc(TypedDict):
+    """``metrics.json`` of ``pmalab control --experiments``."""
+
+    experiments: str
+    file: str | None
+    controllers: list[str]
+    results: list[ExperimentResult]
+
+
 # =========================================================================== the checker
 _Fail = Callable[[str, str], PmalabError]
 
@@ -625,6 +666,20 @@ def read_diagnosis(path: str | Path, *, error: type[PmalabError] = ResultFileErr
     """Read and check ``diagnosis.json``."""
     obj = load_json(path, "result file", error=error)
     return check_diagnosis(obj, path, error=error)
+
+
+def read_laws(path: str | Path, *, error: type[PmalabError] = ResultFileError) -> LawsDoc:
+    """Read and check ``laws.json`` (``pmalab identify --model a,b,c``)."""
+    return check(load_json(path, "result file", error=error), LawsDoc, str(path), error=error)
+
+
+def read_control_metrics(
+    path: str | Path, *, error: type[PmalabError] = ResultFileError
+) -> ControlMetricsDoc:
+    """Read and check a control experiments' ``metrics.json``."""
+    return check(
+        load_json(path, "result file", error=error), ControlMetricsDoc, str(path), error=error
+    )
 
 
 def read_control_summary(
