@@ -143,3 +143,12 @@ def test_worst_runs_by_base_rmse_missing_last():
              "c": {"nrmse": 0.5}, "d": {"rmse": 5.0}}
     assert worst_runs(diags) == ["b", "d", "a", "c"]
     assert worst_runs(diags, 2) == ["b", "d"]
+
+
+def test_a_prefix_keeps_the_type_of_a_message():
+    from pmalab.identify.messages import prefixed
+
+    m = prefixed("run 1: ", detail("auto-fix", "fixed gamma = 0", name="gamma"))
+    assert isinstance(m, Message) and m.kind == "detail" and m.data == {"name": "gamma"}
+    assert m == "run 1: fixed gamma = 0"
+    assert prefixed("run 1: ", "plain") == "run 1: plain" and not is_note(prefixed("a", "b"))

@@ -92,9 +92,6 @@ from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output, output_failure
 from pmalab.rig.base import Rig, VentReport
 
-# the loop's typed outcomes, under the names the CLI and tests know
-_Trip = Trip
-
 
 class RunObserver:
     """Watches a recording (the live view).  Called from the sample loop's thread, so each
@@ -294,7 +291,7 @@ def run_protocol(
     """
     opts = options or RunnerOptions()
     try:
-        with _deferred_signals(opts.pending_signal), _realtime_scheduling(rig, opts) as sched:
+        with deferred_signals(opts.pending_signal), _realtime_scheduling(rig, opts) as sched:
             opts.extra_attrs.setdefault("scheduling", sched)
             return _run_protocol(rig, protocol, out, force, opts)
     finally:
@@ -303,10 +300,6 @@ def run_protocol(
         _vent(rig)
         with contextlib.suppress(Exception):
             rig.sampler.stop()
-
-
-_deferred_signals = deferred_signals
-_check_signal = check_signal
 
 
 def _notify(opts: RunnerOptions, event: str, *args: Any) -> None:
@@ -537,7 +530,7 @@ def _first_line(exc: BaseException) -> str:
 
 
 def _reason(exc: BaseException) -> str:
-    if isinstance(exc, _Trip):
+    if isinstance(exc, Trip):
         return str(exc.args[0])
     if isinstance(exc, Terminated):
         return "terminated (SIGTERM)"
@@ -616,7 +609,7 @@ def _wait_for_muscle_pressure(
     last_note = t_start
     pending = opts.pending_signal
     while True:
-        _check_signal(pending)
+        check_signal(pending)
         if not sampler.hardware_timed:
             clock.sleep_until(t_start + k * dt)
             k += 1
@@ -627,7 +620,7 @@ def _wait_for_muscle_pressure(
             reason = monitor.check(x, f, pm, pc)
             if reason:
                 _vent(rig)
-                raise _Trip(reason + " (while waiting for the muscle pressure)")
+                raise Trip(reason + " (while waiting for the muscle pressure)")
             window.append(pm)
         now = clock.now()
         if len(window) == need:

@@ -47,6 +47,7 @@ from typing import Any, cast
 import numpy as np
 
 from pmalab import __version__
+from pmalab.acquisition.loop import Stats
 from pmalab.control.controllers import CascadeSettings
 from pmalab.control.metrics import summarize
 from pmalab.control.model import IdentifiedModel
@@ -160,6 +161,11 @@ class ControlRunWriter:
         self.w = recording.rec.writer(name)
         self.sent = 0  # samples handed to the file so far
         self._guard(lambda: (self.w.set_status("running"), recording.rec.file.flush()))
+
+    @property
+    def stats(self) -> Stats:
+        """The run writer's timing counts (:class:`pmalab.acquisition.loop.Stats`)."""
+        return self.w
 
     def due(self) -> bool:
         return self.recording.rec.flush_due()

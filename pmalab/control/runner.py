@@ -33,6 +33,7 @@ import numpy as np
 from pmalab.acquisition.loop import (
     LATE_THRESHOLD_S,
     LoopStats,
+    Stats,
     Terminated,
     Trip,
     deferred_signals,
@@ -76,6 +77,12 @@ SINK_CHECK_EVERY = 25
 
 class SampleSink(Protocol):
     """Where a run's samples go while it runs (the live run file)."""
+
+    @property
+    def stats(self) -> Stats:
+        """The run's timing counts (late samples, missed deadlines, gaps), kept with its
+        file."""
+        ...
 
     def due(self) -> bool:
         """True when the samples so far should be written now."""
@@ -201,7 +208,7 @@ def run_control(
     )
     s_sp = sig["position_setpoint"]
     gk = [gains[g] for g in GAINS]
-    stats = getattr(sink, "w", None) or LoopStats()
+    stats: Stats = sink.stats if sink is not None else LoopStats()
 
     def step(k: int, tr: float, x: float, f: float, p: float, _pc: float, lk: float) -> float:
         r, r_d, r_dd = reference.value(tr)

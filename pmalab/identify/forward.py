@@ -524,16 +524,10 @@ def _integrate_py(
             st = steppers[key] = law.stepper(th, coef.extras_map)
         return st
 
-    def static(c, x, h, pv, uv):
-        return (
-            c[0] * x
-            + c[1]
-            + h * (1.0 + c[8] * x)
-            + (c[4] + c[5] * x) * x * x
-            + (c[6] + c[7] * x) * (pv - p_nom)
-            - uv
-            - load.stiffness_N_per_mm * x
-        )
+    KL = float(load.stiffness_N_per_mm)
+
+    def static(c, x, h, pv, uv):  # the compiled loop's force balance, called from Python
+        return _static(c, x, h, pv, p_nom, uv, KL)
 
     c0 = coef.at(float(p[0]))
     th0 = coef.law_theta(c0)
@@ -542,7 +536,7 @@ def _integrate_py(
     x, v = float(x0), float(v0)
     h = law.output(state)
     xo[0], vo[0], ho[0] = x, v, h
-    fo[0] = static(c0, x, h, p[0], 0.0) + load.stiffness_N_per_mm * x - c0[3] * v
+    fo[0] = _static(c0, x, h, p[0], p_nom, 0.0, 0.0) - c0[3] * v
     cb = c0
     for k in range(t.shape[0] - 1):
         dt = (t[k + 1] - t[k]) / nsub
@@ -567,7 +561,7 @@ def _integrate_py(
         if not (abs(x) < RUNAWAY_MM and abs(v) < 1e12 and abs(h) < 1e12):
             return -1, k + 1, state
         xo[k + 1], vo[k + 1], ho[k + 1] = x, v, h
-        fo[k + 1] = static(cb, x, h, p[k + 1], 0.0) + load.stiffness_N_per_mm * x - cb[3] * v
+        fo[k + 1] = _static(cb, x, h, p[k + 1], p_nom, 0.0, 0.0) - cb[3] * v
     return 0, t.shape[0], state
 
 
@@ -609,9 +603,9 @@ class IdentifiedPlant:
 
     @classmethod
     def read(cls, path: str | Path) -> IdentifiedPlant:
-        """From a directory holding ``identification.json`` or the file itself."""
-        import json
-
+        """From a directory holding ``identification.json`` or the file itself (read and
+        checked by the file's one reader, :func:`pmalab.identify.schema.read_identification`)."""
+        from pmalab.identify.schema import read_identification
         from pmalab.paths import DATA_DIR, shipped
 
         # a result directory, its identification.json, or a shipped identification by name
@@ -620,11 +614,7 @@ class IdentifiedPlant:
         f = p / "identification.json" if p.is_dir() else p
         if not f.is_file():
             raise ForwardError(f"{path}: no identification.json there (run pmalab identify)")
-        try:
-            doc = json.loads(f.read_text())
-        except (OSError, ValueError) as exc:
-            raise ForwardError(f"{f}: cannot read ({exc})") from None
-        return cls(doc, str(f))
+        return cls(read_identification(f, error=ForwardError), str(f))
 
     def theta(self, p: float) -> dict[str, float]:
         """Parameters at pressure ``p`` (MPa), clipped into their bounds, record

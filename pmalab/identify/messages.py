@@ -87,6 +87,13 @@ def read_messages(items: Iterable[Mapping[str, Any]]) -> list[Message]:
     return [Message.from_dict(d) for d in items]
 
 
+def prefixed(prefix: str, message: str) -> str:
+    """``prefix + message``, keeping the message's kind, code and data when it is typed."""
+    if isinstance(message, Message):
+        return Message(message.kind, message.code, prefix + message.text, **message.data)
+    return prefix + message
+
+
 def kind_of(message: str) -> str:
     """The message's kind; a plain string is a warning."""
     return message.kind if isinstance(message, Message) else "warning"

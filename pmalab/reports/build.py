@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 
 from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
-from pmalab.identify.messages import Message, is_detail, is_note, read_messages
+from pmalab.identify.messages import is_detail, is_note, prefixed, read_messages
 from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
@@ -220,13 +220,7 @@ def plan_pages(data: ReportData) -> list[Page]:
                 else list(r.get("warnings") or [])
             )
             head = f"{r['run']} (p = {r['muscle_pressure_MPa']:.3f} MPa): "
-            msgs += [
-                m
-                if not isinstance(m, Message)
-                else Message(m.kind, m.code, head + m.text, **m.data)
-                for m in run_msgs
-                if not is_detail(m)
-            ]
+            msgs += [prefixed(head, m) for m in run_msgs]
         msgs = [m for m in msgs if not is_detail(m)]
         # what to check first, then what was done (the terminal's warning:/note: split)
         warnings = [f"warning: {w}" for w in msgs if not is_note(w)] + [

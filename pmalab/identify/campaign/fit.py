@@ -40,7 +40,7 @@ from pmalab.identify.estimation.output_error import (
 )
 from pmalab.identify.estimation.records import TARE_NOTE, predict_record
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
-from pmalab.identify.messages import detail, note
+from pmalab.identify.messages import detail, note, prefixed
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
@@ -605,7 +605,9 @@ def refine_output_error(cf: CampaignFit, runs: Sequence[Run]) -> CampaignFit:
     # the per-run force fits were the start: their warnings are about that start
     tag = "force-direction start (refined by output error): "
     runs_out = [
-        replace(rf, result=replace(rf.result, warnings=[tag + w for w in rf.result.warnings]))
+        replace(
+            rf, result=replace(rf.result, warnings=[prefixed(tag, w) for w in rf.result.warnings])
+        )
         for rf in cf.runs
     ]
     return replace(

@@ -111,7 +111,13 @@ class OutputErrorFit:
     notes: list[Message] = field(default_factory=list)
 
     def theta(self, p: float) -> dict[str, float]:
-        return {n: float(q[0] + q[1] * p + q[2] * p * p) for n, q in self.coef.items()}
+        return {n: _at(q, p) for n, q in self.coef.items()}
+
+
+def _at(q: Sequence[float], p: float) -> float:
+    """A monomial pressure law θ(p) = q0 + q1·p + q2·p² at ``p`` (MPa)."""
+    q0, q1, q2 = (float(v) for v in (*q, 0.0, 0.0)[:3])
+    return q0 + q1 * p + q2 * p * p
 
 
 def state_names(model: ForceModel, theta: Mapping[str, float]) -> tuple[str, ...]:
@@ -182,7 +188,7 @@ def fit_output_error(
     notes: list[Message] = []
     mass = plant_slots(model).get("mass")
     if mass in free:
-        m0 = min(float(np.polyval(list(reversed(list(start[mass]))), p)) for p in pressures)
+        m0 = min(_at(start[mass], p) for p in pressures)
         if m0 <= 0:
             # no positive mass at the start: the quasi-static forward model, m held at 0
             held = {**held, mass: (0.0, 0.0, 0.0)}
@@ -204,10 +210,7 @@ def fit_output_error(
     b.update(_state_bounds(data, b.get("h0", (-1e4, 1e4))))
     th_start = []
     for d in data:
-        th = {
-            n: float(np.polyval(list(reversed(list(q))), d.p_nom))
-            for n, q in {**start, **held}.items()
-        }
+        th = {n: _at(q, d.p_nom) for n, q in {**start, **held}.items()}
         th_start.append(th)
     n_sub = [_n_sub(model, {**th, **start_state(d)}, d, b) for th, d in zip(th_start, data)]
     constants = {n: float(held[n][0]) for n in held}  # held laws are constants (order 0)
