@@ -258,3 +258,29 @@ def test_simulate_pressure_in_moves_a_load_to_the_static_balance(tmp_path):
                  "pressure", "--out", str(tmp_path / "none.h5")]) != 0
     assert not (tmp_path / "none.h5").exists()
     assert IdentifiedPlant.read("identification-bouc-wen").model.law.name == "bouc-wen"
+
+
+def test_a_runaway_simulation_writes_nothing(tmp_path, capsys):
+    from pmalab.runfile import Run, write_runs
+
+    doc = json.loads((_shipped_bw()).read_text())
+    # negative stiffness and a light load: the link runs away
+    doc["pressure_fits"]["k"] = [50.0, 0.0, 0.0]
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "identification.json").write_text(json.dumps(doc))
+    t = np.arange(2000) / 500.0
+    write_runs(tmp_path / "in.h5", [Run("r", t, np.full(t.size, 10.0), np.zeros(t.size),
+                                        np.full(t.size, 0.4),
+                                        attrs={"muscle_pressure_MPa": 0.4})])
+    rc = main(["simulate", str(tmp_path / "m"), str(tmp_path / "in.h5"), "--input", "pressure",
+               "--load-mass", "0.1", "--whole-run", "--out", str(tmp_path / "s.h5")])
+    assert rc != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not finite" in err[0]
+    assert not (tmp_path / "s.h5").exists()
+
+
+def _shipped_bw():
+    from pmalab.control.model import SHIPPED_IDENTIFICATION
+
+    return SHIPPED_IDENTIFICATION

@@ -650,6 +650,12 @@ def run_simulate(args: argparse.Namespace) -> int:
                 f"position rmse {position_metrics(r.position, s.position)['rmse_position_m']:.4g}"
                 f" m ({s.status})"
             )
+        bad = [c for c in ("position", "force") if not np.all(np.isfinite(getattr(new, c)))]
+        if bad:  # a runaway model: refuse before anything is written
+            raise PmalabError(
+                f"{r.label}: the simulated {bad[0]} is not finite (the model ran away); "
+                "nothing written"
+            )
         new.attrs = {
             **r.attrs,
             "simulated_by": "pmalab simulate",
