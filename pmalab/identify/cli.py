@@ -489,6 +489,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
                 for p in rf.result.params
                 if p.vary and p.name not in res.model.state_params
             }
+            | set(res.campaign.shape_reference)  # held per run, fitted as campaign constants
         )
         rows.append(
             {

@@ -145,6 +145,9 @@ class CampaignFit:
     #: the output-error refinement on the simulated position (``identify --output
     #: position``; :mod:`pmalab.identify.estimation.output_error`), None for force output
     output_error: OutputErrorFit | None = None
+    #: the law's shared shape (``HysteresisLaw.shared_shape``) the campaign held on every
+    #: run, at its reference run's values (empty when the law has none or the user fixed it)
+    shape_reference: dict[str, float] = field(default_factory=dict)
 
     @property
     def output(self) -> str:
@@ -364,6 +367,11 @@ def fit_campaign(
                 "only (collinear there); its quadratic mixes fixed and fitted values"
             )
 
+    results, shape_ref, shape_notes = share_shape(
+        fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
+    )
+    warnings += shape_notes
+
     rfs = []
     for run, res in zip(runs, results):
         p, f, w = _run_meta(run)
@@ -386,11 +394,87 @@ def fit_campaign(
             f"{max(len(levels) - 1, 0)}; extrapolating in pressure is unreliable"
         )
     cf = CampaignFit(
-        model=fm, runs=rfs, pressure=pressure, warnings=warnings, per_run_pressure=pressure
+        model=fm,
+        runs=rfs,
+        pressure=pressure,
+        warnings=warnings,
+        per_run_pressure=pressure,
+        shape_reference=shape_ref,
     )
     if pressure_model == "joint" and len(rfs) > 1:
         refine_pressure_laws(cf, runs)
     return cf
+
+
+#: a run is a shape reference candidate when its stroke is within this share of the longest
+SHAPE_STROKE_SHARE = 0.9
+
+
+def share_shape(
+    model: ForceModel,
+    runs: Sequence[Run],
+    results: list[FitResult],
+    kwargs: dict,
+    *,
+    jobs: int = 1,
+    scheduler: str | None = None,
+    progress: bool = False,
+) -> tuple[list[FitResult], dict[str, float], list[str]]:
+    """Hold the law's shared shape at one reference run's values on every run.
+
+    A law's ``shared_shape`` (Maxwell-slip's slip displacements) is a material property, the
+    same at every pressure, but each run fits it on its own: its elements come out in any
+    order, and on a short stroke an element that never slides takes any value — per-run
+    values of the *other* parameters then belong to different elements and their pressure
+    laws interpolate nonsense between levels.  The reference is the run on which the most
+    elements slide (2·d < stroke), among the runs of nearly the longest stroke, with the
+    lowest fit nrmse; its elements are put in the law's canonical order and every run is
+    fitted again with them held.  The joint fit then refines them as constants in p.
+    Returns (results, the reference values, notes).  Nothing is done when the law has no
+    shared shape, the user fixed it, or there is one run.
+    """
+    law = model.law
+    user_fixed = set(kwargs.get("fixed") or {})
+    names = [n for n in law.shared_shape if n not in user_fixed]
+    if not names or len(results) < 2:
+        return results, {}, []
+    strokes = np.array([float(np.ptp(r.position)) for r in runs])
+    longest = float(np.max(strokes))
+
+    def slides(i: int) -> int:
+        th = law.canonical(results[i].values)
+        return sum(2.0 * float(th[n]) < strokes[i] for n in names)
+
+    cands = [i for i in range(len(runs)) if strokes[i] >= SHAPE_STROKE_SHARE * longest]
+    ref_i = min(cands, key=lambda i: (-slides(i), results[i].nrmse))
+    th_ref = law.canonical(results[ref_i].values)
+    ref = {n: float(th_ref[n]) for n in names}
+    fixed = {**(kwargs.get("fixed") or {}), **ref}
+    again = fit_runs(
+        runs,
+        model,
+        jobs=jobs,
+        scheduler=scheduler,
+        progress=progress,
+        fixed=fixed,
+        init=kwargs.get("init"),
+        free=kwargs.get("free", ()),
+    )
+    rise = max(b.nrmse / max(a.nrmse, 1e-300) - 1.0 for a, b in zip(results, again))
+    values = ", ".join(f"{n} {v:.3g}" for n, v in ref.items())
+    label = getattr(runs[ref_i], "label", str(ref_i))
+    notes = [
+        note(
+            "shared-shape",
+            f"{law.name}: {', '.join(names)} are the same at every pressure (a material "
+            f"property): held at {label}'s values ({values}) on every run, then refined "
+            f"jointly as constants (per-run nrmse rose by at most {100.0 * rise:.1f} %)",
+            reference=label,
+            values=ref,
+            rise_percent=100.0 * rise,
+        )
+    ]
+    return again, ref, notes
 
 
 def _undetermined(res: FitResult, name: str) -> bool:
@@ -444,10 +528,14 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
         # and every predicted run gets its own (estimation.records).
         nuis_names.append("c0")
     nuisance = {n: [float(r.params[n].value) for r in results] for n in nuis_names}
+    shape = cf.shape_reference  # held by the campaign, refined here as constants in p
     constants = {
         n: float(results[0].params[n].value)
         for n in names
-        if n not in state and n not in nuisance and all(not r.params[n].vary for r in results)
+        if n not in state
+        and n not in nuisance
+        and n not in shape
+        and all(not r.params[n].vary for r in results)
     }
     free = [n for n in names if n not in constants and n not in state and n not in nuisance]
     if not free:
@@ -460,8 +548,15 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
     stderr = {n: [r.params[n].stderr for r in results] for n in free}
     und = {n: [_undetermined(r, n) for r in results] for n in free}
     start, degrees, notes = start_laws(
-        free, pressures, values, stderr, und, max_degree=min(2, levels - 1)
+        [n for n in free if n not in shape],
+        pressures,
+        values,
+        stderr,
+        und,
+        max_degree=min(2, levels - 1),
     )
+    for n in shape:
+        start[n], degrees[n] = (shape[n], 0.0, 0.0), 0
     jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, rfs)]
     h0 = [float(r.params["h0"].value) for r in results] if has_h0 else None
     try:
@@ -478,7 +573,7 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
             h0,
             alternatives=[plain],
             nuisance_start=nuisance or None,
-            fixed_order=[n for n in cf.model.campaign_shared if n in free],
+            fixed_order=[n for n in (*cf.model.campaign_shared, *shape) if n in free],
         )
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(

@@ -166,7 +166,7 @@ def _grid_starts(
     """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
     law = model.law
     base = {p.name: p.value for p in ps}
-    g = law.guess(sig.x, force, sig.v)
+    g = law.guess(sig.x, force, sig.v, fixed=fixed)
     base.update({k: v for k, v in g.items() if k in base})
     if "k" not in g or "c0" not in g:  # stage 1: centreline (a law's guess may fit k, c0 too)
         (k, c0), _ = _lstsq([sig.x, np.ones_like(sig.x)], force)

@@ -15,7 +15,13 @@ file in this folder) that owns all knowledge about itself, in the spirit of lmfi
   grid sized from the stroke and solves (k, c0, scale) by linear least squares at every
   point, one sign of the scale at a time (variable projection); :meth:`scale_valid` says
   when that holds;
-* :meth:`guess`: start values from the measured loop (lmfit's ``guess``);
+* :meth:`guess`: start values from the measured loop (lmfit's ``guess``), sized around
+  any parameters the fit holds fixed;
+* ``shared_shape``: parameters that describe the material, not the pressure (an element's
+  slip displacement): the campaign holds them at one reference run's values on every run,
+  so the other parameters' pressure laws compare like with like (see
+  :func:`pmalab.identify.campaign.fit.fit_campaign`), and the joint fit refines them as
+  constants;
 * ``state_params``: the internal state at the first sample (h0) — a property of the
   record, never of the muscle;
 * :meth:`h` (a whole trajectory) and :meth:`step` (one sample, for controllers that run
@@ -87,6 +93,9 @@ class HysteresisLaw:
     #: (Bouc-Wen, Duhem); n for laws of n elements (Prandtl-Ishlinskii, Maxwell-slip), whose
     #: stepper takes and returns the element state and :meth:`output` sums it to h
     state_size: ClassVar[int] = 1
+    #: parameters the same at every pressure (a material property); with more than one
+    #: they describe exchangeable elements and :meth:`canonical` orders them
+    shared_shape: ClassVar[tuple[str, ...]] = ()
 
     # ------------------------------------------------------------------ start values
     def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
@@ -97,13 +106,26 @@ class HysteresisLaw:
         """True when h is positively homogeneous in :attr:`scale_param` at these shape parameters."""
         return self.scale_param is not None
 
-    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+    def guess(
+        self,
+        x: np.ndarray,
+        force: np.ndarray,
+        v: np.ndarray,
+        fixed: Mapping[str, float] | None = None,
+    ) -> dict[str, float]:
         """Start values of the law's parameters from a measured loop (x mm, force N, v mm/s).
 
-        Default: the parameters' ``init`` values.  Laws override this with data-sized
-        values (loop half-width from the branch offsets, memory length from the stroke).
+        ``fixed``: parameters this fit holds (their values win over the guess; a law may
+        size the others around them).  Default: the parameters' ``init`` values.  Laws
+        override this with data-sized values (loop half-width from the branch offsets,
+        memory length from the stroke).
         """
         return {p.name: p.init for p in self.params}
+
+    def canonical(self, theta: Mapping[str, float]) -> dict[str, float]:
+        """The same law with its exchangeable elements in a canonical order (identity for
+        a law without elements): a campaign compares one element with the same element."""
+        return dict(theta)
 
     # ------------------------------------------------------------------ evaluation
     def h(

@@ -206,7 +206,9 @@ class BoucWen(HysteresisLaw):
         # h(c·A) = c·h(A) (c ≥ 0, h0 = 0) holds for n = 1 only
         return float(theta.get("n", 1.0)) == 1.0
 
-    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+    def guess(
+        self, x: np.ndarray, force: np.ndarray, v: np.ndarray, fixed=None
+    ) -> dict[str, float]:
         # saturation after ~1/5 of the stroke; A·(1/β) = the loop half-width
         w = abs(loop_half_width(x, force, v)) + 1e-3
         beta = 5.0 / max(float(np.ptp(x)), 1e-3)

@@ -98,7 +98,9 @@ class Duhem(HysteresisLaw):
         R = max(stroke_mm, 1e-3)
         return [{"alpha": float(a)} for a in np.geomspace(0.25, 128.0, 10) / R]
 
-    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+    def guess(
+        self, x: np.ndarray, force: np.ndarray, v: np.ndarray, fixed=None
+    ) -> dict[str, float]:
         w = abs(loop_half_width(x, force, v)) + 1e-3
         alpha = 5.0 / max(float(np.ptp(x)), 1e-3)
         return {"alpha": alpha, "a": 0.0, "b": -w * alpha, "h0": 0.0}

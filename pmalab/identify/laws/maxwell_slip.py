@@ -10,6 +10,13 @@ Prandtl-Ishlinskii (fixed thresholds, linear weights) the slip displacements are
 four elements do what eight fixed operators do, at the price of a nonlinear fit (start:
 d_i on a geometric grid over the stroke, k_i by non-negative least squares).  Same
 integrator (:mod:`._slide`), same sign convention: tension higher while stretching.
+
+The slip displacements are a property of the braid, the same at every pressure (the slip
+*forces* grow with pressure): they are the law's ``shared_shape``.  A campaign fits them per
+run, then holds them at one reference run's values on every run (so element i is the same
+element at every pressure and k_i(p) is a smooth law), and the joint fit refines them as
+constants.  The elements are exchangeable: :meth:`MaxwellSlip.canonical` orders them by slip
+displacement.
 """
 
 from __future__ import annotations
@@ -50,11 +57,19 @@ class MaxwellSlip(HysteresisLaw):
     )
     state_size = ELEMENTS
     scale_param = None
+    shared_shape = _D
 
-    def guess(self, x: np.ndarray, force: np.ndarray, v: np.ndarray) -> dict[str, float]:
+    def guess(
+        self, x: np.ndarray, force: np.ndarray, v: np.ndarray, fixed=None
+    ) -> dict[str, float]:
+        """Slip displacements on a geometric grid over the stroke (or the ones held fixed),
+        stiffnesses by non-negative least squares of F on their elements with k and c0."""
         x = np.asarray(x, dtype=np.float64)
         stroke = max(float(np.ptp(x)), 1e-3)
         d = stroke * np.geomspace(0.01, 0.3, ELEMENTS)
+        for i, n in enumerate(_D):
+            if fixed and n in fixed:
+                d[i] = max(float(fixed[n]), 1e-3)
         B = play_basis(x, d)
         M = np.column_stack([B, x, -x, np.ones_like(x), -np.ones_like(x)])
         sc = np.maximum(np.abs(M).max(axis=0), 1e-12)
@@ -68,6 +83,14 @@ class MaxwellSlip(HysteresisLaw):
             c0=float(coef[ELEMENTS + 2] - coef[ELEMENTS + 3]),
             h0=0.0,
         )
+        return out
+
+    def canonical(self, theta: Mapping[str, float]) -> dict[str, float]:
+        """Elements ordered by slip displacement (smallest first)."""
+        out = dict(theta)
+        order = np.argsort([float(theta[n]) for n in _D], kind="stable")
+        for j, i in enumerate(order):
+            out[_K[j]], out[_D[j]] = float(theta[_K[i]]), float(theta[_D[i]])
         return out
 
     def h(self, x, theta, extras=None):
