@@ -463,7 +463,7 @@ def share_shape(
     rise = max(b.nrmse / max(a.nrmse, 1e-300) - 1.0 for a, b in zip(results, again))
     values = ", ".join(f"{n} {v:.3g}" for n, v in ref.items())
     label = getattr(runs[ref_i], "label", str(ref_i))
-    notes = [
+    notes: list[str] = [
         note(
             "shared-shape",
             f"{law.name}: {', '.join(names)} are the same at every pressure (a material "
