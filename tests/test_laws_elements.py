@@ -4,8 +4,10 @@ The simulated rig's braid friction is a Maxwell-slip model written in pmalab/rig
 (independently of identify's laws: no inverse crime).  data/truth/hysteresis-maxwell-slip.toml
 makes it 2.5× the default with a realistic 4 N load-cell noise; on the small diagnosis-test
 campaign Bouc-Wen cannot take the sum of four elements' kinks.  Checked: the element laws fit
-each run closer than Bouc-Wen, Maxwell-slip recovers the simulator's slip displacements, and
-`pmalab diagnose` (from Bouc-Wen) scores the laws like effects and changes to maxwell-slip.
+each run closer than Bouc-Wen, Maxwell-slip recovers the simulator's slip displacements, the
+matching law reaches the noise floor on its own campaign (data/truth/hysteresis-prandtl-
+ishlinskii.toml is the play-operator-shaped one), and `pmalab diagnose` (from Bouc-Wen)
+scores the laws like effects and changes to the matching law.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ def campaign(tmp_path_factory) -> Path:
 
 
 def test_element_laws_fit_each_run_closer_than_bouc_wen(campaign):
-    runs = [r.steady() for r in read_runs(campaign) if r.attrs.get("role") != "validation"]
+    runs = [r for r in read_runs(campaign) if r.attrs.get("role") != "validation"]
     rmse = {}
     for law in ("bouc-wen", "maxwell-slip", "prandtl-ishlinskii"):
         res = identify(runs, law, jobs=2)
@@ -55,20 +57,48 @@ def test_element_laws_fit_each_run_closer_than_bouc_wen(campaign):
     # 4 N rms noise: Bouc-Wen's per-run misfit is well above it, the element laws' closer
     assert np.mean(rmse["maxwell-slip"]) < 0.9 * np.mean(rmse["bouc-wen"]), rmse
     assert np.mean(rmse["prandtl-ishlinskii"]) < np.mean(rmse["bouc-wen"]), rmse
-    # Maxwell-slip's elements land on the simulator's slip displacements (0.3, 1, 2.5, 5 mm):
-    # the two elements carrying the largest slip force (f = k·d) slip within ±40 % of one of
-    # them on every run (an element that never slips over the run's stroke, 2·d > stroke, is a
-    # spring collinear with k; the weakest elements fit what else is left: neither is checked)
-    truth = np.array([0.3, 1.0, 2.5, 5.0])
+    # Maxwell-slip's slip displacements are a material property: the campaign holds them
+    # at one reference run's values on every run and refines them jointly as constants in
+    # p; they land on the simulator's (0.3, 1, 2.5, 5 mm) within 15 % (measured ≤ 5 %)
     res = identify(runs, "maxwell-slip", jobs=2)
-    for rf in res.campaign.runs:
-        th = {p.name: p.value for p in rf.result.params}
-        ks = np.array([th[f"k{i}"] for i in range(1, 5)])
-        ds = np.array([th[f"d{i}"] for i in range(1, 5)])
-        stroke = float(np.ptp(next(r.position for r in runs if r.label == rf.label)))
-        slips = [i for i in np.argsort(-ks * ds) if 2.0 * ds[i] < stroke]
-        for i in slips[:2]:
-            assert np.min(np.abs(ds[i] / truth - 1.0)) <= 0.4, (ks, ds)
+    truth = np.array([0.3, 1.0, 2.5, 5.0])
+    ds = np.array([res.campaign.pressure[f"d{i}"].coef[0] for i in range(1, 5)])
+    assert all(res.campaign.pressure[f"d{i}"].degree == 0 for i in range(1, 5))
+    np.testing.assert_allclose(ds, truth, rtol=0.15)
+    assert set(res.campaign.shape_reference) == {"d1", "d2", "d3", "d4"}
+    assert any(getattr(w, "code", "") == "shared-shape" for w in res.campaign.warnings)
+
+
+def _campaign(work: Path, truth: Path, seed: int) -> Path:
+    rig = work / "rig.toml"
+    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = {seed}\n')
+    out = work / "c.h5"
+    rc, text = _cli(["run", "--rig", str(rig), "--protocol", str(PROTOCOL), "--out", str(out),
+                     "-q"])
+    assert rc == 0, text
+    return out
+
+
+@pytest.mark.parametrize(
+    ("truth", "seed", "law"),
+    [(TRUTH, 7, "maxwell-slip"),
+     (TRUTH_DIR / "hysteresis-prandtl-ishlinskii.toml", 11, "prandtl-ishlinskii")],
+)
+def test_matching_law_reaches_the_noise_floor_and_ranks_first(tmp_path, truth, seed, law):
+    """A campaign whose hysteresis has the law's shape validates within 1.1x the noise floor
+    with that law (measured over seeds 7, 11, 23, 31: Maxwell-slip 1.05-1.06x on its
+    campaign, Prandtl-Ishlinskii 1.08-1.10x on a dense off-grid play-operator set), and
+    `identify --model a,b,c` ranks it first; Bouc-Wen stays far above (1.8-1.9x)."""
+    c = _campaign(tmp_path, truth, seed)
+    out = tmp_path / "laws"
+    rc, text = _cli(["identify", str(c), "--model", "bouc-wen,prandtl-ishlinskii,maxwell-slip",
+                     "--out", str(out), "-q"])
+    assert rc == 0, text
+    table = json.loads((out / "laws.json").read_text())
+    rows = {r["law"]: r for r in table["laws"]}
+    assert table["laws"][0]["law"] == law, table
+    assert rows[law]["x_floor"] <= 1.1, rows
+    assert rows["bouc-wen"]["x_floor"] >= 1.5, rows
 
 
 def test_diagnose_scores_laws_and_changes_to_maxwell_slip(campaign, tmp_path):
@@ -146,3 +176,12 @@ def test_identify_several_laws_ranks_them_and_writes_one_identification_each(cam
     rc, text = _cli(["report", str(out / "bouc-wen"), str(out / "maxwell-slip"), "--out",
                      str(pdf)])
     assert rc == 0 and pdf.stat().st_size > 10_000, text
+
+
+def test_diagnose_names_prandtl_ishlinskii_first_on_its_campaign(tmp_path):
+    c = _campaign(tmp_path, TRUTH_DIR / "hysteresis-prandtl-ishlinskii.toml", 11)
+    rc, text = _cli(["diagnose", str(c), "--model", "bouc-wen", "--out", str(tmp_path / "d")])
+    assert rc == 0, text
+    d = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert d["laws"][0]["law"] == "prandtl-ishlinskii" and d["laws"][0]["significant"], d["laws"]
+    assert d["ladder"][1]["law"] == "prandtl-ishlinskii"

@@ -406,8 +406,11 @@ def fit_campaign(
     return cf
 
 
-#: a run is a shape reference candidate when its stroke is within this share of the longest
-SHAPE_STROKE_SHARE = 0.9
+#: two elements whose slip displacements differ by less than this factor are one element
+#: split in two (a degenerate fit) when a shape reference is chosen
+SHAPE_DISTINCT = 1.2
+#: reference shapes tried (each is one more pass of per-run fits)
+SHAPE_CANDIDATES = 3
 
 
 def share_shape(
@@ -427,9 +430,9 @@ def share_shape(
     order, and on a short stroke an element that never slides takes any value — per-run
     values of the *other* parameters then belong to different elements and their pressure
     laws interpolate nonsense between levels.  The reference is the run on which the most
-    elements slide (2·d < stroke), among the runs of nearly the longest stroke, with the
-    lowest fit nrmse; its elements are put in the law's canonical order and every run is
-    fitted again with them held.  The joint fit then refines them as constants in p.
+    distinct elements slide (2·d < stroke; two within a factor 1.2 count once), and among
+    those the lowest fit nrmse; the best three such runs (distinct shapes) are each held on
+    every run, in the law's canonical element order, and the one all runs fit best is kept.  The joint fit then refines them as constants in p.
     Returns (results, the reference values, notes).  Nothing is done when the law has no
     shared shape, the user fixed it, or there is one run.
     """
@@ -439,27 +442,45 @@ def share_shape(
     if not names or len(results) < 2:
         return results, {}, []
     strokes = np.array([float(np.ptp(r.position)) for r in runs])
-    longest = float(np.max(strokes))
 
-    def slides(i: int) -> int:
+    def distinct(i: int) -> int:
+        """Elements that slide on run i (2·d < stroke) and are not a copy of a smaller one."""
         th = law.canonical(results[i].values)
-        return sum(2.0 * float(th[n]) < strokes[i] for n in names)
+        d = [float(th[n]) for n in names if 2.0 * float(th[n]) < strokes[i]]
+        return sum(1 for j, v in enumerate(d) if j == 0 or v > SHAPE_DISTINCT * d[j - 1])
 
-    cands = [i for i in range(len(runs)) if strokes[i] >= SHAPE_STROKE_SHARE * longest]
-    ref_i = min(cands, key=lambda i: (-slides(i), results[i].nrmse))
-    th_ref = law.canonical(results[ref_i].values)
-    ref = {n: float(th_ref[n]) for n in names}
-    fixed = {**(kwargs.get("fixed") or {}), **ref}
-    again = fit_runs(
-        runs,
-        model,
-        jobs=jobs,
-        scheduler=scheduler,
-        progress=progress,
-        fixed=fixed,
-        init=kwargs.get("init"),
-        free=kwargs.get("free", ()),
-    )
+    # candidates: the runs with the most distinct sliding elements, best fit first (a
+    # first-pass fit can still be degenerate in ways the count misses, e.g. an element of
+    # near-zero slip displacement standing in for an offset), shapes within 5 % merged
+    order = sorted(range(len(runs)), key=lambda i: (-distinct(i), results[i].nrmse))
+    cands: list[tuple[int, dict[str, float]]] = []
+    for i in order:
+        th = law.canonical(results[i].values)
+        shape = {n: float(th[n]) for n in names}
+        if any(all(abs(shape[n] / max(c[n], 1e-12) - 1.0) < 0.05 for n in names) for _, c in cands):
+            continue
+        cands.append((i, shape))
+        if len(cands) == SHAPE_CANDIDATES:
+            break
+    # each candidate held on every run; the one the runs fit best (mean nrmse²) is kept —
+    # scored by the same per-run fit identify reports
+    best: tuple[float, int, dict[str, float], list[FitResult]] | None = None
+    for i, shape in cands:
+        again = fit_runs(
+            runs,
+            model,
+            jobs=jobs,
+            scheduler=scheduler,
+            progress=progress,
+            fixed={**(kwargs.get("fixed") or {}), **shape},
+            init=kwargs.get("init"),
+            free=kwargs.get("free", ()),
+        )
+        score = float(np.mean([r.nrmse**2 for r in again]))
+        if best is None or score < best[0]:
+            best = (score, i, shape, again)
+    assert best is not None
+    _, ref_i, ref, again = best
     rise = max(b.nrmse / max(a.nrmse, 1e-300) - 1.0 for a, b in zip(results, again))
     values = ", ".join(f"{n} {v:.3g}" for n, v in ref.items())
     label = getattr(runs[ref_i], "label", str(ref_i))
