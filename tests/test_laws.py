@@ -21,8 +21,8 @@ THETAS = {
     "bouc-wen": [{"A": -60.0, "beta": 0.4, "gamma": 0.1, "n": 1.0, "h0": 5.0},
                  {"A": -60.0, "beta": 0.05, "gamma": 0.02, "n": 1.7, "h0": -3.0}],
     "duhem": [{"alpha": 0.5, "a": 2.0, "b": -40.0, "h0": 1.0}],
-    "prandtl-ishlinskii": [{**{f"w{i}": 3.0 * i for i in range(1, 9)}, "h0": 4.0},
-                           {**{f"w{i}": 0.0 for i in range(1, 9)}, "w3": 25.0, "h0": -2.0}],
+    "prandtl-ishlinskii": [{**{f"w{i}": 1.5 * i for i in range(1, 16)}, "h0": 4.0},
+                           {**{f"w{i}": 0.0 for i in range(1, 16)}, "w5": 25.0, "h0": -2.0}],
     "maxwell-slip": [{"k1": 40.0, "k2": 10.0, "k3": 5.0, "k4": 2.0, "d1": 0.2, "d2": 0.8,
                       "d3": 2.0, "d4": 6.0, "h0": 3.0}],
 }
