@@ -63,12 +63,19 @@ def sdist(wheel) -> Path:
     return sd
 
 
-def test_the_version_has_one_source(wheel):
-    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
-    assert wheel.name == f"pmalab-{version}-py3-none-any.whl"
-    # pmalab/__init__.py writes no version of its own, only the not-installed fallback
+def _source_version() -> str:
+    """The one literal version in pmalab/__init__.py (pyproject.toml declares it dynamic)."""
     init = (ROOT / "pmalab" / "__init__.py").read_text()
-    assert re.findall(r'__version__[^=\n]*=\s*"([^"]*)"', init) == ["0+unknown"]
+    (v,) = re.findall(r'^__version__[^=\n]*=\s*"([^"]*)"', init, flags=re.M)
+    return v
+
+
+def test_the_version_has_one_source(wheel):
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    # pyproject holds no version of its own: the build reads pmalab.__version__
+    assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "pmalab.__version__"}
+    assert wheel.name == f"pmalab-{_source_version()}-py3-none-any.whl"
 
 
 def test_sdist_holds_the_data_and_what_tests_need(sdist):
@@ -124,8 +131,7 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     where = _run([str(py), "-c", probe], cwd=work, env=env)
     assert where.count(str(env_dir)) == 2 and str(ROOT) not in where, where
     pmalab = str(env_dir / "bin" / "pmalab")
-    version = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
-    assert _run([pmalab, "--version"], cwd=work, env=env).strip() == f"pmalab {version}"
+    assert _run([pmalab, "--version"], cwd=work, env=env).strip() == f"pmalab {_source_version()}"
     text = _run([pmalab, "demo", "--out", "demo", "--quiet"], cwd=work, env=env)
     assert (work / "demo").is_dir() and list((work / "demo").rglob("*.pdf")), text
     # a shipped protocol by name and a clone-style rig path, then one identify
