@@ -534,6 +534,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
+    print(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
 
 

@@ -35,6 +35,12 @@ from pmalab.reports.figures_diagnosis import (
     effects_figure,
     residual_diagnostics_figure,
 )
+from pmalab.reports.figures_laws import (
+    LAWS_PER_PAGE,
+    held_out_keys,
+    laws_figure,
+    laws_loops_figure,
+)
 from pmalab.reports.figures_parameters import (
     WARNINGS_LINES_PER_COLUMN,
     bullet_lines,
@@ -70,6 +76,8 @@ MAX_RESIDUAL_PAGES = 4
 BEFORE_AFTER_RUNS = 3
 PROVENANCE_ROWS_PER_PAGE = 16
 KEY_RUNS = 3
+#: held-out runs whose loops are drawn law beside law (those that separate the laws most)
+LAWS_LOOP_RUNS = 3
 
 
 @dataclass
@@ -123,6 +131,10 @@ def plan_pages(data: ReportData) -> list[Page]:
         sorted(ident["runs"], key=lambda r: r["muscle_pressure_MPa"]) if ident else []
     )
     val_rows: list[dict] = list(ident.get("validation") or []) if ident else []
+
+    # several laws on the same runs (identify --model a,b,c): ranked, then law beside law
+    if data.laws:
+        pages += _laws_pages(data)
 
     # datasets/provenance
     inputs = list(ident.get("inputs") or []) if ident else []
@@ -404,6 +416,36 @@ def plan_pages(data: ReportData) -> list[Page]:
 
     contents = [p.title for p in pages]
     pages.insert(0, Page("Title page", "title", lambda: _title_page(data, contents)))
+    return pages
+
+
+def _laws_pages(data: ReportData) -> list[Page]:
+    """The laws table with every held-out run's error per law on one scale, then, for the
+    held-out runs that separate the laws most, their loops law beside law (one error
+    scale).  The pages after these are the best law's."""
+    entries, floor = data.laws, data.laws_noise_floor
+    pages = [
+        Page(
+            f"Hysteresis laws compared on the held-out runs (best first: {entries[0].law})",
+            "laws",
+            lambda: laws_figure(entries, floor),
+        )
+    ]
+    groups = _chunks(list(range(len(entries))), LAWS_PER_PAGE)
+    for key in held_out_keys(entries, LAWS_LOOP_RUNS):
+        for gi, idx in enumerate(groups):
+            title = f"Loops of every law on one error scale — held-out {key[1]}" + _part(
+                gi, len(groups)
+            )
+            pages.append(
+                Page(
+                    title,
+                    f"laws-loops-{key[1]}-{gi + 1}",
+                    lambda k=key, ix=idx, t=title: laws_loops_figure(
+                        [entries[i] for i in ix], k, colour_offset=ix[0], title=t
+                    ),
+                )
+            )
     return pages
 
 

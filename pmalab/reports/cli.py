@@ -17,15 +17,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "predictions.h5 as written by 'pmalab identify'/'pmalab diagnose') into one "
         "multi-page PDF.  Give one identification directory, or two (the base model first, "
         "then the model identified with --add) to draw them side by side, plus optionally a "
-        "diagnosis directory.  Pages for parts the directories lack are left out.",
+        "diagnosis directory; or the OUT directory of 'pmalab identify --model a,b,c' "
+        "(laws.json): the laws ranked, their held-out loops law beside law on one error "
+        "scale, then the best law's pages.  Pages for parts the directories lack are left "
+        "out.",
     )
     p.add_argument(
         "directories",
         nargs="+",
         metavar="DIR",
         help="BASE_DIR [IMPROVED_DIR] [DIAG_DIR]: identification directories "
-        "(base first) and/or a diagnosis directory, in any mix; or 'pmalab "
-        "control' run files (CONTROL.h5: a page per experiment)",
+        "(base first) and/or a diagnosis directory, in any mix; or a laws directory "
+        "(identify --model a,b,c); or 'pmalab control' run files (CONTROL.h5: a page per "
+        "experiment)",
     )
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")

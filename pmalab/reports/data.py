@@ -5,6 +5,9 @@ The directory contract (written by ``pmalab identify`` / ``pmalab diagnose``):
 * ``identification.json`` — model, runs with parameters/stderr/correlation/metrics,
   pressure quadratics, validation metrics, warnings;
 * ``diagnosis.json`` — effect ranking, ladder, residual diagnostics, summary;
+* ``laws.json`` (``pmalab identify --model a,b,c``) — the laws ranked, each law's
+  identification in the sub-directory named after it; the best law is the report's
+  identification and every law's held-out predictions are drawn side by side;
 * ``predictions.h5`` — root attr ``format = "pmalab.predictions"``; one group
   ``/runs/<key>`` per run with 1-D float datasets ``time`` (s), ``position`` (mm,
   contraction, positive = shorter), ``muscle_pressure`` (MPa), ``force`` (N tension,
@@ -40,6 +43,8 @@ TRACE_CHANNELS = schema.PREDICTION_CHANNELS
 ROLES = ("identification", "validation", "diagnosis", "diagnosis-final")
 #: role prefix of the traces of a second (improved) identification directory
 IMPROVED = "improved-"
+#: the ranked laws of ``pmalab identify --model a,b,c`` (one sub-directory per law)
+LAWS_JSON = "laws.json"
 
 
 # --------------------------------------------------------------------------- traces
@@ -101,6 +106,22 @@ class Trace:
 
 
 @dataclass
+class LawEntry:
+    """One law of a ``laws.json`` directory: its row, its identification and its traces."""
+
+    row: dict[str, Any]
+    identification: dict[str, Any]
+    traces: list[Trace]
+
+    @property
+    def law(self) -> str:
+        return str(self.row["law"])
+
+    def validation(self) -> list[Trace]:
+        return [t for t in self.traces if t.role == "validation"]
+
+
+@dataclass
 class ReportData:
     """Everything a report is made of; ``identification``/``diagnosis`` are the parsed
     (and checked) JSON documents or None when absent."""
@@ -114,6 +135,10 @@ class ReportData:
     #: a second identification (e.g. ``identify --add EFFECT``) drawn beside the first; its
     #: traces carry the roles ``improved-identification`` / ``improved-validation``
     improved: dict[str, Any] | None = None
+    #: the laws of a ``laws.json`` directory, best first (empty otherwise)
+    laws: list[LawEntry] = field(default_factory=list)
+    #: the held-out runs' noise floor (nrmse) the laws were ranked against
+    laws_noise_floor: float | None = None
 
     def traces_with_role(self, role: str) -> list[Trace]:
         return [t for t in self.traces if t.role == role]
@@ -241,6 +266,7 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
     if not dirs:
         raise ReportError("no result directory given")
     data = ReportData(directory=dirs[0], directories=dirs)
+    dirs = _expand_laws(dirs, data)
     seen: dict[str, Path] = {}
     given: dict[Path, Path] = {}
     for d in dirs:
@@ -296,6 +322,47 @@ def load_report_dir(directory: str | Path | Sequence[str | Path]) -> ReportData:
             data.traces.extend(traces)
     _check_same_runs(data, seen)
     return data
+
+
+def _expand_laws(dirs: list[Path], data: ReportData) -> list[Path]:
+    """Read a ``laws.json`` directory into ``data.laws``; return ``dirs`` with it replaced
+    by its best law's directory (the report's identification).  A laws directory is given
+    alone or with one diagnosis directory: its best law is the base of the report."""
+    laws_dirs = [d for d in dirs if (d / LAWS_JSON).is_file()]
+    if not laws_dirs:
+        return dirs
+    if len(laws_dirs) > 1:
+        raise ReportError(f"{laws_dirs[1]}: a second {LAWS_JSON}; give one laws directory")
+    ld = laws_dirs[0]
+    for d in dirs:
+        if d != ld and (d / IDENTIFICATION_JSON).exists():
+            raise ReportError(
+                f"{d}: an identification beside the laws directory {ld}: give the laws "
+                "directory alone (its best law is the report's identification)"
+            )
+    path = ld / LAWS_JSON
+    doc = schema.read_laws(path, error=ReportError)
+    if not doc["laws"]:
+        raise ReportError(f"{path}: laws: empty list (no law to report)")
+    data.laws_noise_floor = doc["noise_floor_nrmse"]
+    for i, row in enumerate(doc["laws"]):
+        sub = ld / row["law"]  # identify --model a,b,c writes OUT/<law>/
+        ident = sub / IDENTIFICATION_JSON
+        if not ident.exists():
+            raise ReportError(
+                f"{path}: laws[{i}] ({row['law']}): {ident} is missing (the directory was "
+                "moved or pruned; re-run pmalab identify --model ...)"
+            )
+        pred = sub / PREDICTIONS_H5
+        data.laws.append(
+            LawEntry(
+                row=dict(row),
+                identification=check_identification(_load_json(ident), ident),
+                traces=read_predictions(pred) if pred.exists() else [],
+            )
+        )
+    best = ld / doc["laws"][0]["law"]
+    return [best if d == ld else d for d in dirs]
 
 
 def _ident_runs(doc: dict) -> set[tuple[str, str]]:
