@@ -120,6 +120,8 @@ def test_diagnose_scores_laws_and_changes_to_maxwell_slip(campaign, tmp_path):
     mean = float(np.mean([v.metrics["nrmse"] for v in res.validation]))
     assert step["nrmse"] == pytest.approx(mean, rel=0.02)
     assert "try `--model maxwell-slip`" in d["summary"]
+    # the step reads as a law change, one arrow between steps
+    assert "maxwell-slip law" in d["summary"] and "→ →" not in d["summary"], d["summary"]
 
 
 @pytest.mark.parametrize("law", ["maxwell-slip", "prandtl-ishlinskii"])

@@ -325,7 +325,7 @@ def _summary(
         names = ", then ".join(s["added"] or f"the {s['switched_law']} law" for s in ladder[1:])
         total = 100.0 * (1.0 - last["nrmse"] / base["nrmse"]) if base["nrmse"] > 0 else 0.0
         steps = " → ".join(
-            f"{'+' + s['added'] if s['added'] else '→ ' + s['switched_law']} {s['nrmse']:.4f}"
+            f"{'+' + s['added'] if s['added'] else s['switched_law'] + ' law'} {s['nrmse']:.4f}"
             for s in ladder[1:]
         )
         what = (
