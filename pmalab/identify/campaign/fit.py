@@ -432,8 +432,8 @@ def share_shape(
     laws interpolate nonsense between levels.  The reference is the run on which the most
     distinct elements slide (2·d < stroke; two within a factor 1.2 count once), and among
     those the lowest fit nrmse; the best three such runs (distinct shapes) are each held on
-    every run, in the law's canonical element order, and the one all runs fit best is kept.  The joint fit then refines them as constants in p.
-    Returns (results, the reference values, notes).  Nothing is done when the law has no
+    every run, in the law's canonical element order, and the one all runs fit best is kept.
+    The joint fit then refines them as constants in p.  Returns (results, the reference values, notes).  Nothing is done when the law has no
     shared shape, the user fixed it, or there is one run.
     """
     law = model.law
