@@ -3,7 +3,11 @@
 1. record the Bouc-Wen seed campaign on a simulated rig with a *hidden* effect
    (``data/rigs/sim-<effect>.toml``: the user is not told which);
 2. identify the base model per pressure level, fit the pressure quadratics, validate;
-3. diagnose: where the base model fails, which effect is missing, the ladder;
+3. diagnose: where the base model fails, which effect is missing, the ladder; when the
+   ranking is ambiguous (the seed campaign trains at one frequency, so a viscous force and
+   a sensor delay look alike), run the experiment diagnosis suggests on the rig (active
+   identification: ``diagnose --rig --run-suggested``), which appends its runs to the
+   campaign, and identify the base model again on the same runs;
 4. identify again with the effect diagnosis named and watch the validation error fall;
 5. render the PDF report.
 
@@ -15,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import shutil
 import time
 from pathlib import Path
@@ -49,6 +54,11 @@ DEMO_OUTPUTS = frozenset(
 )
 
 
+def _demo_output(name: str) -> bool:
+    """A file the demo writes (the active rounds' run files are campaign-roundN.h5)."""
+    return name in DEMO_OUTPUTS or re.fullmatch(r"campaign-round\d+\.h5", name) is not None
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo",
@@ -70,7 +80,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run_demo)
 
 
-def _step(n: int, title: str, argv: list[str]) -> None:
+def _step(n: int | str, title: str, argv: list[str]) -> None:
     from pmalab.cli import main
 
     print(f"\n[{n}/5] {title}\n      $ pmalab {' '.join(argv)}", flush=True)
@@ -114,6 +124,13 @@ def _neutral_rig(folder: Path, hidden: str) -> Path:
 def _verdict(hidden: str, found: list[str], diag: dict) -> str:
     """One honest sentence on what diagnosis concluded about the hidden effect."""
     ambiguous = diag.get("ambiguous") or []
+    rounds = diag.get("rounds") or []
+    if hidden in found and rounds:
+        rig_s = sum(float(r.get("rig_time_s") or 0.0) for r in rounds)
+        return (
+            f"found it, after {len(rounds)} experiment round(s) diagnosis designed and ran "
+            f"on the rig ({rig_s:.0f} s of rig time) to separate look-alikes"
+        )
     if hidden in found:
         return "found it"
     if hidden in ambiguous:
@@ -136,7 +153,7 @@ def run_demo(args: argparse.Namespace) -> int:
             raise OutputExistsError(f"{out}: already exists (use --force to replace it)")
         if not out.is_dir():
             raise OutputError(f"{out}: is not a directory (give a directory for --out)")
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in DEMO_OUTPUTS)
+        foreign = sorted(p.name for p in out.iterdir() if not _demo_output(p.name))
         if foreign:  # --force replaces a demo's output, never a directory of other work
             shown = ", ".join(foreign[:3]) + (
                 f" and {len(foreign) - 3} more" if len(foreign) > 3 else ""
@@ -181,6 +198,33 @@ def run_demo(args: argparse.Namespace) -> int:
         ["diagnose", str(campaign), "--model", args.model, "--out", str(diagnosis), *q],
     )
     diag = json.loads((diagnosis / "diagnosis.json").read_text())
+    if diag.get("ambiguous"):
+        _step(
+            "3b",
+            f"ambiguous ({', '.join(diag['ambiguous'])}): run the experiment diagnosis "
+            "suggests on the rig and diagnose again",
+            [
+                "diagnose",
+                str(campaign),
+                "--model",
+                args.model,
+                "--rig",
+                str(rig),
+                "--run-suggested",
+                "--yes",
+                "--out",
+                str(diagnosis),
+                "--force",
+                *q,
+            ],
+        )
+        diag = json.loads((diagnosis / "diagnosis.json").read_text())
+        _step(
+            "3c",
+            "identify the base model again on the campaign with the new runs (base and "
+            "improved then see the same runs)",
+            ["identify", str(campaign), "--model", args.model, "--out", str(base), "--force", *q],
+        )
     found = [s["added"] for s in diag.get("ladder", []) if s.get("added")]
     add: list[str] = []
     for e in found:

@@ -297,3 +297,24 @@ def test_shipped_identifications_read():
     assert shipped
     for p in shipped:
         assert read_identification(p)["runs"]
+
+
+def test_diagnosis_rounds_are_ladder_rounds_or_active_rounds(tmp_path):
+    """``rounds`` holds the ladder's ranking rounds, or after ``diagnose --run-suggested``
+    the active rounds: the reader takes either kind and names what an entry lacks."""
+    active = {"round": 1, "experiment": {"frequency_Hz": 4.0, "runs": []},
+              "expected_separation": {"min_x_floor": 3.0}, "protocol": "[protocol]\n",
+              "file": "c-round1.h5", "recorded_runs": ["r1"], "rig_time_s": 58.5,
+              "verdict": {"first": "viscous-friction"}}
+    ladder = {"step": 1, "ambiguous": [], "candidates": []}
+    for rounds in ([ladder], [active]):
+        p = tmp_path / "d.json"
+        p.write_text(json.dumps({"model": "bouc-wen", "ranking": [], "rounds": rounds}))
+        assert read_diagnosis(p)["rounds"] == rounds
+    broken = {k: v for k, v in active.items() if k != "file"}
+    p.write_text(json.dumps({"model": "bouc-wen", "ranking": [], "rounds": [broken]}))
+    # neither kind: the first kind's missing key is named (the reader cannot guess more)
+    _refused(read_diagnosis, p, "rounds[0].step: missing key")
+    p.write_text(json.dumps({"model": "bouc-wen", "ranking": [],
+                             "rounds": [{**active, "rig_time_s": "long"}]}))
+    _refused(read_diagnosis, p, 'rounds[0].rig_time_s: expected a number, got "long"')

@@ -433,6 +433,23 @@ class RoundEntry(TypedDict):
     candidates: NotRequired[list[dict[str, Any]]]
 
 
+class ActiveRoundEntry(TypedDict):
+    """One round of active identification (``diagnose --run-suggested``): the experiment
+    designed and run on the rig, the separation it was expected to show, the verdict after."""
+
+    round: int
+    experiment: dict[str, Any]
+    expected_separation: dict[str, Any]
+    #: the protocol file's text (TOML) that was run
+    protocol: str
+    #: the round's own run file
+    file: str
+    recorded_runs: list[str]
+    #: s of rig time the round took
+    rig_time_s: float
+    verdict: NotRequired[dict[str, Any]]
+
+
 class DiagnosisDoc(TypedDict):
     """``diagnosis.json``: the effect ranking, the ladder, the noise floor and the
     residual diagnostics of the held-out runs."""
@@ -446,7 +463,9 @@ class DiagnosisDoc(TypedDict):
     diagnostics: NotRequired[dict[str, RunDiagnostics]]
     #: ``pressure_level`` / ``frequency`` → binned residual
     campaign_diagnostics: NotRequired[dict[str, CampaignBin]]
-    rounds: NotRequired[list[RoundEntry]]
+    #: the ladder's ranking rounds; after ``diagnose --run-suggested`` the active rounds
+    #: (the ladder's then move to ``settings.ladder_rounds``)
+    rounds: NotRequired[list[RoundEntry | ActiveRoundEntry]]
     final_model: NotRequired[str]
     final_law: NotRequired[str]
     laws: NotRequired[list[LawEntry]]
@@ -606,7 +625,13 @@ def _check(v: Any, tp: Any, at: str, fail: _Fail) -> None:
     if not _matches(v, tp):
         raise fail(at, f"expected {_describe(tp)}, got {_show(v)}")
     if _is_union(tp):  # descend into the member that matched (None needs nothing more)
-        tp = next((a for a in get_args(tp) if a is not type(None) and _matches(v, a)), None)
+        members = [a for a in get_args(tp) if a is not type(None) and _matches(v, a)]
+        # of several objects, the one whose required keys the value has (else the first:
+        # its missing key is then named)
+        tp = next(
+            (a for a in members if is_typeddict(a) and _fields(a)[1] <= set(v)),
+            members[0] if members else None,
+        )
         if tp is None:
             return
     origin, args = get_origin(tp), get_args(tp)

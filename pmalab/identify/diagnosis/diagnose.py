@@ -33,7 +33,7 @@ from pmalab.identify.diagnosis.diagnostics import (
     run_diagnostics,
 )
 from pmalab.identify.diagnosis.heldout import choose
-from pmalab.identify.diagnosis.ladder import LadderStep, Round, run_ladder
+from pmalab.identify.diagnosis.ladder import LadderStep, Round, one_frequency, run_ladder
 from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
 from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
@@ -302,6 +302,7 @@ def _summary(
     run_floors: Sequence[float] = (),
     laws: Sequence[dict] = (),
     rest: dict | None = None,
+    single_frequency: float | None = None,
 ) -> tuple[str, str]:
     """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
     identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
@@ -373,7 +374,17 @@ def _summary(
         )
         if rest and rest.get("text"):
             parts.append(rest["text"])
-    if ambiguous:
+    if (
+        ambiguous
+        and single_frequency is not None
+        and all(getattr(EFFECTS.get(e), "rate_dependent", False) for e in ambiguous)
+    ):
+        parts.append(
+            f"Ambiguous: {', '.join(ambiguous)} all grow with the rate of motion, and every "
+            f"identification run is at {single_frequency:g} Hz — one frequency cannot tell "
+            f"them apart (nor from the loop's width); to separate them, {suggestion}."
+        )
+    elif ambiguous:
         parts.append(
             f"Ambiguous: {', '.join(ambiguous)} explain the residual about equally; "
             f"to separate them, {suggestion}."
@@ -517,6 +528,7 @@ def diagnose(
         [floors[r.label] for r in split.held],
         laws_json,
         rest,
+        single_frequency=one_frequency(split.train),
     )
     campaign = campaign_diagnostics(camp_items)
     rounds_json = [

@@ -65,6 +65,16 @@ class Round:
     laws: list[Candidate] = field(default_factory=list)
 
 
+def one_frequency(train: Sequence[Run]) -> float | None:
+    """The one excitation frequency (Hz) all identification runs share, else None (several,
+    or one run's frequency unknown: not known to be one)."""
+    freqs = [r.frequency for r in train]
+    if not freqs or any(f is None for f in freqs):
+        return None
+    distinct = {round(float(f), 6) for f in freqs if f is not None}
+    return distinct.pop() if len(distinct) == 1 else None
+
+
 def run_ladder(
     train: Sequence[Run],
     held: Sequence[Run],
@@ -87,6 +97,9 @@ def run_ladder(
 
     files = tuple(str(f) for f in effects_files)
     floors = [noise_floor_nrmse(r.force, r.time) for r in held]
+    # one excitation frequency in the identification runs: rate-dependent effects are then
+    # not identifiable apart (ranking.judge)
+    single = one_frequency(train) is not None
     base = score(train, held, ModelSpec(law, (), files))
     steps = [LadderStep(0, [], None, base, law)]
     rounds: list[Round] = []
@@ -110,7 +123,10 @@ def run_ladder(
             scheduler=scheduler,
         )
         prev = steps[-1].scored
-        cands, amb = judge([Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)])
+        cands, amb = judge(
+            [Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)],
+            single_frequency=single,
+        )
         law_cands, _ = judge(
             [Candidate(lw, prev, o, floors=floors) for lw, o in zip(others, outs[len(remaining) :])]
         )

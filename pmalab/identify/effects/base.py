@@ -70,6 +70,11 @@ class Effect:
     #: the experiment that would tell this effect apart from look-alikes (diagnosis shows it
     #: when the ranking is ambiguous)
     experiment: ClassVar[str] = ""
+    #: True when the effect's force grows with the rate of motion (velocity, acceleration,
+    #: a time shift): identification runs all at ONE frequency cannot tell such effects
+    #: from each other (nor from the loop's width), so diagnosis calls two of them that are
+    #: both significant ambiguous there, whatever their falls
+    rate_dependent: ClassVar[bool] = False
 
     #: parameters of this effect that belong to one record (one value per run in the joint
     #: pressure-law fit; 0 when another run is predicted) — see the module docstring
