@@ -15,7 +15,7 @@ def test_demo_finds_the_hidden_effect_and_writes_the_report(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "diagnosis: found it" in text
+    assert "diagnosis: found it\n" in text  # at once: no experiment round needed
     diag = json.loads((out / "diagnose" / "diagnosis.json").read_text())
     assert diag["ranking"][0]["effect"] == "asymmetric-hysteresis"
     assert diag["ranking"][0]["significant"] is True
@@ -46,3 +46,16 @@ def test_force_never_deletes_a_directory_of_other_work(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "holds files the demo did not write (thesis.tex)" in err
     assert (out / "thesis.tex").read_text() == "months of work\n"
+
+
+def test_verdict_names_active_rounds_only_when_diagnosis_ran_them():
+    from pmalab.demo import _verdict
+
+    ladder_rounds = {"rounds": [{"step": 1, "ambiguous": []}], "ambiguous": []}
+    assert _verdict("inertia", ["inertia"], ladder_rounds) == "found it"
+    active = {"rounds": [{"round": 1, "rig_time_s": 58.4}], "ambiguous": [],
+              "settings": {"active": {"stop_reason": "unambiguous"}}}
+    v = _verdict("viscous-friction", ["viscous-friction"], active)
+    assert v.startswith("found it, after 1 experiment round(s)") and "(58 s of rig time)" in v
+    assert _verdict("viscous-friction", ["sensor-delay"], {"ambiguous": []}).startswith(
+        "did NOT find it")
