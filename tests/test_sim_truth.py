@@ -45,11 +45,14 @@ def test_hidden_truth_files_enable_their_effect(eid):
     assert rig.info["enabled_effects"] == t.enabled_effects()
 
 
-@pytest.mark.parametrize("name", [*EFFECT_SECTIONS, "sensor-drift-carried", "two-effects", "clean"])
+@pytest.mark.parametrize("name", [*EFFECT_SECTIONS, "sensor-drift-carried", "two-effects",
+                                  "three-modest-effects", "clean"])
 def test_subtle_truth_files(name):
     """data/truth/subtle/: the realistic load-cell noise everywhere, one effect each."""
     t = load_truth(TRUTH_DIR / "subtle" / f"{name}.toml")
     expected = {"two-effects": ["viscous-friction", "asymmetric-hysteresis"], "clean": [],
+                "three-modest-effects": ["asymmetric-hysteresis", "nonlinear-stiffness",
+                                         "sensor-delay"],
                 "sensor-drift-carried": ["sensor-drift"]}.get(name, [name])
     assert t.enabled_effects() == expected
     assert t.sensors["force_noise_N"] == 4.0
