@@ -10,8 +10,10 @@ data/protocols/diagnosis-test.toml:
   ranking the fall the user gets.
 
 Clean data claims nothing; two hidden effects are both added and the ladder ends near the
-noise floor; a loop the base law cannot shape (the simulator's braid friction under
-near-noiseless sensors) is reported as an unexplained residual, with its size.
+noise floor; of three modest ones (each alone ≈ 1 floor) the ladder adds hidden ones only,
+every step lowering every held-out run's error, and ends ≥ 20 % below the base; a loop the
+base law cannot shape (the simulator's braid friction under near-noiseless sensors) is
+reported as an unexplained residual, with its size.
 """
 
 from __future__ import annotations
@@ -102,6 +104,41 @@ def test_two_hidden_effects_are_both_added_and_reach_the_floor(tmp_path):
     assert set(added[:2]) == {"viscous-friction", "asymmetric-hysteresis"}, d.ladder_table()
     assert d.ladder[-1]["nrmse"] <= 1.2 * d.noise_floor["mean_nrmse"], d.summary
 
+
+
+THREE_MODEST = ("asymmetric-hysteresis", "nonlinear-stiffness", "sensor-delay")
+
+
+@pytest.mark.slow
+def test_three_modest_effects_the_ladder_adds_them_and_ends_20_percent_lower(tmp_path):
+    """Three effects at once, each alone worth ≈ 1 noise floor (data/truth/subtle/
+    three-modest-effects.toml, sized on seed 5): every catalogue effect and law is a
+    candidate, up to 4 steps.
+
+    Rules (the issue's): at least two of the three hidden effects are added; every step
+    lowers the mean validation nrmse and the nrmse of every held-out run; the ladder ends
+    ≥ 20 % below the base model; nothing is added that the truth does not contain (a law
+    switch — maxwell-slip, prandtl-ishlinskii — is allowed: the simulator's braid friction
+    is Maxwell-slip-shaped).  The base model must sit 3–7× above the noise floor.
+
+    Measured (seed 7, floor 0.0196): base 0.0938 (4.8×), +sensor-delay 0.0748,
+    +nonlinear-stiffness 0.0359, +asymmetric-hysteresis 0.0269 (1.37×, −71 %); nothing
+    else significant at step 4.  Other seeds gave the same three (5, 11, 13: −70 to −71 %,
+    asymmetric-hysteresis first there); the closest non-hidden candidate is viscous-friction
+    (a delay look-alike), 0.85 floors against sensor-delay's 0.97 at step 1.
+    """
+    runs, val = _record(TRUTH_DIR / "subtle" / "three-modest-effects.toml", tmp_path)
+    d = diagnose(runs, "bouc-wen", validate=val, jobs=2, max_steps=4)
+    why = f"{d.ladder_table()}\n{d.summary}"
+    base = d.ladder[0]
+    assert 3.0 < base["nrmse"] / d.noise_floor["mean_nrmse"] < 7.0, why
+    added = [s["added"] for s in d.ladder[1:] if s["added"]]
+    assert set(added) <= set(THREE_MODEST), why  # law switches have added None
+    assert len(set(added)) >= 2, why
+    for prev, step in zip(d.ladder, d.ladder[1:]):
+        assert step["nrmse"] < prev["nrmse"], why
+        assert all(a < b for a, b in zip(step["per_run"], prev["per_run"], strict=True)), why
+    assert d.ladder[-1]["nrmse"] <= 0.8 * base["nrmse"], why
 
 @pytest.mark.slow
 def test_a_loop_the_law_cannot_shape_is_an_unexplained_residual(tmp_path):
