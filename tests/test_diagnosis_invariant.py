@@ -112,8 +112,11 @@ THREE_MODEST = ("asymmetric-hysteresis", "nonlinear-stiffness", "sensor-delay")
 @pytest.mark.slow
 def test_three_modest_effects_the_ladder_adds_them_and_ends_20_percent_lower(tmp_path):
     """Three effects at once, each alone worth ≈ 1 noise floor (data/truth/subtle/
-    three-modest-effects.toml, sized on seed 5): every catalogue effect and law is a
-    candidate, up to 4 steps.
+    three-modest-effects.toml, sized on seed 5): the three hidden effects, their closest
+    look-alikes (viscous friction for a delay; sensor drift and pressure variation, which
+    absorb slow offsets) and the law the simulator's friction has (maxwell-slip) are the
+    candidates, up to 3 steps (every effect and law as candidates, 4 steps: the same ladder in
+    116 s; this subset keeps the suite's budget).
 
     Rules (the issue's): at least two of the three hidden effects are added; every step
     lowers the mean validation nrmse and the nrmse of every held-out run; the ladder ends
@@ -128,7 +131,9 @@ def test_three_modest_effects_the_ladder_adds_them_and_ends_20_percent_lower(tmp
     (a delay look-alike), 0.85 floors against sensor-delay's 0.97 at step 1.
     """
     runs, val = _record(TRUTH_DIR / "subtle" / "three-modest-effects.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, jobs=2, max_steps=4)
+    d = diagnose(runs, "bouc-wen", validate=val, jobs=2, max_steps=3,
+                 effects=[*THREE_MODEST, "viscous-friction", "sensor-drift",
+                          "pressure-variation"], laws=["maxwell-slip"])
     why = f"{d.ladder_table()}\n{d.summary}"
     base = d.ladder[0]
     assert 3.0 < base["nrmse"] / d.noise_floor["mean_nrmse"] < 7.0, why
@@ -139,6 +144,7 @@ def test_three_modest_effects_the_ladder_adds_them_and_ends_20_percent_lower(tmp
         assert step["nrmse"] < prev["nrmse"], why
         assert all(a < b for a, b in zip(step["per_run"], prev["per_run"], strict=True)), why
     assert d.ladder[-1]["nrmse"] <= 0.8 * base["nrmse"], why
+
 
 @pytest.mark.slow
 def test_a_loop_the_law_cannot_shape_is_an_unexplained_residual(tmp_path):

@@ -463,24 +463,44 @@ def share_shape(
         if len(cands) == SHAPE_CANDIDATES:
             break
     # each candidate held on every run; the one the runs fit best (mean nrmse²) is kept —
-    # scored by the same per-run fit identify reports
+    # scored by the same per-run fit identify reports.  The shape is the law's: with
+    # effects in the model the candidates are scored by the law alone (an effect's
+    # multi-start fits made each pass of a model with a delay cost ~4 s), and the model
+    # with its effects is fitted once, with the chosen shape
+    scorer = ForceModel(law) if model.effects else model
+    base_names = {*(lp.name for lp in law.params), "k", "c0"}
+    user = dict(kwargs.get("fixed") or {})
     best: tuple[float, int, dict[str, float], list[FitResult]] | None = None
     for i, shape in cands:
         again = fit_runs(
             runs,
-            model,
+            scorer,
             jobs=jobs,
             scheduler=scheduler,
             progress=progress,
-            fixed={**(kwargs.get("fixed") or {}), **shape},
-            init=kwargs.get("init"),
-            free=kwargs.get("free", ()),
+            fixed={
+                **{k: v for k, v in user.items() if scorer is model or k in base_names},
+                **shape,
+            },
+            init=kwargs.get("init") if scorer is model else None,
+            free=[n for n in kwargs.get("free", ()) if scorer is model or n in base_names],
         )
         score = float(np.mean([r.nrmse**2 for r in again]))
         if best is None or score < best[0]:
             best = (score, i, shape, again)
     assert best is not None
     _, ref_i, ref, again = best
+    if scorer is not model:
+        again = fit_runs(
+            runs,
+            model,
+            jobs=jobs,
+            scheduler=scheduler,
+            progress=progress,
+            fixed={**user, **ref},
+            init=kwargs.get("init"),
+            free=kwargs.get("free", ()),
+        )
     rise = max(b.nrmse / max(a.nrmse, 1e-300) - 1.0 for a, b in zip(results, again))
     values = ", ".join(f"{n} {v:.3g}" for n, v in ref.items())
     label = getattr(runs[ref_i], "label", str(ref_i))

@@ -7,16 +7,18 @@ and held-out runs as the current model — the way SysIdentPy's term selection s
 with the estimator it fits with.  The numbers in the ranking are therefore the numbers the
 user gets from ``pmalab identify --add EFFECT --validate ...``.
 
-Significance follows from that fall and its uncertainty.  fall = 1 − mean(nrmse_after) /
-mean(nrmse_before) over the held-out runs; its spread comes from the per-run ratios
-ρ_i = after_i / before_i (standard error σ_ρ/√n).  An effect is *significant* when it cuts
-the held-out error by at least ``MIN_FALL`` = 30 % and that fall is not one run's luck:
-the error falls on every held-out run, or the fall stays above ``MIN_CLEAR_FALL`` = 10 %
-by two standard errors.  (With two or three held-out runs a standard error from their
-spread is itself very uncertain — a drift that is large in one run and small in the other
-gives falls of 90 % and 40 %, both real — so "falls on every run" is the test there.)  Two significant effects are *ambiguous* when
-the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall and the winner's
-held-out errors are not clearly lower, run by run (:func:`clearly_better`).
+Significance is decided in the units of the held-out evidence itself (docs/explanation/
+significance.md): an effect is *significant* when the held-out error falls on every
+held-out run, by at least ``MIN_GAIN_X_FLOOR`` = 0.25 noise floors on average (absolute
+nrmse over the runs' own noise floor, not a percentage: a real device sits 10–20× above
+its floor, and a modest real effect cuts a small share of that), and — where the runs hold
+at least ``MIN_BLOCKS`` whole cycles — block by block beyond ``MIN_BLOCK_T`` standard
+errors.  fall = 1 − mean(nrmse_after) / mean(nrmse_before) is what the user reads; its
+standard error comes from the per-run ratios.  Two significant effects are *ambiguous*
+when the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall and the
+winner's held-out errors are not clearly lower, run by run (:func:`clearly_better`), or
+when the identification runs share one frequency and both grow with the rate of motion
+(:func:`judge`).
 """
 
 from __future__ import annotations
