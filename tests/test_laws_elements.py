@@ -38,14 +38,7 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    work = tmp_path_factory.mktemp("ms")
-    rig = work / "rig.toml"
-    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{TRUTH}"\nseed = 7\n')
-    out = work / "ms.h5"
-    rc, text = _cli(["run", "--rig", str(rig), "--protocol", str(PROTOCOL), "--out", str(out),
-                     "-q"])
-    assert rc == 0, text
-    return out
+    return _campaign(tmp_path_factory.mktemp("ms"), TRUTH, 7)
 
 
 def test_element_laws_fit_each_run_closer_than_bouc_wen(campaign):

@@ -37,6 +37,7 @@ from typing import Any, cast
 from pmalab.active.design import MIN_SEPARATION, Experiment, design, experiment_toml
 from pmalab.errors import PmalabError
 from pmalab.identify.diagnosis import diagnose
+from pmalab.identify.schema import ActiveRoundEntry
 from pmalab.runfile import read_runs
 
 #: rounds at most (each is one recorded experiment)
@@ -73,7 +74,8 @@ class ActiveRound:
     rig_time_s: float
     verdict: dict[str, Any] = field(default_factory=dict)
 
-    def as_json(self) -> dict[str, Any]:
+    def as_json(self) -> ActiveRoundEntry:
+        """The diagnosis.json entry (its one declaration: the schema's ActiveRoundEntry)."""
         return {
             "round": self.round,
             "experiment": self.experiment,
