@@ -25,6 +25,8 @@ from pmalab.reports.figures_signals import ERROR_PERCENTILE, TIME_MAX_POINTS, er
 
 #: laws drawn side by side on one loops page
 LAWS_PER_PAGE = 4
+#: bars labelled with their value at most (4 laws × 6 runs)
+MAX_BAR_LABELS = 24
 
 
 def law_colour(i: int) -> str:
@@ -117,13 +119,18 @@ def laws_figure(
         top = max([top, *(v for v in vals if math.isfinite(v))])
         xi = xs + (i - (len(entries) - 1) / 2) * w
         ax.bar(xi, vals, w, color=law_colour(i), label=e.law)
-        for x, v in zip(xi, vals):
-            if math.isfinite(v):
-                ax.text(x, v, f"{v:.2f}", ha="center", va="bottom", fontsize=8)
+        if len(entries) * len(runs) <= MAX_BAR_LABELS:  # more would crowd into each other
+            for x, v in zip(xi, vals):
+                if math.isfinite(v):
+                    ax.text(x, v, f"{v:.2f}", ha="center", va="bottom", fontsize=8)
     if scaled:
         ax.axhline(1.0, color="0.2", ls="--", lw=1.0, label="noise floor")
-    ax.set_xticks(xs, [f"{run}\n({file})" for file, run in runs])
-    ax.set_ylim(0.0, max(top, 1.0) * 1.18)
+    if len(runs) <= 6:
+        ax.set_xticks(xs, [f"{run}\n({file})" for file, run in runs])
+    else:  # slanted, so that long run names do not run into each other
+        ax.set_xticks(xs, [run for _, run in runs], rotation=30, ha="right", rotation_mode="anchor")
+    # headroom for the value labels and the legend above the tallest bars
+    ax.set_ylim(0.0, max(top, 1.0) * 1.35)
     ax.set_ylabel("held-out nrmse (× the run's noise floor)" if scaled else "held-out nrmse")
     ax.set_title("Every held-out run, every law, one scale")
     ax.legend(loc="upper left", ncols=min(len(entries) + 1, 5), fontsize=8.5)
