@@ -124,8 +124,10 @@ def _neutral_rig(folder: Path, hidden: str) -> Path:
 def _verdict(hidden: str, found: list[str], diag: dict) -> str:
     """One honest sentence on what diagnosis concluded about the hidden effect."""
     ambiguous = diag.get("ambiguous") or []
+    from pmalab.reports.figures_active import has_active_rounds
+
     # active rounds (diagnose --run-suggested); otherwise "rounds" are the ladder's
-    rounds = (diag.get("rounds") or []) if (diag.get("settings") or {}).get("active") else []
+    rounds = (diag.get("rounds") or []) if has_active_rounds(diag) else []
     if hidden in found and rounds:
         rig_s = sum(float(r.get("rig_time_s") or 0.0) for r in rounds)
         return (

@@ -14,6 +14,19 @@ from pmalab.console import VERBOSE, add_verbosity, note, show_progress, verbosit
 from pmalab.errors import PmalabError
 
 
+def _add_parallel(p: argparse.ArgumentParser, what: str, more: str = "") -> None:
+    """``--jobs N`` (worker processes) and ``--scheduler ADDRESS`` (a Dask cluster)."""
+    p.add_argument(
+        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
+    )
+    p.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS",
+        help=f"run {what} on a Dask distributed scheduler (tcp://host:port){more}",
+    )
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this area's verbs to the ``pmalab`` parser."""
     _register_identify(sub)
@@ -74,15 +87,7 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output directory")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.add_argument(
-        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
-    )
-    p.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run the fits on a Dask distributed scheduler (tcp://host:port)",
-    )
+    _add_parallel(p, "the fits")
     p.add_argument(
         "--fix",
         action="append",
@@ -315,16 +320,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         metavar="A,B|none",
         help="other hysteresis laws scored like effects (default: every law; 'none' scores none)",
     )
-    p.add_argument(
-        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
-    )
-    p.add_argument(
-        "--scheduler",
-        default=None,
-        metavar="ADDRESS",
-        help="run the candidates' identifications on a Dask distributed scheduler "
-        "(tcp://host:port); the same numbers as locally",
-    )
+    _add_parallel(p, "the candidates' identifications", "; the same numbers as locally")
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )

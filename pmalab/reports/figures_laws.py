@@ -155,6 +155,8 @@ def laws_loops_figure(
     for e in entries:
         t = next((t for t in e.validation() if run_key(t) == key), None)
         traces.append(t)
+    # the measured force is the same in every law's trace: its noise floor once
+    fl = next((run_floor(t) for t in traces if t is not None), None)
     errs = np.concatenate([np.abs(t.error) for t in traces if t is not None] or [np.zeros(1)])
     top = float(np.percentile(errs, ERROR_PERCENTILE)) if errs.size else 1.0
     norm = Normalize(vmin=0.0, vmax=max(top, 1e-12))
@@ -170,7 +172,6 @@ def laws_loops_figure(
             ax_l.set_title(f"{e.law}: run not predicted", fontsize=9)
             continue
         lc = error_loop(ax_l, t.position, t.force, t.force_model, norm=norm)
-        fl = run_floor(t)
         x_floor = f", {t.nrmse / fl:.2f}× floor" if fl else ""
         ax_l.set_title(f"{e.law}\nnrmse {t.nrmse:.4f}{x_floor}", fontsize=9.5)
         if j:

@@ -469,38 +469,35 @@ def share_shape(
     # with its effects is fitted once, with the chosen shape
     scorer = ForceModel(law) if model.effects else model
     base_names = {*(lp.name for lp in law.params), "k", "c0"}
-    user = dict(kwargs.get("fixed") or {})
-    best: tuple[float, int, dict[str, float], list[FitResult]] | None = None
-    for i, shape in cands:
-        again = fit_runs(
+
+    def refit(m: ForceModel, shape: dict[str, float]) -> list[FitResult]:
+        """Every run fitted by ``m`` with ``shape`` held (the user's fixes, start values
+        and frees that ``m`` has)."""
+        own = m is model
+        return fit_runs(
             runs,
-            scorer,
+            m,
             jobs=jobs,
             scheduler=scheduler,
             progress=progress,
             fixed={
-                **{k: v for k, v in user.items() if scorer is model or k in base_names},
+                **{k: v for k, v in (kwargs.get("fixed") or {}).items() if own or k in base_names},
                 **shape,
             },
-            init=kwargs.get("init") if scorer is model else None,
-            free=[n for n in kwargs.get("free", ()) if scorer is model or n in base_names],
+            init=kwargs.get("init") if own else None,
+            free=[n for n in kwargs.get("free", ()) if own or n in base_names],
         )
+
+    best: tuple[float, int, dict[str, float], list[FitResult]] | None = None
+    for i, shape in cands:
+        again = refit(scorer, shape)
         score = float(np.mean([r.nrmse**2 for r in again]))
         if best is None or score < best[0]:
             best = (score, i, shape, again)
     assert best is not None
     _, ref_i, ref, again = best
     if scorer is not model:
-        again = fit_runs(
-            runs,
-            model,
-            jobs=jobs,
-            scheduler=scheduler,
-            progress=progress,
-            fixed={**user, **ref},
-            init=kwargs.get("init"),
-            free=kwargs.get("free", ()),
-        )
+        again = refit(model, ref)
     rise = max(b.nrmse / max(a.nrmse, 1e-300) - 1.0 for a, b in zip(results, again))
     values = ", ".join(f"{n} {v:.3g}" for n, v in ref.items())
     label = getattr(runs[ref_i], "label", str(ref_i))

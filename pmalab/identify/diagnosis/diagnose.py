@@ -34,7 +34,7 @@ from pmalab.identify.diagnosis.diagnostics import (
 )
 from pmalab.identify.diagnosis.heldout import choose
 from pmalab.identify.diagnosis.ladder import LadderStep, Round, one_frequency, run_ladder
-from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
+from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR, rate_dependent
 from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
 from pmalab.identify.noise import noise_floor_nrmse
@@ -374,11 +374,7 @@ def _summary(
         )
         if rest and rest.get("text"):
             parts.append(rest["text"])
-    if (
-        ambiguous
-        and single_frequency is not None
-        and all(getattr(EFFECTS.get(e), "rate_dependent", False) for e in ambiguous)
-    ):
+    if ambiguous and single_frequency is not None and all(rate_dependent(e) for e in ambiguous):
         parts.append(
             f"Ambiguous: {', '.join(ambiguous)} all grow with the rate of motion, and every "
             f"identification run is at {single_frequency:g} Hz — one frequency cannot tell "

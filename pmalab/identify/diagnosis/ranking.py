@@ -273,15 +273,17 @@ def judge(
             c
             for c in sig[1:]
             if (c.fall >= AMBIGUITY_RATIO * sig[0].fall and not clearly_better(sig[0], c))
-            or (single_frequency and _rate_dependent(sig[0]) and _rate_dependent(c))
+            or (single_frequency and rate_dependent(sig[0].effect) and rate_dependent(c.effect))
         ]
         if close:
             amb = [sig[0].effect, *(c.effect for c in close)]
     return cands, amb
 
 
-def _rate_dependent(c: Candidate) -> bool:
-    cls = EFFECTS.get(c.effect)
+def rate_dependent(effect: str) -> bool:
+    """Whether the catalogue effect's force grows with the rate of motion
+    (``Effect.rate_dependent``; False for a law or an unknown id)."""
+    cls = EFFECTS.get(effect)
     return bool(cls is not None and cls.rate_dependent)
 
 
