@@ -45,7 +45,7 @@ from pmalab.control.controllers import CascadeSettings
 from pmalab.control.model import IdentifiedModel
 from pmalab.control.reference import Reference
 from pmalab.errors import PmalabError
-from pmalab.rig.base import VentResult, vent_phrase
+from pmalab.rig.base import VentResult, sampled, vent_phrase
 from pmalab.rig.manipulator import ManipulatorRig
 
 #: recorded signals → units (the run file's channels and the ``gains/`` datasets)
@@ -184,7 +184,7 @@ def run_control(
     gains = {k: np.full(n, np.nan) for k in GAINS}
     late = np.zeros(n)
     written = [0]
-    monitor = SafetyMonitor(rig.limits)
+    monitor = SafetyMonitor(rig.limits, channels=[rig.channels[n] for n in sampled(rig.channels)])
     sampler = rig.sampler
     regulator = rig.muscle_regulator
     status = "completed"
@@ -210,7 +210,8 @@ def run_control(
     gk = [gains[g] for g in GAINS]
     stats: Stats = sink.stats if sink is not None else LoopStats()
 
-    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float, lk: float) -> float:
+    def step(k: int, tr: float, v: tuple[float, ...], lk: float) -> float:
+        x, f, p = v[0], v[1], v[2]  # the manipulator's sampled channels: position, force, p
         r, r_d, r_dd = reference.value(tr)
         out = cascade.position_step(r, r_d, r_dd, x, p) if is_pos else cascade.pressure_step(r, p)
         u = out.command
@@ -222,15 +223,15 @@ def run_control(
         if is_pos:
             s_xr[i] = r
             s_sp[i] = out.setpoint
-        for arr, v in zip(gk, cascade.gains()):
-            arr[i] = v
+        for arr, g in zip(gk, cascade.gains()):
+            arr[i] = g
         late[i] = lk
         done[0] = i + 1
         if progress is not None and k % every == 0:
             progress(tr)
         return u
 
-    def on_trip(reason: str, *_sample: float) -> None:
+    def on_trip(reason: str, *_sample: object) -> None:
         nonlocal vent
         vent = rig.vent()  # in this sample period
 
@@ -265,6 +266,7 @@ def run_control(
                 stats=stats,
                 late_threshold_s=LATE_THRESHOLD_S,
                 after_block=after_block,
+                channels=sampled(rig.channels),
             )
     except Trip as exc:
         status = f"aborted: {exc}"
