@@ -7,7 +7,12 @@ This module is the one contract between acquisition and identification (docs/ref
   ``waveform``, ``frequency_Hz``, ``sample_rate_Hz``, ``protocol`` (JSON text), more welcome;
 * 1-D datasets of equal length with a ``units`` attr: ``time``, ``position``, ``force``,
   ``muscle_pressure`` (required) and ``cylinder_pressure``, ``cylinder_pressure_command``
-  (recorded runs; imported data may lack them).
+  (recorded runs; imported data may lack them), ``branch`` (units ``1``: a test stand's
+  state code, 1 = pressurising, 2 = venting; imported when the source has one);
+* run attr ``test_type`` (:data:`TEST_TYPES`): which quantities the test held —
+  ``isobaric`` (pressure held, length cycled: the default of files without the attr),
+  ``isometric`` (length held, ``held_position_mm``, pressure ramped), ``isotonic`` (load
+  held, ``load_N``, pressure cycled, length measured) or ``free`` (both inputs vary).
 
 :func:`read_runs` converts every channel to the canonical units (s, mm, N, MPa) and turns
 every malformed input into one :class:`~pmalab.errors.RunFileError` line naming the file,
@@ -34,7 +39,11 @@ FORMAT = "pmalab.run"
 FORMAT_VERSION = 1
 
 REQUIRED_CHANNELS = ("time", "position", "force", "muscle_pressure")
-OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command")
+OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command", "branch")
+#: what a test holds constant: the pressure (isobaric), the length (isometric), the load
+#: (isotonic) or nothing (free); a run without the attr is isobaric (format 1's only kind)
+TEST_TYPES = ("isobaric", "isometric", "isotonic", "free")
+DEFAULT_TEST_TYPE = "isobaric"
 CANONICAL_UNITS = {
     "time": "s",
     "position": "mm",
@@ -42,6 +51,7 @@ CANONICAL_UNITS = {
     "muscle_pressure": "MPa",
     "cylinder_pressure": "MPa",
     "cylinder_pressure_command": "MPa",
+    "branch": "1",
 }
 
 #: factor that converts a value in the given unit to the canonical unit of its quantity
@@ -56,6 +66,7 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "muscle_pressure": _PRESSURE,
     "cylinder_pressure": _PRESSURE,
     "cylinder_pressure_command": _PRESSURE,
+    "branch": {"1": 1.0},
 }
 #: other spellings of a unit (after brackets are stripped and µ/μ folded to "u")
 _UNIT_ALIASES = {"sec": "s", "msec": "ms", "micron": "um", "microns": "um"}
@@ -136,6 +147,8 @@ class Run:
     muscle_pressure: np.ndarray
     cylinder_pressure: np.ndarray | None = None
     cylinder_pressure_command: np.ndarray | None = None
+    #: a test stand's state code per sample (1 = pressurising, 2 = venting), when recorded
+    branch: np.ndarray | None = None
     attrs: dict[str, Any] = field(default_factory=dict)
     #: the file the run was read from ("" for in-memory runs)
     file: str = ""
@@ -152,6 +165,13 @@ class Run:
         """``completed``, ``aborted``, ``interrupted`` (writer killed) or ``not run``
         (see :func:`run_state`)."""
         return run_state(self.attrs.get("status"))
+
+    @property
+    def test_type(self) -> str:
+        """``isobaric``, ``isometric``, ``isotonic`` or ``free`` (attr ``test_type``; a run
+        without it is isobaric)."""
+        v = self.attrs.get("test_type")
+        return str(v) if v in TEST_TYPES else DEFAULT_TEST_TYPE
 
     @property
     def frequency(self) -> float | None:
@@ -187,7 +207,7 @@ class Run:
         """A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (s)."""
         rel = self.time - self.time[0]
         keep = (rel >= t_start) & (rel <= t_end)
-        cp, cpc = self.cylinder_pressure, self.cylinder_pressure_command
+        cp, cpc, br = self.cylinder_pressure, self.cylinder_pressure_command, self.branch
         attrs = dict(self.attrs, window_s=[float(t_start), float(t_end)])
         return Run(
             name=self.name,
@@ -199,6 +219,7 @@ class Run:
             muscle_pressure=self.muscle_pressure[keep],
             cylinder_pressure=None if cp is None else cp[keep],
             cylinder_pressure_command=None if cpc is None else cpc[keep],
+            branch=None if br is None else br[keep],
         )
 
     def steady(self) -> Run:
@@ -438,6 +459,11 @@ def read_runs(
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
             attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             attrs.update(extra)
+            tt = attrs.get("test_type")
+            if tt is not None and tt not in TEST_TYPES:
+                raise _fail(
+                    path, name, None, f"unknown test_type {tt!r} (one of {', '.join(TEST_TYPES)})"
+                )
             status = attrs.get("status")
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
