@@ -29,11 +29,14 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pmalab.errors import RunFileError, RunFileWarning
+
+if TYPE_CHECKING:  # the windowed reader sits above this module
+    from pmalab.runwindows import LongRuns
 
 FORMAT = "pmalab.run"
 FORMAT_VERSION = 1
@@ -381,7 +384,11 @@ def recover_hint(path: Path | str) -> str:
 
 
 def read_runs(
-    path: str | Path, runs: Iterable[str] | None = None, *, skip_incomplete: bool = False
+    path: str | Path,
+    runs: Iterable[str] | None = None,
+    *,
+    skip_incomplete: bool = False,
+    long_runs: LongRuns | None = None,
 ) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
@@ -397,6 +404,10 @@ def read_runs(
     (:func:`run_state`) are left out with one :class:`~pmalab.errors.RunFileWarning` each
     — a killed 0.8 s settle fragment is not an isobaric test — unless named in ``runs``;
     a file left with no complete run is an error.
+
+    ``long_runs``: a run of at least ``long_runs.min_samples`` samples is not read whole;
+    it goes, still on disk, to ``long_runs.read`` (:mod:`pmalab.runwindows`), which reads it
+    a window at a time and returns the run to use (e.g. identification's decimation).
     """
     import h5py
 
@@ -436,11 +447,15 @@ def read_runs(
             if not isinstance(g, h5py.Group):
                 raise _fail(path, name, None, "not a group")
             raw = {}
+            lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 if ch in g:
                     ds = g[ch]
                     if not isinstance(ds, h5py.Dataset):
                         raise _fail(path, name, ch, "not a dataset")
+                    if lazy:  # read later, a window at a time
+                        raw[ch] = (ds, decode_attr(ds.attrs.get("units")))
+                        continue
                     try:
                         values = ds[()]
                     except OSError as exc:
@@ -455,7 +470,7 @@ def read_runs(
                 if n < 2 and runs is None:
                     never.append(name)
                     continue
-                if extra.get("status") == "running":
+                if extra.get("status") == "running" and not lazy:
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
             attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             attrs.update(extra)
@@ -468,13 +483,27 @@ def read_runs(
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
                 continue
-            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
                         attrs[key] = json.loads(attrs[key])
                     except json.JSONDecodeError:
                         pass
+            if lazy:
+                assert long_runs is not None
+                for ch in REQUIRED_CHANNELS:
+                    if ch not in raw:
+                        raise _fail(path, name, ch, "missing channel")
+                n = min(len(v) for v, _ in raw.values())
+                if n < 2:
+                    raise _fail(path, name, "time", f"too few samples ({n})")
+                run = long_runs.take(
+                    path, name, g, n, attrs, exempt_last=run_state(status) != "completed"
+                )
+                _check_window(path, name, run.attrs, run.time)
+                out.append(run)
+                continue
+            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
@@ -520,6 +549,13 @@ def read_runs(
             stacklevel=2,
         )
     return out
+
+
+def _run_length(g: Any) -> int:
+    """Samples in a run group's ``time`` dataset (0 when it has none), from its shape."""
+    ds = g.get("time")
+    shape = getattr(ds, "shape", None)
+    return int(shape[0]) if shape else 0
 
 
 def _state_words(status: str) -> str:
@@ -624,16 +660,22 @@ def _recording_state(g: Any) -> dict[str, Any]:
     return out
 
 
-def read_many(paths: Sequence[str | Path], *, include_aborted: bool = False) -> list[Run]:
+def read_many(
+    paths: Sequence[str | Path],
+    *,
+    include_aborted: bool = False,
+    long_runs: LongRuns | None = None,
+) -> list[Run]:
     """All complete runs of all files, in order, for analysis.
 
     Aborted and interrupted runs are skipped with a warning unless ``include_aborted``
-    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`).
+    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`);
+    ``long_runs`` as :func:`read_runs`.
     """
     check_distinct(paths)
     runs: list[Run] = []
     for p in paths:
-        runs.extend(read_runs(p, skip_incomplete=not include_aborted))
+        runs.extend(read_runs(p, skip_incomplete=not include_aborted, long_runs=long_runs))
     check_distinct_runs(runs)
     return runs
 
