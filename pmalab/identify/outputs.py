@@ -265,6 +265,7 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
         "decimation": _decimation_block(res),
+        "trajectory": list(res.trajectory),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -415,6 +416,9 @@ class Identification:
     notes: list[str] = field(default_factory=list)
     #: warnings raised while validating (extrapolation, divergence)
     validation_warnings: list[str] = field(default_factory=list)
+    #: long records: the model refitted window by window along each long run
+    #: (:mod:`pmalab.identify.campaign.trajectory`); empty for a campaign of short runs
+    trajectory: list[dict] = field(default_factory=list)
 
     # ---- model
     @property
