@@ -49,6 +49,12 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
     p.add_argument(
+        "--muscle",
+        metavar="NAME|all",
+        help="files recording several muscles (an antagonistic pair): identify this one "
+        "from the runs that held it isobaric; 'all': each into OUT/NAME/",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
@@ -158,6 +164,26 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _identify_each_muscle(args: argparse.Namespace) -> int:
+    """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
+    from pathlib import Path
+
+    from pmalab.runfile import muscles_of
+
+    names: list[str] = []
+    for f in args.files:
+        for m in muscles_of(f):
+            if m not in names:
+                names.append(m)
+    for m in names:
+        print(f"muscle {m}:")
+        sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
+        rc = run_identify(sub)
+        if rc:
+            return rc
+    return 0
+
+
 def run_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -171,13 +197,18 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if args.muscle == "all":
+        return _identify_each_muscle(args)
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    m = args.muscle
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
+    )
     check_distinct_runs([*runs, *val])
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
@@ -279,6 +310,11 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
     p.add_argument(
+        "--muscle",
+        metavar="NAME",
+        help="files recording several muscles (an antagonistic pair): diagnose this one",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW",
@@ -350,9 +386,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
     lr = long_runs()
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    mus = args.muscle
+    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
         if args.validate
         else []
     )
@@ -460,8 +497,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    mus = getattr(args, "muscle", None)
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=mus)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=mus)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     rows = []
     floors: list[float] = []
