@@ -389,9 +389,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         lw["law"],
                         f"{lw['nrmse_before']:.4f}",
                         f"{lw['nrmse_after']:.4f}",
-                        f"{lw['fall_percent']:+.1f}",
-                        f"{lw['gain_x_floor']:+.2f}",
-                        "yes" if lw["significant"] else "no",
+                        "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",
+                        "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
+                        "fit failed"
+                        if lw.get("status") == "failed"
+                        else ("yes" if lw["significant"] else "no"),
                     )
                     for lw in d.laws
                 ]

@@ -38,7 +38,7 @@ from pmalab.identify.estimation.output_error import (
     fit_output_error,
     position_data,
 )
-from pmalab.identify.estimation.records import TARE_NOTE, predict_record
+from pmalab.identify.estimation.records import TARE_NOTE, predict_record, scored_from
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
 from pmalab.identify.messages import detail, note, prefixed
 from pmalab.identify.metrics import metrics
@@ -217,7 +217,9 @@ class CampaignFit:
     def validate(self, run: Run, initial: str = "estimate") -> dict:
         """Metrics of this model's free-run prediction of ``run``."""
         sig = Signals.from_run(run)
-        return metrics(run.force, self.predict(sig, force=run.force, initial=initial), sig.x)
+        fm = self.predict(sig, force=run.force, initial=initial)
+        i0 = scored_from(sig, initial)  # after the early part the record was set on
+        return metrics(run.force[i0:], fm[i0:], sig.x[i0:])
 
 
 def predict_run(campaign_fit: CampaignFit, run: Run) -> np.ndarray:
