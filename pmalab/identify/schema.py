@@ -161,6 +161,11 @@ class ValidationRow(RowMetrics):
     message: NotRequired[str | None]
     #: its pressure lies outside the identified range
     extrapolated: NotRequired[bool]
+    #: the metrics score the run from this time on (s from its first sample): its record
+    #: parameters were estimated on the part before
+    scored_from_s: NotRequired[float | None]
+    #: the noise floor (nrmse) of the scored part
+    noise_floor_nrmse: NotRequired[float | None]
 
 
 class InputFile(TypedDict):

@@ -127,7 +127,12 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
     return aug, P
 
 
-def fit_record_params(prob: Problem, z: np.ndarray, max_nfev: int = RECORD_NFEV) -> np.ndarray:
+def fit_record_params(
+    prob: Problem,
+    z: np.ndarray,
+    max_nfev: int = RECORD_NFEV,
+    prior: Mapping[str, tuple[float, float]] | None = None,
+) -> np.ndarray:
     """z with every run's record parameters fitted, the shared parameters held.
 
     Start: each run's h0 from the first ``INITIAL_WINDOW_S`` (median of F − F_model with
@@ -153,11 +158,32 @@ def fit_record_params(prob: Problem, z: np.ndarray, max_nfev: int = RECORD_NFEV)
             z[blk.start + i] = est if np.isfinite(est) else 0.0
     z[k:] = np.clip(z[k:], lo[k:], hi[k:])
 
+    # a Gaussian prior on record nuisances (one record: Problem with R = 1): extra residual
+    # rows σ_e·(θ − μ)/s, σ_e the start residual's rms, so the cost is that of the data
+    # (Σe²/σ_e²) plus (θ − μ)²/s², in the data's units
+    rows: list[tuple[int, float, float]] = []
+    if prior and len(prob.records) == 1:
+        for j, n in enumerate(prob.run_params):
+            if n in prior:
+                rows.append((j, *prior[n]))
+    e0 = prob.residual(z)
+    scale = float(np.sqrt(np.mean(e0**2))) if e0.size else 1.0
+    scale = scale if np.isfinite(scale) and scale > 0 else 1.0
+
     def f(h: np.ndarray) -> np.ndarray:
-        return prob.residual(np.concatenate([z[:k], h]))
+        e = prob.residual(np.concatenate([z[:k], h]))
+        if not rows:
+            return e
+        return np.concatenate([e, [scale * (h[j] - mu) / sd for j, mu, sd in rows]])
 
     def jf(h: np.ndarray) -> np.ndarray:
-        return prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        if not rows:
+            return J
+        P = np.zeros((len(rows), J.shape[1]))
+        for i, (j, _, sd) in enumerate(rows):
+            P[i, j] = scale / sd
+        return np.vstack([J, P])
 
     r0 = f(z[k:])
     sol = solve(f, jf, z[k:], lo[k:], hi[k:], max_nfev=max_nfev, tol=1e-6)
@@ -172,8 +198,15 @@ def estimate_record(
     force: np.ndarray,
     theta: Mapping[str, float],
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    prior: Mapping[str, tuple[float, float]] | None = None,
 ) -> dict[str, float]:
-    """``theta`` with the record parameters fitted on this record (muscle parameters held)."""
+    """``theta`` with the record parameters fitted on this record (muscle parameters held).
+
+    ``prior``: per record nuisance (a drift rate), the campaign's (mean, sd) of it
+    (:meth:`~pmalab.identify.campaign.fit.CampaignFit.record_prior`): the estimate starts at
+    the mean and is pulled toward it by a Gaussian prior, so a rate that the record's early
+    part cannot tell from the start state's transient (one short cycle) keeps the campaign's
+    value instead of extrapolating a confusion."""
     th = dict(theta)
     names = [n for n in record_names(model) if n in th]
     if not names:
@@ -191,7 +224,9 @@ def estimate_record(
         run_params=names,
     )
     # start: the pressure law's c0 (a drifting zero), every other record parameter at 0
-    z = fit_record_params(prob, prob.z_from({}, {n: [th[n] if n == "c0" else 0.0] for n in names}))
+    pr = dict(prior or {})
+    start = {n: [th[n] if n == "c0" else pr[n][0] if n in pr else 0.0] for n in names}
+    z = fit_record_params(prob, prob.z_from({}, start), prior=pr)
     th.update({n: v[0] for n, v in prob.run_values(z).items()})
     return th
 
@@ -203,8 +238,10 @@ def predict_record(
     force: np.ndarray | None = None,
     initial: str = "estimate",
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    prior: Mapping[str, tuple[float, float]] | None = None,
 ) -> np.ndarray:
-    """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``.
+    """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``
+    (``prior``: the campaign's (mean, sd) of each record nuisance, see :func:`estimate_record`).
 
     ``theta``: the muscle parameters (record parameters in it are replaced).  Under
     ``"estimate"`` they are fitted on the record's early part only (module docstring); score
@@ -226,4 +263,4 @@ def predict_record(
     assert force is not None  # "estimate" without a force became "burn-in" above
     m = calibration_samples(sig)
     f = np.asarray(force, dtype=np.float64)
-    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds))
+    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior))
