@@ -241,6 +241,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="each record becomes two runs: the first half for identification, "
         "the second held out for validation",
     )
+    q.add_argument(
+        "--drop-duplicate-times",
+        action="store_true",
+        help="drop a sample whose time stamp repeats the one before (some DAQ exports "
+        "write a stamp twice); the count dropped is reported and stored with the run",
+    )
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
     q.add_argument(
         "--frequency",
@@ -451,6 +457,7 @@ def cmd_import(args: argparse.Namespace) -> int:
         decimal=args.decimal,
         encoding=args.encoding,
         no_header=args.no_header,
+        drop_duplicate_times=args.drop_duplicate_times,
         layout=parse_layout(
             args.columns,
             held_position=args.position is not None or bool(args.position_from_name),
@@ -496,8 +503,17 @@ def cmd_import(args: argparse.Namespace) -> int:
             + ", "
             + _campaign_levels(runs)
             + (f", {held} held out for validation" if held else "")
+            + _dropped_summary(runs)
         )
     return 0
+
+
+def _dropped_summary(runs) -> str:
+    """``--drop-duplicate-times``' count over a campaign (each file counted once: the
+    halves of a split record carry their record's count)."""
+    per_file = {r.file: int(r.attrs.get("dropped_duplicate_times") or 0) for r in runs}
+    n = sum(per_file.values())
+    return f", {n} duplicate time stamps dropped" if n else ""
 
 
 def _run_summary(run) -> str:

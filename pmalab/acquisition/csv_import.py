@@ -139,6 +139,8 @@ class CsvImportOptions:
     no_header: bool = False
     #: one channel (or ``None`` for a skipped field) per field, from ``--columns``
     layout: list[str | None] | None = None
+    #: drop a sample whose time stamp equals the one before (``--drop-duplicate-times``)
+    drop_duplicate_times: bool = False
 
     def check(self) -> None:
         """Refuse inconsistent layout options (one line naming the option)."""
@@ -524,6 +526,7 @@ def finish_run(
         held_position: float | None = float(opts.position_mm)
     else:
         held_position = None
+    raw, dropped = _duplicate_times(path, run, raw, opts.drop_duplicate_times)
     chans = validate_channels(path, run, raw, units_hint=_csv_units_hint)
     nominal = (
         float(opts.pressure_MPa)
@@ -566,7 +569,43 @@ def finish_run(
         )
     if opts.load_N is not None:
         attrs["load_N"] = float(opts.load_N)
+    if dropped:
+        attrs["dropped_duplicate_times"] = dropped
     return Run(name=run, attrs=attrs, file=str(path), **chans)
+
+
+def _duplicate_times(
+    path: str | Path, run: str, raw: dict[str, tuple[np.ndarray, str]], drop: bool
+) -> tuple[dict[str, tuple[np.ndarray, str]], int]:
+    """Samples whose time stamp repeats the one before: dropped (``drop``; the first sample
+    of each stamp is kept) or refused with the option that drops them.
+
+    Returns
+    -------
+    (raw, dropped)
+        The channels without the repeated samples, and how many were dropped.  Time going
+        backwards is left to :func:`~pmalab.runfile.validate_channels` (never repaired).
+    """
+    t = np.asarray(raw["time"][0])
+    if t.ndim != 1 or t.size < 2 or any(np.shape(v) != t.shape for v, _ in raw.values()):
+        return raw, 0  # unequal lengths and the like: refused by the channel checks
+    with np.errstate(invalid="ignore"):
+        dt = np.diff(t.astype(np.float64))
+    same = np.flatnonzero(dt == 0) + 1
+    if same.size == 0:
+        return raw, 0
+    if not drop:
+        back = np.flatnonzero(dt < 0)
+        if back.size == 0 or back[0] + 1 > same[0]:
+            raise RunFileError(
+                f"{path}: run '{run}': channel 'time': time stamp repeated at sample "
+                f"{int(same[0])} ({same.size} repeat(s) in the file); add "
+                "--drop-duplicate-times to drop the repeated samples"
+            )
+        return raw, 0
+    keep = np.ones(t.size, dtype=bool)
+    keep[same] = False
+    return {c: (np.asarray(v)[keep], u) for c, (v, u) in raw.items()}, int(same.size)
 
 
 #: a length that moves less than this (mm, peak to peak after the sensor's noise) is held
