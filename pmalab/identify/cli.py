@@ -125,6 +125,34 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         help="pressure laws: refined jointly on all runs with chosen orders "
         "(default) or the seeds' per-run quadratics",
     )
+    p.add_argument(
+        "--static",
+        metavar="MAP",
+        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
+        "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
+        "one set of parameters for every run of any test type (default for "
+        "isometric, isotonic and free runs: linear); --model none for the map alone",
+    )
+    p.add_argument(
+        "--drive",
+        choices=("pressure", "position", "both"),
+        help="with --static: what drives the law — the pressure (inflation vs deflation; "
+        "default for isometric/isotonic runs), the contraction (isobaric runs) or both "
+        "(one law on each, free runs)",
+    )
+    p.add_argument(
+        "--length",
+        type=float,
+        metavar="MM",
+        help="with --static: the muscle's relaxed active length in mm (measured)",
+    )
+    p.add_argument(
+        "--diameter",
+        type=float,
+        metavar="MM",
+        help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
+    )
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_identify)
@@ -186,6 +214,12 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--hold-out {unknown[0]}: no such run in the input files")
         val = [r for r in runs if r.name in hold or r.label in hold] + list(val)
         runs = [r for r in runs if not (r.name in hold or r.label in hold)]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static
+
+        return run_static(args, runs, val, out, auto=not args.static)
+    if args.model == "none":
+        raise PmalabError("--model none: only with --static (the static map alone)")
     res = identify(
         runs,
         args.model,
