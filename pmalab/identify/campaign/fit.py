@@ -24,9 +24,9 @@ parameters held (:mod:`pmalab.identify.estimation.records`).
 from __future__ import annotations
 
 import pickle
-from typing import Any
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -319,7 +319,14 @@ def fit_campaign(
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
     check_free(fm, free)
-    kwargs = {"fixed": {**(fixed or {}), **(shape or {})} or None, "init": init, "free": tuple(free)}
+    if structure not in ("auto", "free", *fm.law.structures):
+        offers = ", ".join(["free", *fm.law.structures])
+        raise PmalabError(f"--structure {structure}: {fm.law.name} offers {offers}")
+    kwargs = {
+        "fixed": {**(fixed or {}), **(shape or {})} or None,
+        "init": init,
+        "free": tuple(free),
+    }
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings: list[str] = list(default_fixed_notes(fm, free))
     if fm.tares:

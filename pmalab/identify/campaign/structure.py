@@ -95,7 +95,8 @@ class StructureChoice:
     def summary(self) -> str:
         """One line: the winner, its score and its margin."""
         cands = ", ".join(
-            f"{s} {v:.4f} ({self.n_params[s]} p.)" for s, v in sorted(self.scores.items(), key=lambda kv: kv[1])
+            f"{s} {v:.4f} ({self.n_params[s]} p.)"
+            for s, v in sorted(self.scores.items(), key=lambda kv: kv[1])
         )
         return (
             f"{self.law}: pressure structure '{self.chosen}' chosen by leave-one-pressure-out "
@@ -103,7 +104,7 @@ class StructureChoice:
         )
 
 
-def levels_of(pressures: Sequence[float]) -> list[float]:
+def levels_of(pressures: Sequence[float] | np.ndarray) -> list[float]:
     """Distinct nominal pressure levels (MPa, rounded to 1 kPa), ascending."""
     return sorted({round(float(p), 3) for p in pressures})
 
@@ -148,8 +149,8 @@ def lopo_score(
             th[n] = float(min(max(v, lo), hi))
         for n in record:
             th[n] = 0.0
-        for i in np.flatnonzero(~train):
-            run = runs[i]
+        for i in np.flatnonzero(~train).tolist():
+            run = runs[int(i)]
             sig = Signals.from_run(run)
             yh = predict_record(model, sig, th, force=run.force, bounds=bounds)
             y = np.asarray(run.force, dtype=np.float64)

@@ -345,7 +345,7 @@ def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]
         G = [i for i in range(R) if keys[i] == L]
         T = [i for i in range(R) if keys[i] != L]
         rows_t = np.concatenate([np.arange(prob.rows[i].start, prob.rows[i].stop) for i in T])
-        cols_t = list(range(nc)) + [c for i in T for c in run_cols[i]]
+        cols_t = np.array(list(range(nc)) + [c for i in T for c in run_cols[i]], dtype=np.intp)
         step, *_ = np.linalg.lstsq(J[np.ix_(rows_t, cols_t)], -r[rows_t], rcond=None)
         dc = step[:nc]
         for i in G:

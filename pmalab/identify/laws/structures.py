@@ -62,18 +62,21 @@ class ProfileElements(HysteresisLaw):
     c_index: ClassVar[tuple[int, ...]] = ()
     r_index: ClassVar[tuple[int, ...]] = ()
 
-    def __init__(self, kappa: Sequence[float], delta: Sequence[float]) -> None:
+    def __init__(
+        self, kappa: Sequence[float] | np.ndarray, delta: Sequence[float] | np.ndarray
+    ) -> None:
         k = np.clip(np.asarray(kappa, dtype=np.float64), 0.0, None)
         tot = float(k.sum())
         #: element shares κ_i (Σ = 1) of the start profile
-        self.kappa = k / tot if tot > 0 else np.full(k.shape, 1.0 / max(k.shape[0], 1))
+        self.kappa = k / tot if tot > 0 else np.full(k.size, 1.0 / max(k.size, 1))
         #: slip displacements δ_i (mm) of the start profile at t = 1
         self.delta = np.asarray(delta, dtype=np.float64)
 
     def corrections(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """(c_i, r_i) at ``theta`` (1 for an element without a correction parameter)."""
-        c = np.ones(self.kappa.shape[0])
-        r = np.ones(self.kappa.shape[0])
+        m = int(np.size(self.kappa))
+        c = np.ones(m)
+        r = np.ones(m)
         for i in self.c_index:
             c[i] = max(float(theta[f"c{i + 1}"]), 0.0)
         for i in self.r_index:
@@ -118,7 +121,10 @@ class ProfileElements(HysteresisLaw):
 
 
 def structured_law(
-    base: HysteresisLaw, structure: str, kappa: Sequence[float], delta: Sequence[float]
+    base: HysteresisLaw,
+    structure: str,
+    kappa: Sequence[float] | np.ndarray,
+    delta: Sequence[float] | np.ndarray,
 ) -> ProfileElements:
     """The law ``base`` restructured: ``"scaled"`` or ``"scaled-thresholds"`` elements
     starting from the profile (κ, δ) (κ is normalised; δ in mm)."""
@@ -135,8 +141,23 @@ def structured_law(
     else:
         r_index = tuple(i for i in range(m) if i != anchor)
     shape = (
-        *(LawParam(f"c{i + 1}", 1.0, 0.0, 100.0, "1", f"stiffness share of element {i + 1} ÷ its start") for i in c_index),
-        *(LawParam(f"r{i + 1}", 1.0, 0.02, 50.0, "1", f"slip displacement of element {i + 1} ÷ its start") for i in r_index),
+        *(
+            LawParam(
+                f"c{i + 1}", 1.0, 0.0, 100.0, "1", f"stiffness share of element {i + 1} ÷ its start"
+            )
+            for i in c_index
+        ),
+        *(
+            LawParam(
+                f"r{i + 1}",
+                1.0,
+                0.02,
+                50.0,
+                "1",
+                f"slip displacement of element {i + 1} ÷ its start",
+            )
+            for i in r_index
+        ),
     )
     attrs: dict[str, Any] = {
         "name": base.name,
@@ -156,11 +177,15 @@ def structured_law(
             else {}
         ),
     }
-    cls = type(f"{type(base).__name__}{structure.title().replace('-', '')}", (ProfileElements,), attrs)
+    cls = type(
+        f"{type(base).__name__}{structure.title().replace('-', '')}", (ProfileElements,), attrs
+    )
     return cls(kappa, delta)
 
 
-def profile(base: HysteresisLaw, thetas: Sequence[Mapping[str, float]]) -> tuple[np.ndarray, np.ndarray]:
+def profile(
+    base: HysteresisLaw, thetas: Sequence[Mapping[str, float]]
+) -> tuple[np.ndarray, np.ndarray]:
     """(κ, δ) pooled over a campaign's parameter sets ``thetas`` (one per run, from the free
     structure's pressure laws): κ_i = Σ_r k_ri / Σ_r Σ_j k_rj (the runs' summed stiffness
     shares, so stiffer runs count more), δ_i the stiffness-weighted mean slip displacement."""
@@ -179,7 +204,11 @@ def base_laws(
     the structured law's: k_i = κ_i·c_i·s(p), d_i = δ_i·r_i·t(p) (``coef``: monomial q of
     ``s``, ``t`` and of every correction, a constant)."""
     qs = np.asarray(coef["s"], dtype=np.float64)
-    qt = np.asarray(coef.get("t", (1.0, 0.0, 0.0)), dtype=np.float64)
+    held_t = law.default_fixed.get("t")
+    qt = np.asarray(
+        (held_t, 0.0, 0.0) if held_t is not None else coef.get("t", (1.0, 0.0, 0.0)),
+        dtype=np.float64,
+    )
     c, r = law.corrections({n: float(q[0]) for n, q in coef.items()})
     k_names, d_names = base.element_names()
     out: dict[str, tuple[float, float, float]] = {}
