@@ -7,7 +7,12 @@ This module is the one contract between acquisition and identification (docs/ref
   ``waveform``, ``frequency_Hz``, ``sample_rate_Hz``, ``protocol`` (JSON text), more welcome;
 * 1-D datasets of equal length with a ``units`` attr: ``time``, ``position``, ``force``,
   ``muscle_pressure`` (required) and ``cylinder_pressure``, ``cylinder_pressure_command``
-  (recorded runs; imported data may lack them).
+  (recorded runs; imported data may lack them), ``branch`` (units ``1``: a test stand's
+  state code, 1 = pressurising, 2 = venting; imported when the source has one);
+* run attr ``test_type`` (:data:`TEST_TYPES`): which quantities the test held —
+  ``isobaric`` (pressure held, length cycled: the default of files without the attr),
+  ``isometric`` (length held, ``held_position_mm``, pressure ramped), ``isotonic`` (load
+  held, ``load_N``, pressure cycled, length measured) or ``free`` (both inputs vary).
 
 :func:`read_runs` converts every channel to the canonical units (s, mm, N, MPa) and turns
 every malformed input into one :class:`~pmalab.errors.RunFileError` line naming the file,
@@ -24,17 +29,24 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from pmalab.errors import RunFileError, RunFileWarning
 
+if TYPE_CHECKING:  # the windowed reader sits above this module
+    from pmalab.runwindows import LongRuns
+
 FORMAT = "pmalab.run"
 FORMAT_VERSION = 1
 
 REQUIRED_CHANNELS = ("time", "position", "force", "muscle_pressure")
-OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command")
+OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command", "branch")
+#: what a test holds constant: the pressure (isobaric), the length (isometric), the load
+#: (isotonic) or nothing (free); a run without the attr is isobaric (format 1's only kind)
+TEST_TYPES = ("isobaric", "isometric", "isotonic", "free")
+DEFAULT_TEST_TYPE = "isobaric"
 CANONICAL_UNITS = {
     "time": "s",
     "position": "mm",
@@ -42,6 +54,7 @@ CANONICAL_UNITS = {
     "muscle_pressure": "MPa",
     "cylinder_pressure": "MPa",
     "cylinder_pressure_command": "MPa",
+    "branch": "1",
 }
 
 #: factor that converts a value in the given unit to the canonical unit of its quantity
@@ -56,6 +69,7 @@ UNIT_FACTORS: dict[str, dict[str, float]] = {
     "muscle_pressure": _PRESSURE,
     "cylinder_pressure": _PRESSURE,
     "cylinder_pressure_command": _PRESSURE,
+    "branch": {"1": 1.0},
 }
 #: other spellings of a unit (after brackets are stripped and µ/μ folded to "u")
 _UNIT_ALIASES = {"sec": "s", "msec": "ms", "micron": "um", "microns": "um"}
@@ -136,6 +150,8 @@ class Run:
     muscle_pressure: np.ndarray
     cylinder_pressure: np.ndarray | None = None
     cylinder_pressure_command: np.ndarray | None = None
+    #: a test stand's state code per sample (1 = pressurising, 2 = venting), when recorded
+    branch: np.ndarray | None = None
     attrs: dict[str, Any] = field(default_factory=dict)
     #: the file the run was read from ("" for in-memory runs)
     file: str = ""
@@ -152,6 +168,13 @@ class Run:
         """``completed``, ``aborted``, ``interrupted`` (writer killed) or ``not run``
         (see :func:`run_state`)."""
         return run_state(self.attrs.get("status"))
+
+    @property
+    def test_type(self) -> str:
+        """``isobaric``, ``isometric``, ``isotonic`` or ``free`` (attr ``test_type``; a run
+        without it is isobaric)."""
+        v = self.attrs.get("test_type")
+        return str(v) if v in TEST_TYPES else DEFAULT_TEST_TYPE
 
     @property
     def frequency(self) -> float | None:
@@ -187,7 +210,7 @@ class Run:
         """A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (s)."""
         rel = self.time - self.time[0]
         keep = (rel >= t_start) & (rel <= t_end)
-        cp, cpc = self.cylinder_pressure, self.cylinder_pressure_command
+        cp, cpc, br = self.cylinder_pressure, self.cylinder_pressure_command, self.branch
         attrs = dict(self.attrs, window_s=[float(t_start), float(t_end)])
         return Run(
             name=self.name,
@@ -199,6 +222,7 @@ class Run:
             muscle_pressure=self.muscle_pressure[keep],
             cylinder_pressure=None if cp is None else cp[keep],
             cylinder_pressure_command=None if cpc is None else cpc[keep],
+            branch=None if br is None else br[keep],
         )
 
     def steady(self) -> Run:
@@ -360,7 +384,11 @@ def recover_hint(path: Path | str) -> str:
 
 
 def read_runs(
-    path: str | Path, runs: Iterable[str] | None = None, *, skip_incomplete: bool = False
+    path: str | Path,
+    runs: Iterable[str] | None = None,
+    *,
+    skip_incomplete: bool = False,
+    long_runs: LongRuns | None = None,
 ) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
@@ -376,6 +404,10 @@ def read_runs(
     (:func:`run_state`) are left out with one :class:`~pmalab.errors.RunFileWarning` each
     — a killed 0.8 s settle fragment is not an isobaric test — unless named in ``runs``;
     a file left with no complete run is an error.
+
+    ``long_runs``: a run of at least ``long_runs.min_samples`` samples is not read whole;
+    it goes, still on disk, to ``long_runs.read`` (:mod:`pmalab.runwindows`), which reads it
+    a window at a time and returns the run to use (e.g. identification's decimation).
     """
     import h5py
 
@@ -415,11 +447,15 @@ def read_runs(
             if not isinstance(g, h5py.Group):
                 raise _fail(path, name, None, "not a group")
             raw = {}
+            lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 if ch in g:
                     ds = g[ch]
                     if not isinstance(ds, h5py.Dataset):
                         raise _fail(path, name, ch, "not a dataset")
+                    if lazy:  # read later, a window at a time
+                        raw[ch] = (ds, decode_attr(ds.attrs.get("units")))
+                        continue
                     try:
                         values = ds[()]
                     except OSError as exc:
@@ -434,21 +470,40 @@ def read_runs(
                 if n < 2 and runs is None:
                     never.append(name)
                     continue
-                if extra.get("status") == "running":
+                if extra.get("status") == "running" and not lazy:
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
             attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
             attrs.update(extra)
+            tt = attrs.get("test_type")
+            if tt is not None and tt not in TEST_TYPES:
+                raise _fail(
+                    path, name, None, f"unknown test_type {tt!r} (one of {', '.join(TEST_TYPES)})"
+                )
             status = attrs.get("status")
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
                 continue
-            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
                         attrs[key] = json.loads(attrs[key])
                     except json.JSONDecodeError:
                         pass
+            if lazy:
+                assert long_runs is not None
+                for ch in REQUIRED_CHANNELS:
+                    if ch not in raw:
+                        raise _fail(path, name, ch, "missing channel")
+                n = min(len(v) for v, _ in raw.values())
+                if n < 2:
+                    raise _fail(path, name, "time", f"too few samples ({n})")
+                run = long_runs.take(
+                    path, name, g, n, attrs, exempt_last=run_state(status) != "completed"
+                )
+                _check_window(path, name, run.attrs, run.time)
+                out.append(run)
+                continue
+            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
@@ -494,6 +549,13 @@ def read_runs(
             stacklevel=2,
         )
     return out
+
+
+def _run_length(g: Any) -> int:
+    """Samples in a run group's ``time`` dataset (0 when it has none), from its shape."""
+    ds = g.get("time")
+    shape = getattr(ds, "shape", None)
+    return int(shape[0]) if shape else 0
 
 
 def _state_words(status: str) -> str:
@@ -598,16 +660,22 @@ def _recording_state(g: Any) -> dict[str, Any]:
     return out
 
 
-def read_many(paths: Sequence[str | Path], *, include_aborted: bool = False) -> list[Run]:
+def read_many(
+    paths: Sequence[str | Path],
+    *,
+    include_aborted: bool = False,
+    long_runs: LongRuns | None = None,
+) -> list[Run]:
     """All complete runs of all files, in order, for analysis.
 
     Aborted and interrupted runs are skipped with a warning unless ``include_aborted``
-    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`).
+    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`);
+    ``long_runs`` as :func:`read_runs`.
     """
     check_distinct(paths)
     runs: list[Run] = []
     for p in paths:
-        runs.extend(read_runs(p, skip_incomplete=not include_aborted))
+        runs.extend(read_runs(p, skip_incomplete=not include_aborted, long_runs=long_runs))
     check_distinct_runs(runs)
     return runs
 

@@ -87,7 +87,7 @@ from pmalab.acquisition.safety import (
     effective_limits,
     preflight,
 )
-from pmalab.acquisition.waveforms import command_samples
+from pmalab.acquisition.waveforms import command_block
 from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output, output_failure
 from pmalab.rig.base import Rig, VentReport
@@ -641,6 +641,33 @@ def _wait_for_muscle_pressure(
 
 
 # --------------------------------------------------------------------------- recording
+class CommandBlocks:
+    """The command at each sample deadline, generated a block of deadlines at a time as
+    the run is played (never the whole run: a 10-hour run at 500 Hz holds 18 million
+    deadlines).
+
+    ``cmds[k]`` is :func:`~pmalab.acquisition.waveforms.command_samples` at deadline
+    ``k`` (same values); deadlines are asked for in increasing order (a gap of missed
+    deadlines skips ahead), so one block of ``block`` Python floats is held at a time.
+    """
+
+    def __init__(self, spec: RunSpec, rate_Hz: float, n_total: int, block: int = 4096) -> None:
+        self.spec, self.rate, self.n, self.block = spec, float(rate_Hz), int(n_total), block
+        self._start = 0
+        self._values: list[float] = []
+
+    def __getitem__(self, k: int) -> float:
+        i = k - self._start
+        if 0 <= i < len(self._values):
+            return self._values[i]
+        if not 0 <= k < self.n:
+            raise IndexError(k)
+        stop = min(self.n, k + self.block)
+        self._start = k
+        self._values = command_block(self.spec, self.rate, k, stop).tolist()
+        return self._values[0]
+
+
 def _record(
     rig: Rig,
     spec: RunSpec,
@@ -664,14 +691,14 @@ def _record(
         pbar.set_postfix_str(spec.name)
     progress_step = max(1, int(rate // 2))
     hw = sampler.hardware_timed
-    cmds = command_samples(spec, rate, n_total).tolist()
+    cmds = CommandBlocks(spec, rate, n_total)
     since = [0, 0]  # samples delivered, samples the progress bar has shown
 
     def step(
         k: int, t_rel: float, x: float, f: float, pm: float, pc: float, lateness: float
     ) -> float:
-        # the waveform's value at this sample's nominal time (precomputed per deadline);
-        # sent right after the block and held by the regulator until the next one
+        # the waveform's value at this sample's nominal time (computed a block of deadlines
+        # ahead); sent right after the block and held by the regulator until the next one
         cmd = cmds[k]
         add(t_rel, x, f, pm, pc, cmd, lateness)
         since[0] += 1

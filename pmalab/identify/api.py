@@ -27,6 +27,7 @@ from pmalab.identify.campaign import (
     fit_and_validate,
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
+from pmalab.identify.long_records import long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
@@ -66,7 +67,10 @@ def load(
 
     Runs that were aborted or interrupted (status ``aborted: ...`` / ``running``) are
     skipped with one :class:`~pmalab.errors.RunFileWarning` each unless ``include_aborted``
-    or named in ``runs``; a file given twice is refused.
+    or named in ``runs``; a file given twice is refused.  A long run (≥
+    :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
+    time and decimated, as its attrs' ``decimation`` states
+    (:mod:`pmalab.identify.long_records`).
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -78,7 +82,7 @@ def load(
     wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted))
+        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted, long_runs=long_runs()))
     check_distinct_runs(out)
     return out
 

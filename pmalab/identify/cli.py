@@ -347,6 +347,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
+    from pmalab.identify.long_records import long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -361,8 +362,13 @@ def run_diagnose(args: argparse.Namespace) -> int:
         if not plot_dir.is_dir() or not os.access(plot_dir, os.W_OK):
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
-    runs = read_many(args.files, include_aborted=args.include_aborted)
-    val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    lr = long_runs()
+    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    val = (
+        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     d = diagnose(

@@ -51,6 +51,7 @@ import numpy as np
 from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign import CampaignFit, ModelSpec, Validation, validate_runs
+from pmalab.identify.estimation.joint import joint_stride
 from pmalab.identify.estimation.solver import STDERR_METHOD
 from pmalab.identify.messages import as_message
 from pmalab.identify.metrics import metrics
@@ -265,6 +266,7 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "output_error": _output_error_block(cf),
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
+        "decimation": _decimation_block(res),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -287,6 +289,40 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         },
     }
     return _clean(out)
+
+
+def _decimation_block(res: Identification) -> list[dict]:
+    """Per run, how many of its samples each stage used: ``read`` (a long record is read
+    decimated, :mod:`pmalab.identify.long_records`; else whole), and the subsampling of the
+    joint fit of the pressure laws (identification runs; never below 100 per cycle)."""
+    out = []
+    roles = [(r, "identification") for r in res.runs] + [
+        (v.run, "validation") for v in res.validation
+    ]
+    for run, role in roles:
+        n = len(run)
+        dt = float(np.median(np.diff(run.time[: min(n, 4096)]))) if n > 1 else float("nan")
+        fs = 1.0 / dt if dt > 0 else float("nan")
+        f = run.frequency
+        read = run.attrs.get("decimation") or {"stride": 1, "note": "read whole"}
+        row: dict[str, Any] = {
+            "file": run.file,
+            "run": run.name,
+            "role": role,
+            "frequency_Hz": f,
+            "samples": n,
+            "sample_rate_Hz": fs,
+            "read": read,
+        }
+        if role == "identification" and res.campaign.joint is not None and np.isfinite(fs):
+            k = joint_stride(n, fs, f)
+            row["joint_fit"] = {
+                "stride": k,
+                "samples": -(-n // k),
+                "samples_per_cycle": (fs / k / f) if f else None,
+            }
+        out.append(row)
+    return out
 
 
 def _joint_block(cf) -> dict | None:

@@ -287,6 +287,11 @@ class IdentificationDoc(TypedDict):
     messages: NotRequired[list[MessageDoc]]
     #: how the fit was made (text per step)
     method: NotRequired[dict[str, Any]]
+    #: per run: the samples each stage used (``read``: a long record's anti-aliased
+    #: decimation, or whole; ``joint_fit``: the joint fit's stride, ≥ 100 samples a cycle)
+    decimation: NotRequired[list[dict[str, Any]]]
+    #: long records: the model refitted on windows along each run (parameters vs cycle)
+    trajectory: NotRequired[list[dict[str, Any]]]
 
 
 # =========================================================================== diagnosis

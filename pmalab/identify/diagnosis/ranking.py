@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.identify.campaign import ModelSpec, fit_and_validate
-from pmalab.identify.campaign.batch import map_tasks
+from pmalab.identify.campaign.batch import map_with_context
 from pmalab.identify.effects import EFFECTS
 from pmalab.runfile import Run
 
@@ -69,11 +69,6 @@ class Scored:
     @property
     def mean(self) -> float:
         return float(np.mean(self.nrmse)) if self.nrmse else float("nan")
-
-
-#: the identification and held-out runs of the running diagnosis (set before the worker
-#: processes fork, so the runs are not pickled once per task)
-_CONTEXT: dict[str, Any] = {}
 
 
 def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
@@ -121,8 +116,8 @@ def block_mse(run: Run, pred: np.ndarray) -> np.ndarray:
         return np.array([float(np.mean(e[b] ** 2)) for b in blocks_of(run)])
 
 
-def _task(spec: ModelSpec) -> Scored:
-    return score(_CONTEXT["train"], _CONTEXT["held"], spec)
+def _task(runs: tuple[list[Run], list[Run]], spec: ModelSpec) -> Scored:
+    return score(runs[0], runs[1], spec)
 
 
 def score_all(
@@ -136,23 +131,17 @@ def score_all(
 ) -> list[Scored]:
     """Score every model spec (in parallel over candidates: one identification each).
 
-    Local processes share the runs through the fork (no copy); on a Dask cluster
-    (``scheduler``) each task carries them."""
-    if scheduler:
-        from functools import partial
-
-        return map_tasks(
-            partial(score, list(train), list(held)),
-            list(specs),
-            scheduler=scheduler,
-            progress=progress,
-            desc=desc,
-        )
-    _CONTEXT.update(train=list(train), held=list(held))
-    try:
-        return map_tasks(_task, list(specs), jobs=jobs, progress=progress, desc=desc)
-    finally:
-        _CONTEXT.clear()
+    Local worker processes receive the runs once each (as the pool's initializer argument,
+    whatever the start method); on a Dask cluster (``scheduler``) each task carries them."""
+    return map_with_context(
+        _task,
+        (list(train), list(held)),
+        list(specs),
+        jobs=jobs,
+        scheduler=scheduler,
+        progress=progress,
+        desc=desc,
+    )
 
 
 @dataclass

@@ -34,7 +34,8 @@ ln N_eff (the BIC penalty of one parameter) is dropped, and the pruned model is 
 its joint BIC is not worse.
 
 Speed.  Runs are subsampled to ≤ ``SAMPLES_PER_CYCLE`` samples per excitation cycle (and
-≤ ``MAX_SAMPLES`` per run) after the zero-phase filter; the laws are rate independent and
+≤ ``MAX_SAMPLES`` per run, but never < ``MIN_SAMPLES_PER_CYCLE`` per cycle: a long run is
+not aliased to fit a budget) after the zero-phase filter; the laws are rate independent and
 the effects use the full-rate derivatives, so the loss is small.  The Jacobian is computed
 per *parameter* (one perturbation of θ_j on every run at once, chained to its Legendre
 coefficients) and all h0 are perturbed together (each affects one run only): (P + 1)·R
@@ -61,8 +62,11 @@ from pmalab.runfile import Run
 
 #: samples per excitation cycle kept for the joint fit (loops need ~100; margin ×2)
 SAMPLES_PER_CYCLE = 200
-#: at most this many samples of one run enter the joint fit
+#: at most this many samples of one run enter the joint fit, unless that leaves fewer
+#: than ``MIN_SAMPLES_PER_CYCLE`` per excitation cycle
 MAX_SAMPLES = 2500
+#: the joint fit never keeps fewer samples per excitation cycle (``signals.every``)
+MIN_SAMPLES_PER_CYCLE = 100
 #: limit on function evaluations of one joint least-squares
 MAX_NFEV = 120
 #: cap of one weighted residual (≈ 1e3 × the run's own rmse·√N: a runaway prediction)
@@ -71,6 +75,21 @@ RESID_CAP = 1e3
 
 
 # --------------------------------------------------------------------------- data
+def joint_stride(n: int, sample_rate_Hz: float, frequency_Hz: float | None) -> int:
+    """Subsampling stride of one run in the joint fit.
+
+    ``SAMPLES_PER_CYCLE`` samples per excitation cycle, and at most ``MAX_SAMPLES`` of the
+    run — but never fewer than ``MIN_SAMPLES_PER_CYCLE`` per cycle: striding a run of many
+    cycles down to a fixed count would alias its path (a 10-hour 0.5 Hz run in 2,500
+    samples is one sample every 7 cycles), so a long run costs time in proportion to its
+    length instead.  Unknown frequency: at most ``MAX_SAMPLES``."""
+    f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else None
+    if f is None:
+        return max(1, int(math.ceil(n / MAX_SAMPLES)))
+    stride = max(1, int(sample_rate_Hz // (SAMPLES_PER_CYCLE * f)), int(math.ceil(n / MAX_SAMPLES)))
+    return max(1, min(stride, int(sample_rate_Hz // (MIN_SAMPLES_PER_CYCLE * f))))
+
+
 def prepare(run: Run, error_scale: float | None = None) -> Record:
     """Filter (as every fit does) and subsample one run into an estimator record.
 
@@ -84,9 +103,7 @@ def prepare(run: Run, error_scale: float | None = None) -> Record:
     sig = Signals.from_run(run)
     n = sig.t.shape[0]
     fs = 1.0 / float(np.median(np.diff(sig.t)))
-    f = run.frequency if run.frequency and run.frequency > 0 else None
-    stride = int(fs // (SAMPLES_PER_CYCLE * f)) if f else 1
-    stride = max(1, stride, int(math.ceil(n / MAX_SAMPLES)))
+    stride = joint_stride(n, fs, run.frequency)
     s = sig.every(stride)
     force = np.asarray(run.force, dtype=np.float64)[::stride]
     sd = max(float(np.std(force)), 1e-9)
