@@ -36,6 +36,7 @@ import numpy as np
 from pmalab.identify.estimation.basis import fit_polynomial, weights
 from pmalab.identify.estimation.records import predict_record
 from pmalab.identify.estimation.single import FitResult
+from pmalab.identify.schema import PressureStructure, StructureCandidate
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
@@ -73,24 +74,26 @@ class StructureChoice:
             return float("nan")
         return 100.0 * (min(others) / self.scores[self.chosen] - 1.0)
 
-    def as_json(self) -> dict:
-        return {
-            "law": self.law,
-            "chosen": self.chosen,
-            "criterion": self.criterion,
-            "margin_percent": self.margin_percent,
-            "levels_left_out_MPa": list(self.folds),
-            "candidates": [
-                {
-                    "structure": s,
-                    "heldout_nrmse": self.scores.get(s),
-                    "n_params": self.n_params.get(s),
-                    "heldout_nrmse_per_run": self.per_run.get(s, []),
-                    **({"status": "failed", "reason": self.failed[s]} if s in self.failed else {}),
-                }
-                for s in [*self.scores, *[f for f in self.failed if f not in self.scores]]
-            ],
-        }
+    def as_json(self) -> PressureStructure:
+        cands: list[StructureCandidate] = []
+        for s in [*self.scores, *[f for f in self.failed if f not in self.scores]]:
+            c = StructureCandidate(
+                structure=s,
+                heldout_nrmse=self.scores.get(s),
+                n_params=self.n_params.get(s),
+                heldout_nrmse_per_run=list(self.per_run.get(s, [])),
+            )
+            if s in self.failed:
+                c["status"], c["reason"] = "failed", self.failed[s]
+            cands.append(c)
+        return PressureStructure(
+            law=self.law,
+            chosen=self.chosen,
+            criterion=self.criterion,
+            margin_percent=self.margin_percent,
+            levels_left_out_MPa=list(self.folds),
+            candidates=cands,
+        )
 
     def summary(self) -> str:
         """One line: the winner, its score and its margin."""
@@ -98,9 +101,10 @@ class StructureChoice:
             f"{s} {v:.4f} ({self.n_params[s]} p.)"
             for s, v in sorted(self.scores.items(), key=lambda kv: kv[1])
         )
+        tail = "" if self.chosen == "free" else "; its pressure laws replace the free ones"
         return (
             f"{self.law}: pressure structure '{self.chosen}' chosen by leave-one-pressure-out "
-            f"held-out nrmse ({cands}; margin {self.margin_percent:.1f} %)"
+            f"held-out nrmse ({cands}; margin {self.margin_percent:.1f} %){tail}"
         )
 
 
