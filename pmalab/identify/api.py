@@ -27,6 +27,7 @@ from pmalab.identify.campaign import (
     fit_and_validate,
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
+from pmalab.identify.campaign.trajectory import run_trajectory
 from pmalab.identify.long_records import long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
@@ -213,6 +214,12 @@ def identify(
         output=output,
         structure=structure,
     )
+    trajectory = []
+    if output == "force":
+        for run, rf in zip(ident, cf.runs):
+            tr = run_trajectory(run, cf.model, rf.result)
+            if tr is not None:
+                trajectory.append(tr)
     return Identification(
         campaign=cf,
         runs=ident,
@@ -221,6 +228,7 @@ def identify(
         notes=notes,
         validation=vals,
         validation_warnings=warns,
+        trajectory=trajectory,
     )
 
 

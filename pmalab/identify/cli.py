@@ -134,6 +134,34 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    p.add_argument(
+        "--static",
+        metavar="MAP",
+        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
+        "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
+        "one set of parameters for every run of any test type (default for "
+        "isometric, isotonic and free runs: linear); --model none for the map alone",
+    )
+    p.add_argument(
+        "--drive",
+        choices=("pressure", "position", "both"),
+        help="with --static: what drives the law — the pressure (inflation vs deflation; "
+        "default for isometric/isotonic runs), the contraction (isobaric runs) or both "
+        "(one law on each, free runs)",
+    )
+    p.add_argument(
+        "--length",
+        type=float,
+        metavar="MM",
+        help="with --static: the muscle's relaxed active length in mm (measured)",
+    )
+    p.add_argument(
+        "--diameter",
+        type=float,
+        metavar="MM",
+        help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
+    )
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_identify)
@@ -195,6 +223,12 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--hold-out {unknown[0]}: no such run in the input files")
         val = [r for r in runs if r.name in hold or r.label in hold] + list(val)
         runs = [r for r in runs if not (r.name in hold or r.label in hold)]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static
+
+        return run_static(args, runs, val, out, auto=not args.static)
+    if args.model == "none":
+        raise PmalabError("--model none: only with --static (the static map alone)")
     res = identify(
         runs,
         args.model,
@@ -255,9 +289,15 @@ def run_identify(args: argparse.Namespace) -> int:
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
-    st = res.campaign.structure
+    st = getattr(res.campaign, "structure", None)
     if st is not None:
         print(f"  {structure_line(st)}")
+    if res.campaign.output != "position":
+        from pmalab.identify.outputs import validation_headline
+
+        line = validation_headline(res.validation)
+        if line:
+            print(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -408,9 +448,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         lw["law"],
                         f"{lw['nrmse_before']:.4f}",
                         f"{lw['nrmse_after']:.4f}",
-                        f"{lw['fall_percent']:+.1f}",
-                        f"{lw['gain_x_floor']:+.2f}",
-                        "yes" if lw["significant"] else "no",
+                        "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",
+                        "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
+                        "fit failed"
+                        if lw.get("status") == "failed"
+                        else ("yes" if lw["significant"] else "no"),
                     )
                     for lw in d.laws
                 ]
@@ -453,7 +495,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
 
     from pmalab.identify.api import identify, load
     from pmalab.identify.laws import LAWS
-    from pmalab.identify.noise import noise_floor_nrmse
+    from pmalab.identify.outputs import validation_floor
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
@@ -502,7 +544,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
         )
         res.save(outs[m], force=args.force)
         if not floors:
-            floors = [noise_floor_nrmse(v.run.force, v.run.time) for v in res.validation]
+            floors = [validation_floor(v) or float("nan") for v in res.validation]
         vn = [float(v.metrics["nrmse"]) for v in res.validation]
         fit = [float(rf.result.metrics["nrmse"]) for rf in res.campaign.runs]
         k = len(
