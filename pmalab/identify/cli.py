@@ -279,6 +279,12 @@ def run_identify(args: argparse.Namespace) -> int:
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
+    if res.campaign.output != "position":
+        from pmalab.identify.outputs import validation_headline
+
+        line = validation_headline(res.validation)
+        if line:
+            print(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -429,9 +435,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         lw["law"],
                         f"{lw['nrmse_before']:.4f}",
                         f"{lw['nrmse_after']:.4f}",
-                        f"{lw['fall_percent']:+.1f}",
-                        f"{lw['gain_x_floor']:+.2f}",
-                        "yes" if lw["significant"] else "no",
+                        "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",
+                        "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
+                        "fit failed"
+                        if lw.get("status") == "failed"
+                        else ("yes" if lw["significant"] else "no"),
                     )
                     for lw in d.laws
                 ]
@@ -474,7 +482,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
 
     from pmalab.identify.api import identify, load
     from pmalab.identify.laws import LAWS
-    from pmalab.identify.noise import noise_floor_nrmse
+    from pmalab.identify.outputs import validation_floor
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
@@ -515,7 +523,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
         )
         res.save(outs[m], force=args.force)
         if not floors:
-            floors = [noise_floor_nrmse(v.run.force, v.run.time) for v in res.validation]
+            floors = [validation_floor(v) or float("nan") for v in res.validation]
         vn = [float(v.metrics["nrmse"]) for v in res.validation]
         fit = [float(rf.result.metrics["nrmse"]) for rf in res.campaign.runs]
         k = len(

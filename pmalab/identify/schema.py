@@ -161,6 +161,11 @@ class ValidationRow(RowMetrics):
     message: NotRequired[str | None]
     #: its pressure lies outside the identified range
     extrapolated: NotRequired[bool]
+    #: the metrics score the run from this time on (s from its first sample): its record
+    #: parameters were estimated on the part before
+    scored_from_s: NotRequired[float | None]
+    #: the noise floor (nrmse) of the scored part
+    noise_floor_nrmse: NotRequired[float | None]
 
 
 class InputFile(TypedDict):
@@ -303,8 +308,12 @@ class RankingEntry(TypedDict):
     nrmse_after: float
     #: the ladder added it (significant at its step)
     significant: bool
-    fall_percent: NotRequired[float]
-    fall_se_percent: NotRequired[float]
+    #: "ok", or "failed" (the identification with it diverged or did not converge:
+    #: ``reason`` says why, and the entry carries no fall)
+    status: NotRequired[str]
+    reason: NotRequired[str]
+    fall_percent: NotRequired[float | None]
+    fall_se_percent: NotRequired[float | None]
     n_params: NotRequired[int]
     runs_improved: NotRequired[float]
     #: the fall in nrmse in units of the noise floor
@@ -343,8 +352,11 @@ class LawEntry(TypedDict):
     law: str
     nrmse_before: float
     nrmse_after: float
-    fall_percent: float
+    #: null when the law's fit failed (``status`` "failed", ``reason``)
+    fall_percent: float | None
     significant: bool
+    status: NotRequired[str]
+    reason: NotRequired[str]
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]

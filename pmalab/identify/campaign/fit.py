@@ -38,7 +38,7 @@ from pmalab.identify.estimation.output_error import (
     fit_output_error,
     position_data,
 )
-from pmalab.identify.estimation.records import TARE_NOTE, predict_record
+from pmalab.identify.estimation.records import TARE_NOTE, predict_record, scored_from
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
 from pmalab.identify.messages import detail, note, prefixed
 from pmalab.identify.metrics import metrics
@@ -190,6 +190,30 @@ class CampaignFit:
             th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
         return th
 
+    def record_prior(self) -> dict[str, tuple[float, float]]:
+        """Per effect nuisance parameter (a drift rate; not h0 nor a record's zero): the
+        mean and spread of its values over the identification runs — what the campaign says
+        a record's value is before the record is seen (its prior, mean ± sd; the sd at least
+        10 % of |mean| or 1e-9).  A predicted record's value is estimated on its early part
+        pulled toward this prior (:func:`~pmalab.identify.estimation.records.estimate_record`)."""
+        names = [n for n in self.model.record_params if n not in self.model.state_params]
+        out: dict[str, tuple[float, float]] = {}
+        for n in names:
+            if self.joint is not None and n in self.joint.nuisance:
+                vals = np.asarray(self.joint.nuisance[n], dtype=float)
+            else:
+                vals = np.asarray(
+                    [rf.result.params[n].value for rf in self.runs if n in rf.result.params],
+                    dtype=float,
+                )
+            vals = vals[np.isfinite(vals)]
+            if vals.size == 0:
+                continue
+            mu = float(np.mean(vals))
+            sd = float(np.std(vals, ddof=1)) if vals.size > 1 else abs(mu)
+            out[n] = (mu, max(sd, 0.1 * abs(mu), 1e-9))
+        return out
+
     def predict(
         self,
         run: Run | Signals,
@@ -211,13 +235,21 @@ class CampaignFit:
             sig = run
         p = sig.p_nom if p_nom is None else float(p_nom)
         return predict_record(
-            self.model, sig, self.theta(p), force=force, initial=initial, bounds=self.bounds
+            self.model,
+            sig,
+            self.theta(p),
+            force=force,
+            initial=initial,
+            bounds=self.bounds,
+            prior=self.record_prior(),
         )
 
     def validate(self, run: Run, initial: str = "estimate") -> dict:
         """Metrics of this model's free-run prediction of ``run``."""
         sig = Signals.from_run(run)
-        return metrics(run.force, self.predict(sig, force=run.force, initial=initial), sig.x)
+        fm = self.predict(sig, force=run.force, initial=initial)
+        i0 = scored_from(sig, initial)  # after the early part the record was set on
+        return metrics(run.force[i0:], fm[i0:], sig.x[i0:])
 
 
 def predict_run(campaign_fit: CampaignFit, run: Run) -> np.ndarray:
