@@ -534,7 +534,7 @@ def read_runs(
                 if n < 2:
                     raise _fail(path, name, "time", f"too few samples ({n})")
                 run = long_runs.take(
-                    path, name, g, n, attrs, exempt_last=run_state(status) != "completed"
+                    path, name, raw, n, attrs, exempt_last=run_state(status) != "completed"
                 )
                 _check_window(path, name, run.attrs, run.time)
                 out.append(run)
