@@ -126,6 +126,15 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(default) or the seeds' per-run quadratics",
     )
     p.add_argument(
+        "--structure",
+        default="auto",
+        choices=("auto", "free", "scaled", "scaled-thresholds"),
+        help="how an element law's elements change with pressure: chosen by "
+        "leave-one-pressure-out evidence (auto, default), every parameter its own law "
+        "(free), one profile scaled in magnitude (scaled), and its slip displacements "
+        "scaled too (scaled-thresholds)",
+    )
+    p.add_argument(
         "--static",
         metavar="MAP",
         help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
@@ -235,6 +244,7 @@ def run_identify(args: argparse.Namespace) -> int:
         pressure_model=args.pressure_model,
         whole_run=args.whole_run,
         output=args.output,
+        structure=args.structure,
     )
     jpath, hpath = res.save(out, force=args.force)
 
@@ -279,6 +289,9 @@ def run_identify(args: argparse.Namespace) -> int:
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
+    st = getattr(res.campaign, "structure", None)
+    if st is not None:
+        print(f"  {structure_line(st)}")
     if res.campaign.output != "position":
         from pmalab.identify.outputs import validation_headline
 
@@ -494,6 +507,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
         raise PmalabError(f"--model {args.model}: a law is named twice")
     if args.hold_out or args.fix or args.free:
         raise PmalabError("--hold-out, --fix and --free: give one --model at a time")
+    structured = [m for m in laws if args.structure in ("auto", "free", *LAWS[m].structures)]
+    if len(structured) < len(laws) and args.structure != "auto":
+        other = next(m for m in laws if m not in structured)
+        raise PmalabError(
+            f"--structure {args.structure}: {other} offers "
+            f"{', '.join(['free', *LAWS[other].structures])}"
+        )
     outs = {
         m: prepare_output_dir(
             str(Path(args.out) / m), ("identification.json", "predictions.h5"), args.force
@@ -520,6 +540,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
             progress=show_progress(args),
             pressure_model=args.pressure_model,
             whole_run=args.whole_run,
+            structure=args.structure if m in structured else "auto",
         )
         res.save(outs[m], force=args.force)
         if not floors:
@@ -543,6 +564,10 @@ def run_identify_many(args: argparse.Namespace) -> int:
                 "identification_nrmse": float(np.mean(fit)),
                 "parameters_per_run": k,
                 "directory": str(outs[m]),
+                # the pressure structure the law's elements took (None: the law has none)
+                "pressure_structure": None
+                if res.campaign.structure is None
+                else res.campaign.structure.chosen,
             }
         )
     floor = float(np.mean(floors)) if floors else None
@@ -563,7 +588,16 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     print(
         _table(
-            [("law", "validation nrmse", "× floor", "fit nrmse (per run)", "parameters")]
+            [
+                (
+                    "law",
+                    "validation nrmse",
+                    "× floor",
+                    "fit nrmse (per run)",
+                    "parameters",
+                    "structure",
+                )
+            ]
             + [
                 (
                     r["law"],
@@ -571,6 +605,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
                     "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
                     f"{r['identification_nrmse']:.4f}",
                     str(r["parameters_per_run"]),
+                    r["pressure_structure"] or "-",
                 )
                 for r in rows
             ]
@@ -580,6 +615,22 @@ def run_identify_many(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
     print(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
+
+
+def structure_line(st) -> str:
+    """One line naming the pressure structure a campaign chose and its evidence."""
+    if not st.scores:
+        return f"pressure structure: {st.chosen} (chosen by the user)"
+    best = st.scores[st.chosen]
+    others = ", ".join(
+        f"{s} {v:.4f} ({100.0 * (v / best - 1.0):+.1f} %)"
+        for s, v in sorted(st.scores.items(), key=lambda kv: kv[1])
+        if s != st.chosen
+    )
+    return (
+        f"pressure structure: {st.chosen} — leave-one-pressure-out held-out nrmse {best:.4f} "
+        f"({st.n_params[st.chosen]} coefficients); {others}"
+    )
 
 
 def _table(rows: list[tuple[str, ...]]) -> str:

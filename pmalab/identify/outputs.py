@@ -264,6 +264,8 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
         "pressure_range_MPa": list(cf.pressure_range),
         "joint_fit": _joint_block(cf),
+        # which pressure structure an element law's elements took, chosen how, by how much
+        "pressure_structure": None if cf.structure is None else cf.structure.as_json(),
         "output": cf.output,
         "output_error": _output_error_block(cf),
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},

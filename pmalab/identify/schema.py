@@ -253,6 +253,35 @@ class OutputErrorFit(TypedDict):
     note: NotRequired[str]
 
 
+class StructureCandidate(TypedDict):
+    """One candidate pressure structure and its held-out evidence."""
+
+    #: ``free`` | ``scaled`` | ``scaled-thresholds``
+    structure: str
+    #: RMS leave-one-pressure-out nrmse over the left-out runs (None: failed)
+    heldout_nrmse: float | None
+    #: pressure-law coefficients of the muscle (k, c0 and the law's; no h0)
+    n_params: int | None
+    heldout_nrmse_per_run: list[float]
+    status: NotRequired[str]
+    reason: NotRequired[str]
+
+
+class PressureStructure(TypedDict):
+    """``identification.json`` ``pressure_structure``: how an element law's elements change
+    with pressure, chosen by held-out evidence across pressure."""
+
+    law: str
+    chosen: str
+    #: ``leave-one-pressure-out (...)`` or ``user``
+    criterion: str
+    #: how much higher (%) the best other candidate's held-out nrmse is than the winner's
+    margin_percent: float | None
+    #: the interior pressure levels left out in turn, MPa
+    levels_left_out_MPa: list[float]
+    candidates: list[StructureCandidate]
+
+
 class IdentificationDoc(TypedDict):
     """``identification.json``: the model, the per-run fits, the pressure laws and the
     validation on held-out runs."""
@@ -281,6 +310,8 @@ class IdentificationDoc(TypedDict):
     #: [lo, hi], MPa
     pressure_range_MPa: NotRequired[list[float | None]]
     joint_fit: NotRequired[JointFit | None]
+    #: which pressure structure an element law's elements took (None: the law has none)
+    pressure_structure: NotRequired[PressureStructure | None]
     #: ``force`` | ``position``
     output: NotRequired[str]
     output_error: NotRequired[OutputErrorFit | None]
@@ -533,6 +564,8 @@ class LawRow(TypedDict):
     directory: str
     #: validation nrmse / the held-out runs' noise floor
     x_floor: float | None
+    #: the pressure structure the law's elements took (None: the law offers none)
+    pressure_structure: NotRequired[str | None]
 
 
 class LawsDoc(TypedDict):
