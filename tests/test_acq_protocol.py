@@ -209,6 +209,23 @@ def test_precomputed_commands_equal_the_scalar_definition(wf):
                                command_array(r, np.arange(n) / 500.0), atol=1e-12)
 
 
+def test_commands_generated_block_by_block_equal_the_whole_run():
+    """The runner generates a run's commands a block at a time as it plays them (never the
+    whole list): same values at every deadline, also across block edges and after a gap of
+    missed deadlines skips ahead."""
+    from pmalab.acquisition.runner import CommandBlocks
+
+    (r,) = parse_protocol(GOOD_RUN + 'waveform = "triangle"\n', "w.toml").runs
+    n = int(r.duration_s * 500) + 1
+    whole = command_samples(r, 500.0, n)
+    blocks = CommandBlocks(r, 500.0, n, block=97)
+    ks = [*range(0, 300), *range(1000, n, 7)]  # a gap of 700 missed deadlines, then strided
+    assert [blocks[k] for k in ks] == whole[ks].tolist()
+    assert len(blocks._values) <= 97  # one block held at a time
+    with pytest.raises(IndexError):
+        blocks[n]
+
+
 def test_preload_is_held_while_settling_and_blended_by_the_ramp():
     import numpy as np
 

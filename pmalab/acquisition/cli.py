@@ -146,6 +146,37 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="MPA",
         help="nominal muscle pressure in MPa (required without a pressure column)",
     )
+    q.add_argument(
+        "--position",
+        type=float,
+        metavar="MM",
+        help="contraction in mm an isometric test held (a file without a position column)",
+    )
+    q.add_argument(
+        "--position-from-name",
+        metavar="REGEX",
+        help="held contraction from each file's name, the number in the first group and "
+        "the unit after it, e.g. '(\\d+)mm', or '(\\d+)pct' with --max-contraction",
+    )
+    q.add_argument(
+        "--max-contraction",
+        type=float,
+        metavar="MM",
+        help="the muscle's maximum contraction in mm (turns a percentage in a file name into mm)",
+    )
+    q.add_argument(
+        "--load",
+        type=float,
+        metavar="N",
+        help="the constant load in N of an isotonic test (recorded; makes the test isotonic)",
+    )
+    q.add_argument(
+        "--test-type",
+        choices=["auto", "isobaric", "isometric", "isotonic", "free"],
+        default="auto",
+        help="what the test held: the pressure (isobaric), the length (isometric), the "
+        "load (isotonic) or nothing (free); default auto: recognised from the channels",
+    )
     q.add_argument("--run", metavar="NAME", help="run name (default: the CSV's stem)")
     q.add_argument(
         "--delimiter",
@@ -209,6 +240,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="each record becomes two runs: the first half for identification, "
         "the second held out for validation",
+    )
+    q.add_argument(
+        "--drop-duplicate-times",
+        action="store_true",
+        help="drop a sample whose time stamp repeats the one before (some DAQ exports "
+        "write a stamp twice); the count dropped is reported and stored with the run",
     )
     q.add_argument("--waveform", default="unknown", help="waveform tag stored with the run")
     q.add_argument(
@@ -407,6 +444,9 @@ def cmd_import(args: argparse.Namespace) -> int:
         columns=cols,
         units=parse_units(args.units),
         pressure_MPa=args.pressure,
+        position_mm=args.position,
+        load_N=args.load,
+        test_type=None if args.test_type == "auto" else args.test_type,
         run=args.run,
         delimiter=parse_delimiter(args.delimiter),
         negate=tuple(args.negate),
@@ -417,18 +457,26 @@ def cmd_import(args: argparse.Namespace) -> int:
         decimal=args.decimal,
         encoding=args.encoding,
         no_header=args.no_header,
-        layout=parse_layout(args.columns),
+        drop_duplicate_times=args.drop_duplicate_times,
+        layout=parse_layout(
+            args.columns,
+            held_position=args.position is not None or bool(args.position_from_name),
+        ),
     )
     opts.check()  # option mistakes before the input is read
+    if args.position is not None and args.position_from_name:
+        raise ConfigError("--position and --position-from-name: give one of them")
+    if args.max_contraction is not None and not (0 < args.max_contraction <= 500):
+        raise ConfigError(
+            f"--max-contraction: must be a contraction > 0 and ≤ 500 mm, got {args.max_contraction:g}"
+        )
+    if args.load is not None and not (0 < args.load <= 20e3):
+        raise ConfigError(f"--load: must be a load > 0 and ≤ 20000 N, got {args.load:g}")
     many = len(args.csv) > 1
 
     def progress(path, run) -> None:
         if many:
-            print(
-                f"  {path}: {len(run)} samples, {run.time[-1] - run.time[0]:.1f} s, "
-                f"{run.nominal_pressure:.4g} MPa",
-                file=sys.stderr,
-            )
+            print(f"  {path}: {_run_summary(run)}", file=sys.stderr)
 
     runs = import_files(
         args.csv,
@@ -436,27 +484,86 @@ def cmd_import(args: argparse.Namespace) -> int:
         opts,
         force=args.force,
         pressure_pattern=args.pressure_from_name,
+        position_pattern=args.position_from_name,
+        max_contraction_mm=args.max_contraction,
         halves=args.split_halves,
         auto_frequency=auto,
         progress=progress,
     )
     if len(runs) == 1:
         run = runs[0]
-        print(
-            f"{args.out}: run '{run.name}', {len(run)} samples, "
-            f"{run.time[-1] - run.time[0]:.2f} s, force {run.force.min():.0f}…"
-            f"{run.force.max():.0f} N, muscle pressure {run.nominal_pressure:.4g} MPa"
-        )
+        print(f"{args.out}: run '{run.name}', {_run_summary(run)}")
     else:
-        levels = sorted({round(r.nominal_pressure, 4) for r in runs})
         held = sum(r.attrs.get("role") == "validation" for r in runs)
+        types = sorted({r.test_type for r in runs})
         print(
             f"{args.out}: {len(runs)} runs from {len(args.csv)} file(s), "
-            f"{sum(len(r) for r in runs)} samples, pressures "
-            f"{', '.join(f'{p:g}' for p in levels)} MPa"
+            f"{sum(len(r) for r in runs)} samples, {'/'.join(types)} test"
+            + ("s" if len(types) > 1 else "")
+            + ", "
+            + _campaign_levels(runs)
             + (f", {held} held out for validation" if held else "")
+            + _dropped_summary(runs)
         )
     return 0
+
+
+def _dropped_summary(runs) -> str:
+    """``--drop-duplicate-times``' count over a campaign (each file counted once: the
+    halves of a split record carry their record's count)."""
+    per_file = {r.file: int(r.attrs.get("dropped_duplicate_times") or 0) for r in runs}
+    n = sum(per_file.values())
+    return f", {n} duplicate time stamps dropped" if n else ""
+
+
+def _run_summary(run) -> str:
+    """One run as the import reports it: samples, duration, force, what the test held."""
+    import numpy as np
+
+    head = (
+        f"{len(run)} samples, {run.time[-1] - run.time[0]:.2f} s, force "
+        f"{run.force.min():.0f}…{run.force.max():.0f} N, {run.test_type} "
+        f"({run.attrs.get('test_type_from', 'recorded')})"
+    )
+    p = run.muscle_pressure
+    if run.test_type == "isobaric":
+        head += f", muscle pressure {run.nominal_pressure:.4g} MPa"
+    else:
+        head += f", muscle pressure {p.min():.3g}…{p.max():.3g} MPa (not held)"
+    if run.test_type == "isometric":
+        head += f", contraction held at {float(run.attrs.get('held_position_mm', 0.0)):.3g} mm"
+    if run.test_type == "isotonic" and run.attrs.get("load_N") is not None:
+        head += f", load {float(run.attrs['load_N']):g} N"
+    if run.branch is not None:
+        codes = sorted({int(c) for c in np.unique(run.branch)})
+        head += f", state column kept (codes {', '.join(map(str, codes))})"
+    dropped = run.attrs.get("dropped_duplicate_times")
+    if dropped:
+        head += f", {int(dropped)} duplicate time stamps dropped"
+    return head
+
+
+def _campaign_levels(runs) -> str:
+    """The levels a campaign's runs held: pressures (isobaric) and/or contractions."""
+    parts = []
+    iso = [r for r in runs if r.test_type == "isobaric"]
+    if iso:
+        levels = sorted({round(r.nominal_pressure, 4) for r in iso})
+        parts.append(f"pressures {', '.join(f'{p:g}' for p in levels)} MPa")
+    held = [r for r in runs if r.test_type == "isometric"]
+    if held:
+        xs = sorted({round(float(r.attrs.get("held_position_mm", 0.0)), 3) for r in held})
+        parts.append(f"contractions held at {', '.join(f'{x:g}' for x in xs)} mm")
+        pmin = min(float(r.muscle_pressure.min()) for r in held)
+        pmax = max(float(r.muscle_pressure.max()) for r in held)
+        parts.append(f"pressure {pmin:.3g}…{pmax:.3g} MPa")
+    other = [r for r in runs if r.test_type in ("isotonic", "free")]
+    if other:
+        parts.append(f"{len(other)} run(s) with pressure and length both varying")
+    n_branch = sum(r.branch is not None for r in runs)
+    if n_branch:
+        parts.append(f"state column kept in {n_branch}")
+    return ", ".join(parts)
 
 
 def cmd_recover(args: argparse.Namespace) -> int:

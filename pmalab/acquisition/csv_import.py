@@ -68,6 +68,7 @@ DEFAULT_COLUMNS = {
     "muscle_pressure": "muscle_pressure",
     "cylinder_pressure": "cylinder_pressure",
     "cylinder_pressure_command": "cylinder_pressure_command",
+    "branch": "branch",
 }
 #: ``--units`` keys: a channel name or a quantity shorthand
 _UNIT_KEYS = {
@@ -102,6 +103,8 @@ LAYOUT_NAMES = {
     "muscle_pressure": "muscle_pressure",
     "cylinder_pressure": "cylinder_pressure",
     "cylinder_pressure_command": "cylinder_pressure_command",
+    "state": "branch",
+    "branch": "branch",
 }
 #: a unit written after a column name: ``Position [mm]``, ``Force (kN)``, ``p {bar}``
 _NAME_UNIT = re.compile(r"^(.*?)\s*([\[\(\{][^\[\]\(\)\{\}]*[\]\)\}])\s*$")
@@ -114,6 +117,12 @@ class CsvImportOptions:
     columns: dict[str, str] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)
     pressure_MPa: float | None = None
+    #: the contraction (mm) a file without a position channel was held at (isometric)
+    position_mm: float | None = None
+    #: the constant load (N) of an isotonic test, recorded as an attr
+    load_N: float | None = None
+    #: the test type to record; None: recognised from the channels (:func:`detect_test_type`)
+    test_type: str | None = None
     run: str | None = None
     delimiter: str = ","
     negate: tuple[str, ...] = ()
@@ -130,6 +139,8 @@ class CsvImportOptions:
     no_header: bool = False
     #: one channel (or ``None`` for a skipped field) per field, from ``--columns``
     layout: list[str | None] | None = None
+    #: drop a sample whose time stamp equals the one before (``--drop-duplicate-times``)
+    drop_duplicate_times: bool = False
 
     def check(self) -> None:
         """Refuse inconsistent layout options (one line naming the option)."""
@@ -165,11 +176,13 @@ class CsvImportOptions:
             )
 
 
-def parse_layout(text: str | None) -> list[str | None] | None:
+def parse_layout(text: str | None, held_position: bool = False) -> list[str | None] | None:
     """``--columns time,-,-,position,pressure,force`` → one channel (or None) per field.
 
-    Short names ``t x f p`` stand for time, position, force and muscle pressure; each
-    channel appears once and time, position and force must all be there.
+    Short names ``t x f p`` stand for time, position, force and muscle pressure, ``state``
+    for a test stand's state code (kept as the ``branch`` channel); each channel appears
+    once and time, position and force must all be there — position not when the record
+    held its length (``held_position``: ``--position`` or ``--position-from-name``).
     """
     if text is None:
         return None
@@ -187,10 +200,16 @@ def parse_layout(text: str | None) -> list[str | None] | None:
         if ch in out:
             raise RunFileError(f"--columns: '{item}' names {ch} twice")
         out.append(ch)
-    missing = [c for c in ("time", "position", "force") if c not in out]
+    needed = ("time", "force") if held_position else ("time", "position", "force")
+    missing = [c for c in needed if c not in out]
     if missing:
+        hint = (
+            "; an isometric record held its length: give --position MM or --position-from-name"
+            if missing == ["position"]
+            else ""
+        )
         raise RunFileError(
-            f"--columns: no field for {', '.join(missing)} (got {text!r}; '-' skips a field)"
+            f"--columns: no field for {', '.join(missing)} (got {text!r}; '-' skips a field)" + hint
         )
     return out
 
@@ -354,11 +373,12 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
                 if c in opts.columns or c in ("time", "position", "force")
             ]
             if opts.layout is not None:
-                hint = (
-                    "; name the pressure field, or give --pressure MPA or --pressure-from-name"
-                    if ch == "muscle_pressure"
-                    else ""
-                )
+                hint = {
+                    "muscle_pressure": "; name the pressure field, or give --pressure MPA "
+                    "or --pressure-from-name",
+                    "position": "; name the position field, or give the contraction an "
+                    "isometric test held: --position MM or --position-from-name",
+                }.get(ch, "")
                 raise RunFileError(
                     f"{path}: run '{run}': channel '{ch}': not in --columns "
                     f"({', '.join(c or '-' for c in opts.layout)}){hint}"
@@ -378,8 +398,10 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
 
     wanted: dict[str, int] = {}
     for ch in DEFAULT_COLUMNS:
-        required = ch in ("time", "position", "force") or (
-            ch == "muscle_pressure" and opts.pressure_MPa is None
+        required = (
+            ch in ("time", "force")
+            or (ch == "position" and opts.position_mm is None)
+            or (ch == "muscle_pressure" and opts.pressure_MPa is None)
         )
         col = find(ch, explicit=required or ch in opts.columns)
         if col is not None:
@@ -493,6 +515,18 @@ def finish_run(
             )
         n = len(raw["time"][0])
         raw["muscle_pressure"] = (np.full(n, float(opts.pressure_MPa)), "MPa")
+    if "position" not in raw:
+        if opts.position_mm is None:
+            raise RunFileError(
+                f"{path}: run '{run}': channel 'position': none found; give the contraction "
+                "an isometric test held: --position MM or --position-from-name"
+            )
+        n = len(raw["time"][0])
+        raw["position"] = (np.full(n, float(opts.position_mm)), "mm")
+        held_position: float | None = float(opts.position_mm)
+    else:
+        held_position = None
+    raw, dropped = _duplicate_times(path, run, raw, opts.drop_duplicate_times)
     chans = validate_channels(path, run, raw, units_hint=_csv_units_hint)
     nominal = (
         float(opts.pressure_MPa)
@@ -518,7 +552,111 @@ def finish_run(
         "source": source,
         "status": "completed",
     }
+    test_type, why = detect_test_type(
+        chans["position"],
+        chans["muscle_pressure"],
+        held_position=held_position is not None,
+        pressure_given="muscle_pressure" not in raw or opts.pressure_MPa is not None,
+        load_N=opts.load_N,
+    )
+    if opts.test_type is not None:
+        test_type, why = opts.test_type, "--test-type"
+    attrs["test_type"] = test_type
+    attrs["test_type_from"] = why
+    if test_type == "isometric":
+        attrs["held_position_mm"] = (
+            held_position if held_position is not None else float(np.median(chans["position"]))
+        )
+    if opts.load_N is not None:
+        attrs["load_N"] = float(opts.load_N)
+    if dropped:
+        attrs["dropped_duplicate_times"] = dropped
     return Run(name=run, attrs=attrs, file=str(path), **chans)
+
+
+def _duplicate_times(
+    path: str | Path, run: str, raw: dict[str, tuple[np.ndarray, str]], drop: bool
+) -> tuple[dict[str, tuple[np.ndarray, str]], int]:
+    """Samples whose time stamp repeats the one before: dropped (``drop``; the first sample
+    of each stamp is kept) or refused with the option that drops them.
+
+    Returns
+    -------
+    (raw, dropped)
+        The channels without the repeated samples, and how many were dropped.  Time going
+        backwards is left to :func:`~pmalab.runfile.validate_channels` (never repaired).
+    """
+    t = np.asarray(raw["time"][0])
+    if t.ndim != 1 or t.size < 2 or any(np.shape(v) != t.shape for v, _ in raw.values()):
+        return raw, 0  # unequal lengths and the like: refused by the channel checks
+    with np.errstate(invalid="ignore"):
+        dt = np.diff(t.astype(np.float64))
+    same = np.flatnonzero(dt == 0) + 1
+    if same.size == 0:
+        return raw, 0
+    if not drop:
+        back = np.flatnonzero(dt < 0)
+        if back.size == 0 or back[0] + 1 > same[0]:
+            raise RunFileError(
+                f"{path}: run '{run}': channel 'time': time stamp repeated at sample "
+                f"{int(same[0])} ({same.size} repeat(s) in the file); add "
+                "--drop-duplicate-times to drop the repeated samples"
+            )
+        return raw, 0
+    keep = np.ones(t.size, dtype=bool)
+    keep[same] = False
+    return {c: (np.asarray(v)[keep], u) for c, (v, u) in raw.items()}, int(same.size)
+
+
+#: a length that moves less than this (mm, peak to peak after the sensor's noise) is held
+HELD_POSITION_MM = 0.2
+#: a pressure that moves less than this (MPa, 5th to 95th percentile) is held
+HELD_PRESSURE_MPA = 0.02
+
+
+def detect_test_type(
+    position: np.ndarray,
+    pressure: np.ndarray,
+    *,
+    held_position: bool = False,
+    pressure_given: bool = False,
+    load_N: float | None = None,
+) -> tuple[str, str]:
+    """The test type a record's channels show, and why (one phrase for the import's report).
+
+    Parameters
+    ----------
+    position, pressure
+        Contraction (mm) and muscle pressure (MPa), canonical units.
+    held_position
+        The contraction was given (``--position``): the length was held.
+    pressure_given
+        The pressure was given (``--pressure``): it was held.
+    load_N
+        An isotonic test's load (``--load``).
+
+    Returns
+    -------
+    (test_type, reason)
+        ``isometric`` when the length is held and the pressure moves, ``isobaric`` when the
+        pressure is held (within :data:`HELD_PRESSURE_MPA` between its 5th and 95th
+        percentile), ``isotonic`` with a load given, else ``free`` (both vary).
+    """
+    lo, hi = np.percentile(pressure, [5.0, 95.0])
+    p_span = float(hi - lo)
+    xlo, xhi = np.percentile(position, [5.0, 95.0])
+    x_span = float(xhi - xlo)
+    if load_N is not None:
+        return "isotonic", f"--load {load_N:g} N"
+    if held_position:
+        if pressure_given:
+            return "isobaric", "--position and --pressure both held"
+        return "isometric", "contraction given, pressure varies"
+    if pressure_given or p_span <= HELD_PRESSURE_MPA:
+        return "isobaric", f"pressure held (moves {p_span * 1e3:.0f} kPa)"
+    if x_span <= HELD_POSITION_MM:
+        return "isometric", f"contraction held (moves {x_span:.2f} mm), pressure varies"
+    return "free", f"contraction and pressure both vary ({x_span:.1f} mm, {p_span * 1e3:.0f} kPa)"
 
 
 def _header_hint(lines: list[str], needed: list[str], names_line: int, delimiter: str) -> str:
@@ -646,6 +784,55 @@ def pressure_from_name(path: str | Path, pattern: str) -> float:
     return mpa
 
 
+def position_from_name(
+    path: str | Path, pattern: str, max_contraction_mm: float | None = None
+) -> float:
+    """The contraction (mm) an isometric record was held at, read off its file name.
+
+    The pattern's first group is the number; the text the pattern matches after the group
+    is its unit: mm (the default), m, um, or ``%`` / ``pct`` — percent of the maximum
+    contraction, which needs ``max_contraction_mm`` (``--max-contraction``).
+    ``'_(\\d+)pct'`` on ``festo10_50pct.txt`` with ``--max-contraction 16`` → 8 mm.
+    """
+    opt = "--position-from-name"
+    try:
+        rx = re.compile(pattern)
+    except re.error as exc:
+        raise RunFileError(f"{opt}: not a regular expression ({exc})") from None
+    if rx.groups < 1:
+        raise RunFileError(
+            f"{opt}: the pattern needs a group around the number, e.g. '(\\d+)mm' or '(\\d+)pct'"
+        )
+    name = Path(path).name
+    m = rx.search(name)
+    if m is None:
+        raise RunFileError(f"{path}: {opt} {pattern!r} does not match the file name '{name}'")
+    try:
+        value = float(m.group(1).replace(",", ".").replace("p", "."))
+    except ValueError:
+        raise RunFileError(f"{path}: {opt}: '{m.group(1)}' is not a number") from None
+    unit_text = name[m.end(1) : m.end()].strip(" _-") or "mm"
+    if unit_text.lower() in ("%", "pct", "percent"):
+        if max_contraction_mm is None:
+            raise RunFileError(
+                f"{path}: {opt}: '{m.group(0)}' is a percentage of the maximum contraction; "
+                "give it in mm with --max-contraction MM"
+            )
+        mm = value / 100.0 * float(max_contraction_mm)
+    else:
+        canon = normalize_unit("position", unit_text)
+        if canon is None:
+            raise RunFileError(
+                f"{path}: {opt}: unknown length unit '{unit_text}' after the number "
+                "(write it in the pattern, e.g. '(\\d+)mm' or '(\\d+)pct')"
+            )
+        mm = value * UNIT_FACTORS["position"][canon]
+    rule = PLAUSIBLE["position"]
+    if not (math.isfinite(mm) and rule.lo <= mm <= rule.hi):
+        raise RunFileError(f"{path}: {opt}: {mm:g} mm is not a contraction ({rule.what})")
+    return mm
+
+
 def excitation_frequency(run: Run) -> float:
     """The motion's fundamental frequency in Hz: the largest peak of the position's spectrum
     (mean and linear trend removed, Hann window), refined by parabolic interpolation."""
@@ -685,7 +872,7 @@ def split_halves(run: Run) -> list[Run]:
     ):
         attrs = dict(run.attrs, role=role, split=f"half {tag} of '{run.name}'")
         chans = {c: getattr(run, c)[sl] for c in ("time", "position", "force", "muscle_pressure")}
-        for c in ("cylinder_pressure", "cylinder_pressure_command"):
+        for c in ("cylinder_pressure", "cylinder_pressure_command", "branch"):
             v = getattr(run, c, None)
             if v is not None:
                 chans[c] = v[sl]
@@ -713,6 +900,8 @@ def read_campaign(
     opts: CsvImportOptions,
     *,
     pressure_pattern: str | None = None,
+    position_pattern: str | None = None,
+    max_contraction_mm: float | None = None,
     halves: bool = False,
     auto_frequency: bool = False,
     progress=None,
@@ -737,6 +926,10 @@ def read_campaign(
             nominal = pressure_from_name(p, pressure_pattern)
             if opts.pressure_MPa is None:  # the constant pressure of a file without a column
                 o = replace(opts, pressure_MPa=nominal)
+        held = None
+        if position_pattern:
+            held = position_from_name(p, position_pattern, max_contraction_mm)
+            o = replace(o, position_mm=held)
         got = read_export(p, o)
         if len(paths) > 1 and not opts.run and p.suffix.lower() in (".tdms", ".mat"):
             # several files: runs named by their file (and group/struct when a file has more)
@@ -746,6 +939,8 @@ def read_campaign(
             if nominal is not None:
                 run.attrs["muscle_pressure_MPa"] = nominal
                 run.attrs["pressure_from"] = f"file name ({pressure_pattern})"
+            if held is not None:
+                run.attrs["position_from"] = f"file name ({position_pattern})"
             if auto_frequency:
                 run.attrs["frequency_Hz"] = round(excitation_frequency(run), 4)
                 run.attrs["frequency_from"] = "position spectrum (--frequency auto)"
@@ -767,6 +962,8 @@ def import_files(
     *,
     force: bool = False,
     pressure_pattern: str | None = None,
+    position_pattern: str | None = None,
+    max_contraction_mm: float | None = None,
     halves: bool = False,
     auto_frequency: bool = False,
     progress=None,
@@ -790,6 +987,8 @@ def import_files(
         paths,
         opts,
         pressure_pattern=pressure_pattern,
+        position_pattern=position_pattern,
+        max_contraction_mm=max_contraction_mm,
         halves=halves,
         auto_frequency=auto_frequency,
         progress=progress,
@@ -841,7 +1040,8 @@ def match_named(
             out[ch] = hit
             continue
         required = (
-            ch in ("position", "force")
+            ch == "force"
+            or (ch == "position" and opts.position_mm is None)
             or (ch == "time" and need_time)
             or (ch == "muscle_pressure" and opts.pressure_MPa is None)
             or ch in opts.columns

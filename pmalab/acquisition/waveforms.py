@@ -120,7 +120,13 @@ def envelope_array(spec: RunSpec, t: np.ndarray) -> np.ndarray:
 def command_samples(spec: RunSpec, rate_Hz: float, n: int) -> np.ndarray:
     """The command at the ``n`` sample deadlines ``k / rate_Hz`` (MPa): what the runner
     sends after sample ``k``; equal to :func:`command` at those times."""
-    t = np.arange(n) / rate_Hz
+    return command_block(spec, rate_Hz, 0, n)
+
+
+def command_block(spec: RunSpec, rate_Hz: float, start: int, stop: int) -> np.ndarray:
+    """The command at the deadlines ``k / rate_Hz`` for ``start ≤ k < stop`` (MPa): one
+    block of :func:`command_samples`, so a long run is generated as it is played."""
+    t = np.arange(start, stop) / rate_Hz
     env = envelope_array(spec, t)
     phase = (t - spec.steady_start_s) * spec.frequency_Hz
     val = spec.offset_MPa + spec.amplitude_MPa * unit_wave_array(

@@ -182,10 +182,10 @@ class ControlRunWriter:
         gains: Mapping[str, np.ndarray],
         lateness: np.ndarray,
     ) -> None:
-        cols = [gains[c[6:]] if c.startswith("gains/") else signals[c] for c in self.w.channels]
         n = len(lateness)
         if not n:
             return
+        cols = [gains[c[6:]] if c.startswith("gains/") else signals[c] for c in self.w.channels]
 
         def do() -> None:
             self.w.extend(cols, lateness)
@@ -197,11 +197,12 @@ class ControlRunWriter:
     def finish(self, run: ControlRun) -> None:
         """The samples not yet written, the summary (metrics, vent) and the status."""
         i = self.sent
-        self.write(
-            {k: v[i:] for k, v in run.signals.items()},
-            {k: v[i:] for k, v in run.gains.items()},
-            run.lateness[i:],
-        )
+        if i < run.n:  # a loop that streamed to this sink has written every sample
+            self.write(
+                {k: v[i:] for k, v in run.signals.items()},
+                {k: v[i:] for k, v in run.gains.items()},
+                run.lateness[i:],
+            )
         self._guard(lambda: self.w.set_summary(_clean(run_summary(run))))
         self._guard(lambda: self.w.finish(run.status))
 

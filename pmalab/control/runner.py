@@ -45,7 +45,7 @@ from pmalab.control.controllers import CascadeSettings
 from pmalab.control.model import IdentifiedModel
 from pmalab.control.reference import Reference
 from pmalab.errors import PmalabError
-from pmalab.rig.base import VentResult, vent_phrase
+from pmalab.rig.base import VentResult, sampled, vent_phrase
 from pmalab.rig.manipulator import ManipulatorRig
 
 #: recorded signals → units (the run file's channels and the ``gains/`` datasets)
@@ -73,6 +73,17 @@ GAINS = {
 POSITION_ONLY = ("position_reference", "position_setpoint", "force_reference", "hysteresis_force")
 #: samples between two looks at ``sink.due()`` (0.05 s of the run)
 SINK_CHECK_EVERY = 25
+#: samples per block of the loop's buffers (8.2 s at 500 Hz)
+BLOCK = 4096
+#: the signals a run keeps in memory when its samples stream to a sink (what its metrics
+#: and summary read); the file holds every signal and gain
+KEPT_WITH_SINK = (
+    "time",
+    "position",
+    "position_reference",
+    "muscle_pressure",
+    "muscle_pressure_reference",
+)
 
 
 class SampleSink(Protocol):
@@ -141,9 +152,13 @@ class ControlRun:
     #: how late each sample was read after its deadline (s; 0 on a virtual clock)
     lateness: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
+    #: samples recorded (with a sink, only :data:`KEPT_WITH_SINK` stay in ``signals``;
+    #: every sample and gain is in the sink's file); -1: ``len(signals["time"])``
+    n_samples: int = -1
+
     @property
     def n(self) -> int:
-        return int(self.signals["time"].shape[0])
+        return self.n_samples if self.n_samples >= 0 else int(self.signals["time"].shape[0])
 
     @property
     def completed(self) -> bool:
@@ -180,11 +195,11 @@ def run_control(
         controller, settings, model if loop == "position" else None, rig.geometry, p_max
     )
     n = int(round(duration_s / dt)) + 1
-    sig = {k: np.full(n, np.nan) for k in SIGNALS}
-    gains = {k: np.full(n, np.nan) for k in GAINS}
-    late = np.zeros(n)
-    written = [0]
-    monitor = SafetyMonitor(rig.limits)
+    # samples go into one block of buffers (never arrays for the whole run: 17 of them were
+    # 2.4 GB for 10 hours at 500 Hz); a full block, or a due sink, hands them on
+    buf = _Blocks(min(n, BLOCK), sink, keep=None if sink is None else KEPT_WITH_SINK)
+    sig, gains, late = buf.sig, buf.gains, buf.late
+    monitor = SafetyMonitor(rig.limits, channels=[rig.channels[c] for c in sampled(rig.channels)])
     sampler = rig.sampler
     regulator = rig.muscle_regulator
     status = "completed"
@@ -210,27 +225,32 @@ def run_control(
     gk = [gains[g] for g in GAINS]
     stats: Stats = sink.stats if sink is not None else LoopStats()
 
-    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float, lk: float) -> float:
+    def step(k: int, tr: float, v: tuple[float, ...], lk: float) -> float:
+        x, f, p = v[0], v[1], v[2]  # the manipulator's sampled channels: position, force, p
         r, r_d, r_dd = reference.value(tr)
         out = cascade.position_step(r, r_d, r_dd, x, p) if is_pos else cascade.pressure_step(r, p)
         u = out.command
         if not math.isfinite(u):
             raise _Diverged("controller output is not finite (diverged)")
-        i = done[0]
+        i = buf.i
+        if i == buf.size:  # the block is full: hand it on, start the next
+            buf.flush()
+            i = 0
         s_t[i], s_x[i], s_f[i], s_p[i], s_u[i] = tr, x, f, p, u
         s_pr[i], s_fr[i], s_h[i] = out.pressure_reference, out.force_reference, out.hysteresis
         if is_pos:
             s_xr[i] = r
             s_sp[i] = out.setpoint
-        for arr, v in zip(gk, cascade.gains()):
-            arr[i] = v
+        for arr, g in zip(gk, cascade.gains()):
+            arr[i] = g
         late[i] = lk
-        done[0] = i + 1
+        buf.i = i + 1
+        done[0] += 1
         if progress is not None and k % every == 0:
             progress(tr)
         return u
 
-    def on_trip(reason: str, *_sample: float) -> None:
+    def on_trip(reason: str, *_sample: object) -> None:
         nonlocal vent
         vent = rig.vent()  # in this sample period
 
@@ -240,13 +260,7 @@ def run_control(
             and (k % SINK_CHECK_EVERY == 0 or sampler.hardware_timed)
             and sink.due()
         ):
-            a, b = written[0], done[0]
-            sink.write(
-                {kk: v[a:b] for kk, v in sig.items()},
-                {kk: v[a:b] for kk, v in gains.items()},
-                late[a:b],
-            )
-            written[0] = b
+            buf.flush()
 
     pending: dict[str, int | None] = {"sig": None}
     try:
@@ -265,6 +279,7 @@ def run_control(
                 stats=stats,
                 late_threshold_s=LATE_THRESHOLD_S,
                 after_block=after_block,
+                channels=sampled(rig.channels),
             )
     except Trip as exc:
         status = f"aborted: {exc}"
@@ -283,8 +298,13 @@ def run_control(
             sampler.stop()
         except Exception:  # the vent above is what matters; stop faults are secondary
             pass
-    keep = slice(0, done[0])
-    signals = {kk: v[keep] for kk, v in sig.items() if kk in signals_of(loop)}
+    if sink is not None:
+        try:
+            buf.flush()  # the last block (the caller's finish() writes summary and status)
+        except PmalabError as exc:  # a full disk: the samples so far are in the file
+            status = f"aborted: {exc}"
+    kept_sig, kept_gains, kept_late = buf.result()
+    signals = {kk: v for kk, v in kept_sig.items() if kk in signals_of(loop)}
     attrs = run_attrs(controller, reference, duration_s, settings, model)
     attrs.update(
         vent=vent_phrase("muscle regulator", vent),
@@ -298,12 +318,64 @@ def run_control(
         loop,
         reference,
         signals,
-        {kk: v[keep] for kk, v in gains.items()},
+        kept_gains,
         status,
         attrs,
         time.perf_counter() - wall0,
-        late[keep],
+        kept_late,
+        n_samples=done[0],
     )
+
+
+class _Blocks:
+    """One block of sample buffers (every signal, gain and the lateness), handed on when
+    full: to the sink (the live run file) when there is one, and into the run's in-memory
+    result — every channel without a sink, only ``keep`` (the signals the metrics read)
+    with one."""
+
+    def __init__(self, size: int, sink: SampleSink | None, keep: tuple[str, ...] | None) -> None:
+        self.size = max(1, size)
+        self.sink, self.keep = sink, keep
+        self.sig = {k: np.full(self.size, np.nan) for k in SIGNALS}
+        self.gains = {k: np.full(self.size, np.nan) for k in GAINS}
+        self.late = np.zeros(self.size)
+        self.i = 0  # samples in the block
+        self._sig: dict[str, list[np.ndarray]] = {k: [] for k in SIGNALS}
+        self._gains: dict[str, list[np.ndarray]] = {k: [] for k in GAINS}
+        self._late: list[np.ndarray] = []
+
+    def flush(self) -> None:
+        """Hand the block's samples on and empty it (the buffers are reused in place)."""
+        b = self.i
+        if not b:
+            return
+        self.i = 0
+        sig = {k: v[:b].copy() for k, v in self.sig.items()}
+        gains = {k: v[:b].copy() for k, v in self.gains.items()}
+        late = self.late[:b].copy()
+        for k, v in sig.items():
+            if self.keep is None or k in self.keep:
+                self._sig[k].append(v)
+        if self.keep is None:
+            for k, v in gains.items():
+                self._gains[k].append(v)
+            self._late.append(late)
+        if self.sink is not None:
+            self.sink.write(sig, gains, late)
+
+    def result(
+        self,
+    ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], np.ndarray]:
+        """What the run keeps in memory (the block not yet flushed included)."""
+        if self.i and self.sink is None:
+            self.flush()
+
+        def cat(parts: list[np.ndarray]) -> np.ndarray:
+            return np.concatenate(parts) if parts else np.zeros(0)
+
+        sig = {k: cat(v) for k, v in self._sig.items() if self.keep is None or k in self.keep}
+        gains = {k: cat(v) for k, v in self._gains.items()} if self.keep is None else {}
+        return sig, gains, cat(self._late)
 
 
 class _Diverged(Exception):

@@ -14,6 +14,7 @@ back in task order whatever order they finish in.  An error in any task is re-ra
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -24,10 +25,42 @@ from pmalab.errors import PmalabError
 
 T = TypeVar("T")
 R = TypeVar("R")
+C = TypeVar("C")
 
 DEFAULT_JOBS = 2
 #: how long to try reaching a Dask scheduler before giving up (s)
 SCHEDULER_TIMEOUT_S = 10.0
+#: environment variable choosing the worker start method (fork, forkserver, spawn); unset:
+#: the platform's default (fork on Linux before Python 3.14, forkserver after, spawn on macOS)
+START_METHOD_ENV = "PMALAB_START_METHOD"
+
+#: the shared state of :func:`map_with_context` inside a worker process (set by the pool's
+#: initializer from arguments, never inherited from the parent: valid under every start method)
+_WORKER_CONTEXT: list[Any] = []
+
+
+def _mp_context() -> Any:
+    """The start method's context (:data:`START_METHOD_ENV`), or None for the default."""
+    name = os.environ.get(START_METHOD_ENV, "").strip()
+    if not name:
+        return None
+    if name not in multiprocessing.get_all_start_methods():
+        raise PmalabError(
+            f"{START_METHOD_ENV}={name}: not a start method here (one of "
+            f"{', '.join(multiprocessing.get_all_start_methods())})"
+        )
+    return multiprocessing.get_context(name)
+
+
+def _init_worker(*context: Any) -> None:
+    """Worker initializer: pin BLAS and keep the shared state passed in (if any)."""
+    _pin_blas()
+    _WORKER_CONTEXT[:] = context
+
+
+def _call_in_context(fn: Callable[[Any, Any], Any], task: Any) -> Any:
+    """Run one task of :func:`map_with_context` in a worker, with the worker's state."""
+    return fn(_WORKER_CONTEXT[0], task)
 
 
 def _pin_blas() -> None:
@@ -74,9 +107,52 @@ def map_tasks(
         bar.close()
 
 
-def _map_pool(fn: Callable[[T], R], tasks: list[T], jobs: int, bar: Any) -> list[R]:
+def map_with_context(
+    fn: Callable[[C, T], R],
+    context: C,
+    tasks: Sequence[T],
+    *,
+    jobs: int = DEFAULT_JOBS,
+    scheduler: str | None = None,
+    progress: bool = False,
+    desc: str = "",
+) -> list[R]:
+    """``[fn(context, t) for t in tasks]``, in parallel, with ``context`` shipped once per
+    worker process (by the pool's initializer) rather than once per task.
+
+    The worker state travels as an argument, so this works under every start method (fork,
+    forkserver, spawn); on a Dask cluster each task carries ``context``."""
+    tasks = list(tasks)
+    if scheduler:
+        from functools import partial
+
+        return map_tasks(
+            partial(fn, context), tasks, scheduler=scheduler, progress=progress, desc=desc
+        )
+    if jobs <= 1 or len(tasks) <= 1:
+        return map_tasks(lambda t: fn(context, t), tasks, jobs=1, progress=progress, desc=desc)
+    from functools import partial
+
+    from tqdm import tqdm
+
+    bar = tqdm(
+        total=len(tasks), desc=desc, file=sys.stderr, disable=not progress, unit="run", leave=False
+    )
+    try:
+        return _map_pool(
+            partial(_call_in_context, fn), tasks, min(jobs, len(tasks)), bar, (context,)
+        )
+    finally:
+        bar.close()
+
+
+def _map_pool(
+    fn: Callable[[T], R], tasks: list[T], jobs: int, bar: Any, initargs: tuple[Any, ...] = ()
+) -> list[R]:
     out: list[Any] = [None] * len(tasks)
-    with ProcessPoolExecutor(max_workers=jobs, initializer=_pin_blas) as ex:
+    with ProcessPoolExecutor(
+        max_workers=jobs, mp_context=_mp_context(), initializer=_init_worker, initargs=initargs
+    ) as ex:
         futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
         try:
             for f in as_completed(futs):

@@ -1,0 +1,100 @@
+"""Imports that cannot be silently wrong: repeated time stamps, ..."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pmalab.cli import main as pmalab_main
+from pmalab.runfile import read_runs
+
+
+def _cli(args) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = pmalab_main([str(a) for a in args])
+    return code, out.getvalue(), err.getvalue()
+
+
+def _export(path: Path, *, n: int = 5000, p: float = 0.4, seed: int = 0,
+            repeat: tuple[int, ...] = ()) -> Path:
+    """A clean isobaric export (0.5 Hz sine, 500 Hz), rows in ``repeat`` written twice."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.002
+    x = 12.0 + 8.0 * np.sin(2 * np.pi * 0.5 * t)
+    f = 300.0 - 10.0 * x + rng.normal(0.0, 1.0, n)
+    pm = p + rng.normal(0.0, 0.001, n)
+    rows = [f"{a:.3f},{b:.4f},{c:.3f},{d:.4f}" for a, b, c, d in zip(t, x, f, pm)]
+    for k in sorted(repeat, reverse=True):
+        rows.insert(k + 1, rows[k])
+    path.write_text("time,position,force,muscle_pressure\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def test_repeated_stamp_refused_with_the_option_named(tmp_path):
+    src = _export(tmp_path / "rec.csv", repeat=(8,))
+    code, _, err = _cli(["import", src, "--out", tmp_path / "o.h5"])
+    assert code == 2 and err.count("\n") == 1
+    assert "sample 9" in err and "--drop-duplicate-times" in err
+    assert not (tmp_path / "o.h5").exists()
+
+
+def test_drop_duplicate_times_counts_and_keeps_the_rest(tmp_path):
+    src = _export(tmp_path / "rec.csv", n=5000, repeat=(8, 1000, 4000))
+    code, out, err = _cli(["import", src, "--drop-duplicate-times", "--out", tmp_path / "o.h5"])
+    assert code == 0, err
+    assert "3 duplicate time stamps dropped" in out
+    (run,) = read_runs(tmp_path / "o.h5")
+    assert len(run) == 5000  # the original samples, each once
+    assert np.all(np.diff(run.time) > 0)
+    assert run.attrs["dropped_duplicate_times"] == 3
+
+
+def test_drop_duplicate_times_campaign_count(tmp_path):
+    a = _export(tmp_path / "a_3bar.csv", p=0.3, repeat=(8,))
+    b = _export(tmp_path / "b_5bar.csv", p=0.5, seed=1, repeat=(20,))
+    code, out, err = _cli(["import", a, b, "--split-halves", "--drop-duplicate-times",
+                           "--out", tmp_path / "o.h5"])
+    assert code == 0, err
+    assert "4 runs" in out and "2 duplicate time stamps dropped" in out
+
+
+def test_time_going_back_is_never_repaired(tmp_path):
+    src = _export(tmp_path / "rec.csv")
+    lines = src.read_text().splitlines()
+    lines[50], lines[51] = lines[51], lines[50]
+    src.write_text("\n".join(lines) + "\n")
+    code, _, err = _cli(["import", src, "--drop-duplicate-times", "--out", tmp_path / "o.h5"])
+    assert code == 2 and "not strictly increasing" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("fmt", ["tdms", "mat"])
+def test_drop_duplicate_times_other_formats(tmp_path, fmt):
+    n = 3000
+    t = np.arange(n) * 0.002
+    t[100] = t[99]
+    x = 12.0 + 8.0 * np.sin(2 * np.pi * 0.5 * t)
+    chans = {"time": t, "position": x, "force": 300.0 - 10.0 * x,
+             "muscle_pressure": np.full(n, 0.4)}
+    if fmt == "tdms":
+        from nptdms import ChannelObject, GroupObject, TdmsWriter
+
+        src = tmp_path / "rec.tdms"
+        with TdmsWriter(src) as w:
+            w.write_segment([GroupObject("g")]
+                            + [ChannelObject("g", k, v) for k, v in chans.items()])
+    else:
+        import scipy.io
+
+        src = tmp_path / "rec.mat"
+        scipy.io.savemat(src, chans)
+    code, _, err = _cli(["import", src, "--out", tmp_path / "a.h5"])
+    assert code == 2 and "--drop-duplicate-times" in err
+    code, out, err = _cli(["import", src, "--drop-duplicate-times", "--out", tmp_path / "b.h5"])
+    assert code == 0, err
+    assert "1 duplicate time stamps dropped" in out
+    assert len(read_runs(tmp_path / "b.h5")[0]) == n - 1
