@@ -40,6 +40,8 @@ KINDS: dict[str, str] = {
     "pressure": "MPa",
     "angle": "deg",
     "command": "MPa",
+    # a test stand's state code (1 = pressurising, 2 = venting): a number without unit
+    "state": "1",
 }
 #: the muscle of a single-muscle rig (version-1 files)
 SINGLE_MUSCLE = "muscle"
@@ -99,6 +101,8 @@ STANDARD_CHANNELS: tuple[Channel, ...] = (
     _std("cylinder_pressure", "pressure"),
     _std("cylinder_pressure_command", "command"),
 )
+#: a static test stand's state column, kept by the import (not a rig's recorded channel)
+BRANCH_CHANNEL = _std("branch", "state", SINGLE_MUSCLE)
 
 
 class Channels(tuple[Channel, ...]):
@@ -201,6 +205,7 @@ def muscle_channels(muscle: str, *, command: bool = True) -> tuple[Channel, ...]
 
 
 __all__ = [
+    "BRANCH_CHANNEL",
     "KINDS",
     "SINGLE_MUSCLE",
     "STANDARD_CHANNELS",

@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmalab.channels import SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
+from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
 from pmalab.errors import ConfigError, RunFileError, RunFileWarning
 
 if TYPE_CHECKING:  # the windowed reader sits above this module
@@ -534,7 +534,7 @@ def read_runs(
                 if n < 2:
                     raise _fail(path, name, "time", f"too few samples ({n})")
                 run = long_runs.take(
-                    path, name, g, n, attrs, exempt_last=run_state(status) != "completed"
+                    path, name, raw, n, attrs, exempt_last=run_state(status) != "completed"
                 )
                 _check_window(path, name, run.attrs, run.time)
                 out.append(run)
@@ -592,7 +592,7 @@ def run_channels(path: Path | str, run: str, g: Any) -> Channels:
     (version 1, or a version-2 writer's own datasets without a declaration)."""
     text = g.attrs.get("channels")
     if text is None:
-        return Channels(c for c in STANDARD_CHANNELS if c.name in g)
+        return Channels(c for c in (*STANDARD_CHANNELS, BRANCH_CHANNEL) if c.name in g)
     try:
         return Channels.from_attr(decode_attr(text), f"{path}: run '{run}'")
     except ConfigError as exc:
@@ -914,4 +914,6 @@ def _write_groups(f: Any, runs: Sequence[Run]) -> None:
         for ch, values in run.channels().items():
             ds = g.create_dataset(ch, data=np.asarray(values, dtype=np.float64))
             ds.attrs["units"] = CANONICAL_UNITS[ch]
-        declare_channels(g, Channels(c for c in STANDARD_CHANNELS if c.name in g))
+        declare_channels(
+            g, Channels(c for c in (*STANDARD_CHANNELS, BRANCH_CHANNEL) if c.name in g)
+        )

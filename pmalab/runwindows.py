@@ -24,13 +24,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import RunFileError
-from pmalab.runfile import (
-    OPTIONAL_CHANNELS,
-    REQUIRED_CHANNELS,
-    Run,
-    decode_attr,
-    validate_channels,
-)
+from pmalab.runfile import Run, validate_channels
 
 #: samples read to estimate the sample interval of a run without a nominal rate
 _RATE_PROBE = 4096
@@ -43,8 +37,9 @@ class RunWindows:
     ----------
     path, name:
         the file and the run (for messages and :attr:`Run.file`).
-    group:
-        the run's open HDF5 group (valid while its file is open).
+    datasets:
+        ``{canonical channel: (open HDF5 dataset, its units attr)}`` (valid while the file
+        is open; a multi-muscle run's channels already picked for one muscle).
     n:
         samples every channel holds (a killed writer's run is cut to the shortest).
     attrs:
@@ -58,7 +53,7 @@ class RunWindows:
         self,
         path: Path,
         name: str,
-        group: Any,
+        datasets: dict[str, tuple[Any, str | None]],
         n: int,
         attrs: dict[str, Any],
         *,
@@ -66,11 +61,7 @@ class RunWindows:
     ) -> None:
         self.path, self.name, self.n, self.attrs = Path(path), name, int(n), attrs
         self.exempt_last = exempt_last
-        self.datasets: dict[str, tuple[Any, str | None]] = {}
-        for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
-            if ch in group:
-                ds = group[ch]
-                self.datasets[ch] = (ds, decode_attr(ds.attrs.get("units")))
+        self.datasets = dict(datasets)
 
     def __len__(self) -> int:
         return self.n
@@ -153,11 +144,11 @@ class LongRuns:
         self,
         path: Path,
         name: str,
-        group: Any,
+        datasets: dict[str, tuple[Any, str | None]],
         n: int,
         attrs: dict[str, Any],
         *,
         exempt_last: bool = False,
     ) -> Run:
         """The run :func:`~pmalab.runfile.read_runs` returns for this long run."""
-        return self.read(RunWindows(path, name, group, n, attrs, exempt_last=exempt_last))
+        return self.read(RunWindows(path, name, datasets, n, attrs, exempt_last=exempt_last))

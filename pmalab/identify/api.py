@@ -159,6 +159,7 @@ def identify(
     pressure_model: str = "joint",
     whole_run: bool = False,
     output: str = "force",
+    structure: str = "auto",
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
@@ -172,7 +173,10 @@ def identify(
     cycles (:meth:`~pmalab.runfile.Run.steady`).  ``output``: ``"force"`` (the model driven
     by the measured position predicts the force) or ``"position"`` (output error: the model
     driven by the measured force is integrated forward and its simulated position fitted,
-    :mod:`pmalab.identify.estimation.output_error`).
+    :mod:`pmalab.identify.estimation.output_error`).  ``structure``: the pressure structure of
+    an element law's elements (``"auto"``: chosen by leave-one-pressure-out evidence,
+    :mod:`pmalab.identify.campaign.structure`; ``"free"``, ``"scaled"``,
+    ``"scaled-thresholds"``: as named).
     """
     if output not in ("force", "position"):
         raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
@@ -219,6 +223,7 @@ def identify(
         progress=progress,
         pressure_model=pressure_model,
         output=output,
+        structure=structure,
     )
     trajectory = []
     if output == "force":

@@ -233,6 +233,10 @@ def identification_dict(res: Identification) -> IdentificationDoc:
                 "status": v.status,
                 "message": v.message,
                 "extrapolated": cf.extrapolates(float(run.nominal_pressure)),
+                "scored_from_s": float(run.time[v.scored_from] - run.time[0])
+                if v.scored_from < len(run)
+                else None,
+                "noise_floor_nrmse": _floor(run, v.scored_from),
                 **_metric_block(v.metrics),
             }
         )
@@ -260,12 +264,16 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
         "pressure_range_MPa": list(cf.pressure_range),
         "joint_fit": _joint_block(cf),
+        # which pressure structure an element law's elements took, chosen how, by how much
+        "pressure_structure": None if cf.structure is None else cf.structure.as_json(),
         "output": cf.output,
         "output_error": _output_error_block(cf),
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
         "decimation": _decimation_block(res),
         "trajectory": list(res.trajectory),
+        # each run's nominal pressure against its measured mean (label offsets named)
+        "pressure_labels": _pressure_labels(all_runs),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -274,6 +282,14 @@ def identification_dict(res: Identification) -> IdentificationDoc:
             "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
             "scale) then joint scipy least_squares (trf, bounds) on free-run error",
             "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
+            "derivatives": derivatives_method(),
+            "validation_scoring": (
+                "record parameters (start state, record nuisances) estimated on each "
+                "validation run's early part (whole cycles, about a third), metrics of the "
+                "rest (validation[i].scored_from_s on)"
+                if res.initial == "estimate"
+                else "metrics of the whole run (no record parameter estimated on it)"
+            ),
             "stderr": STDERR_METHOD,
             "initial_state_validation": res.initial,
             "pressure_fits": (
@@ -288,6 +304,72 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         },
     }
     return _clean(out)
+
+
+def _pressure_labels(all_runs: list[tuple[Run, str]]) -> list[dict[str, Any]]:
+    """Per run: nominal vs measured mean pressure, the tolerance and whether it is offset;
+    ``label_MPa`` when the run's pressure was replaced by its measured mean."""
+    from pmalab.identify.labels import check_runs
+
+    rows = []
+    for (run, role), c in zip(all_runs, check_runs([r for r, _ in all_runs], whole_run=True)):
+        row: dict[str, Any] = {"file": run.file, "role": role, **c.as_json()}
+        lab = run.attrs.get("muscle_pressure_label_MPa")
+        if lab is not None:
+            row["label_MPa"] = float(lab)
+        rows.append(row)
+    return rows
+
+
+def derivatives_method() -> dict[str, Any]:
+    """How velocity and acceleration are estimated (``method.derivatives``)."""
+    from pmalab.identify.signals import DERIVATIVE_HARMONICS, DERIVATIVE_MIN_HZ
+
+    return {
+        "method": "zero-phase 4th-order Butterworth low-pass of the measured position, then "
+        "central differences against the measured time stamps; one estimator for every "
+        "velocity/acceleration term (identify, validate, diagnose, reports); the forward "
+        "simulation and the controllers integrate velocity as a state",
+        "cutoff": f"{DERIVATIVE_HARMONICS:g} x the excitation frequency, >= "
+        f"{DERIVATIVE_MIN_HZ:g} Hz, <= sample rate / 5",
+        "harmonics": DERIVATIVE_HARMONICS,
+        "min_Hz": DERIVATIVE_MIN_HZ,
+    }
+
+
+def validation_floor(v: Validation) -> float | None:
+    """The noise floor (nrmse) of a validation run as it is scored (None when undefined)."""
+    return _floor(v.run, v.scored_from)
+
+
+def validation_headline(validation: Iterable[Validation]) -> str:
+    """One line: the mean validation nrmse and its multiple of the mean noise floor — the
+    number ``pmalab diagnose`` quotes for the same model and held-out runs ("" when no run
+    was validated or every prediction diverged)."""
+    vals = [v for v in validation if not v.diverged and math.isfinite(float(v.metrics["nrmse"]))]
+    if not vals:
+        return ""
+    nr = float(np.mean([float(v.metrics["nrmse"]) for v in vals]))
+    fl = [f for f in (validation_floor(v) for v in vals) if f is not None and f > 0]
+    if not fl:
+        return f"validation: mean nrmse {nr:.4f} over {len(vals)} run(s)"
+    floor = float(np.mean(fl))
+    return (
+        f"validation: mean nrmse {nr:.4f} over {len(vals)} run(s), {nr / floor:.1f}× the "
+        f"noise floor {floor:.4f}"
+    )
+
+
+def _floor(run: Run, start: int) -> float | None:
+    """The noise floor (nrmse) of a validation run's scored part (None when undefined)."""
+    from pmalab.identify.noise import noise_sigma
+
+    f = np.asarray(run.force, dtype=float)
+    sd = float(np.std(f[start:])) if start < f.size else 0.0
+    try:
+        return noise_sigma(f, run.time) / sd if sd > 0 else None
+    except ValueError:
+        return None
 
 
 def _decimation_block(res: Identification) -> list[dict]:
