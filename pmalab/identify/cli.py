@@ -134,10 +134,18 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
     p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -162,9 +170,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -377,6 +382,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -411,6 +417,10 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     check_distinct_runs([*runs, *val])
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
