@@ -38,7 +38,7 @@ from pmalab.active.design import MIN_SEPARATION, Experiment, design, experiment_
 from pmalab.errors import PmalabError
 from pmalab.identify.diagnosis import diagnose
 from pmalab.identify.schema import ActiveRoundEntry
-from pmalab.runfile import read_runs
+from pmalab.runfile import read_runs, seal_attrs
 
 #: rounds at most (each is one recorded experiment)
 MAX_ROUNDS = 3
@@ -323,6 +323,7 @@ def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> None:
                 # round_file is the run file the round's recorder wrote (its /runs group)
                 src.copy(cast(h5py.Group, src["runs"])[n], runs, name=new)
                 runs[new].attrs["appended_from"] = str(round_file.name)
+                seal_attrs(runs[new])  # the attrs' digest covers the new one too
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, campaign)
