@@ -1,4 +1,4 @@
-"""The HDF5 run-file format (``format = "pmalab.run"``, ``format_version = 1``).
+"""The HDF5 run-file format (``format = "pmalab.run"``, ``format_version = 2``; 1 is read).
 
 This module is the one contract between acquisition and identification (docs/reference/run-file.md):
 
@@ -17,6 +17,14 @@ This module is the one contract between acquisition and identification (docs/ref
 :func:`read_runs` converts every channel to the canonical units (s, mm, N, MPa) and turns
 every malformed input into one :class:`~pmalab.errors.RunFileError` line naming the file,
 run and channel.
+
+Version 2 declares each run's channels as data (:mod:`pmalab.channels`): the run group's
+``channels`` attr lists ``{name, kind, unit, muscle}`` and every channel dataset carries
+``kind`` and ``muscle`` attrs, so a file may hold several muscles (an antagonistic pair:
+``position_flexor``, ``force_extensor``, ``angle``, ...).  Version 1 (no declaration: the
+single-muscle channels above) stays readable.  :func:`read_runs` gives one muscle's view
+of a run — its channels under the single-muscle names — which is all identification
+needs; ``muscle=`` picks the muscle of a multi-muscle file.
 """
 
 from __future__ import annotations
@@ -29,14 +37,21 @@ import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pmalab.errors import RunFileError, RunFileWarning
+from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
+from pmalab.errors import ConfigError, RunFileError, RunFileWarning
+
+if TYPE_CHECKING:  # the windowed reader sits above this module
+    from pmalab.runwindows import LongRuns
 
 FORMAT = "pmalab.run"
-FORMAT_VERSION = 1
+#: the version written: 2 declares the channels (name, kind, unit, muscle) as attributes
+FORMAT_VERSION = 2
+#: versions read (1: the single-muscle channels, undeclared)
+READABLE_VERSIONS = (1, 2)
 
 #: every sample dataset pmalab writes carries HDF5's Fletcher32 checksum per chunk: a bit
 #: flipped or a block zeroed on disk fails the read (one line naming file, run and
@@ -389,7 +404,12 @@ def recover_hint(path: Path | str) -> str:
 
 
 def read_runs(
-    path: str | Path, runs: Iterable[str] | None = None, *, skip_incomplete: bool = False
+    path: str | Path,
+    runs: Iterable[str] | None = None,
+    *,
+    skip_incomplete: bool = False,
+    muscle: str | None = None,
+    long_runs: LongRuns | None = None,
 ) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
@@ -405,6 +425,17 @@ def read_runs(
     (:func:`run_state`) are left out with one :class:`~pmalab.errors.RunFileWarning` each
     — a killed 0.8 s settle fragment is not an isobaric test — unless named in ``runs``;
     a file left with no complete run is an error.
+
+    ``muscle``: which muscle's view a multi-muscle file (version 2) gives — each run's
+    channels of that muscle under the single-muscle names (``position``, ``force``,
+    ``muscle_pressure``; ``attrs["muscle"]`` says which).  Runs that held another muscle
+    isobaric (attr ``held_muscle``) are left out, unless named in ``runs``.  A file with
+    several muscles and no ``muscle`` is an error naming them; single-muscle files ignore
+    ``None`` and accept their one muscle's name.
+
+    ``long_runs``: a run of at least ``long_runs.min_samples`` samples is not read whole;
+    it goes, still on disk, to ``long_runs.read`` (:mod:`pmalab.runwindows`), which reads it
+    a window at a time and returns the run to use (e.g. identification's decimation).
     """
     import h5py
 
@@ -422,8 +453,14 @@ def read_runs(
         if fmt != FORMAT:
             raise _fail(path, None, None, f"not a pmalab run file (format attr is {fmt!r})")
         ver = decode_attr(f.attrs.get("format_version"))
-        if ver != FORMAT_VERSION:
-            raise _fail(path, None, None, f"unsupported format_version {ver!r}")
+        if ver not in READABLE_VERSIONS:
+            raise _fail(
+                path,
+                None,
+                None,
+                f"unsupported format_version {ver!r} (this pmalab reads "
+                f"{', '.join(map(str, READABLE_VERSIONS))}: a newer pmalab wrote it?)",
+            )
         check_attrs_digest(path, None, f)
         if "runs" not in f:
             raise _fail(path, None, None, "no '/runs' group")
@@ -444,16 +481,27 @@ def read_runs(
             g = runs_g[name]
             if not isinstance(g, h5py.Group):
                 raise _fail(path, name, None, "not a group")
+            declared = run_channels(path, name, g)
+            picked = _pick_muscle(path, name, declared, muscle)
+            held = decode_attr(g.attrs.get("held_muscle"))
+            if muscle is not None and held and held != picked and runs is None:
+                continue  # another muscle's isobaric run: this muscle was the driven one
+            view = declared.single_muscle_view(picked)
             raw = {}
+            lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
-                if ch in g:
-                    ds = g[ch]
+                src = view.get(ch, ch)
+                if src in g:
+                    ds = g[src]
                     if not isinstance(ds, h5py.Dataset):
-                        raise _fail(path, name, ch, "not a dataset")
+                        raise _fail(path, name, src, "not a dataset")
+                    if lazy:  # read later, a window at a time
+                        raw[ch] = (ds, decode_attr(ds.attrs.get("units")))
+                        continue
                     try:
                         values = ds[()]
                     except OSError as exc:
-                        raise _fail(path, name, ch, damage_words(exc)) from None
+                        raise _fail(path, name, src, damage_words(exc)) from None
                     raw[ch] = (values, decode_attr(ds.attrs.get("units")))
             check_attrs_digest(path, name, g)
             extra = _recording_state(g, path, name)
@@ -465,10 +513,13 @@ def read_runs(
                 if n < 2 and runs is None:
                     never.append(name)
                     continue
-                if extra.get("status") == "running":
+                if extra.get("status") == "running" and not lazy:
                     raw = {c: (v[:n], u) for c, (v, u) in raw.items()}
-            attrs = {k: decode_attr(v) for k, v in g.attrs.items()}
+            attrs = {k: decode_attr(v) for k, v in g.attrs.items() if k != "channels"}
             attrs.update(extra)
+            if len(declared.muscles) > 1:
+                attrs["muscle"] = picked
+                attrs["channel_names"] = view
             tt = attrs.get("test_type")
             if tt is not None and tt not in TEST_TYPES:
                 raise _fail(
@@ -478,13 +529,27 @@ def read_runs(
             if skip_incomplete and runs is None and run_state(status) != "completed":
                 skipped.append((name, str(status)))
                 continue
-            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             for key in ("protocol", "device_stats"):
                 if isinstance(attrs.get(key), str):
                     try:
                         attrs[key] = json.loads(attrs[key])
                     except json.JSONDecodeError:
                         pass
+            if lazy:
+                assert long_runs is not None
+                for ch in REQUIRED_CHANNELS:
+                    if ch not in raw:
+                        raise _fail(path, name, ch, "missing channel")
+                n = min(len(v) for v, _ in raw.values())
+                if n < 2:
+                    raise _fail(path, name, "time", f"too few samples ({n})")
+                run = long_runs.take(
+                    path, name, raw, n, attrs, exempt_last=run_state(status) != "completed"
+                )
+                _check_window(path, name, run.attrs, run.time)
+                out.append(run)
+                continue
+            chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
@@ -532,6 +597,69 @@ def read_runs(
             stacklevel=2,
         )
     return out
+
+
+def run_channels(path: Path | str, run: str, g: Any) -> Channels:
+    """A run group's declared channels (version 2), or the single-muscle channels it holds
+    (version 1, or a version-2 writer's own datasets without a declaration)."""
+    text = g.attrs.get("channels")
+    if text is None:
+        return Channels(c for c in (*STANDARD_CHANNELS, BRANCH_CHANNEL) if c.name in g)
+    try:
+        return Channels.from_attr(decode_attr(text), f"{path}: run '{run}'")
+    except ConfigError as exc:
+        raise RunFileError(str(exc)) from None
+
+
+def _pick_muscle(path: Path, run: str, declared: Channels, muscle: str | None) -> str:
+    """The muscle whose view is read: ``muscle``, or the file's only one."""
+    have = list(declared.muscles) or [SINGLE_MUSCLE]
+    if muscle is None:
+        if len(have) > 1:
+            raise _fail(
+                path,
+                run,
+                None,
+                f"holds {len(have)} muscles ({', '.join(have)}): choose one (--muscle NAME)",
+            )
+        return have[0]
+    if muscle not in have:
+        raise _fail(path, run, None, f"no muscle '{muscle}' (it has: {', '.join(have)})")
+    return muscle
+
+
+def declare_channels(g: Any, channels: Channels) -> None:
+    """Write a run group's channel declaration (format version 2): the group's
+    ``channels`` attr and each existing dataset's ``kind``/``muscle`` attrs."""
+    g.attrs["channels"] = channels.as_attr()
+    for c in channels:
+        if c.name in g:
+            g[c.name].attrs["kind"] = c.kind
+            g[c.name].attrs["muscle"] = c.muscle
+
+
+def muscles_of(path: str | Path) -> tuple[str, ...]:
+    """The muscles a run file's first run declares (``("muscle",)`` for a single-muscle
+    file); one-line :class:`RunFileError` when it cannot be read."""
+    import h5py
+
+    path = Path(path)
+    f = open_h5(path)
+    try:
+        runs_g = f.get("runs")
+        if not isinstance(runs_g, h5py.Group) or not len(runs_g):
+            return (SINGLE_MUSCLE,)
+        name = next(iter(runs_g.keys()))
+        return run_channels(path, name, runs_g[name]).muscles or (SINGLE_MUSCLE,)
+    finally:
+        f.close()
+
+
+def _run_length(g: Any) -> int:
+    """Samples in a run group's ``time`` dataset (0 when it has none), from its shape."""
+    ds = g.get("time")
+    shape = getattr(ds, "shape", None)
+    return int(shape[0]) if shape else 0
 
 
 def _state_words(status: str) -> str:
@@ -724,16 +852,22 @@ def _recording_state(
     return out
 
 
-def read_many(paths: Sequence[str | Path], *, include_aborted: bool = False) -> list[Run]:
+def read_many(
+    paths: Sequence[str | Path],
+    *,
+    include_aborted: bool = False,
+    long_runs: LongRuns | None = None,
+) -> list[Run]:
     """All complete runs of all files, in order, for analysis.
 
     Aborted and interrupted runs are skipped with a warning unless ``include_aborted``
-    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`).
+    (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`);
+    ``long_runs`` as :func:`read_runs`.
     """
     check_distinct(paths)
     runs: list[Run] = []
     for p in paths:
-        runs.extend(read_runs(p, skip_incomplete=not include_aborted))
+        runs.extend(read_runs(p, skip_incomplete=not include_aborted, long_runs=long_runs))
     check_distinct_runs(runs)
     return runs
 
@@ -882,4 +1016,7 @@ def _write_groups(f: Any, runs: Sequence[Run]) -> None:
                 ch, data=data, chunks=(max(1, min(WRITE_CHUNK, data.shape[0])),), **CHECKSUM
             )
             ds.attrs["units"] = CANONICAL_UNITS[ch]
+        declare_channels(
+            g, Channels(c for c in (*STANDARD_CHANNELS, BRANCH_CHANNEL) if c.name in g)
+        )
         seal_attrs(g)

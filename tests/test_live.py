@@ -25,20 +25,30 @@ from pmalab.acquisition.live.hub import Cursor
 from pmalab.acquisition.live.margins import Margins
 from pmalab.acquisition.live.pump import Pump
 from pmalab.acquisition.protocol import parse_protocol
-from pmalab.acquisition.recorder import Recorder
+from pmalab.acquisition.recorder import RECORDED, Recorder
 from pmalab.acquisition.runner import RunnerOptions, RunObserver, run_protocol
 from pmalab.errors import ConfigError, SafetyAbort
 from pmalab.runfile import read_runs
 
-LIMITS = {"max_force_N": 1000.0, "min_position_mm": -5.0, "max_position_mm": 35.0,
-          "max_muscle_pressure_MPa": 0.6, "max_cylinder_pressure_MPa": 0.9}
+LIMITS = {
+    "max_force_N": 1000.0,
+    "min_position_mm": -5.0,
+    "max_position_mm": 35.0,
+    "max_muscle_pressure_MPa": 0.6,
+    "max_cylinder_pressure_MPa": 0.9,
+}
 
 
 # ------------------------------------------------------------------ address
-@pytest.mark.parametrize(("text", "expected"), [
-    ("8765", ("127.0.0.1", 8765)), ("0.0.0.0:80", ("0.0.0.0", 80)),
-    ("localhost:0", ("localhost", 0)), ("[::1]:9000", ("::1", 9000)),
-])
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("8765", ("127.0.0.1", 8765)),
+        ("0.0.0.0:80", ("0.0.0.0", 80)),
+        ("localhost:0", ("localhost", 0)),
+        ("[::1]:9000", ("::1", 9000)),
+    ],
+)
 def test_parse_address(text, expected):
     assert parse_address(text) == expected
 
@@ -64,8 +74,13 @@ class _Writer:
         self.n = self.n_late = self.n_missed = 0
         self.buffered = 0
 
+    channels = RECORDED
+
+    def append(self, row, lateness):
+        self.rows.append((*row, lateness))
+
     def add(self, *row):
-        self.rows.append(row)
+        self.append(row[:-1], row[-1])
 
 
 def _spec(frequency=1.0):
@@ -89,8 +104,7 @@ def test_tap_stores_every_sample_and_the_ring_drops_the_oldest_counted():
         w.add(k / 500, 20.0, 300.0 + k, 0.4, 0.2, 0.25, 1e-5)
     assert len(w.rows) == 1000 and w.rows[-1][2] == 1299.0  # the file gets every sample
     hub = Hub({"mode": "live"})
-    pump = Pump(reader, hub, [r.duration_s for r in proto.runs], 500.0,
-                Margins.from_limits(LIMITS))
+    pump = Pump(reader, hub, [r.duration_s for r in proto.runs], 500.0, Margins.from_limits(LIMITS))
     pump.events.extend(events)
     pump.pump()
     assert reader.dropped == 900  # the reader came after 1000 samples into a 100-row ring
@@ -117,6 +131,7 @@ def test_ring_rows_overwritten_while_being_read_are_not_trusted():
     for k in range(8):
         w.add(k, 0, 0, 0, 0, 0, 0)
     real_head = reader._head
+
     # the writer laps the reader between its reading the head and copying the rows
     class Racing:
         def __init__(self):
@@ -128,6 +143,7 @@ def test_ring_rows_overwritten_while_being_read_are_not_trusted():
                 for k in range(8, 12):
                     w.add(k, 0, 0, 0, 0, 0, 0)
             return real_head[i]
+
     reader._head = Racing()
     rows = reader.drain()
     assert rows[:, 0].tolist() == [4, 5, 6, 7] and reader.dropped == 4
@@ -135,8 +151,12 @@ def test_ring_rows_overwritten_while_being_read_are_not_trusted():
 
 def test_margins_against_the_interlock_thresholds():
     m = Margins.from_limits(LIMITS)
-    m.update(np.array([30.0, 34.0]), np.array([-900.0, 200.0]), np.array([0.4, 0.62]),
-             np.array([0.1, 0.2]))
+    m.update(
+        np.array([30.0, 34.0]),
+        np.array([-900.0, 200.0]),
+        np.array([0.4, 0.62]),
+        np.array([0.1, 0.2]),
+    )
     rows = {r["channel"]: r for r in m.rows()}
     assert rows["position"]["margin"] == pytest.approx(1.0)
     assert rows["force"]["lowest"] == pytest.approx(100.0)
@@ -192,8 +212,9 @@ def _post_stop(host, port, headers=None, source=None):
 def live_server():
     hub = Hub({"mode": "live", "file": "x.h5"})
     hub.start_run(0, {"name": "a", "n_runs": 1})
-    hub.add_points(0, {"t": [0.0], "x": [20.0], "f": [300.0], "pm": [0.4], "pc": [0.1],
-                       "cmd": [0.1]})
+    hub.add_points(
+        0, {"t": [0.0], "x": [20.0], "f": [300.0], "pm": [0.4], "pc": [0.1], "cmd": [0.1]}
+    )
     stops = []
     server = LiveServer(hub, "127.0.0.1", 0, on_stop=lambda: stops.append(1) or "stopping")
     server.start()
@@ -205,11 +226,13 @@ def live_server():
 def test_server_serves_the_page_its_assets_and_the_stream(live_server):
     server, _, _ = live_server
     conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=5)
-    for path, status, needle in [("/", 200, b"/assets/uPlot.iife.min.js"),
-                                 ("/assets/uPlot.iife.min.js", 200, b"uPlot"),
-                                 ("/assets/uPlot.LICENSE.txt", 200, b"MIT"),
-                                 ("/assets/../server.py", 404, b""),
-                                 ("/assets/hub.py", 404, b"")]:
+    for path, status, needle in [
+        ("/", 200, b"/assets/uPlot.iife.min.js"),
+        ("/assets/uPlot.iife.min.js", 200, b"uPlot"),
+        ("/assets/uPlot.LICENSE.txt", 200, b"MIT"),
+        ("/assets/../server.py", 404, b""),
+        ("/assets/hub.py", 404, b""),
+    ]:
         conn.request("GET", path)
         resp = conn.getresponse()
         body = resp.read()
@@ -290,18 +313,33 @@ def test_a_busy_port_is_one_line():
 
 # ------------------------------------------------------------------ runner hook
 def _channels(path):
-    return {r.name: np.column_stack([r.time, r.position, r.force, r.muscle_pressure,
-                                     r.cylinder_pressure, r.cylinder_pressure_command])
-            for r in read_runs(path)}
+    return {
+        r.name: np.column_stack(
+            [
+                r.time,
+                r.position,
+                r.force,
+                r.muscle_pressure,
+                r.cylinder_pressure,
+                r.cylinder_pressure_command,
+            ]
+        )
+        for r in read_runs(path)
+    }
 
 
 def test_observed_recording_is_identical_and_a_failing_observer_is_ignored(tmp_path):
     proto = parse_protocol(TWO_RUNS, "t.toml")
-    run_protocol(make_fake_rig(), proto, tmp_path / "plain.h5",
-                 options=RunnerOptions(progress=False))
+    run_protocol(
+        make_fake_rig(), proto, tmp_path / "plain.h5", options=RunnerOptions(progress=False)
+    )
     _, events, feed, reader = _ring(100_000)
-    run_protocol(make_fake_rig(), proto, tmp_path / "live.h5",
-                 options=RunnerOptions(progress=False, observer=feed))
+    run_protocol(
+        make_fake_rig(),
+        proto,
+        tmp_path / "live.h5",
+        options=RunnerOptions(progress=False, observer=feed),
+    )
     plain, live = _channels(tmp_path / "plain.h5"), _channels(tmp_path / "live.h5")
     assert plain.keys() == live.keys()
     for name in plain:
@@ -318,8 +356,12 @@ def test_observed_recording_is_identical_and_a_failing_observer_is_ignored(tmp_p
         def run_ended(self, index, spec, status, message):
             raise RuntimeError("display bug")
 
-    (r1, r2) = run_protocol(make_fake_rig(), proto, tmp_path / "broken.h5",
-                            options=RunnerOptions(progress=False, observer=Broken()))
+    (r1, r2) = run_protocol(
+        make_fake_rig(),
+        proto,
+        tmp_path / "broken.h5",
+        options=RunnerOptions(progress=False, observer=Broken()),
+    )
     assert r1.status == r2.status == "completed"
 
 
@@ -330,13 +372,14 @@ def test_stop_request_is_a_safe_abort_that_keeps_the_samples(tmp_path):
 
     class StopAfter(RunObserver):  # presses stop after 300 samples of the first run
         def run_started(self, index, spec, writer):
-            add = writer.add
+            append = writer.append
 
-            def tap(*row):
-                add(*row)
+            def tap(row, lateness):
+                append(row, lateness)
                 if writer.buffered + writer.n == 300:
                     opts.request_stop()
-            writer.add = tap
+
+            writer.append = tap
 
         def run_ended(self, index, spec, status, message):
             self.ended = (status, message)
@@ -355,10 +398,23 @@ def test_stop_request_is_a_safe_abort_that_keeps_the_samples(tmp_path):
 
 # ------------------------------------------------------------------ pmalab view
 def _record_partial(path, n_first):
-    rec = Recorder(path, [("a", {"sample_rate_Hz": 500.0, "frequency_Hz": 1.0,
-                                 "steady_start_s": 0.0, "steady_end_s": 2.0, "ramp_s": 0.0}),
-                          ("b", {"sample_rate_Hz": 500.0})],
-                   {"limits": json.dumps(LIMITS)})
+    rec = Recorder(
+        path,
+        [
+            (
+                "a",
+                {
+                    "sample_rate_Hz": 500.0,
+                    "frequency_Hz": 1.0,
+                    "steady_start_s": 0.0,
+                    "steady_end_s": 2.0,
+                    "ramp_s": 0.0,
+                },
+            ),
+            ("b", {"sample_rate_Hz": 500.0}),
+        ],
+        {"limits": json.dumps(LIMITS)},
+    )
     w = rec.writer("a")
     w.set_status("running")
     for k in range(n_first):
@@ -395,9 +451,12 @@ def test_view_command_serves_a_recorded_file_until_interrupted(tmp_path):
     rec.writer("b").set_status("not run: campaign aborted")
     rec.close()
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    proc = subprocess.Popen([sys.executable, "-m", "pmalab.cli", "view",
-                             str(tmp_path / "done.h5"), "--no-browser"],
-                            stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pmalab.cli", "view", str(tmp_path / "done.h5"), "--no-browser"],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         line = ""
         while "viewing" not in line and proc.poll() is None:
@@ -432,8 +491,23 @@ def test_run_with_a_busy_live_port_fails_before_anything_moves(tmp_path, capsys)
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        assert main(["run", "--rig", "sim", "--protocol", "quick", "--out", str(out),
-                     "--live", str(port), "--quiet"]) == 2
+        assert (
+            main(
+                [
+                    "run",
+                    "--rig",
+                    "sim",
+                    "--protocol",
+                    "quick",
+                    "--out",
+                    str(out),
+                    "--live",
+                    str(port),
+                    "--quiet",
+                ]
+            )
+            == 2
+        )
     err = capsys.readouterr().err
     assert f"--live 127.0.0.1:{port}: cannot serve the live view" in err
     assert err.count("\n") == 1 and not out.exists()
@@ -443,8 +517,10 @@ def test_run_with_a_bad_live_address_fails_before_anything_is_created(tmp_path, 
     from pmalab.cli import main
 
     out = tmp_path / "o.h5"
-    assert main(["run", "--rig", "sim", "--protocol", "quick", "--out", str(out),
-                 "--live", "nope"]) == 2
+    assert (
+        main(["run", "--rig", "sim", "--protocol", "quick", "--out", str(out), "--live", "nope"])
+        == 2
+    )
     assert "--live: port must be an integer" in capsys.readouterr().err
     assert not out.exists()
 
@@ -452,9 +528,12 @@ def test_run_with_a_bad_live_address_fails_before_anything_is_created(tmp_path, 
 def test_view_of_a_file_still_being_written_quits_cleanly(tmp_path):
     rec, w = _record_partial(tmp_path / "growing.h5", 600)  # held open for writing (SWMR)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    proc = subprocess.Popen([sys.executable, "-m", "pmalab.cli", "view",
-                             str(tmp_path / "growing.h5"), "--no-browser"],
-                            stderr=subprocess.PIPE, text=True, env=env)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pmalab.cli", "view", str(tmp_path / "growing.h5"), "--no-browser"],
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
     try:
         line = ""
         while "viewing" not in line and proc.poll() is None:
@@ -483,8 +562,9 @@ def test_run_events_never_block_the_runner_when_the_display_stops_reading():
     from pmalab.acquisition.live.process import DisplayProcess
 
     d = DisplayProcess({}, 16, on_stop=lambda: None)
-    d.proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
-                              stdin=subprocess.PIPE)  # a display that hangs
+    d.proc = subprocess.Popen(
+        [sys.executable, "-c", "import time; time.sleep(60)"], stdin=subprocess.PIPE
+    )  # a display that hangs
     os.set_blocking(d.proc.stdin.fileno(), False)
     try:
         t0 = time.monotonic()

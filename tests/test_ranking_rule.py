@@ -34,3 +34,44 @@ def test_one_frequency_leaves_other_effects_alone():
     pairs = (("sensor-delay", [0.013, 0.016]), ("inertia", [0.039, 0.048]))
     cands, amb = judge(_cands(*pairs), single_frequency=True)
     assert not cands[1].significant and amb == []
+
+
+def test_a_diverged_candidate_fit_is_failed_never_ranked():
+    # the real cylinder records' X-ring case: 0.1082 -> 0.2760, -155 % +- 273: per-run errors
+    # all over the place (one run 6x worse), so not a fall a user could rank
+    base = Scored(effects=(), nrmse=[0.10, 0.11, 0.115])
+    wild = Scored(effects=("asymmetric-hysteresis",), nrmse=[0.09, 0.70, 0.04])
+    good = Scored(effects=("viscous-friction",), nrmse=[0.095, 0.10, 0.11])
+    cands, _ = judge(
+        [
+            Candidate("asymmetric-hysteresis", base, wild, floors=[0.004] * 3),
+            Candidate("viscous-friction", base, good, floors=[0.004] * 3),
+        ]
+    )
+    failed = cands[-1]
+    assert failed.effect == "asymmetric-hysteresis" and failed.failed
+    assert not failed.significant
+    j = failed.as_json()
+    assert j["status"] == "failed" and "rose" in j["reason"]
+    assert j["fall_percent"] is None and j["gain_x_floor"] is None
+    assert cands[0].as_json()["status"] == "ok" and cands[0].significant
+
+
+def test_diverged_prediction_and_bound_hits_are_failures_with_their_reason():
+    base = Scored(effects=(), nrmse=[0.05, 0.06], param_names=frozenset({"k"}), n_runs=4)
+    div = Scored(effects=("inertia",), nrmse=[10.0, 0.05], diverged=["run-a"])
+    assert "diverged on run-a" in Candidate("inertia", base, div, floors=FLOORS).failure()
+    # a rise with the new parameter on its (non-zero) bound on 3 of 4 runs
+    hit = Scored(
+        effects=("sensor-delay",),
+        nrmse=[0.052, 0.061],
+        param_names=frozenset({"k", "delay_tau"}),
+        at_bounds={"delay_tau": 3},
+        n_runs=4,
+    )
+    why = Candidate("sensor-delay", base, hit, floors=FLOORS).failure()
+    assert "delay_tau on 3 of 4 runs" in why
+    # the same small rise without bound hits is an ordinary (not significant) result
+    ok = Scored(effects=("sensor-delay",), nrmse=[0.052, 0.061], n_runs=4)
+    c = Candidate("sensor-delay", base, ok, floors=FLOORS)
+    assert c.failure() == "" and not judge([c])[0][0].significant

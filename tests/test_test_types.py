@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 
 import h5py
 import numpy as np
@@ -106,3 +107,52 @@ def test_a_headerless_record_without_position_asks_for_the_held_contraction(tmp_
         [*cmd, "--columns", "force,pressure,time,-", "--out", str(tmp_path / "a.h5")]
     )
     assert code != 0 and "--position MM" in err and "Traceback" not in err
+
+
+def test_real_shaped_isometric_records_import_and_identify_in_one_command_each(tmp_path):
+    """The simulated stand-in of the real isometric records: no header; force N, pressure
+    kPa, time s in whole ms with one repeated stamp, state 1/2; one file per held
+    contraction (0/25/50/75 % of the maximum).  Import in one command, identify with the
+    geometric map and a pressure-domain law, validated on a held-out length."""
+    from pmalab.rig.sim.static_stand import load_static_truth, run_test, write_headerless
+
+    truth = load_static_truth("geometric")
+    files = []
+    for i, pct in enumerate((0, 25, 50, 75)):
+        rec = run_test(truth, "isometric", held_mm=pct / 100 * 48.0, period_s=6.0, seed=i)
+        files.append(write_headerless(rec, tmp_path / f"festo10_{pct}pct.txt"))
+    out = tmp_path / "iso.h5"
+    cmd = ["import", *map(str, files), "--no-header", "--delimiter", "\\t"]
+    cmd += ["--columns", "force,pressure,time,state", "--units", "pressure=kPa"]
+    cmd += ["--position-from-name", r"_(\d+)pct", "--max-contraction", "48"]
+    code, _, err = _cli([*cmd, "--out", str(out)])
+    assert code != 0 and "--drop-duplicate-times" in err and not out.exists()
+    code, stdout, err = _cli([*cmd, "--drop-duplicate-times", "--out", str(out)])
+    assert code == 0, err
+    assert "contractions held at 0, 12, 24, 36 mm" in stdout and "isometric" in stdout
+    runs = read_runs(out)
+    assert [r.attrs["dropped_duplicate_times"] for r in runs] == [1, 1, 1, 1]
+    assert all(r.branch is not None for r in runs)
+    code, stdout, err = _cli(
+        [
+            "identify",
+            str(out),
+            "--static",
+            "chou-hannaford",
+            "--length",
+            "200",
+            "--model",
+            "duhem",
+            "--hold-out",
+            "festo10_50pct",
+            "--out",
+            str(tmp_path / "id"),
+        ]
+    )
+    assert code == 0, err
+    doc = json.loads((tmp_path / "id" / "identification.json").read_text())
+    assert [v["run"] for v in doc["validation"]] == ["festo10_50pct"]
+    v = doc["validation"][0]
+    assert v["held_position_mm"] == 24.0 and v["nrmse"] < 2 * v["noise_floor_nrmse"]
+    theta = doc["static_map"]["parameters"]["theta0_deg"]["value"]
+    assert theta == pytest.approx(truth.braid_angle_deg, rel=0.03)

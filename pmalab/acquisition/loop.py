@@ -12,7 +12,8 @@ Per sample period:
    when the request starts; :class:`DeviceClockPacing` for hardware-timed samplers — the
    device's sample clock stamps every sample, lateness is stamp − deadline and a hole in
    the stamps is a recorded gap;
-3. **limits on every sample** (``check``, the :class:`~pmalab.acquisition.safety.SafetyMonitor`):
+3. **limits on every sample** (``check``, the :class:`~pmalab.acquisition.safety.SafetyMonitor`,
+   over the rig's declared channels):
    a trip calls ``on_trip`` (the caller vents in the same period and keeps the sample)
    and raises :class:`Trip`;
 4. the sample goes to ``step``, which returns the command for the next period; the
@@ -30,14 +31,18 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
-from pmalab.rig.base import Clock, Sampler
+from pmalab.rig.base import SINGLE_MUSCLE_CHANNELS, Clock, Sampler, sampled
 
 #: ``pending["sig"]`` value of a stop request (not a signal number)
 STOP_REQUEST = -1
+#: the single-muscle rig's sampled channels (a sample's values, in this order)
+SAMPLED: tuple[str, ...] = sampled(SINGLE_MUSCLE_CHANNELS)
+#: one sample's values, in the order of the loop's ``channels``
+Sample = tuple[float, ...]
 #: a sample whose request starts (software-polled) or whose stamp lies (hardware-timed)
 #: later than this after its deadline counts as late
 LATE_THRESHOLD_S = 0.5e-3
@@ -170,28 +175,33 @@ def sample_loop(
     rate_Hz: float,
     n_total: int,
     *,
-    check: Callable[[float, float, float, float], str | None],
-    step: Callable[[int, float, float, float, float, float, float], float | None],
-    command: Callable[[float], None],
-    on_trip: Callable[[str, float, float, float, float, float, float], None],
+    check: Callable[[Sample], str | None],
+    step: Callable[[int, float, Sample, float], Any],
+    command: Callable[[Any], None],
+    on_trip: Callable[[str, float, Sample, float], None],
     pending: dict[str, int | None],
     stats: Stats,
     late_threshold_s: float,
     after_block: Callable[[int], None] | None = None,
+    channels: Sequence[str] = SAMPLED,
 ) -> float:
     """Run the sample loop (module docstring) for ``n_total`` deadlines at ``rate_Hz``.
 
-    ``step(k, t_rel, x, f, p_muscle, p_cylinder, lateness)`` gets every delivered sample
-    (t_rel from the first deadline, s) and returns the command for the next period or
-    None to keep the last; ``command(u)`` sends it once per block.  A trip calls
-    ``on_trip(reason, t_rel, x, f, pm, pc, lateness)`` and raises :class:`Trip`
+    ``channels``: the sampled channels a sample holds, in order (the rig's declaration
+    without time and commands, :func:`pmalab.rig.base.sampled`); the loop names none of
+    them.  ``check(values)`` returns a trip reason or None; ``step(k, t_rel, values,
+    lateness)`` gets every delivered sample (t_rel from the first deadline, s) and returns
+    the command for the next period (whatever ``command`` takes: one pressure, or one per
+    regulator) or None to keep the last; ``command(u)`` sends it once per block.  A trip
+    calls ``on_trip(reason, t_rel, values, lateness)`` and raises :class:`Trip`
     (``"<reason> at t=<t_rel> s"``).  ``after_block(k)`` runs after each block (flushes,
     progress).  Returns t0, the time of deadline 0 on the sampler's time base.
     """
     dt = 1.0 / rate_Hz
     pace = pacing_for(sampler, clock, dt)
+    names = tuple(channels)
     k = 0
-    cmd: float | None = None
+    cmd: Any = None
     t0 = getattr(pace, "t0", None) or 0.0
     while k < n_total:
         if pending["sig"] is not None:
@@ -201,10 +211,10 @@ def sample_loop(
             lateness = pace.wait(k)
             t0 = pace.t0
         blk = sampler.read_block()
-        for j in range(len(blk)):
-            t = float(blk.time[j])
-            x, f = float(blk.position[j]), float(blk.force[j])
-            pm, pc = float(blk.muscle_pressure[j]), float(blk.cylinder_pressure[j])
+        cols = [blk.column(c).tolist() for c in names]
+        times = blk.time.tolist()
+        for j, t in enumerate(times):
+            v: Sample = tuple([col[j] for col in cols])
             if isinstance(pace, DeviceClockPacing):
                 gap, lateness = pace.stamp(t, k)
                 assert pace.t0 is not None
@@ -215,13 +225,13 @@ def sample_loop(
                     k += gap
                     if k >= n_total:
                         break
-            reason = check(x, f, pm, pc)
+            reason = check(v)
             if reason is not None:
-                on_trip(reason, t - t0, x, f, pm, pc, lateness)
+                on_trip(reason, t - t0, v, lateness)
                 raise Trip(f"{reason} at t={t - t0:.3f} s")
             if lateness > late_threshold_s:
                 stats.n_late += 1
-            u = step(k, t - t0, x, f, pm, pc, lateness)
+            u = step(k, t - t0, v, lateness)
             if u is not None:
                 cmd = u
             k += 1

@@ -44,7 +44,7 @@ File layout::
     waveform = ["sine", "triangle"]
 
 Campaigns.  Every list-valued field (``muscle_pressure_MPa``, ``waveform``,
-``frequency_Hz``, ``amplitude_MPa``, ``offset_MPa``, ``magnitude_MPa``) is one axis of a
+``frequency_Hz``, ``amplitude_MPa``, ``offset_MPa``, ``magnitude_MPa``, ``muscle``) is one axis of a
 cartesian product.  ``pair = [field, field, ...]`` names lists of *equal length* that are
 zipped into a single axis instead (the i-th pressure runs with the i-th magnitude); every
 other list is still crossed with it.  The second campaign above gives 3 × 2 = 6 runs
@@ -58,6 +58,10 @@ the order of the list above, a pair's fields together (muscle pressure as ``100k
 ``name`` holding ``{field}`` placeholders is a template instead, filled with the same
 formatted values and nothing appended: ``name = "pressure-{muscle_pressure_MPa}-tri"``
 gives ``pressure-100kPa-tri``, ... (a template must keep the names unique).
+
+On a rig with several muscles (an antagonistic pair) ``muscle = "flexor"`` names the
+muscle a run holds isobaric; the other muscle's regulator is driven with the waveform in
+the cylinder's place, so it stretches and releases the held one through the joint.
 
 Every mistake raises :class:`~pmalab.errors.ConfigError` with one line naming the file
 and the field (``file: run[2] 'ident': field 'frequency_Hz': must be > 0``).
@@ -99,6 +103,7 @@ _FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
     "pressure_stable_s": ((int, float), 0.5),
     "pressure_timeout_s": ((int, float), 120.0),
     "description": (str, ""),
+    "muscle": (str, ""),
 }
 #: campaign fields that may be lists (expanded as a cartesian product)
 _LISTABLE = (
@@ -108,6 +113,7 @@ _LISTABLE = (
     "amplitude_MPa",
     "offset_MPa",
     "magnitude_MPa",
+    "muscle",
 )
 
 
@@ -135,6 +141,10 @@ class RunSpec:
     description: str = ""
     #: where it came from: "run[0]" or "campaign[1] 'pressure'"
     origin: str = ""
+    #: a rig with several muscles: the one held isobaric at ``muscle_pressure_MPa`` (the
+    #: other muscle's regulator plays the cylinder's role: it stretches and releases it);
+    #: "" on a single-muscle rig
+    muscle: str = ""
 
     @property
     def steady_start_s(self) -> float:
@@ -395,6 +405,7 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         pressure_timeout_s=float(get["pressure_timeout_s"]),
         description=str(get["description"]),
         origin=origin,
+        muscle=str(get["muscle"]),
     )
 
 
@@ -403,6 +414,8 @@ def _fmt_val(k: str, v: Any) -> str:
         return f"{round(float(v) * 1000):d}kPa"
     if k == "frequency_Hz":
         return f"{float(v):g}Hz"
+    if k == "muscle":
+        return str(v)
     if k.endswith("_MPa"):
         return f"{k.split('_')[0][:3]}{round(float(v) * 1000):d}kPa"
     return str(v)

@@ -50,9 +50,17 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
+from pmalab.channels import Channels
 from pmalab.errors import OutputError
 from pmalab.paths import output_failure
-from pmalab.runfile import CANONICAL_UNITS, CHECKSUM, FORMAT, FORMAT_VERSION, seal_attrs
+from pmalab.runfile import (
+    CANONICAL_UNITS,
+    CHECKSUM,
+    FORMAT,
+    FORMAT_VERSION,
+    declare_channels,
+    seal_attrs,
+)
 
 if TYPE_CHECKING:
     import h5py
@@ -146,7 +154,8 @@ class RunWriter:
 
         self.channels = tuple(rec.channels)
         self._ds = [ds(c) for c in self.channels]
-        self._fi = self.channels.index("force") if "force" in self.channels else None
+        forces = rec.forces
+        self._fi = self.channels.index(forces[0]) if forces else None
         self._summary = ds("summary") if "summary" in g else None
         self._late_ds = ds("lateness")
         self._status = ds("status")
@@ -168,18 +177,19 @@ class RunWriter:
         self._fmin, self._fmax = math.inf, -math.inf
 
     # hot path: plain list appends (called 500×/s in real time, as fast as possible virtually)
-    # of the acquisition's channels (:data:`RECORDED`, in that order)
+    def append(self, row: Sequence[float], lateness: float) -> None:
+        """Buffer one sample: its values in :attr:`channels` order (the rig's declaration:
+        time, the sampled channels, the commands) and its lateness (s)."""
+        for buf, v in zip(self._buf, row, strict=True):
+            buf.append(v)
+        self._late_buf.append(lateness)
+
     def add(
         self, t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
     ) -> None:
-        b = self._buf
-        b[0].append(t)
-        b[1].append(x)
-        b[2].append(f)
-        b[3].append(pm)
-        b[4].append(pc)
-        b[5].append(cmd)
-        self._late_buf.append(lateness)
+        """One sample of the single-muscle rig's channels (:data:`RECORDED`, in that
+        order); :meth:`append` takes any declaration's row."""
+        self.append((t, x, f, pm, pc, cmd), lateness)
 
     def extend(self, columns: Sequence[np.ndarray], lateness: np.ndarray) -> None:
         """Buffer a block of samples: one array per channel (in :attr:`channels` order, equal
@@ -338,15 +348,27 @@ class Recorder:
         root_attrs: dict[str, Any],
         *,
         flush_interval_s: float = 0.25,
-        channels: Mapping[str, str] | None = None,
+        channels: Mapping[str, str] | Channels | None = None,
         summary: bool = False,
     ) -> None:
         import h5py
 
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
-        self.channels = (
-            dict(channels) if channels is not None else {c: CANONICAL_UNITS[c] for c in RECORDED}
+        #: the declaration written into each run (a rig's channels), or None (a writer's
+        #: own datasets, e.g. a controller's gains: units only)
+        self.declared: Channels | None = None
+        if isinstance(channels, Channels):
+            self.declared = channels
+            self.channels = channels.units()
+        elif channels is None:
+            self.channels = {c: CANONICAL_UNITS[c] for c in RECORDED}
+        else:
+            self.channels = dict(channels)
+        self.forces = (
+            tuple(c.name for c in self.declared.of_kind("force"))
+            if self.declared is not None
+            else tuple(c for c in self.channels if c == "force")
         )
         tmp = self.path.with_name(self.path.name + ".partial")
         try:
@@ -375,6 +397,8 @@ class Recorder:
                         **CHECKSUM,
                     )
                     ds.attrs["units"] = units
+                if self.declared is not None:
+                    declare_channels(g, self.declared)
                 if summary:
                     ds = g.create_dataset(
                         "summary",

@@ -67,6 +67,7 @@ from pmalab import __version__
 from pmalab.acquisition.loop import (
     LATE_THRESHOLD_S,
     STOP_REQUEST,
+    Sample,
     Stopped,
     Terminated,
     Trip,
@@ -90,7 +91,7 @@ from pmalab.acquisition.safety import (
 from pmalab.acquisition.waveforms import command_block
 from pmalab.errors import RigError, SafetyAbort
 from pmalab.paths import check_output, output_failure
-from pmalab.rig.base import Rig, VentReport
+from pmalab.rig.base import Rig, VentReport, sampled
 
 
 class RunObserver:
@@ -99,8 +100,8 @@ class RunObserver:
 
     def run_started(self, index: int, spec: RunSpec, writer: RunWriter) -> None:
         """Run ``index`` of the protocol starts (muscle pressure not yet settled).  May
-        replace ``writer.add`` by a tap that calls it and hands the sample on without
-        blocking."""
+        replace ``writer.append`` (``(row, lateness)``, the row in ``writer.channels``
+        order) by a tap that calls it and hands the sample on without blocking."""
 
     def run_ended(self, index: int, spec: RunSpec, status: str, message: str) -> None:
         """The run ended: ``status`` as stored ("completed" | "aborted: <reason>");
@@ -272,6 +273,7 @@ def run_attrs(
         "rig": info_json(rig.info),
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "clock": "virtual" if rig.clock.virtual else "real",
+        **({"held_muscle": spec.muscle} if spec.muscle else {}),
     }
 
 
@@ -398,7 +400,7 @@ def _run_protocol(
     if warning:
         print(warning, file=sys.stderr, flush=True)
     limits = effective_limits(rig)
-    monitor = SafetyMonitor(limits)
+    monitor = SafetyMonitor(limits, channels=[rig.channels[n] for n in sampled(rig.channels)])
     root = {
         "software": "pmalab",
         "software_version": __version__,
@@ -430,6 +432,7 @@ def _run_protocol(
             [(r.name, run_attrs(r, protocol, rig, rate)) for r in protocol.runs],
             root,
             flush_interval_s=opts.flush_interval_s,
+            channels=rig.channels,
         )
         try:
             for i, spec in enumerate(protocol.runs):
@@ -438,6 +441,9 @@ def _run_protocol(
                 w.warn_fraction = opts.timing_warn_fraction
                 _notify(opts, "run_started", i, spec, w)
                 try:
+                    hold = getattr(rig, "hold", None)
+                    if hold is not None:  # a rig with several muscles: which one is held
+                        hold(spec.muscle)
                     if i == 0:
                         rig.cylinder_regulator.set_pressure(0.0)
                         getattr(rig.sampler, "configure", lambda _r: None)(rate)
@@ -601,6 +607,8 @@ def _wait_for_muscle_pressure(
     if pbar is not None:
         pbar.set_postfix_str(f"{spec.name}: waiting for {target:.3g} MPa")
     clock, sampler = rig.clock, rig.sampler
+    names = sampled(rig.channels)
+    i_held = names.index(held_pressure_channel(rig))
     need = max(2, int(round(spec.pressure_stable_s * rate)))
     window: deque[float] = deque(maxlen=need)
     dt = 1.0 / rate
@@ -614,14 +622,14 @@ def _wait_for_muscle_pressure(
             clock.sleep_until(t_start + k * dt)
             k += 1
         blk = sampler.read_block()
+        cols = [blk.column(c).tolist() for c in names]
+        held = cols[i_held]
         for j in range(len(blk)):
-            x, f = float(blk.position[j]), float(blk.force[j])
-            pm, pc = float(blk.muscle_pressure[j]), float(blk.cylinder_pressure[j])
-            reason = monitor.check(x, f, pm, pc)
+            reason = monitor.check(tuple([col[j] for col in cols]))
             if reason:
                 _vent(rig)
                 raise Trip(reason + " (while waiting for the muscle pressure)")
-            window.append(pm)
+            window.append(held[j])
         now = clock.now()
         if len(window) == need:
             mean = math.fsum(window) / need
@@ -668,6 +676,22 @@ class CommandBlocks:
         return self._values[0]
 
 
+def held_pressure_channel(rig: Rig) -> str:
+    """The channel that reads the pressure the run holds (the single-muscle rig's
+    ``muscle_pressure``; a rig declaring several muscles names it, ``held_pressure``)."""
+    return str(getattr(rig, "held_pressure", "muscle_pressure"))
+
+
+def command_row(rig: Rig, spec: RunSpec) -> Callable[[float], tuple[float, ...]]:
+    """The recorded values of the rig's declared command channels for a waveform value
+    ``cmd`` (the single-muscle rig: the cylinder's command alone; a rig declaring more
+    commands says how, ``command_values(cmd, spec)``)."""
+    fn: Callable[[float, RunSpec], tuple[float, ...]] | None = getattr(rig, "command_values", None)
+    if fn is not None:
+        return lambda cmd: fn(cmd, spec)
+    return lambda cmd: (cmd,)
+
+
 def _record(
     rig: Rig,
     spec: RunSpec,
@@ -683,7 +707,7 @@ def _record(
     sampler, reg = rig.sampler, rig.cylinder_regulator
     dt = 1.0 / rate
     n_total = int(math.floor(spec.duration_s * rate + 1e-9)) + 1
-    add = w.add
+    add = w.append
     flush_due = rec.flush_due
     w.start_unix = time.time()
     w.set_status("running")
@@ -693,24 +717,22 @@ def _record(
     hw = sampler.hardware_timed
     cmds = CommandBlocks(spec, rate, n_total)
     since = [0, 0]  # samples delivered, samples the progress bar has shown
+    # the recorded row is the rig's declaration: time, the sampled channels, the commands
+    commands = command_row(rig, spec)
 
-    def step(
-        k: int, t_rel: float, x: float, f: float, pm: float, pc: float, lateness: float
-    ) -> float:
-        # the waveform's value at this sample's nominal time (computed a block of deadlines
-        # ahead); sent right after the block and held by the regulator until the next one
+    def step(k: int, t_rel: float, v: Sample, lateness: float) -> float:
+        # the waveform's value at this sample's nominal time (computed a block of deadlines ahead);
+        # sent right after the block and held by the regulator until the next one
         cmd = cmds[k]
-        add(t_rel, x, f, pm, pc, cmd, lateness)
+        add((t_rel, *v, *commands(cmd)), lateness)
         since[0] += 1
         return cmd
 
-    def on_trip(
-        reason: str, t_rel: float, x: float, f: float, pm: float, pc: float, lateness: float
-    ) -> None:
+    def on_trip(reason: str, t_rel: float, v: Sample, lateness: float) -> None:
         # vent in this sample period, keep the sample, then the loop aborts
         _vent(rig)
-        if math.isfinite(t_rel + x + f + pm + pc):  # a NaN would break the contract
-            add(t_rel, x, f, pm, pc, 0.0, lateness)
+        if math.isfinite(t_rel + math.fsum(v)):  # a NaN would break the contract
+            add((t_rel, *v, *commands(0.0)), lateness)
 
     def after_block(k: int) -> None:
         if (hw or not k & 31) and flush_due():  # wall clock looked at every 32 samples
@@ -732,6 +754,7 @@ def _record(
         stats=w,
         late_threshold_s=opts.late_threshold_s,
         after_block=after_block,
+        channels=sampled(rig.channels),
     )
     reg.set_pressure(0.0)
     if pbar is not None and since[0] > since[1]:

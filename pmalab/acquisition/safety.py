@@ -11,11 +11,14 @@ cylinder regulator in the same sample period (before the next deadline), closes 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 
 from pmalab.acquisition.protocol import Protocol
+from pmalab.channels import Channel
 from pmalab.errors import ConfigError
-from pmalab.rig.base import Limits, Rig
+from pmalab.rig.base import SINGLE_MUSCLE_CHANNELS, Limits, Rig, sampled
 
 
 class ProtocolRefused(ConfigError):
@@ -63,7 +66,18 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
             f"{where}: refused: field 'sample_rate_Hz' = {protocol.sample_rate_Hz:g} Hz but the "
             f"rig's hardware-timed sampler runs at {sampler.sample_rate_Hz:g} Hz"
         )
+    muscles = rig.channels.muscles
     for r in protocol.runs:
+        if len(muscles) > 1 and r.muscle not in muscles:
+            raise ProtocolRefused(
+                f"{where}: run '{r.name}': refused: field 'muscle' = {r.muscle!r}: the rig "
+                f"has {len(muscles)} muscles, name the one held ({', '.join(muscles)})"
+            )
+        if len(muscles) <= 1 and r.muscle and r.muscle not in muscles:
+            raise ProtocolRefused(
+                f"{where}: run '{r.name}': refused: field 'muscle' = {r.muscle!r}, but the "
+                "rig has one muscle (leave 'muscle' out)"
+            )
         if r.muscle_pressure_MPa > lim.max_muscle_pressure_MPa + 1e-9:
             raise ProtocolRefused(
                 f"{where}: run '{r.name}': refused: field 'muscle_pressure_MPa' = "
@@ -83,43 +97,99 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
             )
 
 
+def channel_limits(channel: Channel, limits: Limits) -> tuple[float, float]:
+    """The (lo, hi) a channel is held to: its own declared limits where it has them, else
+    the rig's :class:`~pmalab.rig.base.Limits` for its kind (force: the load cell's range
+    both ways; position: the travel; a muscle's pressure: the muscle limit; a rig-wide
+    pressure: the cylinder limit); (−inf, inf) for a kind the limits do not cover."""
+    if channel.checked:
+        return channel.lo, channel.hi
+    kind = channel.kind
+    if kind == "force":
+        return -limits.max_force_N, limits.max_force_N
+    if kind == "position":
+        return limits.min_position_mm, limits.max_position_mm
+    if kind == "pressure":
+        hi = limits.max_muscle_pressure_MPa if channel.muscle else limits.max_cylinder_pressure_MPa
+        return -math.inf, hi
+    return -math.inf, math.inf
+
+
+#: kinds in the order a sample is checked (the first trip names the reason)
+_CHECK_ORDER = ("force", "position", "angle", "pressure")
+
+
+def _pressure_role(c: Channel) -> str:
+    """How a pressure channel is named in a trip reason."""
+    if not c.muscle:
+        return "cylinder pressure" if c.name == "cylinder_pressure" else c.label
+    return "muscle pressure" if c.name == "muscle_pressure" else f"muscle pressure ({c.muscle})"
+
+
+def _rule(c: Channel, i: int, lo: float, hi: float, margin: float) -> Callable[[float], str | None]:
+    """A check of sample value ``v[i]`` against ``lo``..``hi``, worded for its kind."""
+    if c.kind == "force":
+        who = "force" if c.name == "force" else f"force ({c.muscle or c.label})"
+        lim = max(abs(lo), abs(hi))
+        return lambda f: (
+            f"{who} {f:.1f} N beyond the load cell's range ±{lim:g} N" if abs(f) > lim else None
+        )
+    if c.kind == "pressure":
+        trip = hi * (1 + margin)  # measured pressures get the margin for noise/overshoot
+        who = _pressure_role(c)
+        return lambda p: f"{who} {p:.3f} MPa above the limit {hi:g} MPa" if p > trip else None
+    if c.kind == "position":
+        who = "position" if c.name == "position" else f"position ({c.muscle or c.label})"
+        return lambda x: (
+            f"{who} {x:.2f} mm outside the travel [{lo:g}, {hi:g}] mm" if x > hi or x < lo else None
+        )
+    return lambda v: (
+        f"{c.label} {v:.4g} {c.unit} outside [{lo:g}, {hi:g}] {c.unit}"
+        if v > hi or v < lo
+        else None
+    )
+
+
 @dataclass
 class SafetyMonitor:
-    """Per-sample limit check (plain float comparisons: it runs 500 times a second)."""
+    """Per-sample limit check over the rig's declared sampled channels (plain float
+    comparisons: it runs 500 times a second).
+
+    ``channels``: the channels a sample holds, in order (default: the single-muscle
+    rig's); each is held to :func:`channel_limits`.
+    """
 
     limits: Limits
     #: measured pressures trip this fraction above their limit: a run at the rated
     #: 0.6 MPa reads 0.6 ± sensor noise, and a regulator overshoots a little when it
     #: settles; the protocol's *nominal* pressures are held to the limit exactly (preflight)
     pressure_margin: float = 0.05
+    channels: Sequence[Channel] = field(
+        default_factory=lambda: tuple(
+            SINGLE_MUSCLE_CHANNELS[n] for n in sampled(SINGLE_MUSCLE_CHANNELS)
+        )
+    )
 
     def __post_init__(self) -> None:
         self._muscle_trip = self.limits.max_muscle_pressure_MPa * (1 + self.pressure_margin)
         self._cyl_trip = self.limits.max_cylinder_pressure_MPa * (1 + self.pressure_margin)
+        rules = []
+        for i, c in enumerate(self.channels):
+            lo, hi = channel_limits(c, self.limits)
+            if math.isfinite(lo) or math.isfinite(hi):
+                order = _CHECK_ORDER.index(c.kind) if c.kind in _CHECK_ORDER else len(_CHECK_ORDER)
+                rules.append((order, i, i, _rule(c, i, lo, hi, self.pressure_margin)))
+        rules.sort(key=lambda r: (r[0], r[1]))
+        self._rules = [(i, fn) for _, _, i, fn in rules]
 
-    def check(self, position: float, force: float, muscle: float, cylinder: float) -> str | None:
+    def check(self, values: Sequence[float]) -> str | None:
         """Return the trip reason, or None when every channel is within its limit."""
-        lim = self.limits
         # NaN compares false everywhere; a sensor returning NaN is a fault, so test for it
-        if not (
-            force == force and position == position and muscle == muscle and cylinder == cylinder
-        ):
-            return "sensor returned NaN (sample not stored)"
-        if abs(force) > lim.max_force_N:
-            return f"force {force:.1f} N beyond the load cell's range ±{lim.max_force_N:g} N"
-        if position > lim.max_position_mm or position < lim.min_position_mm:
-            return (
-                f"position {position:.2f} mm outside the travel "
-                f"[{lim.min_position_mm:g}, {lim.max_position_mm:g}] mm"
-            )
-        if muscle > self._muscle_trip:
-            return (
-                f"muscle pressure {muscle:.3f} MPa above the limit "
-                f"{lim.max_muscle_pressure_MPa:g} MPa"
-            )
-        if cylinder > self._cyl_trip:
-            return (
-                f"cylinder pressure {cylinder:.3f} MPa above the limit "
-                f"{lim.max_cylinder_pressure_MPa:g} MPa"
-            )
+        for v in values:
+            if v != v:
+                return "sensor returned NaN (sample not stored)"
+        for i, rule in self._rules:
+            reason = rule(values[i])
+            if reason is not None:
+                return reason
         return None

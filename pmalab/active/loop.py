@@ -13,8 +13,8 @@
    rig moves (``confirm`` callback; ``--yes`` for scripts and the simulated rig);
 4. record it through the acquisition runner — the rig's limits checked before anything
    moves, limits on every sample, the regulators vented on every exit — into a round file
-   next to the campaign, then append its runs to the campaign (the campaign is rewritten
-   under a temporary name and renamed: a failure leaves it as it was);
+   next to the campaign, then append its runs to the campaign in place (only the round's
+   runs are written and read, never the whole campaign: :func:`append_runs`);
 5. repeat until the verdict is unambiguous, nothing worth measuring is left, the budget is
    spent or ``max_rounds`` is reached, and say which.
 
@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -37,6 +36,7 @@ from typing import Any, cast
 from pmalab.active.design import MIN_SEPARATION, Experiment, design, experiment_toml
 from pmalab.errors import PmalabError
 from pmalab.identify.diagnosis import diagnose
+from pmalab.identify.long_records import long_runs
 from pmalab.identify.schema import ActiveRoundEntry
 from pmalab.runfile import read_runs, seal_attrs
 
@@ -186,7 +186,7 @@ def diagnose_active(
     say = log or (lambda s: print(s, file=sys.stderr))
     if budget_s <= 0 or not math.isfinite(budget_s):
         raise ActiveError(f"--budget: must be a positive number of seconds, got {budget_s:g}")
-    runs = read_runs(path, skip_incomplete=True)
+    runs = read_runs(path, skip_incomplete=True, long_runs=long_runs())
     d = diagnose(runs, model, effects=effects, jobs=jobs)
     initial = verdict_of(d)
     rounds: list[ActiveRound] = []
@@ -238,9 +238,10 @@ def diagnose_active(
             err.exit_code = exc.exit_code  # a safety abort keeps its exit status (4)
             err.hard_exit = exc.hard_exit
             raise err from exc
-        append_runs(path, round_file, names)
+        added = append_runs(path, round_file, names)
         spent += best.duration_s
-        runs = read_runs(path, skip_incomplete=True)
+        # only the round's runs are read: the campaign's were read before
+        runs = [*runs, *read_runs(path, added, long_runs=long_runs())] if added else runs
         d = diagnose(runs, model, effects=effects, jobs=jobs)
         rounds.append(
             ActiveRound(
@@ -302,33 +303,71 @@ def _round_path(campaign: Path, i: int) -> Path:
     return p
 
 
-def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> None:
-    """Copy the completed runs ``names`` of ``round_file`` into ``campaign``.
+#: the campaign's hidden group a round's runs are copied into before they join ``/runs``
+#: (run-file readers read ``/runs`` only)
+STAGING = ".appending"
 
-    The campaign is copied, extended and renamed over the original: a failure at any point
-    (a full disk, a crash) leaves the original campaign as it was."""
+
+def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> list[str]:
+    """Append the completed runs ``names`` of ``round_file`` to ``campaign``, in place; the
+    names they got in the campaign (``<name>-2``... when taken).
+
+    Only the round's runs are written: the campaign's own runs are neither copied nor
+    rewritten (a campaign of long records is gigabytes; copying it every round cost as
+    much as the round).  Each run is copied into the hidden group ``/.appending`` (which no
+    reader looks at), flushed, and then linked into ``/runs`` under its name — so ``/runs``
+    only ever holds whole runs.  A failure while copying (a full disk) removes the partial
+    copy; the runs already in ``/runs`` are never touched.  A copy cut by a crash is left in
+    ``/.appending``, invisible to readers, and removed by the next append."""
     import h5py
 
-    tmp = campaign.with_name(f".{campaign.name}.active-tmp")
-    shutil.copy2(campaign, tmp)
+    appended: list[str] = []
     try:
-        with h5py.File(round_file, "r") as src, h5py.File(tmp, "a") as dst:
+        with h5py.File(round_file, "r") as src, h5py.File(campaign, "a") as dst:
+            if STAGING in dst:
+                del dst[STAGING]  # a copy a crash cut short (never in /runs)
             runs = dst.require_group("runs")
+            stage = dst.create_group(STAGING)
             for n in names:
                 new = n
                 k = 2
-                while new in runs:
+                while new in runs or new in appended:
                     new = f"{n}-{k}"
                     k += 1
                 # round_file is the run file the round's recorder wrote (its /runs group)
-                src.copy(cast(h5py.Group, src["runs"])[n], runs, name=new)
-                runs[new].attrs["appended_from"] = str(round_file.name)
-                seal_attrs(runs[new])  # the attrs' digest covers the new one too
-        with open(tmp, "rb+") as fh:
+                src.copy(cast(h5py.Group, src["runs"])[n], stage, name=new)
+                stage[new].attrs["appended_from"] = str(round_file.name)
+                seal_attrs(stage[new])  # the attrs' digest covers the new one too
+                dst.flush()
+                dst.move(f"{STAGING}/{new}", f"runs/{new}")
+                dst.flush()
+                appended.append(new)
+            del dst[STAGING]
+        with open(campaign, "rb+") as fh:
             os.fsync(fh.fileno())
-        os.replace(tmp, campaign)
-    finally:
-        tmp.unlink(missing_ok=True)
+    except (OSError, RuntimeError, KeyError) as exc:  # a full disk, a run the round lacks
+        _drop_staging(campaign)
+        raise ActiveError(
+            f"{campaign}: appending round {round_file.name} failed ({exc}); "
+            + (
+                f"runs {', '.join(appended)} were appended before it"
+                if appended
+                else "the campaign's runs are as they were"
+            )
+        ) from None
+    return appended
+
+
+def _drop_staging(campaign: Path) -> None:
+    """Remove a partial copy left in the campaign's staging group (best effort)."""
+    import h5py
+
+    try:
+        with h5py.File(campaign, "a") as f:
+            if STAGING in f:
+                del f[STAGING]
+    except (OSError, RuntimeError):
+        pass
 
 
 def rig_recorder(rig_spec: str, *, seed: int | None = None, quiet: bool = True) -> Recorder:

@@ -45,7 +45,7 @@ from pmalab.control.controllers import CascadeSettings
 from pmalab.control.model import IdentifiedModel
 from pmalab.control.reference import Reference
 from pmalab.errors import PmalabError
-from pmalab.rig.base import VentResult, vent_phrase
+from pmalab.rig.base import VentResult, sampled, vent_phrase
 from pmalab.rig.manipulator import ManipulatorRig
 
 #: recorded signals → units (the run file's channels and the ``gains/`` datasets)
@@ -199,7 +199,7 @@ def run_control(
     # 2.4 GB for 10 hours at 500 Hz); a full block, or a due sink, hands them on
     buf = _Blocks(min(n, BLOCK), sink, keep=None if sink is None else KEPT_WITH_SINK)
     sig, gains, late = buf.sig, buf.gains, buf.late
-    monitor = SafetyMonitor(rig.limits)
+    monitor = SafetyMonitor(rig.limits, channels=[rig.channels[c] for c in sampled(rig.channels)])
     sampler = rig.sampler
     regulator = rig.muscle_regulator
     status = "completed"
@@ -225,7 +225,8 @@ def run_control(
     gk = [gains[g] for g in GAINS]
     stats: Stats = sink.stats if sink is not None else LoopStats()
 
-    def step(k: int, tr: float, x: float, f: float, p: float, _pc: float, lk: float) -> float:
+    def step(k: int, tr: float, v: tuple[float, ...], lk: float) -> float:
+        x, f, p = v[0], v[1], v[2]  # the manipulator's sampled channels: position, force, p
         r, r_d, r_dd = reference.value(tr)
         out = cascade.position_step(r, r_d, r_dd, x, p) if is_pos else cascade.pressure_step(r, p)
         u = out.command
@@ -240,8 +241,8 @@ def run_control(
         if is_pos:
             s_xr[i] = r
             s_sp[i] = out.setpoint
-        for arr, v in zip(gk, cascade.gains()):
-            arr[i] = v
+        for arr, g in zip(gk, cascade.gains()):
+            arr[i] = g
         late[i] = lk
         buf.i = i + 1
         done[0] += 1
@@ -249,7 +250,7 @@ def run_control(
             progress(tr)
         return u
 
-    def on_trip(reason: str, *_sample: float) -> None:
+    def on_trip(reason: str, *_sample: object) -> None:
         nonlocal vent
         vent = rig.vent()  # in this sample period
 
@@ -278,6 +279,7 @@ def run_control(
                 stats=stats,
                 late_threshold_s=LATE_THRESHOLD_S,
                 after_block=after_block,
+                channels=sampled(rig.channels),
             )
     except Trip as exc:
         status = f"aborted: {exc}"

@@ -27,6 +27,8 @@ from pmalab.identify.campaign import (
     fit_and_validate,
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
+from pmalab.identify.campaign.trajectory import run_trajectory
+from pmalab.identify.long_records import long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
@@ -66,7 +68,10 @@ def load(
 
     Runs that were aborted or interrupted (status ``aborted: ...`` / ``running``) are
     skipped with one :class:`~pmalab.errors.RunFileWarning` each unless ``include_aborted``
-    or named in ``runs``; a file given twice is refused.
+    or named in ``runs``; a file given twice is refused.  A long run (≥
+    :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
+    time and decimated, as its attrs' ``decimation`` states
+    (:mod:`pmalab.identify.long_records`).
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -78,7 +83,7 @@ def load(
     wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted))
+        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted, long_runs=long_runs()))
     check_distinct_runs(out)
     return out
 
@@ -143,6 +148,7 @@ def identify(
     pressure_model: str = "joint",
     whole_run: bool = False,
     output: str = "force",
+    structure: str = "auto",
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
@@ -156,7 +162,10 @@ def identify(
     cycles (:meth:`~pmalab.runfile.Run.steady`).  ``output``: ``"force"`` (the model driven
     by the measured position predicts the force) or ``"position"`` (output error: the model
     driven by the measured force is integrated forward and its simulated position fitted,
-    :mod:`pmalab.identify.estimation.output_error`).
+    :mod:`pmalab.identify.estimation.output_error`).  ``structure``: the pressure structure of
+    an element law's elements (``"auto"``: chosen by leave-one-pressure-out evidence,
+    :mod:`pmalab.identify.campaign.structure`; ``"free"``, ``"scaled"``,
+    ``"scaled-thresholds"``: as named).
     """
     if output not in ("force", "position"):
         raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
@@ -203,7 +212,14 @@ def identify(
         progress=progress,
         pressure_model=pressure_model,
         output=output,
+        structure=structure,
     )
+    trajectory = []
+    if output == "force":
+        for run, rf in zip(ident, cf.runs):
+            tr = run_trajectory(run, cf.model, rf.result)
+            if tr is not None:
+                trajectory.append(tr)
     return Identification(
         campaign=cf,
         runs=ident,
@@ -212,6 +228,7 @@ def identify(
         notes=notes,
         validation=vals,
         validation_warnings=warns,
+        trajectory=trajectory,
     )
 
 

@@ -125,6 +125,43 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         help="pressure laws: refined jointly on all runs with chosen orders "
         "(default) or the seeds' per-run quadratics",
     )
+    p.add_argument(
+        "--structure",
+        default="auto",
+        choices=("auto", "free", "scaled", "scaled-thresholds"),
+        help="how an element law's elements change with pressure: chosen by "
+        "leave-one-pressure-out evidence (auto, default), every parameter its own law "
+        "(free), one profile scaled in magnitude (scaled), and its slip displacements "
+        "scaled too (scaled-thresholds)",
+    )
+    p.add_argument(
+        "--static",
+        metavar="MAP",
+        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
+        "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
+        "one set of parameters for every run of any test type (default for "
+        "isometric, isotonic and free runs: linear); --model none for the map alone",
+    )
+    p.add_argument(
+        "--drive",
+        choices=("pressure", "position", "both"),
+        help="with --static: what drives the law — the pressure (inflation vs deflation; "
+        "default for isometric/isotonic runs), the contraction (isobaric runs) or both "
+        "(one law on each, free runs)",
+    )
+    p.add_argument(
+        "--length",
+        type=float,
+        metavar="MM",
+        help="with --static: the muscle's relaxed active length in mm (measured)",
+    )
+    p.add_argument(
+        "--diameter",
+        type=float,
+        metavar="MM",
+        help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
+    )
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_identify)
@@ -186,6 +223,12 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--hold-out {unknown[0]}: no such run in the input files")
         val = [r for r in runs if r.name in hold or r.label in hold] + list(val)
         runs = [r for r in runs if not (r.name in hold or r.label in hold)]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static
+
+        return run_static(args, runs, val, out, auto=not args.static)
+    if args.model == "none":
+        raise PmalabError("--model none: only with --static (the static map alone)")
     res = identify(
         runs,
         args.model,
@@ -201,6 +244,7 @@ def run_identify(args: argparse.Namespace) -> int:
         pressure_model=args.pressure_model,
         whole_run=args.whole_run,
         output=args.output,
+        structure=args.structure,
     )
     jpath, hpath = res.save(out, force=args.force)
 
@@ -245,6 +289,15 @@ def run_identify(args: argparse.Namespace) -> int:
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
+    st = getattr(res.campaign, "structure", None)
+    if st is not None:
+        print(f"  {structure_line(st)}")
+    if res.campaign.output != "position":
+        from pmalab.identify.outputs import validation_headline
+
+        line = validation_headline(res.validation)
+        if line:
+            print(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -334,6 +387,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
+    from pmalab.identify.long_records import long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -348,8 +402,13 @@ def run_diagnose(args: argparse.Namespace) -> int:
         if not plot_dir.is_dir() or not os.access(plot_dir, os.W_OK):
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
-    runs = read_many(args.files, include_aborted=args.include_aborted)
-    val = read_many(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    lr = long_runs()
+    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    val = (
+        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     d = diagnose(
@@ -389,9 +448,11 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         lw["law"],
                         f"{lw['nrmse_before']:.4f}",
                         f"{lw['nrmse_after']:.4f}",
-                        f"{lw['fall_percent']:+.1f}",
-                        f"{lw['gain_x_floor']:+.2f}",
-                        "yes" if lw["significant"] else "no",
+                        "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",
+                        "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
+                        "fit failed"
+                        if lw.get("status") == "failed"
+                        else ("yes" if lw["significant"] else "no"),
                     )
                     for lw in d.laws
                 ]
@@ -434,7 +495,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
 
     from pmalab.identify.api import identify, load
     from pmalab.identify.laws import LAWS
-    from pmalab.identify.noise import noise_floor_nrmse
+    from pmalab.identify.outputs import validation_floor
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
@@ -446,6 +507,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
         raise PmalabError(f"--model {args.model}: a law is named twice")
     if args.hold_out or args.fix or args.free:
         raise PmalabError("--hold-out, --fix and --free: give one --model at a time")
+    structured = [m for m in laws if args.structure in ("auto", "free", *LAWS[m].structures)]
+    if len(structured) < len(laws) and args.structure != "auto":
+        other = next(m for m in laws if m not in structured)
+        raise PmalabError(
+            f"--structure {args.structure}: {other} offers "
+            f"{', '.join(['free', *LAWS[other].structures])}"
+        )
     outs = {
         m: prepare_output_dir(
             str(Path(args.out) / m), ("identification.json", "predictions.h5"), args.force
@@ -472,10 +540,11 @@ def run_identify_many(args: argparse.Namespace) -> int:
             progress=show_progress(args),
             pressure_model=args.pressure_model,
             whole_run=args.whole_run,
+            structure=args.structure if m in structured else "auto",
         )
         res.save(outs[m], force=args.force)
         if not floors:
-            floors = [noise_floor_nrmse(v.run.force, v.run.time) for v in res.validation]
+            floors = [validation_floor(v) or float("nan") for v in res.validation]
         vn = [float(v.metrics["nrmse"]) for v in res.validation]
         fit = [float(rf.result.metrics["nrmse"]) for rf in res.campaign.runs]
         k = len(
@@ -495,6 +564,10 @@ def run_identify_many(args: argparse.Namespace) -> int:
                 "identification_nrmse": float(np.mean(fit)),
                 "parameters_per_run": k,
                 "directory": str(outs[m]),
+                # the pressure structure the law's elements took (None: the law has none)
+                "pressure_structure": None
+                if res.campaign.structure is None
+                else res.campaign.structure.chosen,
             }
         )
     floor = float(np.mean(floors)) if floors else None
@@ -515,7 +588,16 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     print(
         _table(
-            [("law", "validation nrmse", "× floor", "fit nrmse (per run)", "parameters")]
+            [
+                (
+                    "law",
+                    "validation nrmse",
+                    "× floor",
+                    "fit nrmse (per run)",
+                    "parameters",
+                    "structure",
+                )
+            ]
             + [
                 (
                     r["law"],
@@ -523,6 +605,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
                     "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
                     f"{r['identification_nrmse']:.4f}",
                     str(r["parameters_per_run"]),
+                    r["pressure_structure"] or "-",
                 )
                 for r in rows
             ]
@@ -532,6 +615,22 @@ def run_identify_many(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
     print(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
+
+
+def structure_line(st) -> str:
+    """One line naming the pressure structure a campaign chose and its evidence."""
+    if not st.scores:
+        return f"pressure structure: {st.chosen} (chosen by the user)"
+    best = st.scores[st.chosen]
+    others = ", ".join(
+        f"{s} {v:.4f} ({100.0 * (v / best - 1.0):+.1f} %)"
+        for s, v in sorted(st.scores.items(), key=lambda kv: kv[1])
+        if s != st.chosen
+    )
+    return (
+        f"pressure structure: {st.chosen} — leave-one-pressure-out held-out nrmse {best:.4f} "
+        f"({st.n_params[st.chosen]} coefficients); {others}"
+    )
 
 
 def _table(rows: list[tuple[str, ...]]) -> str:

@@ -51,6 +51,7 @@ import numpy as np
 from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign import CampaignFit, ModelSpec, Validation, validate_runs
+from pmalab.identify.estimation.joint import joint_stride
 from pmalab.identify.estimation.solver import STDERR_METHOD
 from pmalab.identify.messages import as_message
 from pmalab.identify.metrics import metrics
@@ -232,6 +233,10 @@ def identification_dict(res: Identification) -> IdentificationDoc:
                 "status": v.status,
                 "message": v.message,
                 "extrapolated": cf.extrapolates(float(run.nominal_pressure)),
+                "scored_from_s": float(run.time[v.scored_from] - run.time[0])
+                if v.scored_from < len(run)
+                else None,
+                "noise_floor_nrmse": _floor(run, v.scored_from),
                 **_metric_block(v.metrics),
             }
         )
@@ -259,10 +264,14 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
         "pressure_range_MPa": list(cf.pressure_range),
         "joint_fit": _joint_block(cf),
+        # which pressure structure an element law's elements took, chosen how, by how much
+        "pressure_structure": None if cf.structure is None else cf.structure.as_json(),
         "output": cf.output,
         "output_error": _output_error_block(cf),
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
+        "decimation": _decimation_block(res),
+        "trajectory": list(res.trajectory),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -271,6 +280,14 @@ def identification_dict(res: Identification) -> IdentificationDoc:
             "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
             "scale) then joint scipy least_squares (trf, bounds) on free-run error",
             "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
+            "derivatives": derivatives_method(),
+            "validation_scoring": (
+                "record parameters (start state, record nuisances) estimated on each "
+                "validation run's early part (whole cycles, about a third), metrics of the "
+                "rest (validation[i].scored_from_s on)"
+                if res.initial == "estimate"
+                else "metrics of the whole run (no record parameter estimated on it)"
+            ),
             "stderr": STDERR_METHOD,
             "initial_state_validation": res.initial,
             "pressure_fits": (
@@ -285,6 +302,91 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         },
     }
     return _clean(out)
+
+
+def derivatives_method() -> dict[str, Any]:
+    """How velocity and acceleration are estimated (``method.derivatives``)."""
+    from pmalab.identify.signals import DERIVATIVE_HARMONICS, DERIVATIVE_MIN_HZ
+
+    return {
+        "method": "zero-phase 4th-order Butterworth low-pass of the measured position, then "
+        "central differences against the measured time stamps; one estimator for every "
+        "velocity/acceleration term (identify, validate, diagnose, reports); the forward "
+        "simulation and the controllers integrate velocity as a state",
+        "cutoff": f"{DERIVATIVE_HARMONICS:g} x the excitation frequency, >= "
+        f"{DERIVATIVE_MIN_HZ:g} Hz, <= sample rate / 5",
+        "harmonics": DERIVATIVE_HARMONICS,
+        "min_Hz": DERIVATIVE_MIN_HZ,
+    }
+
+
+def validation_floor(v: Validation) -> float | None:
+    """The noise floor (nrmse) of a validation run as it is scored (None when undefined)."""
+    return _floor(v.run, v.scored_from)
+
+
+def validation_headline(validation: Iterable[Validation]) -> str:
+    """One line: the mean validation nrmse and its multiple of the mean noise floor — the
+    number ``pmalab diagnose`` quotes for the same model and held-out runs ("" when no run
+    was validated or every prediction diverged)."""
+    vals = [v for v in validation if not v.diverged and math.isfinite(float(v.metrics["nrmse"]))]
+    if not vals:
+        return ""
+    nr = float(np.mean([float(v.metrics["nrmse"]) for v in vals]))
+    fl = [f for f in (validation_floor(v) for v in vals) if f is not None and f > 0]
+    if not fl:
+        return f"validation: mean nrmse {nr:.4f} over {len(vals)} run(s)"
+    floor = float(np.mean(fl))
+    return (
+        f"validation: mean nrmse {nr:.4f} over {len(vals)} run(s), {nr / floor:.1f}× the "
+        f"noise floor {floor:.4f}"
+    )
+
+
+def _floor(run: Run, start: int) -> float | None:
+    """The noise floor (nrmse) of a validation run's scored part (None when undefined)."""
+    from pmalab.identify.noise import noise_sigma
+
+    f = np.asarray(run.force, dtype=float)
+    sd = float(np.std(f[start:])) if start < f.size else 0.0
+    try:
+        return noise_sigma(f, run.time) / sd if sd > 0 else None
+    except ValueError:
+        return None
+
+
+def _decimation_block(res: Identification) -> list[dict]:
+    """Per run, how many of its samples each stage used: ``read`` (a long record is read
+    decimated, :mod:`pmalab.identify.long_records`; else whole), and the subsampling of the
+    joint fit of the pressure laws (identification runs; never below 100 per cycle)."""
+    out = []
+    roles = [(r, "identification") for r in res.runs] + [
+        (v.run, "validation") for v in res.validation
+    ]
+    for run, role in roles:
+        n = len(run)
+        dt = float(np.median(np.diff(run.time[: min(n, 4096)]))) if n > 1 else float("nan")
+        fs = 1.0 / dt if dt > 0 else float("nan")
+        f = run.frequency
+        read = run.attrs.get("decimation") or {"stride": 1, "note": "read whole"}
+        row: dict[str, Any] = {
+            "file": run.file,
+            "run": run.name,
+            "role": role,
+            "frequency_Hz": f,
+            "samples": n,
+            "sample_rate_Hz": fs,
+            "read": read,
+        }
+        if role == "identification" and res.campaign.joint is not None and np.isfinite(fs):
+            k = joint_stride(n, fs, f)
+            row["joint_fit"] = {
+                "stride": k,
+                "samples": -(-n // k),
+                "samples_per_cycle": (fs / k / f) if f else None,
+            }
+        out.append(row)
+    return out
 
 
 def _joint_block(cf) -> dict | None:
@@ -379,6 +481,9 @@ class Identification:
     notes: list[str] = field(default_factory=list)
     #: warnings raised while validating (extrapolation, divergence)
     validation_warnings: list[str] = field(default_factory=list)
+    #: long records: the model refitted window by window along each long run
+    #: (:mod:`pmalab.identify.campaign.trajectory`); empty for a campaign of short runs
+    trajectory: list[dict] = field(default_factory=list)
 
     # ---- model
     @property

@@ -161,6 +161,11 @@ class ValidationRow(RowMetrics):
     message: NotRequired[str | None]
     #: its pressure lies outside the identified range
     extrapolated: NotRequired[bool]
+    #: the metrics score the run from this time on (s from its first sample): its record
+    #: parameters were estimated on the part before
+    scored_from_s: NotRequired[float | None]
+    #: the noise floor (nrmse) of the scored part
+    noise_floor_nrmse: NotRequired[float | None]
 
 
 class InputFile(TypedDict):
@@ -248,6 +253,35 @@ class OutputErrorFit(TypedDict):
     note: NotRequired[str]
 
 
+class StructureCandidate(TypedDict):
+    """One candidate pressure structure and its held-out evidence."""
+
+    #: ``free`` | ``scaled`` | ``scaled-thresholds``
+    structure: str
+    #: RMS leave-one-pressure-out nrmse over the left-out runs (None: failed)
+    heldout_nrmse: float | None
+    #: pressure-law coefficients of the muscle (k, c0 and the law's; no h0)
+    n_params: int | None
+    heldout_nrmse_per_run: list[float]
+    status: NotRequired[str]
+    reason: NotRequired[str]
+
+
+class PressureStructure(TypedDict):
+    """``identification.json`` ``pressure_structure``: how an element law's elements change
+    with pressure, chosen by held-out evidence across pressure."""
+
+    law: str
+    chosen: str
+    #: ``leave-one-pressure-out (...)`` or ``user``
+    criterion: str
+    #: how much higher (%) the best other candidate's held-out nrmse is than the winner's
+    margin_percent: float | None
+    #: the interior pressure levels left out in turn, MPa
+    levels_left_out_MPa: list[float]
+    candidates: list[StructureCandidate]
+
+
 class IdentificationDoc(TypedDict):
     """``identification.json``: the model, the per-run fits, the pressure laws and the
     validation on held-out runs."""
@@ -276,6 +310,8 @@ class IdentificationDoc(TypedDict):
     #: [lo, hi], MPa
     pressure_range_MPa: NotRequired[list[float | None]]
     joint_fit: NotRequired[JointFit | None]
+    #: which pressure structure an element law's elements took (None: the law has none)
+    pressure_structure: NotRequired[PressureStructure | None]
     #: ``force`` | ``position``
     output: NotRequired[str]
     output_error: NotRequired[OutputErrorFit | None]
@@ -287,6 +323,11 @@ class IdentificationDoc(TypedDict):
     messages: NotRequired[list[MessageDoc]]
     #: how the fit was made (text per step)
     method: NotRequired[dict[str, Any]]
+    #: per run: the samples each stage used (``read``: a long record's anti-aliased
+    #: decimation, or whole; ``joint_fit``: the joint fit's stride, ≥ 100 samples a cycle)
+    decimation: NotRequired[list[dict[str, Any]]]
+    #: long records: the model refitted on windows along each run (parameters vs cycle)
+    trajectory: NotRequired[list[dict[str, Any]]]
 
 
 # =========================================================================== diagnosis
@@ -298,8 +339,12 @@ class RankingEntry(TypedDict):
     nrmse_after: float
     #: the ladder added it (significant at its step)
     significant: bool
-    fall_percent: NotRequired[float]
-    fall_se_percent: NotRequired[float]
+    #: "ok", or "failed" (the identification with it diverged or did not converge:
+    #: ``reason`` says why, and the entry carries no fall)
+    status: NotRequired[str]
+    reason: NotRequired[str]
+    fall_percent: NotRequired[float | None]
+    fall_se_percent: NotRequired[float | None]
     n_params: NotRequired[int]
     runs_improved: NotRequired[float]
     #: the fall in nrmse in units of the noise floor
@@ -338,8 +383,11 @@ class LawEntry(TypedDict):
     law: str
     nrmse_before: float
     nrmse_after: float
-    fall_percent: float
+    #: null when the law's fit failed (``status`` "failed", ``reason``)
+    fall_percent: float | None
     significant: bool
+    status: NotRequired[str]
+    reason: NotRequired[str]
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
@@ -516,6 +564,8 @@ class LawRow(TypedDict):
     directory: str
     #: validation nrmse / the held-out runs' noise floor
     x_floor: float | None
+    #: the pressure structure the law's elements took (None: the law offers none)
+    pressure_structure: NotRequired[str | None]
 
 
 class LawsDoc(TypedDict):

@@ -7,8 +7,18 @@ law with a zero-phase (forward-backward Butterworth) filtered position whose cut
 well above the excitation frequency: the filter removes the noise without shifting the loop
 in time (no phase lag, so no fake loop width).
 
-Velocity and acceleration are derivatives of the filtered position against the *measured*
-time stamps (never the nominal rate).
+Velocity and acceleration come from ONE estimator (:func:`derivatives`), used by every
+effect that needs them (viscous friction, inertia, rate-dependent terms) in identification,
+validation, diagnosis and the reports: the position low-passed (zero phase) at the top of
+the *motion band* — ``DERIVATIVE_HARMONICS`` × the excitation frequency, at least
+``DERIVATIVE_MIN_HZ`` and at most a fifth of the sample rate — then central differences
+against the *measured* time stamps (never the nominal rate).  The band follows the motion,
+not the law's drive filter: a derivative multiplies position noise by 2πf at each frequency,
+so the drive position's wide band (60× the excitation, kept for sharp reversals) would put
+the sensor noise into every velocity term (at 2 Hz, 0.015 mm rms position noise gives
+≈ 3 mm/s rms velocity noise at a 100 Hz band, ≈ 0.3 mm/s at 20 Hz), and a viscous term
+c·ẋ fitted on it adds that noise to the model's own prediction.  The forward (plant)
+simulation and the controllers integrate velocity as a state and differentiate nothing.
 """
 
 from __future__ import annotations
@@ -26,6 +36,36 @@ from pmalab.runfile import Run
 #: force-noise floor because the filter rounds the reversals; at 60× every sine and
 #: triangle case is within 1.09× of the floor and parameter recovery is unchanged (< 0.6 %).
 CUTOFF_MULTIPLE = 60.0
+
+
+#: the derivative estimator's band: this many harmonics of the excitation (inside the motion
+#: band of the residual diagnostics, 10 harmonics; an isobaric sine or a lag-rounded triangle
+#: has little velocity beyond its 5th harmonic, and acceleration noise grows as the band^2.5)
+DERIVATIVE_HARMONICS = 6.0
+#: ... and never below this (Hz): a slow test's reversals still need a few Hz
+DERIVATIVE_MIN_HZ = 2.0
+
+
+def derivative_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
+    """Band (Hz) of the velocity/acceleration estimator: ``DERIVATIVE_HARMONICS`` × the
+    excitation frequency (≥ ``DERIVATIVE_MIN_HZ``, ≤ fs/5); unknown frequency: 0.5 Hz assumed."""
+    f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else 0.5
+    return float(min(max(DERIVATIVE_HARMONICS * f, DERIVATIVE_MIN_HZ), sample_rate_Hz / 5.0))
+
+
+def derivatives(
+    t: np.ndarray, x: np.ndarray, frequency_Hz: float | None
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(ẋ, ẍ, band): velocity (mm/s) and acceleration (mm/s²) of the position ``x`` (mm).
+
+    The one derivative estimator (module docstring): ``x`` low-passed zero phase at
+    :func:`derivative_cutoff_Hz`, then central differences against ``t`` (s)."""
+    t = np.asarray(t, dtype=np.float64)
+    fs = 1.0 / float(np.median(np.diff(t)))
+    fc = derivative_cutoff_Hz(fs, frequency_Hz)
+    xs = zero_phase_lowpass(t, np.asarray(x, dtype=np.float64), fc)
+    v = np.gradient(xs, t)
+    return v, np.gradient(v, t), fc
 
 
 def default_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
@@ -47,8 +87,11 @@ def zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_Hz: float) -> np.nda
 class Signals:
     """Inputs of a force law for one run.  Units: s, mm, mm/s, mm/s², MPa.
 
-    ``x`` is the filtered contraction that drives the model; ``x_raw`` the measurement.
+    ``x`` is the filtered contraction that drives the model; ``x_raw`` the measurement;
+    ``v`` and ``a`` its derivatives from :func:`derivatives` (band ``derivative_Hz``).
     ``p`` is the filtered measured muscle pressure, ``p_nom`` the run's nominal pressure.
+    ``t_ref`` (s): the record's reference time for slow terms (a drift d·(t − t_ref)); None:
+    the middle of ``t``'s span.  A part of a record (:meth:`head`) keeps its record's.
     """
 
     t: np.ndarray
@@ -60,6 +103,8 @@ class Signals:
     x_raw: np.ndarray
     frequency_Hz: float | None = None
     cutoff_Hz: float = 10.0
+    derivative_Hz: float = 5.0
+    t_ref: float | None = None
 
     @classmethod
     def from_arrays(
@@ -78,8 +123,7 @@ class Signals:
         fc = cutoff_Hz if cutoff_Hz is not None else default_cutoff_Hz(fs, frequency_Hz)
         xf = zero_phase_lowpass(t, x_raw, fc)
         pf = zero_phase_lowpass(t, p_arr, fc)
-        v = np.gradient(xf, t)
-        a = np.gradient(v, t)
+        v, a, fd = derivatives(t, x_raw, frequency_Hz)
         pn = float(np.mean(p_arr)) if p_nom is None else float(p_nom)
         return cls(
             t=t,
@@ -91,6 +135,7 @@ class Signals:
             x_raw=x_raw,
             frequency_Hz=frequency_Hz,
             cutoff_Hz=fc,
+            derivative_Hz=fd,
         )
 
     @classmethod
@@ -104,10 +149,34 @@ class Signals:
             cutoff_Hz=cutoff_Hz,
         )
 
-    def with_position(self, x: np.ndarray) -> Signals:
-        """A copy driven by another (already filtered) position, derivatives recomputed."""
-        v = np.gradient(x, self.t)
-        return replace(self, x=x, v=v, a=np.gradient(v, self.t))
+    @property
+    def reference_time(self) -> float:
+        """``t_ref``, or the middle of the time span (s)."""
+        return float(self.t_ref) if self.t_ref is not None else 0.5 * float(self.t[0] + self.t[-1])
+
+    def with_position(
+        self, x: np.ndarray, v: np.ndarray | None = None, a: np.ndarray | None = None
+    ) -> Signals:
+        """A copy driven by another (already filtered) position; its derivatives ``v``, ``a``
+        (default: recomputed by :func:`derivatives` from ``x``)."""
+        if v is None or a is None:
+            v, a, _ = derivatives(self.t, x, self.frequency_Hz)
+        return replace(self, x=x, v=v, a=a)
+
+    def head(self, n: int) -> Signals:
+        """The first ``n`` samples (filtering and derivatives kept from the whole record,
+        the reference time of slow terms kept as the whole record's)."""
+        s = slice(0, n)
+        return replace(
+            self,
+            t=self.t[s],
+            x=self.x[s],
+            v=self.v[s],
+            a=self.a[s],
+            p=self.p[s],
+            x_raw=self.x_raw[s],
+            t_ref=self.reference_time,
+        )
 
     def every(self, stride: int) -> Signals:
         """Every ``stride``-th sample (filtering and derivatives kept from the full rate).
@@ -127,4 +196,5 @@ class Signals:
             a=self.a[s],
             p=self.p[s],
             x_raw=self.x_raw[s],
+            t_ref=self.reference_time,
         )

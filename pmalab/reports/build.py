@@ -64,6 +64,7 @@ from pmalab.reports.figures_text import (
     timing_stats,
     title_page_figure,
 )
+from pmalab.reports.figures_trajectory import trajectory_figure, trajectory_table_figure
 from pmalab.reports.pdf import PageSpec, write_pdf
 
 TIME_PER_PAGE = 3
@@ -216,6 +217,31 @@ def plan_pages(data: ReportData) -> list[Page]:
                     title,
                     f"parameters-{i + 1}",
                     lambda c=chunk, t=title: _parameter_page(ident, id_rows, c, vps, t),
+                )
+            )
+        # long records: the model along each run (fatigue, creep), plot then table
+        fixed_all = [
+            n for n in ident["parameter_names"] if all(n in (r.get("fixed") or []) for r in id_rows)
+        ]
+        for j, tr in enumerate(ident.get("trajectory") or []):
+            tt = f"Parameter trajectory along {tr.get('run', '')}: drift over the record"
+            pages.append(
+                Page(
+                    tt,
+                    f"trajectory-{j + 1}",
+                    lambda tr=tr, t=tt: trajectory_figure(
+                        tr, units=units, fixed=fixed_all, title=t
+                    ),
+                )
+            )
+            tt2 = f"Parameter trajectory along {tr.get('run', '')}: windows and trends"
+            pages.append(
+                Page(
+                    tt2,
+                    f"trajectory-table-{j + 1}",
+                    lambda tr=tr, t=tt2: trajectory_table_figure(
+                        tr, units=units, fixed=fixed_all, title=t
+                    ),
                 )
             )
         # typed messages (identification.json "messages"); an older file's plain
@@ -676,6 +702,18 @@ def build_report(
     from pmalab.reports.control import build_control_report, is_control_file
 
     inputs = [directory] if isinstance(directory, str | Path) else list(directory)
+    from pmalab.reports.static import build_static_report, is_static_dir
+
+    statics = [p for p in inputs if is_static_dir(p)]
+    if statics:
+        if len(inputs) != 1:
+            raise ReportError(
+                f"{statics[0]}: a static characterization (identify --static) is reported "
+                "on its own: give its directory alone"
+            )
+        return build_static_report(
+            statics[0], out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+        )
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
         if len(controls) != len(inputs):

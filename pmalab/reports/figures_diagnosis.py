@@ -235,7 +235,8 @@ def plot_ranking(
     n = len(ranking)
     y = np.arange(n)[::-1].astype(float)
     before = [float(r["nrmse_before"]) for r in ranking]
-    after = [float(r["nrmse_after"]) for r in ranking]
+    # a failed fit has no after-value worth a bar (its number is not a fall): none drawn
+    after = [0.0 if r.get("status") == "failed" else float(r["nrmse_after"]) for r in ranking]
     colours = [style.SIGNIFICANT if r["significant"] else style.NOT_SIGNIFICANT for r in ranking]
     h = 0.38
     b0 = ax.barh(y + h / 2, before, height=h, color="white", edgecolor="0.3", label="before")
@@ -248,14 +249,16 @@ def plot_ranking(
         labels.append(s)
     ax.set_yticks(y, labels)
     xmax = max([*before, *after, 1e-9])
-    for yi, r in zip(y, ranking):
+    for yi, r, a in zip(y, ranking, after):
         txt = "significant" if r["significant"] else "not significant"
+        if r.get("status") == "failed":
+            txt = "fit failed"
         if r.get("gain_x_floor") is not None:  # the rule's measure: held-out fall / floor
             txt += f", {float(r['gain_x_floor']):.2g}× floor"
         if r.get("n_params") is not None:
             txt += f", +{int(r['n_params'])} par."
         ax.text(
-            float(r["nrmse_after"]) + 0.01 * xmax,
+            a + 0.01 * xmax,
             yi - h / 2,
             txt,
             va="center",

@@ -38,11 +38,12 @@ from typing import Any
 
 import numpy as np
 
+from pmalab.channels import STANDARD_CHANNELS, Channels
 from pmalab.config import check_keys
 from pmalab.errors import ConfigError
 from pmalab.runfile import CANONICAL_UNITS
 
-#: the five channels a sampler delivers, in this order, with their units
+#: the five channels a single-muscle sampler delivers, in this order, with their units
 CHANNELS: tuple[str, ...] = (
     "time",
     "position",
@@ -52,6 +53,14 @@ CHANNELS: tuple[str, ...] = (
 )
 #: channel → unit; the run file's canonical units are the one source (pmalab.runfile)
 CHANNEL_UNITS: dict[str, str] = CANONICAL_UNITS
+#: the single-muscle isobaric rig's declaration (:mod:`pmalab.channels`): the five sampled
+#: channels and the cylinder command the runner records beside them
+SINGLE_MUSCLE_CHANNELS: Channels = Channels(STANDARD_CHANNELS)
+
+
+def sampled(channels: Channels) -> tuple[str, ...]:
+    """The channels a sampler delivers besides ``time`` (commands are the runner's)."""
+    return tuple(c.name for c in channels if c.kind not in ("time", "command"))
 
 
 # --------------------------------------------------------------------------- clocks
@@ -114,9 +123,12 @@ class VirtualClock(Clock):
 # --------------------------------------------------------------------------- data
 @dataclass
 class Block:
-    """Consecutive samples of the five channels (1-D arrays of equal length).
+    """Consecutive samples of a rig's channels (1-D arrays of equal length).
 
-    ``time`` is each sample's actual timestamp on the rig's clock, in s.
+    ``time`` is each sample's actual timestamp on the rig's clock, in s.  A single-muscle
+    rig fills the five named fields; a rig declaring other channels (a second muscle, a
+    joint angle) delivers them in ``extra`` by name, and fills the named fields it does not
+    have with zeros.  :meth:`column` finds either.
     """
 
     time: np.ndarray
@@ -124,9 +136,27 @@ class Block:
     force: np.ndarray
     muscle_pressure: np.ndarray
     cylinder_pressure: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
+
+    def column(self, name: str) -> np.ndarray:
+        """The samples of channel ``name`` (a named field or an ``extra`` one)."""
+        col = self.extra.get(name)
+        return col if col is not None else getattr(self, name)
+
+    @classmethod
+    def of(cls, time: np.ndarray, columns: dict[str, np.ndarray]) -> Block:
+        """A block of any declared channels: ``columns`` by name (missing single-muscle
+        fields are zeros, never read by a loop that iterates the declaration)."""
+        z = np.zeros_like(time)
+        named = ("position", "force", "muscle_pressure", "cylinder_pressure")
+        return cls(
+            time,
+            *(columns.get(n, z) for n in named),
+            extra={k: v for k, v in columns.items() if k not in named},
+        )
 
     @classmethod
     def single(
@@ -385,8 +415,48 @@ class MusclePressureSupply(ABC):
         return lambda: res
 
 
+class RigDevices:
+    """What every rig shares, whatever it drives: a clock, a sampler, its channels declared
+    as data (:mod:`pmalab.channels`), and one way to close — vent everything, then release
+    the devices.  Subclasses say how they vent (:meth:`vent`)."""
+
+    clock: Clock
+    sampler: Sampler
+    info: dict[str, Any]
+    #: what the rig measures and commands, in the order its sampler delivers them
+    channels: Channels = SINGLE_MUSCLE_CHANNELS
+
+    def vent(self) -> Any:  # pragma: no cover - every rig overrides it
+        raise NotImplementedError
+
+    def close(self) -> Any:
+        """Vent everything and release the devices; returns the vent's outcome (a message
+        must never claim a vent that was not confirmed).  Safe to call more than once.
+
+        Each step runs even when an earlier one fails; the first failure of stopping or
+        closing the sampler is raised at the end (a failed vent is reported, never raised).
+        """
+        vented = self.vent()
+        first: Exception | None = None
+        closer = getattr(self.sampler, "close", None)
+        for step in [self.sampler.stop] + ([closer] if callable(closer) else []):
+            try:
+                step()
+            except Exception as exc:
+                first = first or exc
+        if first is not None:
+            raise first
+        return vented
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 @dataclass
-class Rig:
+class Rig(RigDevices):
     """A complete rig: clock, sampler, cylinder regulator, muscle pressure supply, limits."""
 
     clock: Clock
@@ -411,28 +481,10 @@ class Rig:
         self.last_vent = VentReport(cyl(), mus())
         return self.last_vent
 
-    def close(self) -> None:
-        """Vent everything (outcome in :attr:`last_vent`) and release the devices.  Safe to
-        call more than once.
-
-        Each step runs even when an earlier one fails; the first failure of stopping or
-        closing the sampler is raised at the end (a failed vent is reported in
-        :attr:`last_vent`, never raised).
-        """
-        self.vent()
-        first: Exception | None = None
-        closer = getattr(self.sampler, "close", None)
-        steps = [self.sampler.stop]
-        for step in steps + ([closer] if callable(closer) else []):
-            try:
-                step()
-            except Exception as exc:
-                first = first or exc
-        if first is not None:
-            raise first
+    def close(self) -> VentReport:
+        """Vent everything (outcome also in :attr:`last_vent`) and release the devices
+        (:meth:`RigDevices.close`)."""
+        return super().close()
 
     def __enter__(self) -> Rig:
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -21,7 +21,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from pmalab.rig.base import Clock, Limits, PressureRegulator, Sampler, VentResult, vent_safely
+from pmalab.rig.base import (
+    Clock,
+    Limits,
+    PressureRegulator,
+    RigDevices,
+    Sampler,
+    VentResult,
+    vent_safely,
+)
 
 
 @dataclass(frozen=True)
@@ -47,7 +55,7 @@ class ManipulatorGeometry:
 
 
 @dataclass
-class ManipulatorRig:
+class ManipulatorRig(RigDevices):
     """A complete 1-DOF manipulator: clock, sampler, muscle regulator, limits, geometry."""
 
     clock: Clock
@@ -63,25 +71,9 @@ class ManipulatorRig:
         return vent_safely(self.muscle_regulator.vent, "muscle regulator vent()")
 
     def close(self) -> VentResult:
-        """Vent the muscle and release devices.  Safe to call more than once.
-
-        Returns the vent's outcome (a message must never claim a vent that was not
-        confirmed); a fault while releasing a device is raised after the vent.
-        """
-        vent = self.vent()
-        first: Exception | None = None
-        closer = getattr(self.sampler, "close", None)
-        for step in [self.sampler.stop] + ([closer] if callable(closer) else []):
-            try:
-                step()
-            except Exception as exc:
-                first = first or exc
-        if first is not None:
-            raise first
-        return vent
+        """Vent the muscle and release devices (:meth:`RigDevices.close`); returns the
+        vent's outcome."""
+        return super().close()
 
     def __enter__(self) -> ManipulatorRig:
         return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -18,13 +18,13 @@ Run starts and ends (a few per run, outside the sample loop) go through a pipe.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from pmalab.acquisition.protocol import RunSpec
-from pmalab.acquisition.recorder import RunWriter
+from pmalab.acquisition.recorder import RECORDED, RunWriter
 from pmalab.acquisition.runner import RunObserver
 
 #: samples the ring holds: 16 s at 500 Hz (the reader drains it every 50 ms)
@@ -71,21 +71,24 @@ class RingFeed(RunObserver):
         self._next = [0]  # next sequence number (shared by the taps of every run)
 
     def run_started(self, index: int, spec: RunSpec, writer: RunWriter) -> None:
-        add, buf, rows, nxt = writer.add, self.buf, self.rows, self._next
+        append, buf, rows, nxt = writer.append, self.buf, self.rows, self._next
         pack_row, pack_head = ROW.pack_into, HEAD.pack_into
         count = [0]
+        if tuple(writer.channels) != RECORDED:
+            # the ring's rows are the single-muscle channels; another declaration (a pair
+            # of muscles) is recorded as usual and the page shows its run events only
+            self.send(("start", index, run_info(spec, self.n_runs)))
+            return
 
-        def tap(
-            t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
-        ) -> None:
-            add(t, x, f, pm, pc, cmd, lateness)
+        def tap(row: Sequence[float], lateness: float) -> None:
+            append(row, lateness)
             s = nxt[0]
-            pack_row(buf, HEADER_BYTES + (s % rows) * 64, s, index, t, x, f, pm, pc, cmd)
+            pack_row(buf, HEADER_BYTES + (s % rows) * 64, s, index, *row)
             nxt[0] = s + 1
             count[0] += 1
             pack_head(buf, 0, s + 1, writer.n_late, writer.n_missed, count[0])
 
-        writer.add = tap  # type: ignore[method-assign]
+        writer.append = tap  # type: ignore[method-assign]
         self.send(("start", index, run_info(spec, self.n_runs)))
 
     def run_ended(self, index: int, spec: RunSpec, status: str, message: str) -> None:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ from pmalab.identify.estimation.output_error import (
     fit_output_error,
     position_data,
 )
-from pmalab.identify.estimation.records import TARE_NOTE, predict_record
+from pmalab.identify.estimation.records import TARE_NOTE, predict_record, scored_from
 from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
 from pmalab.identify.messages import detail, note, prefixed
 from pmalab.identify.metrics import metrics
@@ -148,6 +149,9 @@ class CampaignFit:
     #: the law's shared shape (``HysteresisLaw.shared_shape``) the campaign held on every
     #: run, at its reference run's values (empty when the law has none or the user fixed it)
     shape_reference: dict[str, float] = field(default_factory=dict)
+    #: the pressure structure the campaign chose for the law's elements
+    #: (:class:`~pmalab.identify.campaign.structure.StructureChoice`; None: not chosen)
+    structure: Any = None
 
     @property
     def output(self) -> str:
@@ -190,6 +194,30 @@ class CampaignFit:
             th[s] = 0.0  # record parameters (h0, nuisance) belong to another run
         return th
 
+    def record_prior(self) -> dict[str, tuple[float, float]]:
+        """Per effect nuisance parameter (a drift rate; not h0 nor a record's zero): the
+        mean and spread of its values over the identification runs — what the campaign says
+        a record's value is before the record is seen (its prior, mean ± sd; the sd at least
+        10 % of |mean| or 1e-9).  A predicted record's value is estimated on its early part
+        pulled toward this prior (:func:`~pmalab.identify.estimation.records.estimate_record`)."""
+        names = [n for n in self.model.record_params if n not in self.model.state_params]
+        out: dict[str, tuple[float, float]] = {}
+        for n in names:
+            if self.joint is not None and n in self.joint.nuisance:
+                vals = np.asarray(self.joint.nuisance[n], dtype=float)
+            else:
+                vals = np.asarray(
+                    [rf.result.params[n].value for rf in self.runs if n in rf.result.params],
+                    dtype=float,
+                )
+            vals = vals[np.isfinite(vals)]
+            if vals.size == 0:
+                continue
+            mu = float(np.mean(vals))
+            sd = float(np.std(vals, ddof=1)) if vals.size > 1 else abs(mu)
+            out[n] = (mu, max(sd, 0.1 * abs(mu), 1e-9))
+        return out
+
     def predict(
         self,
         run: Run | Signals,
@@ -211,13 +239,21 @@ class CampaignFit:
             sig = run
         p = sig.p_nom if p_nom is None else float(p_nom)
         return predict_record(
-            self.model, sig, self.theta(p), force=force, initial=initial, bounds=self.bounds
+            self.model,
+            sig,
+            self.theta(p),
+            force=force,
+            initial=initial,
+            bounds=self.bounds,
+            prior=self.record_prior(),
         )
 
     def validate(self, run: Run, initial: str = "estimate") -> dict:
         """Metrics of this model's free-run prediction of ``run``."""
         sig = Signals.from_run(run)
-        return metrics(run.force, self.predict(sig, force=run.force, initial=initial), sig.x)
+        fm = self.predict(sig, force=run.force, initial=initial)
+        i0 = scored_from(sig, initial)  # after the early part the record was set on
+        return metrics(run.force[i0:], fm[i0:], sig.x[i0:])
 
 
 def predict_run(campaign_fit: CampaignFit, run: Run) -> np.ndarray:
@@ -292,8 +328,16 @@ def fit_campaign(
     scheduler: str | None = None,
     progress: bool = False,
     pressure_model: str = "joint",
+    structure: str = "auto",
+    shape: dict[str, float] | None = None,
 ) -> CampaignFit:
     """Fit every run, make the fixes consistent, fit the pressure laws.
+
+    ``structure``: the pressure structure of an element law's elements — ``"auto"`` (chosen
+    by leave-one-pressure-out evidence, :mod:`pmalab.identify.campaign.structure`),
+    ``"free"`` (every parameter its own pressure law) or one the law offers.
+    ``shape``: hold the law's shared shape at these values on every run (no search for a
+    reference run) and refine it jointly as constants.
 
     ``pressure_model``: ``"joint"`` (default) refines the per-run quadratics jointly on all
     runs with chosen orders (:mod:`pmalab.identify.estimation.joint`); ``"per-run"`` keeps the seeds'
@@ -307,7 +351,14 @@ def fit_campaign(
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
     check_free(fm, free)
-    kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
+    if structure not in ("auto", "free", *fm.law.structures):
+        offers = ", ".join(["free", *fm.law.structures])
+        raise PmalabError(f"--structure {structure}: {fm.law.name} offers {offers}")
+    kwargs = {
+        "fixed": {**(fixed or {}), **(shape or {})} or None,
+        "init": init,
+        "free": tuple(free),
+    }
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings: list[str] = list(default_fixed_notes(fm, free))
     if fm.tares:
@@ -367,10 +418,13 @@ def fit_campaign(
                 "only (collinear there); its quadratic mixes fixed and fitted values"
             )
 
-    results, shape_ref, shape_notes = share_shape(
-        fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
-    )
-    warnings += shape_notes
+    if shape:
+        shape_ref: dict[str, float] = dict(shape)
+    else:
+        results, shape_ref, shape_notes = share_shape(
+            fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
+        )
+        warnings += shape_notes
 
     rfs = []
     for run, res in zip(runs, results):
@@ -403,6 +457,19 @@ def fit_campaign(
     )
     if pressure_model == "joint" and len(rfs) > 1:
         refine_pressure_laws(cf, runs)
+    if fm.law.structures and structure != "free" and len(rfs) > 1:
+        from pmalab.identify.campaign.structure import choose_structure
+
+        choose_structure(
+            cf,
+            runs,
+            fixed=fixed,
+            jobs=jobs,
+            scheduler=scheduler,
+            progress=progress,
+            pressure_model=pressure_model,
+            structure=structure,
+        )
     return cf
 
 
@@ -612,6 +679,8 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
             alternatives=[plain],
             nuisance_start=nuisance or None,
             fixed_order=[n for n in (*cf.model.campaign_shared, *shape) if n in free],
+            # an element law's pressure structure is chosen on this evidence (.structure)
+            lopo=bool(cf.model.law.structures or cf.model.law.structure_of),
         )
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(

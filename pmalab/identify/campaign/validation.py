@@ -3,7 +3,9 @@
 One function, :func:`validate_runs`, predicts held-out runs for ``pmalab identify`` and for
 every candidate ``pmalab diagnose`` scores, so the validation error a user reads is the same
 number wherever it appears.  Each run's record parameters (start state, record nuisances)
-are set by the record policy of :mod:`pmalab.identify.estimation.records`.
+are set by the record policy of :mod:`pmalab.identify.estimation.records`: under
+``initial="estimate"`` they are fitted on the run's early part and the metrics are those of
+the rest (``Validation.scored_from``), so a record parameter must predict, not absorb.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pmalab.identify.campaign.fit import CampaignFit
+from pmalab.identify.estimation.records import scored_from
 from pmalab.identify.metrics import metrics
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
@@ -71,6 +74,14 @@ class Validation:
     #: the simulated position (mm) when the model was fitted on position (``--output
     #: position``); its errors are in ``metrics`` (``rmse_position_m`` ...)
     position_model: np.ndarray | None = None
+    #: first sample the metrics are computed from (after the early part on which the
+    #: record parameters were estimated; 0 when nothing of the record was fitted)
+    scored_from: int = 0
+
+    @property
+    def scored(self) -> slice:
+        """The samples the metrics score."""
+        return slice(self.scored_from, None)
 
     @property
     def fit_percent(self) -> float:
@@ -101,8 +112,9 @@ def validate_runs(
                 "θ(p) extrapolated and clipped into the law's bounds"
             )
             warnings.append(f"{r.label}: {msg}")
+        i0 = scored_from(sig, initial)
         with np.errstate(all="ignore"):
-            m = metrics(r.force, fm, sig.x)
+            m = metrics(r.force[i0:], fm[i0:], sig.x[i0:])
         why = check_prediction(r.force, fm)
         if why is not None:
             status, msg = "diverged", why + (f"; {msg}" if msg else "")
@@ -126,6 +138,7 @@ def validate_runs(
                 status=status,
                 message=msg,
                 position_model=xm,
+                scored_from=i0,
             )
         )
     return out, warnings

@@ -34,10 +34,14 @@ from pmalab.identify.diagnosis.diagnostics import (
 )
 from pmalab.identify.diagnosis.heldout import choose
 from pmalab.identify.diagnosis.ladder import LadderStep, Round, one_frequency, run_ladder
-from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR, rate_dependent
+from pmalab.identify.diagnosis.ranking import (
+    MIN_GAIN_X_FLOOR,
+    heldout_floor,
+    rate_dependent,
+    scored_part,
+)
 from pmalab.identify.effects import EFFECTS, load_user_effects
 from pmalab.identify.laws import LAWS
-from pmalab.identify.noise import noise_floor_nrmse
 from pmalab.identify.predictions import PredictionItem, write_predictions_file
 from pmalab.identify.schema import DiagnosisDoc
 from pmalab.identify.signals import Signals
@@ -137,6 +141,19 @@ class Diagnosis:
         """The ranking as a fixed-width text table."""
         rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
         for r in self.ranking:
+            if r.get("status") == "failed":
+                rows.append(
+                    (
+                        r["effect"],
+                        f"{r['nrmse_before']:.4f}",
+                        f"{r['nrmse_after']:.4f}",
+                        "—",
+                        "—",
+                        str(r["n_params"]),
+                        "fit failed",
+                    )
+                )
+                continue
             rows.append(
                 (
                     r["effect"],
@@ -286,7 +303,15 @@ def _ranking_json(
             d["scored_against"] = "base"
         out.append(d)
     # best first: ladder order, then the rest by their held-out fall (ranking.Candidate.fall)
-    out.sort(key=lambda d: (d["ladder_step"] is None, d["ladder_step"] or 0, -d["fall_percent"]))
+    # failed fits last (they carry no fall)
+    out.sort(
+        key=lambda d: (
+            d["ladder_step"] is None,
+            d["ladder_step"] or 0,
+            d.get("status") == "failed",
+            -(d["fall_percent"] or 0.0),
+        )
+    )
     return out
 
 
@@ -312,7 +337,7 @@ def _summary(
         f"({base['nrmse'] / floor:.1f}× the noise floor {floor:.4f}; {scheme})."
     ]
     if len(ladder) == 1:
-        best = ranking[0] if ranking else None
+        best = next((r for r in ranking if r.get("status") != "failed"), None)
         parts.append(
             "No catalogue effect cuts the validation error significantly"
             + (
@@ -336,6 +361,14 @@ def _summary(
         )
         parts.append(
             f"{what}: {names} — validation nrmse {base['nrmse']:.4f} {steps} (−{total:.0f} %)."
+        )
+    failed = [r for r in ranking if r.get("status") == "failed"]
+    failed += [lw for lw in laws if lw.get("status") == "failed"]
+    if failed:
+        parts.append(
+            "Fit failed (not ranked): "
+            + "; ".join(f"{r.get('effect') or r.get('law')}: {r['reason']}" for r in failed)
+            + "."
         )
     switch = next((s for s in ladder[1:] if s.get("switched_law")), None)
     if switch is not None:
@@ -432,7 +465,8 @@ def diagnose(
     split = choose(runs, validate)
     if not split.train:
         raise DiagnoseError("no identification runs left: every run is held out")
-    floors = {r.label: noise_floor_nrmse(r.force, r.time) for r in split.held}
+    # each run's floor as its error is scored (the part after its early part)
+    floors = {r.label: heldout_floor(r) for r in split.held}
     floor = float(np.mean(list(floors.values())))
     other_laws = (
         [lw for lw in LAWS if lw != model] if laws is None else [lw for lw in laws if lw != model]
@@ -464,7 +498,10 @@ def diagnose(
     for run, fb, ff in zip(split.held, base_pred, final_pred):
         sig = Signals.from_run(run)
         d = run_diagnostics(sig, run.force, fb)
-        d["nrmse_final"] = float(np.sqrt(np.mean((run.force - ff) ** 2)) / np.std(run.force))
+        sp = scored_part(run)
+        d["nrmse_final"] = float(
+            np.sqrt(np.mean((run.force[sp] - ff[sp]) ** 2)) / np.std(run.force[sp])
+        )
         d["noise_floor_nrmse"] = floors[run.label]
         d["residual_shares"] = residual_shares(
             run.time,
@@ -497,10 +534,12 @@ def diagnose(
     laws_json = [
         {
             "law": c.effect,
+            "status": "failed" if c.failed else "ok",
+            **({"reason": c.failure()} if c.failed else {}),
             "nrmse_before": float(c.nrmse_before),
             "nrmse_after": float(c.nrmse_after),
-            "fall_percent": float(100.0 * c.fall),
-            "gain_x_floor": float(c.gain_x_floor),
+            "fall_percent": None if c.failed else float(100.0 * c.fall),
+            "gain_x_floor": None if c.failed else float(c.gain_x_floor),
             "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
             "runs_improved": float(c.runs_improved),
             "significant": bool(c.significant),
@@ -508,7 +547,10 @@ def diagnose(
         }
         for c in (rounds[0].laws if rounds else [])
     ]
-    laws_json.sort(key=lambda d: (not d["significant"], -d["fall_percent"]))  # best first
+    # best first; failed fits last
+    laws_json.sort(
+        key=lambda d: (not d["significant"], d["status"] == "failed", -(d["fall_percent"] or 0.0))
+    )
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     rest = residual_next_step([d["residual_shares"] for d in diagnostics.values()])

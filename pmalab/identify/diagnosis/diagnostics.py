@@ -26,7 +26,6 @@ from typing import Any
 import numpy as np
 from scipy.signal import hilbert
 
-from pmalab.identify.effects.inertia import smooth_acceleration
 from pmalab.identify.signals import Signals
 
 N_BINS = 12
@@ -205,7 +204,7 @@ def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) ->
         "position": binned_mean(sig.x, r, tau, "mm"),
         "velocity": binned_mean(v, r, tau, "mm/s"),
         "velocity_sign": binned_mean(np.sign(v), r, tau, "-", categories=(-1.0, 1.0)),
-        "acceleration": binned_mean(smooth_acceleration(sig), r, tau, "mm/s²"),
+        "acceleration": binned_mean(sig.a, r, tau, "mm/s²"),
         "pressure_deviation": binned_mean(sig.p - sig.p_nom, r, tau, "MPa"),
         "time": binned_mean(sig.t - sig.t[0], r, tau, "s"),
         "branch": binned_mean(branch_of(v), r, tau, "-", categories=(-1.0, 1.0)),

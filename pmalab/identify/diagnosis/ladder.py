@@ -13,7 +13,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from pmalab.identify.campaign import ModelSpec
-from pmalab.identify.diagnosis.ranking import Candidate, Scored, judge, score, score_all
+from pmalab.identify.diagnosis.ranking import (
+    Candidate,
+    Scored,
+    heldout_floor,
+    judge,
+    score,
+    score_all,
+)
 from pmalab.runfile import Run
 
 
@@ -93,10 +100,8 @@ def run_ladder(
     ``laws`` replaces the current law (same effects); all are scored by the same
     identification on the same held-out runs and judged by the same rule.  The best
     significant candidate — an effect or a law — is taken."""
-    from pmalab.identify.noise import noise_floor_nrmse
-
     files = tuple(str(f) for f in effects_files)
-    floors = [noise_floor_nrmse(r.force, r.time) for r in held]
+    floors = [heldout_floor(r) for r in held]
     # one excitation frequency in the identification runs: rate-dependent effects are then
     # not identifiable apart (ranking.judge)
     single = one_frequency(train) is not None

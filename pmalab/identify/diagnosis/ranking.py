@@ -7,6 +7,20 @@ and held-out runs as the current model — the way SysIdentPy's term selection s
 with the estimator it fits with.  The numbers in the ranking are therefore the numbers the
 user gets from ``pmalab identify --add EFFECT --validate ...``.
 
+Nuisance-fair scoring.  Every held-out run is predicted the way ``pmalab identify``
+validates it: the record's own parameters (the start state h0 and the record nuisances of
+the effects — a drifting zero's offset and rate) are fitted on the run's *early part* and
+the error is scored on the *rest* (:mod:`pmalab.identify.estimation.records`), the same
+samples for the null model and for every candidate.  An effect with per-record freedom must
+therefore predict the rest of the record from its start: a real linear drift extrapolates,
+a decaying softening or a misfit of the loop's shape does not.
+
+A candidate whose identification *failed* — a held-out prediction diverged, the held-out
+error rose by more than ``FAILED_FALL`` (a converged fit with more freedom cannot lose that
+much), the per-run ratios scatter more than the fall they average, or the new parameters
+sit on their bounds on most runs while the error rises — is listed as "fit failed: why",
+never ranked by its fall and never significant (:meth:`Candidate.failure`).
+
 Significance is decided in the units of the held-out evidence itself (docs/explanation/
 significance.md): an effect is *significant* when the held-out error falls on every
 held-out run, by at least ``MIN_GAIN_X_FLOOR`` = 0.25 noise floors on average (absolute
@@ -49,6 +63,13 @@ AMBIGUITY_RATIO = 0.85
 MIN_PAIRED_RUNS = 4
 #: a diverged validation counts with this nrmse (it is then never significant)
 DIVERGED_NRMSE = 10.0
+#: a held-out error rising by more than this fraction marks the candidate's fit failed
+FAILED_FALL = 1.0
+#: ... and so does a fall below −``SCATTER_MIN_RISE`` whose standard error exceeds it
+SCATTER_MIN_RISE = 0.1
+#: share of the identification runs on which new parameters sit on a bound (other than a
+#: physical sign bound at 0) for a rising error to count as a failed fit
+BOUND_SHARE = 0.5
 
 
 @dataclass
@@ -63,8 +84,16 @@ class Scored:
     predictions: list[np.ndarray] = field(default_factory=list, repr=False)
     #: per held-out run: the mean squared error (N²) of each block of whole cycles
     block_mse: list[np.ndarray] = field(default_factory=list, repr=False)
-    #: per held-out run: std of the measured force (N), the nrmse normaliser
+    #: per held-out run: std of the measured force (N) on its scored part, the nrmse normaliser
     force_std: list[float] = field(default_factory=list, repr=False)
+    #: per held-out run: the first scored sample (after the early part that set the record)
+    scored_from: list[int] = field(default_factory=list, repr=False)
+    #: the model's parameters that vary on at least one identification run
+    param_names: frozenset[str] = frozenset()
+    #: per parameter: on how many identification runs it ended on a bound (a bound at 0, a
+    #: physical sign, is not counted), and the number of identification runs
+    at_bounds: dict[str, int] = field(default_factory=dict, repr=False)
+    n_runs: int = 0
 
     @property
     def mean(self) -> float:
@@ -83,11 +112,53 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         nr.append(min(x, DIVERGED_NRMSE))
     # the model's free parameters: free on at least one run (a parameter the fit fixes on
     # one run only, e.g. a collinear gamma, still belongs to the model)
-    n_params = len({p.name for rf in cf.runs for p in rf.result.params if p.vary})
+    names = frozenset(p.name for rf in cf.runs for p in rf.result.params if p.vary)
+    hits: dict[str, int] = {}
+    for rf in cf.runs:
+        for p in rf.result.params:
+            if p.vary and _on_bound(p.value, p.lo, p.hi):
+                hits[p.name] = hits.get(p.name, 0) + 1
     preds = [np.asarray(v.force_model, dtype=np.float64) for v in vals]
-    blocks = [block_mse(v.run, p) for v, p in zip(vals, preds)]
-    sds = [float(np.std(v.run.force)) for v in vals]
-    return Scored(tuple(spec.effects), nr, div, n_params, preds, blocks, sds)
+    i0 = [int(v.scored_from) for v in vals]
+    blocks = [block_mse(v.run, p, i) for v, p, i in zip(vals, preds, i0)]
+    sds = [float(np.std(v.run.force[i:])) for v, i in zip(vals, i0)]
+    return Scored(
+        tuple(spec.effects),
+        nr,
+        div,
+        len(names),
+        preds,
+        blocks,
+        sds,
+        i0,
+        names,
+        hits,
+        len(cf.runs),
+    )
+
+
+def _on_bound(value: float, lo: float, hi: float) -> bool:
+    """``value`` sits on a finite bound other than 0 (within 1e-6 of the range)."""
+    span = hi - lo if math.isfinite(hi - lo) else max(abs(lo), abs(hi), 1.0)
+    tol = 1e-6 * (span if math.isfinite(span) and span > 0 else 1.0)
+    return any(math.isfinite(b) and b != 0.0 and abs(value - b) <= tol for b in (lo, hi))
+
+
+def scored_part(run: Run) -> slice:
+    """The samples of a held-out run its error is scored on (after the early part on which
+    its record parameters are estimated, :func:`pmalab.identify.estimation.records.calibration_count`)."""
+    from pmalab.identify.estimation.records import calibration_count
+
+    return slice(calibration_count(run.time, run.frequency), None)
+
+
+def heldout_floor(run: Run) -> float:
+    """The noise floor (nrmse) of a held-out run as it is scored: the noise rms estimated on
+    the whole record over the std of the measured force on its scored part."""
+    from pmalab.identify.noise import noise_sigma
+
+    sd = float(np.std(np.asarray(run.force, float)[scored_part(run)]))
+    return noise_sigma(run.force, run.time) / sd if sd > 0 else float("nan")
 
 
 def blocks_of(run: Run) -> list[slice]:
@@ -97,11 +168,17 @@ def blocks_of(run: Run) -> list[slice]:
     Blocks are the within-run replicates of the paired comparison: with only 2–4 held-out
     runs, the spread of the improvement over cycles says whether it is more than noise.
     Only whole cycles are comparable (a stretch branch and a release branch are not)."""
-    n = len(run)
-    f = run.frequency or 0.0
+    return cycle_blocks(run.time, run.frequency)
+
+
+def cycle_blocks(time: np.ndarray, frequency_Hz: float | None) -> list[slice]:
+    """Blocks of one whole excitation cycle each of samples at ``time`` (s) (see
+    :func:`blocks_of`)."""
+    n = len(time)
+    f = frequency_Hz or 0.0
     if f <= 0 or n < 2:
         return []
-    dt = float(np.median(np.diff(run.time)))
+    dt = float(np.median(np.diff(time)))
     per = int(round(1.0 / (f * dt))) if dt > 0 else 0
     k = n // per if per > 0 else 0
     if k < MIN_BLOCKS:
@@ -109,11 +186,14 @@ def blocks_of(run: Run) -> list[slice]:
     return [slice(i * per, (i + 1) * per) for i in range(k)]
 
 
-def block_mse(run: Run, pred: np.ndarray) -> np.ndarray:
-    """Mean squared error (N²) of ``pred`` against the measured force, per block."""
-    e = np.asarray(run.force, float) - np.asarray(pred, float)
+def block_mse(run: Run, pred: np.ndarray, start: int = 0) -> np.ndarray:
+    """Mean squared error (N²) of ``pred`` against the measured force, per block of whole
+    cycles of the run's part from sample ``start`` on (its scored part)."""
+    e = (np.asarray(run.force, float) - np.asarray(pred, float))[start:]
     with np.errstate(all="ignore"):
-        return np.array([float(np.mean(e[b] ** 2)) for b in blocks_of(run)])
+        return np.array(
+            [float(np.mean(e[b] ** 2)) for b in cycle_blocks(run.time[start:], run.frequency)]
+        )
 
 
 def _task(runs: tuple[list[Run], list[Run]], spec: ModelSpec) -> Scored:
@@ -211,6 +291,43 @@ class Candidate:
         se = math.sqrt(var) / len(means)
         return m / se if se > 0 else (math.inf if m > 0 else 0.0)
 
+    def failure(self) -> str:
+        """Why this candidate's identification failed ("" when it did not).
+
+        Failed: a held-out prediction diverged; the held-out error rose by more than
+        ``FAILED_FALL``; it rose by more than ``SCATTER_MIN_RISE`` with a standard error
+        larger than the rise (per-run ratios all over the place); or it rose while a new
+        parameter sits on a bound (not a sign bound at 0) on at least ``BOUND_SHARE`` of
+        the identification runs."""
+        if self.after.diverged:
+            return f"the held-out prediction diverged on {', '.join(self.after.diverged)}"
+        f, se = self.fall, self.fall_se
+        new = sorted(self.after.param_names - self.before.param_names)
+        n = max(self.after.n_runs, 1)
+        hits = [
+            f"{p} on {self.after.at_bounds[p]} of {n} runs"
+            for p in new
+            if self.after.at_bounds.get(p, 0) >= BOUND_SHARE * n
+        ]
+        bounds = f"; at its bound: {', '.join(hits)}" if hits else ""
+        if f < -FAILED_FALL:
+            return (
+                f"the held-out error rose {100 * -f:.0f} % ± {100 * se:.0f} — a converged fit "
+                f"with more freedom does not lose this much{bounds}"
+            )
+        if f < -SCATTER_MIN_RISE and se > -f:
+            return (
+                f"the held-out error rose {100 * -f:.0f} % ± {100 * se:.0f}, the per-run "
+                f"changes scatter more than their mean{bounds}"
+            )
+        if f < 0 and hits:
+            return f"the held-out error rose {100 * -f:.1f} %{bounds}"
+        return ""
+
+    @property
+    def failed(self) -> bool:
+        return bool(self.failure())
+
     @property
     def runs_improved(self) -> float:
         b = np.asarray(self.before.nrmse, float)
@@ -218,17 +335,22 @@ class Candidate:
         return float(np.mean(a < b)) if b.size else 0.0
 
     def as_json(self) -> dict[str, Any]:
+        """The ``diagnosis.json`` entry; a failed fit carries ``"status": "failed"``, its
+        ``"reason"`` and no fall (``fall_percent``, ``fall_se_percent``, ``gain_x_floor`` null)."""
         cls = EFFECTS.get(self.effect)
+        why = self.failure()
         return {
             "effect": self.effect,
+            "status": "failed" if why else "ok",
+            **({"reason": why} if why else {}),
             "nrmse_before": float(self.nrmse_before),
             "nrmse_after": float(self.nrmse_after),
-            "fall_percent": float(100.0 * self.fall),
-            "fall_se_percent": float(100.0 * self.fall_se),
+            "fall_percent": None if why else float(100.0 * self.fall),
+            "fall_se_percent": None if why else float(100.0 * self.fall_se),
             "significant": bool(self.significant),
             "n_params": int(self.after.n_params - self.before.n_params),
             "runs_improved": float(self.runs_improved),
-            "gain_x_floor": float(self.gain_x_floor),
+            "gain_x_floor": None if why else float(self.gain_x_floor),
             "block_t": None if math.isnan(self.block_t) else float(min(self.block_t, 1e6)),
             "per_run_before": [float(v) for v in self.before.nrmse],
             "per_run_after": [float(v) for v in self.after.nrmse],
@@ -254,7 +376,8 @@ def judge(
     which had traded against the hysteresis at 0.15 Hz: 67 % against 51 %)."""
     for c in cands:
         c.significant = is_significant(c)
-    cands.sort(key=lambda c: -c.fall)
+    # failed fits last, never ranked by their fall
+    cands.sort(key=lambda c: (c.failed, -c.fall if not c.failed else 0.0))
     sig = [c for c in cands if c.significant]
     amb: list[str] = []
     if len(sig) >= 2:
@@ -282,7 +405,7 @@ def is_significant(c: Candidate) -> bool:
     ``MIN_BLOCKS`` whole cycles — cycle by cycle beyond ``MIN_BLOCK_T`` standard errors."""
     t = c.block_t
     return bool(
-        not c.after.diverged
+        not c.failed
         and c.runs_improved == 1.0
         and c.gain_x_floor >= MIN_GAIN_X_FLOOR
         and (math.isnan(t) or t >= MIN_BLOCK_T)

@@ -4,7 +4,7 @@ Different sensor paths (an analogue filter in one amplifier, a buffered serial s
 DAQ that samples channels in sequence) make the recorded position lag or lead the force by
 τ seconds.  The model is then driven by the position τ later than recorded:
 x_model(t) = x_rec(t + τ) (τ > 0: the position channel lags the force).  The derivatives
-are recomputed from the shifted position.
+(:func:`pmalab.identify.signals.derivatives`) are shifted with it.
 """
 
 from __future__ import annotations
@@ -73,4 +73,9 @@ class SensorDelay(Effect):
         tau = float(theta["delay_tau"])
         if tau == 0.0:
             return sig
-        return sig.with_position(shift_in_time(sig.t, sig.x, tau))
+        # the derivatives shift with the position (the one estimator's, not re-derived)
+        return sig.with_position(
+            shift_in_time(sig.t, sig.x, tau),
+            shift_in_time(sig.t, sig.v, tau),
+            shift_in_time(sig.t, sig.a, tau),
+        )

@@ -50,6 +50,6 @@ class SensorDrift(Effect):
         return [Param("drift_d", 0.0, -lim, lim, "N/s", doc="force zero drift rate")]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
-        # centred on the middle of the run's time span (not the sample mean, so the term is
-        # the same function of absolute time whatever part of the run a fit sees)
-        return theta["drift_d"] * (sig.t - 0.5 * (sig.t[0] + sig.t[-1]))
+        # centred on the record's reference time (the middle of its span, kept by a part of
+        # the record: the term is the same function of absolute time whatever part a fit sees)
+        return theta["drift_d"] * (sig.t - sig.reference_time)

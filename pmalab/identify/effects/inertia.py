@@ -7,9 +7,9 @@ the load cell the moving mass sits on depends on the rig.  Visible only at highe
 frequencies (the term grows with ω²).
 
 Acceleration is the second derivative of a measured position: differentiating twice
-amplifies the sensor noise by ω_c², so the drive signals' acceleration (cut-off 15× the
-test frequency) is mostly noise at 500 Hz.  The inertia term therefore uses its own
-smoother acceleration, from the position low-passed (zero phase) at 6× the test frequency.
+amplifies the sensor noise by ω_c², so the term uses the one derivative estimator's
+acceleration (:func:`pmalab.identify.signals.derivatives`: position low-passed zero phase at
+6× the test frequency, ≥ 2 Hz), not the drive position's wide band.
 """
 
 from __future__ import annotations
@@ -21,28 +21,7 @@ import numpy as np
 
 from pmalab.identify.effects.base import Effect
 from pmalab.identify.params import Param
-from pmalab.identify.signals import Signals, zero_phase_lowpass
-
-#: recent results: a fit evaluates the same signals hundreds of times
-_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
-_CACHE_SIZE = 64
-
-
-def smooth_acceleration(sig: Signals) -> np.ndarray:
-    """ẍ (mm/s²) from the position low-passed at 6× the test frequency (≥ 2 Hz), zero phase."""
-    x = sig.x
-    n = x.shape[0]
-    key = (id(x), id(sig.t), n, sig.frequency_Hz)
-    hit = _CACHE.get(key)
-    if hit is not None and hit[0] is x:  # the cache keeps x alive, so its id is not reused
-        return hit[1]
-    f = sig.frequency_Hz if sig.frequency_Hz and sig.frequency_Hz > 0 else sig.cutoff_Hz / 15.0
-    xs = zero_phase_lowpass(sig.t, x, max(6.0 * f, 2.0))
-    a = np.gradient(np.gradient(xs, sig.t), sig.t)
-    if len(_CACHE) >= _CACHE_SIZE:
-        _CACHE.pop(next(iter(_CACHE)))
-    _CACHE[key] = (x, a)
-    return a
+from pmalab.identify.signals import Signals
 
 
 class Inertia(Effect):
@@ -67,11 +46,11 @@ class Inertia(Effect):
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # bound: a mass whose inertial force alone is 3× the force's spread at the rms
         # acceleration (a broadband record above its resonance is mostly inertia)
-        arms = float(np.sqrt(np.mean(smooth_acceleration(sig) ** 2))) * 1e-3 or 1e-3
+        arms = float(np.sqrt(np.mean(sig.a**2))) * 1e-3 or 1e-3
         lim = max(3.0 * force_scale / arms, 1.0)
         return [
             Param("inertia_m", 0.0, -lim, lim, "kg", doc="moving mass between muscle and load cell")
         ]
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray:
-        return -theta["inertia_m"] * smooth_acceleration(sig) * 1e-3
+        return -theta["inertia_m"] * sig.a * 1e-3

@@ -34,7 +34,8 @@ ln N_eff (the BIC penalty of one parameter) is dropped, and the pruned model is 
 its joint BIC is not worse.
 
 Speed.  Runs are subsampled to ≤ ``SAMPLES_PER_CYCLE`` samples per excitation cycle (and
-≤ ``MAX_SAMPLES`` per run) after the zero-phase filter; the laws are rate independent and
+≤ ``MAX_SAMPLES`` per run, but never < ``MIN_SAMPLES_PER_CYCLE`` per cycle: a long run is
+not aliased to fit a budget) after the zero-phase filter; the laws are rate independent and
 the effects use the full-rate derivatives, so the loss is small.  The Jacobian is computed
 per *parameter* (one perturbation of θ_j on every run at once, chained to its Legendre
 coefficients) and all h0 are perturbed together (each affects one run only): (P + 1)·R
@@ -61,8 +62,11 @@ from pmalab.runfile import Run
 
 #: samples per excitation cycle kept for the joint fit (loops need ~100; margin ×2)
 SAMPLES_PER_CYCLE = 200
-#: at most this many samples of one run enter the joint fit
+#: at most this many samples of one run enter the joint fit, unless that leaves fewer
+#: than ``MIN_SAMPLES_PER_CYCLE`` per excitation cycle
 MAX_SAMPLES = 2500
+#: the joint fit never keeps fewer samples per excitation cycle (``signals.every``)
+MIN_SAMPLES_PER_CYCLE = 100
 #: limit on function evaluations of one joint least-squares
 MAX_NFEV = 120
 #: cap of one weighted residual (≈ 1e3 × the run's own rmse·√N: a runaway prediction)
@@ -71,6 +75,21 @@ RESID_CAP = 1e3
 
 
 # --------------------------------------------------------------------------- data
+def joint_stride(n: int, sample_rate_Hz: float, frequency_Hz: float | None) -> int:
+    """Subsampling stride of one run in the joint fit.
+
+    ``SAMPLES_PER_CYCLE`` samples per excitation cycle, and at most ``MAX_SAMPLES`` of the
+    run — but never fewer than ``MIN_SAMPLES_PER_CYCLE`` per cycle: striding a run of many
+    cycles down to a fixed count would alias its path (a 10-hour 0.5 Hz run in 2,500
+    samples is one sample every 7 cycles), so a long run costs time in proportion to its
+    length instead.  Unknown frequency: at most ``MAX_SAMPLES``."""
+    f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else None
+    if f is None:
+        return max(1, int(math.ceil(n / MAX_SAMPLES)))
+    stride = max(1, int(sample_rate_Hz // (SAMPLES_PER_CYCLE * f)), int(math.ceil(n / MAX_SAMPLES)))
+    return max(1, min(stride, int(sample_rate_Hz // (MIN_SAMPLES_PER_CYCLE * f))))
+
+
 def prepare(run: Run, error_scale: float | None = None) -> Record:
     """Filter (as every fit does) and subsample one run into an estimator record.
 
@@ -84,9 +103,7 @@ def prepare(run: Run, error_scale: float | None = None) -> Record:
     sig = Signals.from_run(run)
     n = sig.t.shape[0]
     fs = 1.0 / float(np.median(np.diff(sig.t)))
-    f = run.frequency if run.frequency and run.frequency > 0 else None
-    stride = int(fs // (SAMPLES_PER_CYCLE * f)) if f else 1
-    stride = max(1, stride, int(math.ceil(n / MAX_SAMPLES)))
+    stride = joint_stride(n, fs, run.frequency)
     s = sig.every(stride)
     force = np.asarray(run.force, dtype=np.float64)[::stride]
     sd = max(float(np.std(force)), 1e-9)
@@ -123,6 +140,9 @@ class JointFit:
     legendre_stderr: dict[str, np.ndarray] = field(default_factory=dict)
     #: record nuisance parameters: one fitted value per run (never a pressure law)
     nuisance: dict[str, list[float]] = field(default_factory=dict)
+    #: leave-one-pressure-out nrmse of every run at an interior level (record label →
+    #: nrmse), by :func:`approx_lopo`; empty unless asked for (``refine(lopo=True)``)
+    lopo: dict[str, float] = field(default_factory=dict)
 
     @property
     def mean_nrmse(self) -> float:
@@ -195,6 +215,7 @@ def refine(
     alternatives: Sequence[tuple[dict[str, tuple[float, float, float]], dict[str, int]]] = (),
     nuisance_start: Mapping[str, Sequence[float]] | None = None,
     fixed_order: Sequence[str] = (),
+    lopo: bool = False,
 ) -> tuple[JointFit, list[str]]:
     """Jointly refine the pressure laws (see the module docstring); returns (fit, notes).
 
@@ -205,7 +226,8 @@ def refine(
     lowest cost (h0 fitted for each) and tries the next while it has not beaten it.
     ``nuisance_start``: per-run start values of the record nuisance parameters (one value
     per run each, fitted like h0).  ``fixed_order``: parameters whose order is never pruned
-    or raised (campaign-wide constants).
+    or raised (campaign-wide constants).  ``lopo``: also estimate every interior-level
+    run's leave-one-pressure-out error (:func:`approx_lopo`, ``JointFit.lopo``).
     """
     basis = PressureBasis.over([r.p_nom for r in runs])
     nuis = dict(nuisance_start or {})
@@ -310,7 +332,50 @@ def refine(
         legendre_stderr=leg_se,
         nuisance={n: rv[n] for n in nuis},
     )
+    if lopo:
+        J = sol.jac if getattr(sol, "jac", None) is not None else prob.jac(sol.x)
+        fit.lopo = approx_lopo(prob, sol.x, np.asarray(J))
     return fit, notes
+
+
+def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]:
+    """Leave-one-pressure-out nrmse of every run at an interior pressure level, estimated
+    from the joint solution ``z`` and its Jacobian ``J`` (record label → nrmse).
+
+    For each interior level L (rounded to 1 kPa; the lowest and highest levels are never
+    left out — predicting them is extrapolation): one Gauss–Newton step of the joint problem
+    *without* the runs at L from ``z`` (the influence approximation of refitting without
+    them: at the optimum the step is exactly the pull of those runs removed), then the runs
+    at L predicted with the stepped laws, their own per-run parameters (h0, nuisances)
+    re-estimated on them (linearised, as a validation run's start state is estimated).  The
+    pressure orders are the ones chosen on all runs.  nrmse is RMS error (N) ÷ std of the
+    record's force, on the joint fit's subsampled records.
+    """
+    r = prob.residual(z)
+    keys = np.array([round(float(rec.p_nom), 3) for rec in prob.records])
+    levels = sorted(set(keys.tolist()))
+    R = len(prob.records)
+    nc = prob.n_coef
+    run_cols = [[prob.block(j).start + i for j in range(len(prob.run_params))] for i in range(R)]
+    out: dict[str, float] = {}
+    for L in levels[1:-1]:
+        G = [i for i in range(R) if keys[i] == L]
+        T = [i for i in range(R) if keys[i] != L]
+        rows_t = np.concatenate([np.arange(prob.rows[i].start, prob.rows[i].stop) for i in T])
+        cols_t = np.array(list(range(nc)) + [c for i in T for c in run_cols[i]], dtype=np.intp)
+        step, *_ = np.linalg.lstsq(J[np.ix_(rows_t, cols_t)], -r[rows_t], rcond=None)
+        dc = step[:nc]
+        for i in G:
+            rows = np.arange(prob.rows[i].start, prob.rows[i].stop)
+            e = r[rows] + J[np.ix_(rows, np.arange(nc))] @ dc
+            if run_cols[i]:
+                Jr = J[np.ix_(rows, run_cols[i])]
+                eps, *_ = np.linalg.lstsq(Jr, -e, rcond=None)
+                e = e + Jr @ eps
+            rec = prob.records[i]
+            err_N = e / rec.weight
+            out[rec.label] = float(np.sqrt(np.mean(err_N**2)) / rec.sd)
+    return out
 
 
 def evaluate(

@@ -7,12 +7,17 @@ gives them one value per run (:mod:`.problem`, per-run blocks).  When a model pr
 it was not fitted on (validation, diagnosis, reports), the muscle parameters come from the
 pressure laws and the record parameters are set by ``initial``:
 
-* ``"estimate"`` (default; MATLAB ``compare``'s initial-condition estimate): the record
-  parameters are fitted by least squares on the predicted record itself with every muscle
-  parameter held — a start from the first 50 ms (h0 = median(F − F_model) there), then a
-  few Gauss–Newton steps.  One or two numbers per record against thousands of samples: it
-  cannot fit the loop, only say where the record started (a virgin muscle, an imported file
-  that starts mid-cycle, a drifted zero).  Without the measured force: ``"burn-in"``.
+* ``"estimate"`` (default; MATLAB ``compare``'s initial-condition estimate, made
+  *forward in time*): the record parameters are fitted by least squares on the *early part*
+  of the predicted record (:func:`calibration_samples`: its first whole excitation cycles,
+  about a third of it) with every muscle parameter held — a start from the first 50 ms
+  (h0 = median(F − F_model) there), then a few Gauss–Newton steps — and the model then
+  predicts the whole record; its error is scored on the rest (:func:`scored_from`).  A
+  record parameter must therefore *predict* the rest of its record, not absorb it: a drift
+  rate fitted on the first cycle extrapolates a real linear drift, but makes a decaying
+  softening or a misfit of the loop's shape worse, and every model — the null as much as a
+  candidate with record nuisances — is scored on the same samples.  Without the measured
+  force: ``"burn-in"``.
 * ``"burn-in"``: the first excitation period is replayed before the run, putting h on its
   periodic orbit (record parameters other than h0 at 0);
 * ``"zero"``: every record parameter 0 (a virgin state, no drift).
@@ -39,6 +44,9 @@ INITIAL_STATES = ("estimate", "burn-in", "zero")
 INITIAL_WINDOW_S = 0.05
 #: Gauss–Newton evaluations for the record parameters of one predicted run
 RECORD_NFEV = 12
+#: share of a predicted record (in whole excitation cycles, at least one) on which its
+#: record parameters are estimated under ``initial="estimate"``; the rest is scored
+CALIBRATION_FRACTION = 1.0 / 3.0
 
 #: the note every prediction with a drifting-zero effect carries (JSON warnings)
 TARE_NOTE = (
@@ -55,6 +63,37 @@ def record_names(model: ForceModel) -> tuple[str, ...]:
     if model.tares and "c0" not in out:
         out.append("c0")
     return tuple(out)
+
+
+def calibration_samples(sig: Signals) -> int:
+    """Samples of the early part of a record on which ``initial="estimate"`` fits its record
+    parameters (:func:`calibration_count` of the record's time stamps and frequency)."""
+    return calibration_count(sig.t, sig.frequency_Hz)
+
+
+def calibration_count(t: np.ndarray, frequency_Hz: float | None) -> int:
+    """round(cycles × ``CALIBRATION_FRACTION``) whole excitation cycles, at least one, at
+    most half the record (a record of fewer than two cycles, or of unknown frequency: its
+    first third), for time stamps ``t`` (s) and the excitation ``frequency_Hz``."""
+    n = int(np.shape(t)[0])
+    if n < 6:
+        return max(1, n // 2)
+    m = int(round(n * CALIBRATION_FRACTION))
+    f = frequency_Hz
+    dt = float(np.median(np.diff(t)))
+    if f and f > 0 and dt > 0:
+        per = int(round(1.0 / (f * dt)))
+        cycles = n // per if per > 0 else 0
+        if cycles >= 2:
+            m = per * max(1, int(round(cycles * CALIBRATION_FRACTION)))
+    return int(min(max(m, 3), n // 2))
+
+
+def scored_from(sig: Signals, initial: str = "estimate") -> int:
+    """First sample of a predicted record that its error is scored on: after the early part
+    (:func:`calibration_samples`) under ``initial="estimate"``, else 0 (nothing of the
+    record was fitted)."""
+    return calibration_samples(sig) if initial == "estimate" else 0
 
 
 def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
@@ -83,11 +122,17 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
         a=cat(sig.a),
         p=cat(sig.p),
         x_raw=cat(sig.x_raw),
+        t_ref=sig.reference_time,
     )
     return aug, P
 
 
-def fit_record_params(prob: Problem, z: np.ndarray, max_nfev: int = RECORD_NFEV) -> np.ndarray:
+def fit_record_params(
+    prob: Problem,
+    z: np.ndarray,
+    max_nfev: int = RECORD_NFEV,
+    prior: Mapping[str, tuple[float, float]] | None = None,
+) -> np.ndarray:
     """z with every run's record parameters fitted, the shared parameters held.
 
     Start: each run's h0 from the first ``INITIAL_WINDOW_S`` (median of F − F_model with
@@ -113,11 +158,32 @@ def fit_record_params(prob: Problem, z: np.ndarray, max_nfev: int = RECORD_NFEV)
             z[blk.start + i] = est if np.isfinite(est) else 0.0
     z[k:] = np.clip(z[k:], lo[k:], hi[k:])
 
+    # a Gaussian prior on record nuisances (one record: Problem with R = 1): extra residual
+    # rows σ_e·(θ − μ)/s, σ_e the start residual's rms, so the cost is that of the data
+    # (Σe²/σ_e²) plus (θ − μ)²/s², in the data's units
+    rows: list[tuple[int, float, float]] = []
+    if prior and len(prob.records) == 1:
+        for j, n in enumerate(prob.run_params):
+            if n in prior:
+                rows.append((j, *prior[n]))
+    e0 = prob.residual(z)
+    scale = float(np.sqrt(np.mean(e0**2))) if e0.size else 1.0
+    scale = scale if np.isfinite(scale) and scale > 0 else 1.0
+
     def f(h: np.ndarray) -> np.ndarray:
-        return prob.residual(np.concatenate([z[:k], h]))
+        e = prob.residual(np.concatenate([z[:k], h]))
+        if not rows:
+            return e
+        return np.concatenate([e, [scale * (h[j] - mu) / sd for j, mu, sd in rows]])
 
     def jf(h: np.ndarray) -> np.ndarray:
-        return prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        if not rows:
+            return J
+        P = np.zeros((len(rows), J.shape[1]))
+        for i, (j, _, sd) in enumerate(rows):
+            P[i, j] = scale / sd
+        return np.vstack([J, P])
 
     r0 = f(z[k:])
     sol = solve(f, jf, z[k:], lo[k:], hi[k:], max_nfev=max_nfev, tol=1e-6)
@@ -132,8 +198,15 @@ def estimate_record(
     force: np.ndarray,
     theta: Mapping[str, float],
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    prior: Mapping[str, tuple[float, float]] | None = None,
 ) -> dict[str, float]:
-    """``theta`` with the record parameters fitted on this record (muscle parameters held)."""
+    """``theta`` with the record parameters fitted on this record (muscle parameters held).
+
+    ``prior``: per record nuisance (a drift rate), the campaign's (mean, sd) of it
+    (:meth:`~pmalab.identify.campaign.fit.CampaignFit.record_prior`): the estimate starts at
+    the mean and is pulled toward it by a Gaussian prior, so a rate that the record's early
+    part cannot tell from the start state's transient (one short cycle) keeps the campaign's
+    value instead of extrapolating a confusion."""
     th = dict(theta)
     names = [n for n in record_names(model) if n in th]
     if not names:
@@ -151,7 +224,9 @@ def estimate_record(
         run_params=names,
     )
     # start: the pressure law's c0 (a drifting zero), every other record parameter at 0
-    z = fit_record_params(prob, prob.z_from({}, {n: [th[n] if n == "c0" else 0.0] for n in names}))
+    pr = dict(prior or {})
+    start = {n: [th[n] if n == "c0" else pr[n][0] if n in pr else 0.0] for n in names}
+    z = fit_record_params(prob, prob.z_from({}, start), prior=pr)
     th.update({n: v[0] for n, v in prob.run_values(z).items()})
     return th
 
@@ -163,10 +238,14 @@ def predict_record(
     force: np.ndarray | None = None,
     initial: str = "estimate",
     bounds: Mapping[str, tuple[float, float]] | None = None,
+    prior: Mapping[str, tuple[float, float]] | None = None,
 ) -> np.ndarray:
-    """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``.
+    """Free-run force (N) of ``model`` on a record, its record parameters set by ``initial``
+    (``prior``: the campaign's (mean, sd) of each record nuisance, see :func:`estimate_record`).
 
-    ``theta``: the muscle parameters (record parameters in it are replaced).
+    ``theta``: the muscle parameters (record parameters in it are replaced).  Under
+    ``"estimate"`` they are fitted on the record's early part only (module docstring); score
+    the prediction from :func:`scored_from` on.
     """
     if initial not in INITIAL_STATES:
         raise ValueError(f"initial must be one of {INITIAL_STATES}, not {initial!r}")
@@ -182,4 +261,6 @@ def predict_record(
         aug, P = burn_in_signals(sig)
         return model.predict(aug, th)[P:]
     assert force is not None  # "estimate" without a force became "burn-in" above
-    return model.predict(sig, estimate_record(model, sig, force, th, bounds))
+    m = calibration_samples(sig)
+    f = np.asarray(force, dtype=np.float64)
+    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior))

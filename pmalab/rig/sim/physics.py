@@ -38,6 +38,7 @@ def build_params(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     fr = truth.section("friction")
     p[K.P_FSLIP] = fr["slip_force_N"]
     p[K.P_FGAMMA] = fr["pressure_curvature"]
+    p[K.P_DEXP] = fr["presliding_pressure_exponent"]
     w = np.asarray(fr["weights"], dtype=float)
     w = w / w.sum()
     p[K.P_NE] = len(w)
@@ -152,6 +153,12 @@ class RigPhysics:
         self._cylinder_command = 0.0
         drift = truth.effect("sensor_drift")
         self._tare_each_run = bool(drift and drift["tare_each_run"])
+        # fatigue/creep: the stiffness k = F0/x_max drifts as k0·(1 + r·t) (t: rig time, s),
+        # applied through the free contraction x_max (so the tension at x = 0 is unchanged)
+        self._xmax0 = float(self._par[K.P_XMAX])
+        self._k_drift = (
+            float(truth.section("muscle")["stiffness_drift_percent_per_hour"]) / 100.0 / 3600.0
+        )
         # the sled starts at rest at nominal length, every pressure at zero
         self._st[K.S_YX] = 0.0
 
@@ -167,9 +174,21 @@ class RigPhysics:
             return
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
+        if self._k_drift:
+            self._drift_stiffness(t)
         rc = K.advance(self._w, self._pend, self._ptr, self._hist, float(t))
         if rc:
             self._diverged()
+
+    def _drift_stiffness(self, t: float) -> None:
+        """Set the muscle's stiffness for rig time ``t`` (s): k0·(1 + r·t), held over the
+        step to ``t`` (a sample period: the drift is hours slow)."""
+        self._par[K.P_XMAX] = self._xmax0 / max(0.05, 1.0 + self._k_drift * t)
+
+    def stiffness_factor(self, t: float | None = None) -> float:
+        """k(t)/k0 of the stiffness drift at rig time ``t`` (s; default now)."""
+        t = self.time if t is None else t
+        return max(0.05, 1.0 + self._k_drift * t)
 
     def _diverged(self) -> None:
         raise RigError(
@@ -256,6 +275,8 @@ class RigPhysics:
         """
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
+        if self._k_drift:
+            self._drift_stiffness(t)
         rc = K.advance_measure(self._w, self._pend, self._ptr, self._hist, self._noise, float(t))
         if rc:
             if rc & 1:

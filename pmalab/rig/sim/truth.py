@@ -76,6 +76,15 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "max_pressure_MPa": F(
             0.6, 0.0, None, True, "rated pressure: a higher supply is outside the envelope"
         ),
+        "stiffness_drift_percent_per_hour": F(
+            0.0,
+            -1000.0,
+            1000.0,
+            False,
+            "slow change of the muscle's stiffness over its hours of cycling (fatigue, "
+            "creep; % of its switch-on stiffness per hour of rig time, negative = softening): "
+            "k(t) = k0·(1 + r·t), the tension at x = 0 unchanged",
+        ),
     },
     "friction": {
         # braid/bladder friction as a Maxwell-slip model (parallel elasto-plastic elements)
@@ -88,6 +97,13 @@ SCHEMA: dict[str, dict[str, Field]] = {
         ),
         "weights": F(
             [0.35, 0.3, 0.2, 0.15], 0.0, None, False, "share of each element (normalised)", "list"
+        ),
+        "presliding_pressure_exponent": F(
+            0.0,
+            -1.0,
+            3.0,
+            False,
+            "slip displacements × q**a: a > 0 makes slip forces rise faster than stiffnesses",
         ),
     },
     "cylinder": {
