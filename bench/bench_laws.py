@@ -66,7 +66,8 @@ def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS,
                  "--jobs", "2", "--structure", structure]) == 0
     wall = time.perf_counter() - t0
     doc = json.loads((out / "laws.json").read_text())
-    rows = {r["law"]: dict(r, rank=i + 1) for i, r in enumerate(doc["laws"])}
+    rows = {r["law"]: dict(r, rank=i + 1, floor=doc["noise_floor_nrmse"])
+            for i, r in enumerate(doc["laws"])}
     for law in laws:
         f = out / law / "identification.json"
         if f.exists():
@@ -74,6 +75,18 @@ def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS,
             if law in rows:
                 rows[law]["structure"] = ps.get("chosen", "-")
     return rows, wall
+
+
+def free_x_floor(c: Path, law: str, floor: float | None) -> float | None:
+    """The law's mean held-out nrmse ÷ ``floor`` with ``--structure free``."""
+    import numpy as np
+
+    from pmalab.identify.api import identify
+    from pmalab.runfile import read_runs
+
+    res = identify(read_runs(c), law, jobs=2, structure="free")
+    vn = [float(v.metrics["nrmse"]) for v in res.validation]
+    return float(np.mean(vn)) / floor if vn and floor else None
 
 
 def main() -> None:
@@ -94,9 +107,7 @@ def main() -> None:
                 st = res.get(law, {}).get("structure", "-")
                 # the matching law with every parameter its own pressure law (as before the
                 # structures): what the choice gained
-                free, _ = laws_table(c, work / f"{Path(truth_name).stem}-{seed}-free", (law,),
-                                     "free")
-                xf = free[law].get("x_floor")
+                xf = free_x_floor(c, law, res[law]["floor"])
                 rows.append((truth_name, seed, law, *cells, st,
                              "-" if xf is None else f"{xf:.2f}",
                              "yes" if first == law else f"NO ({first})", f"{wall:.1f}"))
