@@ -505,7 +505,27 @@ def cmd_import(args: argparse.Namespace) -> int:
             + (f", {held} held out for validation" if held else "")
             + _dropped_summary(runs)
         )
+    _warn_pressure_labels(runs)
     return 0
+
+
+def _warn_pressure_labels(runs) -> None:
+    """Name the runs whose measured mean pressure differs from their nominal label (a
+    file name, ``--pressure``) beyond the gauge noise and the regulator's resolution."""
+    import numpy as np
+
+    from pmalab.pressure_labels import check_labels, label_warning
+
+    labelled = [r for r in runs if r.attrs.get("muscle_pressure_MPa") is not None]
+    line = label_warning(
+        check_labels(
+            (r.name, float(r.nominal_pressure), np.asarray(r.muscle_pressure, float))
+            for r in labelled
+        ),
+        "identify's pressure laws",
+    )
+    if line:
+        print(f"warning: {line}", file=sys.stderr, flush=True)
 
 
 def _dropped_summary(runs) -> str:

@@ -180,6 +180,14 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
         help="use every sample, including the settle time and ramps (default: "
         "the full-amplitude cycles recorded in steady_start_s/steady_end_s)",
     )
+    p.add_argument(
+        "--pressure",
+        choices=("nominal", "measured"),
+        default="nominal",
+        help="each run's pressure for the pressure laws: its nominal label (protocol, file "
+        "name; default) or its measured mean; runs whose measured mean differs from the "
+        "label beyond the gauge noise and regulator resolution are named either way",
+    )
 
 
 def _parse_fix(items: list[str]) -> dict[str, float]:
@@ -193,6 +201,27 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
     return out
+
+
+def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[list, list]:
+    """Warn about runs whose measured mean pressure differs from their label; with
+    ``--pressure measured`` give every run its measured mean."""
+    from pmalab.identify.labels import check_runs, use_measured
+    from pmalab.pressure_labels import label_warning
+
+    whole = bool(getattr(args, "whole_run", False))
+    measured = getattr(args, "pressure", "nominal") == "measured"
+    line = label_warning(
+        check_runs([*runs, *val], whole),
+        "the pressure laws now use the measured mean" if measured else "the pressure laws",
+    )
+    if line:
+        if measured:
+            line = line.split(" — give --pressure measured")[0]
+        warning(line)
+    if measured:
+        return use_measured(runs, whole), use_measured(val, whole)
+    return runs, val
 
 
 def run_identify(args: argparse.Namespace) -> int:
@@ -216,6 +245,7 @@ def run_identify(args: argparse.Namespace) -> int:
     runs = load(args.files, include_aborted=args.include_aborted)
     val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
         unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
@@ -410,6 +440,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
         else []
     )
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     d = diagnose(
         runs,

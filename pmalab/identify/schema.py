@@ -328,6 +328,9 @@ class IdentificationDoc(TypedDict):
     decimation: NotRequired[list[dict[str, Any]]]
     #: long records: the model refitted on windows along each run (parameters vs cycle)
     trajectory: NotRequired[list[dict[str, Any]]]
+    #: per run: nominal vs measured mean pressure (``nominal_MPa``, ``measured_mean_MPa``,
+    #: ``offset_kPa``, ``tolerance_kPa``, ``label_offset``; ``label_MPa`` with --pressure measured)
+    pressure_labels: NotRequired[list[dict[str, Any]]]
 
 
 # =========================================================================== diagnosis
