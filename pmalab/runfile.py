@@ -757,17 +757,20 @@ def read_many(
     *,
     include_aborted: bool = False,
     long_runs: LongRuns | None = None,
+    muscle: str | None = None,
 ) -> list[Run]:
     """All complete runs of all files, in order, for analysis.
 
     Aborted and interrupted runs are skipped with a warning unless ``include_aborted``
     (:func:`read_runs`); a file given twice is refused (:func:`check_distinct`);
-    ``long_runs`` as :func:`read_runs`.
+    ``long_runs`` and ``muscle`` as :func:`read_runs`.
     """
     check_distinct(paths)
     runs: list[Run] = []
     for p in paths:
-        runs.extend(read_runs(p, skip_incomplete=not include_aborted, long_runs=long_runs))
+        runs.extend(
+            read_runs(p, skip_incomplete=not include_aborted, long_runs=long_runs, muscle=muscle)
+        )
     check_distinct_runs(runs)
     return runs
 

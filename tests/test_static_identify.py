@@ -208,3 +208,48 @@ def test_report_of_a_static_identification(tmp_path, truth):
         ["report", str(tmp_path / "id"), str(tmp_path / "id"), "--out", str(tmp_path / "r2.pdf")]
     )
     assert code != 0 and "alone" in err and not (tmp_path / "r2.pdf").exists()
+
+
+def test_diagnose_isometric_runs_ranks_the_pressure_laws_on_a_held_out_length(tmp_path):
+    code, _, err = _cli(
+        [
+            "stand",
+            "--test",
+            "isometric",
+            "--held",
+            "0,12,24,36",
+            "--period",
+            "4",
+            "--out",
+            str(tmp_path / "iso.h5"),
+            "--text",
+            str(tmp_path / "raw"),
+        ]
+    )
+    assert code == 0, err
+    assert len(list((tmp_path / "raw").iterdir())) == 4
+    code, _out, err = _cli(
+        [
+            "diagnose",
+            str(tmp_path / "iso.h5"),
+            "--model",
+            "duhem",
+            "--static",
+            "chou-hannaford",
+            "--length",
+            "200",
+            "--laws",
+            "duhem",
+            "--out",
+            str(tmp_path / "d"),
+        ]
+    )
+    assert code == 0, err
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert doc["settings"]["held_out"] == ["iso.h5:isometric_24mm"]
+    assert doc["ladder"][0]["law"] is None and doc["ladder"][1]["law"] == "duhem"
+    floor = doc["noise_floor"]["mean_nrmse"]
+    # the map alone is far from the floor; the pressure law brings it there
+    assert doc["ladder"][0]["nrmse"] > 3 * floor
+    assert doc["laws"][0]["significant"] and doc["ladder"][1]["nrmse"] < 1.3 * floor
+    assert doc["verdict"] == "floor"

@@ -63,6 +63,7 @@ def load(
     *paths: str | Path | Sequence[str | Path],
     runs: Iterable[str] | None = None,
     include_aborted: bool = False,
+    muscle: str | None = None,
 ) -> RunList:
     """Every complete run of the given contract files (or the named ``runs``), canonical units.
 
@@ -71,7 +72,9 @@ def load(
     or named in ``runs``; a file given twice is refused.  A long run (≥
     :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
     time and decimated, as its attrs' ``decimation`` states
-    (:mod:`pmalab.identify.long_records`).
+    (:mod:`pmalab.identify.long_records`).  ``muscle``: which muscle of a file recording
+    several (an antagonistic pair) — its isobaric runs, its channels
+    (:func:`pmalab.runfile.read_runs`).
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -83,7 +86,15 @@ def load(
     wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted, long_runs=long_runs()))
+        out.extend(
+            read_runs(
+                p,
+                wanted,
+                skip_incomplete=not include_aborted,
+                long_runs=long_runs(),
+                muscle=muscle,
+            )
+        )
     check_distinct_runs(out)
     return out
 

@@ -49,6 +49,12 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
     p.add_argument(
+        "--muscle",
+        metavar="NAME|all",
+        help="files recording several muscles (an antagonistic pair): identify this one "
+        "from the runs that held it isobaric; 'all': each into OUT/NAME/",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
@@ -134,10 +140,18 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
     p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -162,9 +176,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -203,6 +214,26 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _identify_each_muscle(args: argparse.Namespace) -> int:
+    """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
+    from pathlib import Path
+
+    from pmalab.runfile import muscles_of
+
+    names: list[str] = []
+    for f in args.files:
+        for m in muscles_of(f):
+            if m not in names:
+                names.append(m)
+    for m in names:
+        print(f"muscle {m}:")
+        sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
+        rc = run_identify(sub)
+        if rc:
+            return rc
+    return 0
+
+
 def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[list, list]:
     """Warn about runs whose measured mean pressure differs from their label; with
     ``--pressure measured`` give every run its measured mean."""
@@ -237,13 +268,18 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if args.muscle == "all":
+        return _identify_each_muscle(args)
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    m = args.muscle
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
+    )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]
@@ -362,6 +398,11 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
     p.add_argument(
+        "--muscle",
+        metavar="NAME",
+        help="files recording several muscles (an antagonistic pair): diagnose this one",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW",
@@ -407,6 +448,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -433,15 +475,20 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
     lr = long_runs()
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    mus = args.muscle
+    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
         if args.validate
         else []
     )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
@@ -564,8 +611,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    mus = getattr(args, "muscle", None)
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=mus)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=mus)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     rows = []
     floors: list[float] = []
