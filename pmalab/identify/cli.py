@@ -520,7 +520,17 @@ def run_diagnose(args: argparse.Namespace) -> int:
         print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
         print(
             _table(
-                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                [
+                    (
+                        "law",
+                        "nrmse before",
+                        "nrmse after",
+                        "fall %",
+                        "× floor gain",
+                        "significant",
+                        "structure",
+                    )
+                ]
                 + [
                     (
                         lw["law"],
@@ -531,6 +541,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         "fit failed"
                         if lw.get("status") == "failed"
                         else ("yes" if lw["significant"] else "no"),
+                        lw.get("structure") or "-",
                     )
                     for lw in d.laws
                 ]
