@@ -162,3 +162,94 @@ def test_identify_static_from_the_command_line(tmp_path, truth):
     code, out, err = _cli([*base, "--out", str(tmp_path / "auto")])
     assert code == 0, err
     assert "static characterization" in err and "linear" in out
+
+
+def test_report_of_a_static_identification(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:3], seed=4, period_s=4.0))
+    code, _, err = _cli(
+        [
+            "identify",
+            str(tmp_path / "iso.h5"),
+            "--static",
+            "chou-hannaford",
+            "--length",
+            "200",
+            "--model",
+            "duhem",
+            "--hold-out",
+            "iso-24mm",
+            "--out",
+            str(tmp_path / "id"),
+        ]
+    )
+    assert code == 0, err
+    code, _, err = _cli(
+        [
+            "report",
+            str(tmp_path / "id"),
+            "--out",
+            str(tmp_path / "r.pdf"),
+            "--png",
+            str(tmp_path / "png"),
+        ]
+    )
+    assert code == 0, err
+    pngs = sorted(p.name for p in (tmp_path / "png").iterdir())
+    assert pngs == [
+        "01-summary.png",
+        "02-loops-1.png",
+        "03-held-out-1.png",
+        "04-static-map.png",
+        "05-errors.png",
+    ]
+    assert (tmp_path / "r.pdf").stat().st_size > 10_000
+    # a static directory is reported on its own
+    code, _, err = _cli(
+        ["report", str(tmp_path / "id"), str(tmp_path / "id"), "--out", str(tmp_path / "r2.pdf")]
+    )
+    assert code != 0 and "alone" in err and not (tmp_path / "r2.pdf").exists()
+
+
+def test_diagnose_isometric_runs_ranks_the_pressure_laws_on_a_held_out_length(tmp_path):
+    code, _, err = _cli(
+        [
+            "stand",
+            "--test",
+            "isometric",
+            "--held",
+            "0,12,24,36",
+            "--period",
+            "4",
+            "--out",
+            str(tmp_path / "iso.h5"),
+            "--text",
+            str(tmp_path / "raw"),
+        ]
+    )
+    assert code == 0, err
+    assert len(list((tmp_path / "raw").iterdir())) == 4
+    code, _out, err = _cli(
+        [
+            "diagnose",
+            str(tmp_path / "iso.h5"),
+            "--model",
+            "duhem",
+            "--static",
+            "chou-hannaford",
+            "--length",
+            "200",
+            "--laws",
+            "duhem",
+            "--out",
+            str(tmp_path / "d"),
+        ]
+    )
+    assert code == 0, err
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert doc["settings"]["held_out"] == ["iso.h5:isometric_24mm"]
+    assert doc["ladder"][0]["law"] is None and doc["ladder"][1]["law"] == "duhem"
+    floor = doc["noise_floor"]["mean_nrmse"]
+    # the map alone is far from the floor; the pressure law brings it there
+    assert doc["ladder"][0]["nrmse"] > 3 * floor
+    assert doc["laws"][0]["significant"] and doc["ladder"][1]["nrmse"] < 1.3 * floor
+    assert doc["verdict"] == "floor"

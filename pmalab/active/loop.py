@@ -38,7 +38,7 @@ from pmalab.errors import PmalabError
 from pmalab.identify.diagnosis import diagnose
 from pmalab.identify.long_records import fit_part, long_runs
 from pmalab.identify.schema import ActiveRoundEntry
-from pmalab.runfile import read_runs
+from pmalab.runfile import read_runs, seal_attrs
 
 #: rounds at most (each is one recorded experiment)
 MAX_ROUNDS = 3
@@ -338,6 +338,7 @@ def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> list[
                 # round_file is the run file the round's recorder wrote (its /runs group)
                 src.copy(cast(h5py.Group, src["runs"])[n], stage, name=new)
                 stage[new].attrs["appended_from"] = str(round_file.name)
+                seal_attrs(stage[new])  # the attrs' digest covers the new one too
                 dst.flush()
                 dst.move(f"{STAGING}/{new}", f"runs/{new}")
                 dst.flush()

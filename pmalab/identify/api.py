@@ -63,6 +63,7 @@ def load(
     *paths: str | Path | Sequence[str | Path],
     runs: Iterable[str] | None = None,
     include_aborted: bool = False,
+    muscle: str | None = None,
 ) -> RunList:
     """Every complete run of the given contract files (or the named ``runs``), canonical units.
 
@@ -71,7 +72,9 @@ def load(
     or named in ``runs``; a file given twice is refused.  A long run (≥
     :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
     time and decimated, as its attrs' ``decimation`` states
-    (:mod:`pmalab.identify.long_records`).
+    (:mod:`pmalab.identify.long_records`).  ``muscle``: which muscle of a file recording
+    several (an antagonistic pair) — its isobaric runs, its channels
+    (:func:`pmalab.runfile.read_runs`).
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -83,7 +86,15 @@ def load(
     wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted, long_runs=long_runs()))
+        out.extend(
+            read_runs(
+                p,
+                wanted,
+                skip_incomplete=not include_aborted,
+                long_runs=long_runs(),
+                muscle=muscle,
+            )
+        )
     check_distinct_runs(out)
     return out
 
@@ -148,6 +159,7 @@ def identify(
     pressure_model: str = "joint",
     whole_run: bool = False,
     output: str = "force",
+    structure: str = "auto",
 ) -> Identification:
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
@@ -161,7 +173,10 @@ def identify(
     cycles (:meth:`~pmalab.runfile.Run.steady`).  ``output``: ``"force"`` (the model driven
     by the measured position predicts the force) or ``"position"`` (output error: the model
     driven by the measured force is integrated forward and its simulated position fitted,
-    :mod:`pmalab.identify.estimation.output_error`).
+    :mod:`pmalab.identify.estimation.output_error`).  ``structure``: the pressure structure of
+    an element law's elements (``"auto"``: chosen by leave-one-pressure-out evidence,
+    :mod:`pmalab.identify.campaign.structure`; ``"free"``, ``"scaled"``,
+    ``"scaled-thresholds"``: as named).
     """
     if output not in ("force", "position"):
         raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
@@ -212,6 +227,7 @@ def identify(
         progress=progress,
         pressure_model=pressure_model,
         output=output,
+        structure=structure,
     )
     trajectory = []
     if output == "force":

@@ -49,6 +49,12 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
     p.add_argument(
+        "--muscle",
+        metavar="NAME|all",
+        help="files recording several muscles (an antagonistic pair): identify this one "
+        "from the runs that held it isobaric; 'all': each into OUT/NAME/",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
@@ -126,9 +132,26 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(default) or the seeds' per-run quadratics",
     )
     p.add_argument(
+        "--structure",
+        default="auto",
+        choices=("auto", "free", "scaled", "scaled-thresholds"),
+        help="how an element law's elements change with pressure: chosen by "
+        "leave-one-pressure-out evidence (auto, default), every parameter its own law "
+        "(free), one profile scaled in magnitude (scaled), and its slip displacements "
+        "scaled too (scaled-thresholds)",
+    )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
+    p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -153,9 +176,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -170,6 +190,14 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="use every sample, including the settle time and ramps (default: "
         "the full-amplitude cycles recorded in steady_start_s/steady_end_s)",
+    )
+    p.add_argument(
+        "--pressure",
+        choices=("nominal", "measured"),
+        default="nominal",
+        help="each run's pressure for the pressure laws: its nominal label (protocol, file "
+        "name; default) or its measured mean; runs whose measured mean differs from the "
+        "label beyond the gauge noise and regulator resolution are named either way",
     )
 
 
@@ -186,6 +214,47 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
     return out
 
 
+def _identify_each_muscle(args: argparse.Namespace) -> int:
+    """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
+    from pathlib import Path
+
+    from pmalab.runfile import muscles_of
+
+    names: list[str] = []
+    for f in args.files:
+        for m in muscles_of(f):
+            if m not in names:
+                names.append(m)
+    for m in names:
+        print(f"muscle {m}:")
+        sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
+        rc = run_identify(sub)
+        if rc:
+            return rc
+    return 0
+
+
+def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[list, list]:
+    """Warn about runs whose measured mean pressure differs from their label; with
+    ``--pressure measured`` give every run its measured mean."""
+    from pmalab.identify.labels import check_runs, use_measured
+    from pmalab.pressure_labels import label_warning
+
+    whole = bool(getattr(args, "whole_run", False))
+    measured = getattr(args, "pressure", "nominal") == "measured"
+    line = label_warning(
+        check_runs([*runs, *val], whole),
+        "the pressure laws now use the measured mean" if measured else "the pressure laws",
+    )
+    if line:
+        if measured:
+            line = line.split(" — give --pressure measured")[0]
+        warning(line)
+    if measured:
+        return use_measured(runs, whole), use_measured(val, whole)
+    return runs, val
+
+
 def run_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -199,14 +268,20 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if args.muscle == "all":
+        return _identify_each_muscle(args)
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    m = args.muscle
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
+    )
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
         unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
@@ -235,6 +310,7 @@ def run_identify(args: argparse.Namespace) -> int:
         pressure_model=args.pressure_model,
         whole_run=args.whole_run,
         output=args.output,
+        structure=args.structure,
     )
     jpath, hpath = res.save(out, force=args.force)
 
@@ -279,6 +355,9 @@ def run_identify(args: argparse.Namespace) -> int:
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
+    st = getattr(res.campaign, "structure", None)
+    if st is not None:
+        print(f"  {structure_line(st)}")
     if res.campaign.output != "position":
         from pmalab.identify.outputs import validation_headline
 
@@ -318,6 +397,11 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
+    p.add_argument(
+        "--muscle",
+        metavar="NAME",
+        help="files recording several muscles (an antagonistic pair): diagnose this one",
+    )
     p.add_argument(
         "--model",
         required=True,
@@ -364,6 +448,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -390,21 +475,31 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
     lr = long_runs()
+    mus = args.muscle
     # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
     runs = [
         fit_part(r)
-        for r in read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
     ]
     val = (
         [
             fit_part(r)
-            for r in read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
         ]
         if args.validate
         else []
     )
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
@@ -436,7 +531,17 @@ def run_diagnose(args: argparse.Namespace) -> int:
         print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
         print(
             _table(
-                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                [
+                    (
+                        "law",
+                        "nrmse before",
+                        "nrmse after",
+                        "fall %",
+                        "× floor gain",
+                        "significant",
+                        "structure",
+                    )
+                ]
                 + [
                     (
                         lw["law"],
@@ -447,6 +552,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         "fit failed"
                         if lw.get("status") == "failed"
                         else ("yes" if lw["significant"] else "no"),
+                        lw.get("structure") or "-",
                     )
                     for lw in d.laws
                 ]
@@ -501,6 +607,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
         raise PmalabError(f"--model {args.model}: a law is named twice")
     if args.hold_out or args.fix or args.free:
         raise PmalabError("--hold-out, --fix and --free: give one --model at a time")
+    structured = [m for m in laws if args.structure in ("auto", "free", *LAWS[m].structures)]
+    if len(structured) < len(laws) and args.structure != "auto":
+        other = next(m for m in laws if m not in structured)
+        raise PmalabError(
+            f"--structure {args.structure}: {other} offers "
+            f"{', '.join(['free', *LAWS[other].structures])}"
+        )
     outs = {
         m: prepare_output_dir(
             str(Path(args.out) / m), ("identification.json", "predictions.h5"), args.force
@@ -509,8 +622,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    mus = getattr(args, "muscle", None)
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=mus)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=mus)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     rows = []
     floors: list[float] = []
@@ -527,6 +645,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
             progress=show_progress(args),
             pressure_model=args.pressure_model,
             whole_run=args.whole_run,
+            structure=args.structure if m in structured else "auto",
         )
         res.save(outs[m], force=args.force)
         if not floors:
@@ -550,6 +669,10 @@ def run_identify_many(args: argparse.Namespace) -> int:
                 "identification_nrmse": float(np.mean(fit)),
                 "parameters_per_run": k,
                 "directory": str(outs[m]),
+                # the pressure structure the law's elements took (None: the law has none)
+                "pressure_structure": None
+                if res.campaign.structure is None
+                else res.campaign.structure.chosen,
             }
         )
     floor = float(np.mean(floors)) if floors else None
@@ -570,7 +693,16 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     print(
         _table(
-            [("law", "validation nrmse", "× floor", "fit nrmse (per run)", "parameters")]
+            [
+                (
+                    "law",
+                    "validation nrmse",
+                    "× floor",
+                    "fit nrmse (per run)",
+                    "parameters",
+                    "structure",
+                )
+            ]
             + [
                 (
                     r["law"],
@@ -578,6 +710,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
                     "-" if r["x_floor"] is None else f"{r['x_floor']:.2f}",
                     f"{r['identification_nrmse']:.4f}",
                     str(r["parameters_per_run"]),
+                    r["pressure_structure"] or "-",
                 )
                 for r in rows
             ]
@@ -587,6 +720,22 @@ def run_identify_many(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
     print(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
+
+
+def structure_line(st) -> str:
+    """One line naming the pressure structure a campaign chose and its evidence."""
+    if not st.scores:
+        return f"pressure structure: {st.chosen} (chosen by the user)"
+    best = st.scores[st.chosen]
+    others = ", ".join(
+        f"{s} {v:.4f} ({100.0 * (v / best - 1.0):+.1f} %)"
+        for s, v in sorted(st.scores.items(), key=lambda kv: kv[1])
+        if s != st.chosen
+    )
+    return (
+        f"pressure structure: {st.chosen} — leave-one-pressure-out held-out nrmse {best:.4f} "
+        f"({st.n_params[st.chosen]} coefficients); {others}"
+    )
 
 
 def _table(rows: list[tuple[str, ...]]) -> str:

@@ -264,12 +264,16 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "pressure_fit_stats": {n: pf.stats() for n, pf in cf.pressure.items()},
         "pressure_range_MPa": list(cf.pressure_range),
         "joint_fit": _joint_block(cf),
+        # which pressure structure an element law's elements took, chosen how, by how much
+        "pressure_structure": None if cf.structure is None else cf.structure.as_json(),
         "output": cf.output,
         "output_error": _output_error_block(cf),
         "parameter_bounds": {n: [float(lo), float(hi)] for n, (lo, hi) in cf.bounds.items()},
         "validation": val_out,
         "decimation": _decimation_block(res),
         "trajectory": list(res.trajectory),
+        # each run's nominal pressure against its measured mean (label offsets named)
+        "pressure_labels": _pressure_labels(all_runs),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -300,6 +304,21 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         },
     }
     return _clean(out)
+
+
+def _pressure_labels(all_runs: list[tuple[Run, str]]) -> list[dict[str, Any]]:
+    """Per run: nominal vs measured mean pressure, the tolerance and whether it is offset;
+    ``label_MPa`` when the run's pressure was replaced by its measured mean."""
+    from pmalab.identify.labels import check_runs
+
+    rows = []
+    for (run, role), c in zip(all_runs, check_runs([r for r, _ in all_runs], whole_run=True)):
+        row: dict[str, Any] = {"file": run.file, "role": role, **c.as_json()}
+        lab = run.attrs.get("muscle_pressure_label_MPa")
+        if lab is not None:
+            row["label_MPa"] = float(lab)
+        rows.append(row)
+    return rows
 
 
 def derivatives_method() -> dict[str, Any]:

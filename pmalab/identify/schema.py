@@ -253,6 +253,35 @@ class OutputErrorFit(TypedDict):
     note: NotRequired[str]
 
 
+class StructureCandidate(TypedDict):
+    """One candidate pressure structure and its held-out evidence."""
+
+    #: ``free`` | ``scaled`` | ``scaled-thresholds``
+    structure: str
+    #: RMS leave-one-pressure-out nrmse over the left-out runs (None: failed)
+    heldout_nrmse: float | None
+    #: pressure-law coefficients of the muscle (k, c0 and the law's; no h0)
+    n_params: int | None
+    heldout_nrmse_per_run: list[float]
+    status: NotRequired[str]
+    reason: NotRequired[str]
+
+
+class PressureStructure(TypedDict):
+    """``identification.json`` ``pressure_structure``: how an element law's elements change
+    with pressure, chosen by held-out evidence across pressure."""
+
+    law: str
+    chosen: str
+    #: ``leave-one-pressure-out (...)`` or ``user``
+    criterion: str
+    #: how much higher (%) the best other candidate's held-out nrmse is than the winner's
+    margin_percent: float | None
+    #: the interior pressure levels left out in turn, MPa
+    levels_left_out_MPa: list[float]
+    candidates: list[StructureCandidate]
+
+
 class IdentificationDoc(TypedDict):
     """``identification.json``: the model, the per-run fits, the pressure laws and the
     validation on held-out runs."""
@@ -281,6 +310,8 @@ class IdentificationDoc(TypedDict):
     #: [lo, hi], MPa
     pressure_range_MPa: NotRequired[list[float | None]]
     joint_fit: NotRequired[JointFit | None]
+    #: which pressure structure an element law's elements took (None: the law has none)
+    pressure_structure: NotRequired[PressureStructure | None]
     #: ``force`` | ``position``
     output: NotRequired[str]
     output_error: NotRequired[OutputErrorFit | None]
@@ -297,6 +328,9 @@ class IdentificationDoc(TypedDict):
     decimation: NotRequired[list[dict[str, Any]]]
     #: long records: the model refitted on windows along each run (parameters vs cycle)
     trajectory: NotRequired[list[dict[str, Any]]]
+    #: per run: nominal vs measured mean pressure (``nominal_MPa``, ``measured_mean_MPa``,
+    #: ``offset_kPa``, ``tolerance_kPa``, ``label_offset``; ``label_MPa`` with --pressure measured)
+    pressure_labels: NotRequired[list[dict[str, Any]]]
 
 
 # =========================================================================== diagnosis
@@ -361,6 +395,14 @@ class LawEntry(TypedDict):
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
     per_run_after: NotRequired[list[float | None]]
+    #: the pressure structure the law's elements took (``free`` | ``scaled`` |
+    #: ``scaled-thresholds``), chosen by leave-one-pressure-out held-out error; absent for
+    #: a law without structures
+    structure: NotRequired[str | None]
+    #: how much higher (%) the runner-up structure's held-out error was
+    structure_margin_percent: NotRequired[float | None]
+    #: structure → its leave-one-pressure-out held-out nrmse
+    structure_heldout_nrmse: NotRequired[dict[str, float | None]]
 
 
 class NoiseFloor(TypedDict):
@@ -533,6 +575,8 @@ class LawRow(TypedDict):
     directory: str
     #: validation nrmse / the held-out runs' noise floor
     x_floor: float | None
+    #: the pressure structure the law's elements took (None: the law offers none)
+    pressure_structure: NotRequired[str | None]
 
 
 class LawsDoc(TypedDict):

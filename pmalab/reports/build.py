@@ -702,6 +702,18 @@ def build_report(
     from pmalab.reports.control import build_control_report, is_control_file
 
     inputs = [directory] if isinstance(directory, str | Path) else list(directory)
+    from pmalab.reports.static import build_static_report, is_static_dir
+
+    statics = [p for p in inputs if is_static_dir(p)]
+    if statics:
+        if len(inputs) != 1:
+            raise ReportError(
+                f"{statics[0]}: a static characterization (identify --static) is reported "
+                "on its own: give its directory alone"
+            )
+        return build_static_report(
+            statics[0], out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+        )
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
         if len(controls) != len(inputs):

@@ -244,6 +244,8 @@ class VentResult:
 VENT_ACTIONS: dict[str, str] = {
     "cylinder regulator": "close the cylinder's supply valve and exhaust the cylinder by hand",
     "muscle regulator": "close the muscle's supply valve and exhaust the muscle by hand",
+    "flexor regulator": "close the flexor's supply valve and exhaust it by hand",
+    "extensor regulator": "close the extensor's supply valve and exhaust it by hand",
 }
 MANUAL_ACTION = "turn it to 0 MPa and exhaust the muscle"
 
@@ -264,10 +266,12 @@ class VentReport:
 
     cylinder: VentResult
     muscle: VentResult
+    #: how the two regulators are named (a pair of muscles: each muscle's regulator)
+    roles: tuple[str, str] = ("cylinder regulator", "muscle regulator")
 
     @property
     def items(self) -> tuple[tuple[str, VentResult], ...]:
-        return (("cylinder regulator", self.cylinder), ("muscle regulator", self.muscle))
+        return ((self.roles[0], self.cylinder), (self.roles[1], self.muscle))
 
     @property
     def failed(self) -> list[str]:
@@ -285,7 +289,9 @@ class VentReport:
         def pick(a: VentResult, b: VentResult) -> VentResult:
             return a if a.ok and not b.ok else b
 
-        return VentReport(pick(self.cylinder, later.cylinder), pick(self.muscle, later.muscle))
+        return VentReport(
+            pick(self.cylinder, later.cylinder), pick(self.muscle, later.muscle), self.roles
+        )
 
     def line(self) -> str:
         """Every regulator's outcome, ``; ``-separated (one line)."""

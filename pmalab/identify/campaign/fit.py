@@ -26,6 +26,7 @@ from __future__ import annotations
 import pickle
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -148,6 +149,9 @@ class CampaignFit:
     #: the law's shared shape (``HysteresisLaw.shared_shape``) the campaign held on every
     #: run, at its reference run's values (empty when the law has none or the user fixed it)
     shape_reference: dict[str, float] = field(default_factory=dict)
+    #: the pressure structure the campaign chose for the law's elements
+    #: (:class:`~pmalab.identify.campaign.structure.StructureChoice`; None: not chosen)
+    structure: Any = None
 
     @property
     def output(self) -> str:
@@ -324,8 +328,16 @@ def fit_campaign(
     scheduler: str | None = None,
     progress: bool = False,
     pressure_model: str = "joint",
+    structure: str = "auto",
+    shape: dict[str, float] | None = None,
 ) -> CampaignFit:
     """Fit every run, make the fixes consistent, fit the pressure laws.
+
+    ``structure``: the pressure structure of an element law's elements — ``"auto"`` (chosen
+    by leave-one-pressure-out evidence, :mod:`pmalab.identify.campaign.structure`),
+    ``"free"`` (every parameter its own pressure law) or one the law offers.
+    ``shape``: hold the law's shared shape at these values on every run (no search for a
+    reference run) and refine it jointly as constants.
 
     ``pressure_model``: ``"joint"`` (default) refines the per-run quadratics jointly on all
     runs with chosen orders (:mod:`pmalab.identify.estimation.joint`); ``"per-run"`` keeps the seeds'
@@ -339,7 +351,14 @@ def fit_campaign(
         raise PmalabError("no identification runs given")
     fm = _as_model(model)
     check_free(fm, free)
-    kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
+    if structure not in ("auto", "free", *fm.law.structures):
+        offers = ", ".join(["free", *fm.law.structures])
+        raise PmalabError(f"--structure {structure}: {fm.law.name} offers {offers}")
+    kwargs = {
+        "fixed": {**(fixed or {}), **(shape or {})} or None,
+        "init": init,
+        "free": tuple(free),
+    }
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings: list[str] = list(default_fixed_notes(fm, free))
     if fm.tares:
@@ -399,10 +418,13 @@ def fit_campaign(
                 "only (collinear there); its quadratic mixes fixed and fitted values"
             )
 
-    results, shape_ref, shape_notes = share_shape(
-        fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
-    )
-    warnings += shape_notes
+    if shape:
+        shape_ref: dict[str, float] = dict(shape)
+    else:
+        results, shape_ref, shape_notes = share_shape(
+            fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
+        )
+        warnings += shape_notes
 
     rfs = []
     for run, res in zip(runs, results):
@@ -435,6 +457,19 @@ def fit_campaign(
     )
     if pressure_model == "joint" and len(rfs) > 1:
         refine_pressure_laws(cf, runs)
+    if fm.law.structures and structure != "free" and len(rfs) > 1:
+        from pmalab.identify.campaign.structure import choose_structure
+
+        choose_structure(
+            cf,
+            runs,
+            fixed=fixed,
+            jobs=jobs,
+            scheduler=scheduler,
+            progress=progress,
+            pressure_model=pressure_model,
+            structure=structure,
+        )
     return cf
 
 
@@ -644,6 +679,8 @@ def refine_pressure_laws(cf: CampaignFit, runs: Sequence[Run]) -> None:
             alternatives=[plain],
             nuisance_start=nuisance or None,
             fixed_order=[n for n in (*cf.model.campaign_shared, *shape) if n in free],
+            # an element law's pressure structure is chosen on this evidence (.structure)
+            lopo=bool(cf.model.law.structures or cf.model.law.structure_of),
         )
     except (ValueError, np.linalg.LinAlgError) as exc:  # keep the per-run quadratics
         cf.warnings.append(

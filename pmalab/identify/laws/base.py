@@ -66,7 +66,7 @@ class HysteresisLaw:
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        if cls.__dict__.get("name"):
+        if cls.__dict__.get("name") and not cls.__dict__.get("structure_of"):
             LAWS.register(cls.name, cls, title=cls.title or cls.name, order=cls.order)
 
     #: the id users type (``--model bouc-wen``)
@@ -96,6 +96,15 @@ class HysteresisLaw:
     #: parameters the same at every pressure (a material property); with more than one
     #: they describe exchangeable elements and :meth:`canonical` orders them
     shared_shape: ClassVar[tuple[str, ...]] = ()
+    #: pressure structures a campaign may choose for this law besides ``"free"`` (every
+    #: parameter its own pressure law): ``"scaled"`` (one element profile, its magnitude a
+    #: pressure law) and ``"scaled-thresholds"`` (the same, and every slip displacement
+    #: times one pressure law) — see :mod:`pmalab.identify.laws.structures`; a law that
+    #: offers them implements :meth:`elements`
+    structures: ClassVar[tuple[str, ...]] = ()
+    #: set on a law built by :mod:`~pmalab.identify.laws.structures` (the law it
+    #: restructures): such a class is never registered as a law of its own
+    structure_of: ClassVar[str] = ""
 
     # ------------------------------------------------------------------ start values
     def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
@@ -121,6 +130,16 @@ class HysteresisLaw:
         memory length from the stroke).
         """
         return {p.name: p.init for p in self.params}
+
+    def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """(stiffness k_i N/mm, slip displacement d_i mm) of the law's elasto-slide elements
+        at ``theta`` — for laws that offer :attr:`structures`."""
+        raise NotImplementedError(f"{self.name} has no elasto-slide elements")
+
+    def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """(stiffness parameter names, slip-displacement parameter names) of the elements;
+        the second is empty when the slip displacements are fixed by the law."""
+        raise NotImplementedError(f"{self.name} has no elasto-slide elements")
 
     def canonical(self, theta: Mapping[str, float]) -> dict[str, float]:
         """The same law with its exchangeable elements in a canonical order (identity for

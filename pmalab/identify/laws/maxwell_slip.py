@@ -58,6 +58,7 @@ class MaxwellSlip(HysteresisLaw):
     state_size = ELEMENTS
     scale_param = None
     shared_shape = _D
+    structures = ("scaled", "scaled-thresholds")
 
     def guess(
         self, x: np.ndarray, force: np.ndarray, v: np.ndarray, fixed=None
@@ -92,6 +93,15 @@ class MaxwellSlip(HysteresisLaw):
         for j, i in enumerate(order):
             out[_K[j]], out[_D[j]] = float(theta[_K[i]]), float(theta[_D[i]])
         return out
+
+    def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffnesses (N/mm) and slip displacements (mm) of the elements."""
+        k = np.array([max(float(theta[n]), 0.0) for n in _K])
+        d = np.array([max(float(theta[n]), 0.0) for n in _D])
+        return k, d
+
+    def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return _K, _D
 
     def h(self, x, theta, extras=None):
         k, f = _kf(theta)

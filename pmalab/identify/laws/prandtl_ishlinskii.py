@@ -55,6 +55,7 @@ class PrandtlIshlinskii(HysteresisLaw):
     )
     state_size = len(THRESHOLDS_MM)
     scale_param = None
+    structures = ("scaled",)
 
     def guess(
         self, x: np.ndarray, force: np.ndarray, v: np.ndarray, fixed=None
@@ -77,6 +78,13 @@ class PrandtlIshlinskii(HysteresisLaw):
         out = {n: float(min(max(wi, 0.0), 1e4)) for n, wi in zip(_W, w)}
         out.update(k=float(coef[nb] - coef[nb + 1]), c0=float(coef[nb + 2] - coef[nb + 3]), h0=0.0)
         return out
+
+    def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """Weights (N/mm) and thresholds (mm) of the play operators."""
+        return _kf(theta)[0], np.asarray(THRESHOLDS_MM, dtype=np.float64)
+
+    def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return _W, ()
 
     def h(self, x, theta, extras=None):
         k, f = _kf(theta)

@@ -99,6 +99,7 @@ P_TAU_YPM = 32
 P_TAU_YPC = 33
 P_HMAX = 34
 P_FPOS = 35
+P_DEXP = 36  # slip displacements ∝ q**P_DEXP (0: the same at every pressure)
 P_DELTA0 = 40  # 8 slots
 P_W0 = 48  # 8 slots
 N_PARAM = 56
@@ -152,6 +153,18 @@ def _static_terms(par, x, p):
 
 
 @njit(cache=True)
+def _slip_scale(par, q):
+    """Factor on every element's slip displacement at normalised pressure ``q``: q**a with
+    a = ``presliding_pressure_exponent`` (a > 0: the elements slip later at higher pressure,
+    so their slip forces rise faster than their stiffnesses).  q is floored at 0.05 (below
+    the threshold pressure the muscle carries no force anyway)."""
+    a = par[P_DEXP]
+    if a == 0.0:
+        return 1.0
+    return max(q, 0.05) ** a
+
+
+@njit(cache=True)
 def _friction_terms(par, st, q, v, s):
     """Braid friction tension (N) from the Maxwell-slip elements, and its x-stiffness.
 
@@ -169,11 +182,12 @@ def _friction_terms(par, st, q, v, s):
     rf = par[P_RF]
     rd = par[P_RD]
     ne = int(par[P_NE])
+    ds = _slip_scale(par, q)
     f = 0.0
     k = 0.0
     for i in range(ne):
         u = st[S_U0 + i]
-        d = par[P_DELTA0 + i]
+        d = par[P_DELTA0 + i] * ds
         fi = par[P_W0 + i] * ftot
         if u >= 0.0:
             ki = fi / d
@@ -291,8 +305,9 @@ def _advance(st, par, pend, ptr, hist, t_target):
         acc = (vn - v) / dt
         # --- Maxwell-slip elements follow the displacement (rate independent)
         dx = xn - x
+        ds = _slip_scale(par, q)
         for i in range(ne):
-            d = par[P_DELTA0 + i]
+            d = par[P_DELTA0 + i] * ds
             u = st[S_U0 + i] + dx
             if u > d:
                 u = d

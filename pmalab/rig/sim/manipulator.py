@@ -234,8 +234,9 @@ def _advance(st, par, mq, pend, ptr, hist, t_target):
         xn = x + dt * vn
         acc = (vn - v) / dt
         dx = xn - x
+        ds = K._slip_scale(par, q)
         for i in range(ne):
-            d = par[K.P_DELTA0 + i]
+            d = par[K.P_DELTA0 + i] * ds
             u = st[K.S_U0 + i] + dx
             if u > d:
                 u = d

@@ -38,6 +38,7 @@ def build_params(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     fr = truth.section("friction")
     p[K.P_FSLIP] = fr["slip_force_N"]
     p[K.P_FGAMMA] = fr["pressure_curvature"]
+    p[K.P_DEXP] = fr["presliding_pressure_exponent"]
     w = np.asarray(fr["weights"], dtype=float)
     w = w / w.sum()
     p[K.P_NE] = len(w)

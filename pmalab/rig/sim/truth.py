@@ -98,6 +98,13 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "weights": F(
             [0.35, 0.3, 0.2, 0.15], 0.0, None, False, "share of each element (normalised)", "list"
         ),
+        "presliding_pressure_exponent": F(
+            0.0,
+            -1.0,
+            3.0,
+            False,
+            "slip displacements × q**a: a > 0 makes slip forces rise faster than stiffnesses",
+        ),
     },
     "cylinder": {
         "bore_mm": F(50.0, 0.0, None, True, "piston diameter (mm): force = p·π·bore²/4"),

@@ -1,0 +1,120 @@
+"""Element laws on muscles they were not written for: held-out error ÷ noise floor per law.
+
+Each case is a simulated muscle whose braid friction has one element law's shape but breaks
+an assumption the law's authors might make (truth files under ``data/truth/laws/``: a fixed
+play-operator weight profile scaled in magnitude with pressure, other threshold profiles,
+slip displacements growing with pressure, fewer or more elements than the law fits), plus
+the project's own law-shaped muscles (``data/truth/hysteresis-*.toml``).  The independent
+cases are recorded with ``data/protocols/laws-pressure.toml`` (14 identification runs at
+seven odd pressures and two odd frequencies, 4 held-out runs between them, 4 N load-cell
+noise); the project's own with ``diagnosis-test.toml`` (8 + 2 runs), as before.
+``pmalab identify --model bouc-wen,duhem,maxwell-slip,prandtl-ishlinskii`` then ranks the
+laws; each cell is the mean over the held-out runs of nrmse ÷ that run's noise floor, with
+the pressure structure the matching law chose, and the matching law's figure with every
+parameter its own pressure law (``--structure free``, the behaviour before structures were
+chosen).  ``python -m bench laws``;
+``PMALAB_BENCH_SEEDS=N`` sets the seeds per case (default 2).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+from bench.table import print_table
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
+
+LAWS = ("bouc-wen", "duhem", "maxwell-slip", "prandtl-ishlinskii")
+#: (truth file, protocol, the law whose shape it has)
+CASES = (
+    ("laws/pi-scaled-profile.toml", "laws-pressure.toml", "prandtl-ishlinskii"),
+    ("laws/pi-rising-profile.toml", "laws-pressure.toml", "prandtl-ishlinskii"),
+    ("laws/ms-slip-growing.toml", "laws-pressure.toml", "maxwell-slip"),
+    ("laws/ms-two-elements.toml", "laws-pressure.toml", "maxwell-slip"),
+    ("hysteresis-maxwell-slip.toml", "diagnosis-test.toml", "maxwell-slip"),
+    ("hysteresis-prandtl-ishlinskii.toml", "diagnosis-test.toml", "prandtl-ishlinskii"),
+)
+
+
+def _cli(argv: list[str]) -> int:
+    from pmalab.cli import main as pmalab_main
+
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+        return pmalab_main(argv)
+
+
+def campaign(truth: Path, protocol: Path, seed: int, work: Path) -> Path:
+    """Record one simulated campaign (identification + held-out runs in one file)."""
+    rig = work / f"rig-{truth.stem}-{seed}.toml"
+    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = {seed}\n')
+    out = work / f"{truth.stem}-{seed}.h5"
+    assert _cli(["run", "--rig", str(rig), "--protocol", str(protocol), "--out", str(out),
+                 "-q"]) == 0
+    return out
+
+
+def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS,
+               structure: str = "auto") -> tuple[dict, float]:
+    """``identify --model a,b,... --structure S``: ({law: laws.json row}, wall seconds)."""
+    t0 = time.perf_counter()
+    assert _cli(["identify", str(c), "--model", ",".join(laws), "--out", str(out), "-q",
+                 "--jobs", "2", "--structure", structure]) == 0
+    wall = time.perf_counter() - t0
+    doc = json.loads((out / "laws.json").read_text())
+    rows = {r["law"]: dict(r, rank=i + 1, floor=doc["noise_floor_nrmse"])
+            for i, r in enumerate(doc["laws"])}
+    for law in laws:
+        f = out / law / "identification.json"
+        if f.exists():
+            ps = json.loads(f.read_text()).get("pressure_structure") or {}
+            if law in rows:
+                rows[law]["structure"] = ps.get("chosen", "-")
+    return rows, wall
+
+
+def free_x_floor(c: Path, law: str, floor: float | None) -> float | None:
+    """The law's mean held-out nrmse ÷ ``floor`` with ``--structure free``."""
+    import numpy as np
+
+    from pmalab.identify.api import identify
+    from pmalab.runfile import read_runs
+
+    res = identify(read_runs(c), law, jobs=2, structure="free")
+    vn = [float(v.metrics["nrmse"]) for v in res.validation]
+    return float(np.mean(vn)) / floor if vn and floor else None
+
+
+def main() -> None:
+    seeds = int(os.environ.get("PMALAB_BENCH_SEEDS", "2"))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        for truth_name, proto, law in CASES:
+            for seed in range(7, 7 + seeds):
+                c = campaign(TRUTH_DIR / truth_name, PROTOCOLS_DIR / proto, seed, work)
+                res, wall = laws_table(c, work / f"{Path(truth_name).stem}-{seed}")
+                first = min(res.values(), key=lambda r: r["rank"])["law"]
+                cells = []
+                for lw in LAWS:
+                    r = res.get(lw, {})
+                    x = r.get("x_floor")
+                    cells.append("-" if x is None else f"{x:.2f}")
+                st = res.get(law, {}).get("structure", "-")
+                # the matching law with every parameter its own pressure law (as before the
+                # structures): what the choice gained
+                xf = free_x_floor(c, law, res[law]["floor"])
+                rows.append((truth_name, seed, law, *cells, st,
+                             "-" if xf is None else f"{xf:.2f}",
+                             "yes" if first == law else f"NO ({first})", f"{wall:.1f}"))
+    print("held-out nrmse ÷ noise floor (mean over the held-out runs), identify with 4 laws:")
+    print_table(("truth (data/truth)", "seed", "matching law", *LAWS, "structure",
+                 "matching, free", "first", "identify s"), rows)
+
+
+if __name__ == "__main__":
+    main()
