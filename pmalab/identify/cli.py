@@ -140,10 +140,18 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
     p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -168,9 +176,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -443,6 +448,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -453,7 +459,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import long_runs
+    from pmalab.identify.long_records import fit_part, long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -470,15 +476,30 @@ def run_diagnose(args: argparse.Namespace) -> int:
     check_distinct(args.files, args.validate)
     lr = long_runs()
     mus = args.muscle
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [
+        fit_part(r)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
+    ]
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+        [
+            fit_part(r)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
+        ]
         if args.validate
         else []
     )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
@@ -510,7 +531,17 @@ def run_diagnose(args: argparse.Namespace) -> int:
         print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
         print(
             _table(
-                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                [
+                    (
+                        "law",
+                        "nrmse before",
+                        "nrmse after",
+                        "fall %",
+                        "× floor gain",
+                        "significant",
+                        "structure",
+                    )
+                ]
                 + [
                     (
                         lw["law"],
@@ -521,6 +552,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         "fit failed"
                         if lw.get("status") == "failed"
                         else ("yes" if lw["significant"] else "no"),
+                        lw.get("structure") or "-",
                     )
                     for lw in d.laws
                 ]
