@@ -30,10 +30,12 @@ MUSCLE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 
 
 def _run_names(path: Path) -> list[str]:
+    import h5py
+
     f = open_h5(path)
     try:
         g = f.get("runs")
-        return [] if g is None else list(g.keys())
+        return list(g.keys()) if isinstance(g, h5py.Group) else []
     finally:
         f.close()
 
