@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Callable
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError
 
 
@@ -85,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(identification.json) run forward instead of the simulated truth; "
         "mechanics and regulator as the simulated manipulator's",
     )
-    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=None, help="sensor-noise seed (default 0)")
     p.add_argument(
         "--real-time",
         action="store_true",
