@@ -28,7 +28,7 @@ from pmalab.identify.campaign import (
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.campaign.trajectory import run_trajectory
-from pmalab.identify.long_records import long_runs
+from pmalab.identify.long_records import fit_part, long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
@@ -184,6 +184,10 @@ def identify(
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
+    # a long record's run-level fit uses its first cycles; its trajectory all of it
+    records = list(runs_l)
+    runs_l = [fit_part(r) for r in records]
+    record_of = {id(p): r for p, r in zip(runs_l, records)}
     ident, held = split_roles(runs_l)
     notes: list[str] = [
         note(
@@ -228,7 +232,7 @@ def identify(
     trajectory = []
     if output == "force":
         for run, rf in zip(ident, cf.runs):
-            tr = run_trajectory(run, cf.model, rf.result)
+            tr = run_trajectory(record_of.get(id(run), run), cf.model, rf.result)
             if tr is not None:
                 trajectory.append(tr)
     return Identification(

@@ -463,7 +463,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import long_runs
+    from pmalab.identify.long_records import fit_part, long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -480,9 +480,20 @@ def run_diagnose(args: argparse.Namespace) -> int:
     check_distinct(args.files, args.validate)
     lr = long_runs()
     mus = args.muscle
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [
+        fit_part(r)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
+    ]
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+        [
+            fit_part(r)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
+        ]
         if args.validate
         else []
     )

@@ -120,7 +120,7 @@ def _print(doc: dict[str, Any], fit: Any) -> None:
     for n, p in sm["parameters"].items():
         print(f"  {n:<16} {_fmt(p['value'], p['stderr']):>22} {p['unit']:<10} {p['doc']}")
     for n, p in sm["derived"].items():
-        print(f"  {n:<16} {p['value']:>22.5g} {p['unit']:<10} {p['doc']}")
+        print(f"  {n:<24} {p['value']:>14.5g} {p['unit']:<10} {p['doc']}")
     h = doc["hysteresis"]
     if h:
         for n, p in h["parameters"].items():
