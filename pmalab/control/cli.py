@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Callable
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError
 
 
@@ -99,7 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="joint control: both muscles' common pressure p0, which sets the joint's "
         "stiffness (default 0.25 MPa)",
     )
-    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=None, help="sensor-noise seed (default 0)")
     p.add_argument(
         "--real-time",
         action="store_true",
