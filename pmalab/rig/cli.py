@@ -193,8 +193,17 @@ def run_stand(args: argparse.Namespace) -> int:
         raise ConfigError(f"--held {args.held!r}: numbers separated by commas") from None
     if not values:
         raise ConfigError("--held: give at least one value")
-    if not (0 < args.p_max <= 1.0) or args.period <= 0 or args.cycles <= 0:
-        raise ConfigError("--p-max must be in (0, 1] MPa; --period and --cycles > 0")
+    import math
+
+    if not (0 < args.p_max <= 1.0):
+        raise ConfigError(f"--p-max {args.p_max:g}: must be a pressure in (0, 1] MPa")
+    for opt, v, hi in (("--period", args.period, 3600.0), ("--cycles", args.cycles, 100.0)):
+        if not (math.isfinite(v) and 0 < v <= hi):
+            raise ConfigError(f"{opt} {v:g}: must be > 0 and ≤ {hi:g}")
+    if not (math.isfinite(args.stroke) and 0 <= args.stroke <= 50.0):
+        raise ConfigError(f"--stroke {args.stroke:g}: must be 0 … 50 mm")
+    if not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"--held {args.held!r}: finite numbers only")
     truth = load_static_truth(args.truth)
     unit, key = {
         "isometric": ("mm", "held_mm"),
