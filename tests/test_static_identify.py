@@ -114,7 +114,7 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
     assert th["diameter_mm"] == pytest.approx(truth.diameter_mm, rel=0.03)
 
 
-def test_free_runs_separate_the_pressure_and_the_contraction_loops():
+def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
         run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
@@ -122,11 +122,20 @@ def test_free_runs_separate_the_pressure_and_the_contraction_loops():
         )
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
+    others = [
+        run_test(truth, "isometric", held_mm=18.0, seed=50, period_s=6.0).to_run("iso18"),
+        run_test(truth, "isobaric", held_mm=15.0, pressure_MPa=0.4, seed=51).to_run("bar04"),
+        run_test(truth, "isotonic", load_N=150.0, p_min=0.15, seed=52, period_s=6.0).to_run("t150"),
+    ]
     m = StaticModel(get_static_map("chou-hannaford", Geometry(length_mm=200.0)), "duhem", "both")
-    fit = fit_static(m, runs)
+    fit = fit_static(m, runs, others)
     w = fit.hysteresis_widths()
     assert w["p"] == pytest.approx(truth.pressure_friction_N, rel=0.10)
     assert w["x"] == pytest.approx(truth.position_friction_N, rel=0.10)
+    # one model of the muscle predicts its isometric, isobaric and isotonic runs
+    assert [v.rec.run.test_type for v in fit.validation] == ["isometric", "isobaric", "isotonic"]
+    for v in fit.validation:
+        assert v.nrmse < 2.0 * v.noise_floor_nrmse, (v.rec.label, v.nrmse, v.noise_floor_nrmse)
 
 
 def test_identify_static_from_the_command_line(tmp_path, truth):
@@ -253,3 +262,22 @@ def test_diagnose_isometric_runs_ranks_the_pressure_laws_on_a_held_out_length(tm
     assert doc["ladder"][0]["nrmse"] > 3 * floor
     assert doc["laws"][0]["significant"] and doc["ladder"][1]["nrmse"] < 1.3 * floor
     assert doc["verdict"] == "floor"
+
+
+def test_a_static_identification_is_refused_by_simulate_with_one_line(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=3.0))
+    code, _, err = _cli(
+        ["identify", str(tmp_path / "iso.h5"), "--model", "none", "--out", str(tmp_path / "id")]
+    )
+    assert code == 0, err
+    code, _, err = _cli(
+        [
+            "simulate",
+            str(tmp_path / "id"),
+            str(tmp_path / "iso.h5"),
+            "--out",
+            str(tmp_path / "s.h5"),
+        ]
+    )
+    assert code != 0 and "static characterization" in err and "Traceback" not in err
+    assert not (tmp_path / "s.h5").exists()

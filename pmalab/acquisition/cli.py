@@ -17,6 +17,7 @@ import signal
 import sys
 import time
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError, PmalabError, RunFileError, SafetyAbort
 
 
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)",
     )

@@ -7,6 +7,7 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -208,9 +209,12 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
 
 
@@ -599,7 +603,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
-    laws = [m.strip() for m in args.model.split(",") if m.strip()]
+    laws = [m.strip() for m in args.model.split(",")]
+    if not any(laws):
+        raise PmalabError(f"--model {args.model!r}: names no law (choose from {', '.join(LAWS)})")
+    if not all(laws):
+        raise PmalabError(
+            f"--model {args.model!r}: an empty name between commas (e.g. bouc-wen,duhem)"
+        )
     for m in laws:
         if m not in LAWS:
             raise PmalabError(f"--model {m}: unknown law (choose from {', '.join(LAWS)})")

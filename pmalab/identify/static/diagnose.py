@@ -143,7 +143,7 @@ def diagnose_static(
         + ("" if verdict == "floor" else "; the rest is not explained by these laws")
     )
     return {
-        "model": "none",
+        "model": f"{smap.name} (static map)",
         "kind": "static",
         "static_map": smap.name,
         "drive": drv,
