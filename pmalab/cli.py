@@ -23,7 +23,7 @@ from pmalab.paths import missing_roots, remove_empty_dirs
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
 #: ``func(args) -> int`` as the parser default.
 VERB_MODULES = (
-    "pmalab.acquisition.cli",  # run, import, recover, view
+    "pmalab.acquisition.cli",  # run, import, recover, check, view
     "pmalab.rig.cli",  # emulate
     "pmalab.identify.cli",  # identify, diagnose
     "pmalab.active.cli",  # diagnose --rig RIG --run-suggested (after identify.cli)

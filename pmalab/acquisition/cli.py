@@ -17,7 +17,8 @@ import signal
 import sys
 import time
 
-from pmalab.errors import ConfigError, PmalabError, SafetyAbort
+from pmalab.arguments import seed as seed_arg
+from pmalab.errors import ConfigError, PmalabError, RunFileError, SafetyAbort
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)",
     )
@@ -277,6 +278,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     r.set_defaults(func=cmd_recover)
 
+    c = sub.add_parser(
+        "check",
+        help="report which runs and channels of a run file are intact",
+        description="Reads every chunk of every dataset against its checksum and every "
+        "run's attributes against their digest, then reads the file as identify does. "
+        "Prints what is intact and what is damaged (run, channel, samples); exit 0 when "
+        "everything is intact, 2 otherwise.",
+    )
+    c.add_argument("file", nargs="+", help="run files")
+    c.set_defaults(func=cmd_check)
+
 
 def load_rig_spec(
     spec: str,
@@ -507,7 +519,27 @@ def cmd_import(args: argparse.Namespace) -> int:
             + (f", {held} held out for validation" if held else "")
             + _dropped_summary(runs)
         )
+    _warn_pressure_labels(runs)
     return 0
+
+
+def _warn_pressure_labels(runs) -> None:
+    """Name the runs whose measured mean pressure differs from their nominal label (a
+    file name, ``--pressure``) beyond the gauge noise and the regulator's resolution."""
+    import numpy as np
+
+    from pmalab.pressure_labels import check_labels, label_warning
+
+    labelled = [r for r in runs if r.attrs.get("muscle_pressure_MPa") is not None]
+    line = label_warning(
+        check_labels(
+            (r.name, float(r.nominal_pressure), np.asarray(r.muscle_pressure, float))
+            for r in labelled
+        ),
+        "identify's pressure laws",
+    )
+    if line:
+        print(f"warning: {line}", file=sys.stderr, flush=True)
 
 
 def _dropped_summary(runs) -> str:
@@ -585,6 +617,20 @@ def cmd_recover(args: argparse.Namespace) -> int:
         f"{where}: closed; "
         + (f"marked aborted: {', '.join(fixed)}" if fixed else "no run was cut mid-recording")
     )
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from pmalab.acquisition.check import report
+
+    bad = []
+    for path in args.file:
+        lines, ok = report(path)
+        print("\n".join(lines))
+        if not ok:
+            bad.append(path)
+    if bad:
+        raise RunFileError(f"{', '.join(bad)}: damaged or refused (see the report above)")
     return 0
 
 

@@ -33,13 +33,12 @@ import numpy as np
 
 from pmalab.errors import ConfigError, RigError
 from pmalab.identify.forward import (
-    _KERNELS,
     Coefficients,
     ForwardError,
     IdentifiedPlant,
     Load,
-    _integrate,
     _integrate_py,
+    compiled_loops,
     substeps,
 )
 from pmalab.rig.base import Clock, Limits
@@ -66,12 +65,10 @@ class PlantPhysics:
     ) -> None:
         self.plant = plant
         model = plant.model
-        kern = model.law.kernel()
         # a law with a compiled segment runs in the compiled loop; an element law (its
         # state a vector) in the same scheme in Python, its state carried between samples
-        self.law_id: int | None = (
-            _KERNELS.get(kern) if kern is not None and model.law.state_size == 1 else None
-        )
+        self.loops = compiled_loops(model.law)
+        self.law_id: int | None = None if self.loops is None else self.loops.law_id
         self._state: Any = None
         self.truth = truth or default_truth()
         self.spec = (spec or ManipulatorSpec()).checked()
@@ -183,7 +180,8 @@ class PlantPhysics:
             )
             self._finish(code, t1, p1)
             return
-        code, _ = _integrate(
+        assert self.loops is not None
+        code, _ = self.loops.integrate(
             self.law_id,
             self._tt,
             self._uu,

@@ -7,6 +7,7 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -56,6 +57,12 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
+    p.add_argument(
+        "--muscle",
+        metavar="NAME|all",
+        help="files recording several muscles (an antagonistic pair): identify this one "
+        "from the runs that held it isobaric; 'all': each into OUT/NAME/",
+    )
     p.add_argument(
         "--model",
         required=True,
@@ -142,10 +149,18 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
     p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -170,9 +185,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -188,6 +200,14 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
         help="use every sample, including the settle time and ramps (default: "
         "the full-amplitude cycles recorded in steady_start_s/steady_end_s)",
     )
+    p.add_argument(
+        "--pressure",
+        choices=("nominal", "measured"),
+        default="nominal",
+        help="each run's pressure for the pressure laws: its nominal label (protocol, file "
+        "name; default) or its measured mean; runs whose measured mean differs from the "
+        "label beyond the gauge noise and regulator resolution are named either way",
+    )
 
 
 def _parse_fix(items: list[str]) -> dict[str, float]:
@@ -197,10 +217,54 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
+
+
+def _identify_each_muscle(args: argparse.Namespace) -> int:
+    """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
+    from pathlib import Path
+
+    from pmalab.runfile import muscles_of
+
+    names: list[str] = []
+    for f in args.files:
+        for m in muscles_of(f):
+            if m not in names:
+                names.append(m)
+    for m in names:
+        print(f"muscle {m}:")
+        sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
+        rc = run_identify(sub)
+        if rc:
+            return rc
+    return 0
+
+
+def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[list, list]:
+    """Warn about runs whose measured mean pressure differs from their label; with
+    ``--pressure measured`` give every run its measured mean."""
+    from pmalab.identify.labels import check_runs, use_measured
+    from pmalab.pressure_labels import label_warning
+
+    whole = bool(getattr(args, "whole_run", False))
+    measured = getattr(args, "pressure", "nominal") == "measured"
+    line = label_warning(
+        check_runs([*runs, *val], whole),
+        "the pressure laws now use the measured mean" if measured else "the pressure laws",
+    )
+    if line:
+        if measured:
+            line = line.split(" — give --pressure measured")[0]
+        warning(line)
+    if measured:
+        return use_measured(runs, whole), use_measured(val, whole)
+    return runs, val
 
 
 def run_identify(args: argparse.Namespace) -> int:
@@ -216,14 +280,20 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if args.muscle == "all":
+        return _identify_each_muscle(args)
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    m = args.muscle
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
+    )
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]
     if hold:
         unknown = [n for n in hold if not any(n in (r.name, r.label) for r in runs)]
@@ -341,6 +411,11 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
     p.add_argument(
+        "--muscle",
+        metavar="NAME",
+        help="files recording several muscles (an antagonistic pair): diagnose this one",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW",
@@ -386,6 +461,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -396,7 +472,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import long_runs
+    from pmalab.identify.long_records import fit_part, long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -412,14 +488,31 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
     lr = long_runs()
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    mus = args.muscle
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [
+        fit_part(r)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
+    ]
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        [
+            fit_part(r)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
+        ]
         if args.validate
         else []
     )
     check_distinct_runs([*runs, *val])
+    runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
@@ -452,7 +545,17 @@ def run_diagnose(args: argparse.Namespace) -> int:
         show("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
         show(
             _table(
-                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                [
+                    (
+                        "law",
+                        "nrmse before",
+                        "nrmse after",
+                        "fall %",
+                        "× floor gain",
+                        "significant",
+                        "structure",
+                    )
+                ]
                 + [
                     (
                         lw["law"],
@@ -463,6 +566,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         "fit failed"
                         if lw.get("status") == "failed"
                         else ("yes" if lw["significant"] else "no"),
+                        lw.get("structure") or "-",
                     )
                     for lw in d.laws
                 ]
@@ -510,7 +614,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
-    laws = [m.strip() for m in args.model.split(",") if m.strip()]
+    laws = [m.strip() for m in args.model.split(",")]
+    if not any(laws):
+        raise PmalabError(f"--model {args.model!r}: names no law (choose from {', '.join(LAWS)})")
+    if not all(laws):
+        raise PmalabError(
+            f"--model {args.model!r}: an empty name between commas (e.g. bouc-wen,duhem)"
+        )
     for m in laws:
         if m not in LAWS:
             raise PmalabError(f"--model {m}: unknown law (choose from {', '.join(LAWS)})")
@@ -533,8 +643,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    mus = getattr(args, "muscle", None)
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=mus)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=mus)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     rows = []
     floors: list[float] = []

@@ -38,9 +38,10 @@ position out is the quasi-static balance F_muscle(x, h(x), ẋ) = u + K·x solve
 sample (bracketed Illinois regula falsi to 1e-10 mm; ẋ backward Euler), laws with a
 compiled segment only.
 
-Laws with a compiled segment (``HysteresisLaw.kernel``: Bouc-Wen, Duhem) run in one cached
-numba loop (a 60 s, 500 Hz record in ~20 ms); the others (element laws) step in Python
-(~1 s for the same record).
+Laws with a compiled segment (``HysteresisLaw.kernel``, in the law's own file) run in one
+numba loop (a 60 s, 500 Hz record in ~20 ms): Bouc-Wen's and Duhem's cached on disk, any
+other law's compiled on first use in a process (:func:`compiled_loops`); laws without one
+(element laws, whose state is a vector) step in Python (~1 s for the same record).
 """
 
 from __future__ import annotations
@@ -65,9 +66,10 @@ SLOTS = ("k", "c0", "mass", "damping", "k2", "k3", "p0", "p1", "hx")
 OMEGA_DT = 0.05
 #: ... and never more than this many per sample
 MAX_SUBSTEPS = 400
-#: compiled segments the cached loop knows (a law's ``kernel()``); another law's segment
-#: runs through the Python loop
-_KERNELS = {bw_kernel: 0, duhem_kernel: 1}
+#: the built-in segments the on-disk-cached loops are compiled with (a numba function
+#: argument would defeat that cache); every other law's ``kernel()`` gets loops of its own,
+#: compiled once per process (:func:`compiled_loops`)
+_CACHED = {bw_kernel: 0, duhem_kernel: 1}
 #: a position beyond this (mm) is a runaway simulation
 RUNAWAY_MM = 1e6
 
@@ -372,6 +374,56 @@ def _quasi_static(law_id, t, u, p, p_nom, Q, lo, hi, extras, ns, KL, x0, h0, xo,
     return 0, N
 
 
+@dataclass(frozen=True)
+class CompiledLoops:
+    """A law's compiled forward loops: ``integrate`` (with a moving mass) and
+    ``quasi_static`` (massless), both called as ``loop(law_id, ...)`` with the arguments of
+    :func:`_integrate` / :func:`_quasi_static`."""
+
+    law_id: int
+    integrate: Callable[..., tuple[int, int]]
+    quasi_static: Callable[..., tuple[int, int]]
+
+
+def _rebind(fn: Any, **names: Any) -> Any:
+    """``fn`` (a numba dispatcher) recompiled with some of its global names bound to other
+    compiled functions: the same loop with another law's segment."""
+    import types
+
+    py = fn.py_func
+    glob = dict(py.__globals__)
+    glob.update(names)
+    f = types.FunctionType(py.__code__, glob, py.__name__, py.__defaults__, py.__closure__)
+    return njit(fastmath=False)(f)
+
+
+_DYNAMIC: dict[Any, CompiledLoops] = {}
+
+
+def compiled_loops(law: Any) -> CompiledLoops | None:
+    """The compiled forward loops of a law with a compiled segment (``law.kernel()``, one
+    scalar state), or None (element laws step in Python).
+
+    A law brings its own segment in its own file; nothing here lists the laws.  The
+    built-in Bouc-Wen and Duhem segments run in loops cached on disk; any other law's
+    segment is bound into the same loops (:func:`_rebind`), compiled on first use in a
+    process (about a second) and at full speed after it.
+    """
+    kern = law.kernel()
+    if kern is None or law.state_size != 1:
+        return None
+    if kern in _CACHED:
+        return CompiledLoops(_CACHED[kern], _integrate, _quasi_static)
+    loops = _DYNAMIC.get(kern)
+    if loops is None:
+        seg = njit(fastmath=False)(lambda law_id, h, x0, x1, prm: kern(h, x0, x1, prm))
+        qs_resid = _rebind(_qs_resid, _seg=seg)
+        loops = _DYNAMIC[kern] = CompiledLoops(
+            -1, _rebind(_integrate, _seg=seg), _rebind(_quasi_static, _qs_resid=qs_resid)
+        )
+    return loops
+
+
 def simulate(
     model: ForceModel,
     theta: Mapping[str, float | Sequence[float]],
@@ -405,22 +457,21 @@ def simulate(
     if not np.all(np.diff(t) > 0):
         raise ForwardError("time stamps must increase")
     mass = coef.at(pn)[2] + load.mass_kg
-    kern = model.law.kernel()
-    law_id = _KERNELS.get(kern) if kern is not None else None
+    loops = compiled_loops(model.law)
     u_eff = u_a + load.preload_N
     xo, vo, ho, fo = (np.full(N, np.nan) for _ in range(4))
     if not mass > 0:
         # no moving mass (none identified, or the fit's m ≤ 0): the quasi-static balance
-        if law_id is None or model.law.state_size != 1:
+        if loops is None:
             raise ForwardError(
                 f"force in -> position out without a moving mass needs a law with a compiled "
-                f"segment (bouc-wen, duhem), not {model.law.name}: add the inertia effect or "
-                "give the load a mass"
+                f"segment (HysteresisLaw.kernel), which {model.law.name} has not: add the "
+                "inertia effect or give the load a mass"
             )
         Qs = coef.Q.copy()
         Qs[2, :] = 0.0  # a fitted m ≤ 0 is no mass: treated as 0
-        code, k = _quasi_static(
-            law_id,
+        code, k = loops.quasi_static(
+            loops.law_id,
             t,
             u_eff,
             p_a,
@@ -448,9 +499,9 @@ def simulate(
         )
     dt = float(np.median(np.diff(t)))
     ns = n_sub or substeps(model, coef, p_a, dt, load)
-    if law_id is not None and model.law.state_size == 1:
-        code, k = _integrate(
-            law_id,
+    if loops is not None:
+        code, k = loops.integrate(
+            loops.law_id,
             t,
             u_eff,
             p_a,
@@ -576,6 +627,12 @@ class IdentifiedPlant:
 
         law = doc.get("model")
         fits = doc.get("pressure_fits")
+        if doc.get("kind") == "static":
+            raise ForwardError(
+                f"{source}: a static characterization (identify --static "
+                f"{doc.get('static_map', {}).get('id', '')}) has no forward model: "
+                "identify an isobaric campaign for simulate and control"
+            )
         if not isinstance(law, str) or not isinstance(fits, Mapping):
             raise ForwardError(
                 f"{source}: not an identification.json (no 'model' and 'pressure_fits')"

@@ -272,6 +272,8 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "validation": val_out,
         "decimation": _decimation_block(res),
         "trajectory": list(res.trajectory),
+        # each run's nominal pressure against its measured mean (label offsets named)
+        "pressure_labels": _pressure_labels(all_runs),
         "warnings": warnings,
         "notes": list(res.notes),
         # every campaign message typed: kind (note | detail | warning), code, text, data
@@ -302,6 +304,21 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         },
     }
     return _clean(out)
+
+
+def _pressure_labels(all_runs: list[tuple[Run, str]]) -> list[dict[str, Any]]:
+    """Per run: nominal vs measured mean pressure, the tolerance and whether it is offset;
+    ``label_MPa`` when the run's pressure was replaced by its measured mean."""
+    from pmalab.identify.labels import check_runs
+
+    rows = []
+    for (run, role), c in zip(all_runs, check_runs([r for r, _ in all_runs], whole_run=True)):
+        row: dict[str, Any] = {"file": run.file, "role": role, **c.as_json()}
+        lab = run.attrs.get("muscle_pressure_label_MPa")
+        if lab is not None:
+            row["label_MPa"] = float(lab)
+        rows.append(row)
+    return rows
 
 
 def derivatives_method() -> dict[str, Any]:
@@ -378,6 +395,8 @@ def _decimation_block(res: Identification) -> list[dict]:
             "sample_rate_Hz": fs,
             "read": read,
         }
+        if run.attrs.get("fit_part"):  # a long record: the run-level fit's part of it
+            row["fit_part"] = run.attrs["fit_part"]
         if role == "identification" and res.campaign.joint is not None and np.isfinite(fs):
             k = joint_stride(n, fs, f)
             row["joint_fit"] = {
