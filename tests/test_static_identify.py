@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pmalab.cli import main as pmalab_main
+from pmalab.errors import PmalabError
 from pmalab.identify.schema import check_identification
 from pmalab.identify.static import Geometry, StaticModel, fit_static, get_static_map
 from pmalab.rig.sim.static_stand import isometric_campaign, load_static_truth, run_test
@@ -281,3 +282,10 @@ def test_a_static_identification_is_refused_by_simulate_with_one_line(tmp_path, 
     )
     assert code != 0 and "static characterization" in err and "Traceback" not in err
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_law_on_a_drive_no_run_moves_is_refused(truth):
+    runs = isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0)
+    m = StaticModel(get_static_map("linear"), "duhem", "position")
+    with pytest.raises(PmalabError, match=r"contraction is held in every run.*--drive pressure"):
+        fit_static(m, runs)

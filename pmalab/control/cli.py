@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Callable
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError
 
 
@@ -31,12 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "pressures and gains, and print step/tracking metrics.",
     )
     # no argparse choices: the registry (pmalab.control.pid.CONTROLLERS) is the list, and
-    # importing it here would load numpy at every start-up; an unknown id is one line
+    # importing it here would load numpy at every start-up; an unknown id is one line, and
+    # the help names the registered ids when it is printed ({controllers})
     p.add_argument(
         "--controller",
         metavar="ID",
-        help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
-        "built-ins; any registered controller's id)",
+        help="the controller, both loops use it: {controllers}",
     )
     p.add_argument(
         "--reference",
@@ -99,7 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="joint control: both muscles' common pressure p0, which sets the joint's "
         "stiffness (default 0.25 MPa)",
     )
-    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=None, help="sensor-noise seed (default 0)")
     p.add_argument(
         "--real-time",
         action="store_true",

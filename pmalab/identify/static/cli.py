@@ -94,9 +94,12 @@ def _parse_fixed(items: Sequence[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
 
 
@@ -117,7 +120,7 @@ def _print(doc: dict[str, Any], fit: Any) -> None:
     for n, p in sm["parameters"].items():
         print(f"  {n:<16} {_fmt(p['value'], p['stderr']):>22} {p['unit']:<10} {p['doc']}")
     for n, p in sm["derived"].items():
-        print(f"  {n:<16} {p['value']:>22.5g} {p['unit']:<10} {p['doc']}")
+        print(f"  {n:<24} {p['value']:>14.5g} {p['unit']:<10} {p['doc']}")
     h = doc["hysteresis"]
     if h:
         for n, p in h["parameters"].items():
