@@ -184,10 +184,12 @@ def identify(
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
-    # a long record's run-level fit uses its first cycles; its trajectory all of it
+    # a long record's run-level fit uses its first cycles, its trajectory all of it; held-out
+    # long records are validated on the same part as `pmalab diagnose` holds out
     records = list(runs_l)
     runs_l = [fit_part(r) for r in records]
     record_of = {id(p): r for p, r in zip(runs_l, records)}
+    validate = None if validate is None else [fit_part(r) for r in validate]
     ident, held = split_roles(runs_l)
     notes: list[str] = [
         note(
