@@ -60,7 +60,6 @@ EFFECT_CASES = [
     ("sensor-delay", "sensor-delay"),
     ("inertia", "inertia"),
     ("sensor-drift", "sensor-drift"),
-    ("sensor-drift-carried", "sensor-drift"),
 ]
 
 
@@ -83,6 +82,23 @@ def test_diagnose_names_the_subtle_effect_with_identify_add_numbers(truth, effec
         assert top["nrmse_before"] == pytest.approx(_mean_validation(runs, val), rel=0.02)
     assert top["nrmse_after"] == pytest.approx(_mean_validation(runs, val, [effect]), rel=0.02)
     assert d.ladder[1]["nrmse"] == pytest.approx(top["nrmse_after"], rel=1e-9)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("truth", ["lookalike/conditioning", "lookalike/warming",
+                                   "subtle/sensor-drift-carried"])
+def test_slow_offsets_between_runs_are_not_claimed_as_an_effect(truth, tmp_path):
+    """A muscle that softens as it is first stretched, one that softens as it warms, and a
+    load-cell zero that drifted between runs (invisible inside a 1–4 s run) all shift each
+    record's force zero.  Every model estimates a held-out record's zero on its early part
+    (the same freedom for the null as for sensor-drift), so none of them is claimed: the
+    numbers say what a record's own offset cannot."""
+    runs, val = _record(TRUTH_DIR / f"{truth}.toml", tmp_path)
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2, laws=[],
+                 effects=["sensor-drift", "nonlinear-stiffness", "asymmetric-hysteresis"])
+    assert not any(r["significant"] for r in d.ranking), d.ranking_table()
+    drift = next(r for r in d.ranking if r["effect"] == "sensor-drift")
+    assert drift["gain_x_floor"] is None or drift["gain_x_floor"] < 0.25, d.ranking_table()
 
 
 @pytest.mark.slow
