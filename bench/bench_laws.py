@@ -10,7 +10,9 @@ seven odd pressures and two odd frequencies, 4 held-out runs between them, 4 N l
 noise); the project's own with ``diagnosis-test.toml`` (8 + 2 runs), as before.
 ``pmalab identify --model bouc-wen,duhem,maxwell-slip,prandtl-ishlinskii`` then ranks the
 laws; each cell is the mean over the held-out runs of nrmse ÷ that run's noise floor, with
-the pressure structure each element law chose.  ``python -m bench laws``;
+the pressure structure the matching law chose, and the matching law's figure with every
+parameter its own pressure law (``--structure free``, the behaviour before structures were
+chosen).  ``python -m bench laws``;
 ``PMALAB_BENCH_SEEDS=N`` sets the seeds per case (default 2).
 """
 
@@ -56,14 +58,16 @@ def campaign(truth: Path, protocol: Path, seed: int, work: Path) -> Path:
     return out
 
 
-def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS) -> tuple[dict, float]:
-    """``identify --model a,b,...``: ({law: laws.json row}, wall seconds)."""
+def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS,
+               structure: str = "auto") -> tuple[dict, float]:
+    """``identify --model a,b,... --structure S``: ({law: laws.json row}, wall seconds)."""
     t0 = time.perf_counter()
     assert _cli(["identify", str(c), "--model", ",".join(laws), "--out", str(out), "-q",
-                 "--jobs", "2"]) == 0
+                 "--jobs", "2", "--structure", structure]) == 0
     wall = time.perf_counter() - t0
     doc = json.loads((out / "laws.json").read_text())
-    rows = {r["law"]: dict(r, rank=i + 1) for i, r in enumerate(doc["laws"])}
+    rows = {r["law"]: dict(r, rank=i + 1, floor=doc["noise_floor_nrmse"])
+            for i, r in enumerate(doc["laws"])}
     for law in laws:
         f = out / law / "identification.json"
         if f.exists():
@@ -71,6 +75,18 @@ def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS) -> tuple[dict, 
             if law in rows:
                 rows[law]["structure"] = ps.get("chosen", "-")
     return rows, wall
+
+
+def free_x_floor(c: Path, law: str, floor: float | None) -> float | None:
+    """The law's mean held-out nrmse ÷ ``floor`` with ``--structure free``."""
+    import numpy as np
+
+    from pmalab.identify.api import identify
+    from pmalab.runfile import read_runs
+
+    res = identify(read_runs(c), law, jobs=2, structure="free")
+    vn = [float(v.metrics["nrmse"]) for v in res.validation]
+    return float(np.mean(vn)) / floor if vn and floor else None
 
 
 def main() -> None:
@@ -89,11 +105,15 @@ def main() -> None:
                     x = r.get("x_floor")
                     cells.append("-" if x is None else f"{x:.2f}")
                 st = res.get(law, {}).get("structure", "-")
+                # the matching law with every parameter its own pressure law (as before the
+                # structures): what the choice gained
+                xf = free_x_floor(c, law, res[law]["floor"])
                 rows.append((truth_name, seed, law, *cells, st,
+                             "-" if xf is None else f"{xf:.2f}",
                              "yes" if first == law else f"NO ({first})", f"{wall:.1f}"))
     print("held-out nrmse ÷ noise floor (mean over the held-out runs), identify with 4 laws:")
     print_table(("truth (data/truth)", "seed", "matching law", *LAWS, "structure",
-                 "first", "identify s"), rows)
+                 "matching, free", "first", "identify s"), rows)
 
 
 if __name__ == "__main__":

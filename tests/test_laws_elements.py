@@ -22,6 +22,7 @@ import pytest
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify import identify
+from pmalab.identify.campaign.structure import SIMPLER_WITHIN
 from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 from pmalab.runfile import read_runs
 
@@ -115,6 +116,17 @@ def test_diagnose_scores_laws_and_changes_to_maxwell_slip(campaign, tmp_path):
     assert "try `--model maxwell-slip`" in d["summary"]
     # the step reads as a law change, one arrow between steps
     assert "maxwell-slip law" in d["summary"] and "→ →" not in d["summary"], d["summary"]
+    # the element laws' pressure structures are named, with their held-out evidence, and
+    # the summary says the winner's in words
+    for lw in ("maxwell-slip", "prandtl-ishlinskii"):
+        st = laws[lw]["structure"]
+        scores = {k: v for k, v in laws[lw]["structure_heldout_nrmse"].items() if v is not None}
+        # the winner: the lowest held-out error, or a simpler structure within SIMPLER_WITHIN
+        assert scores[st] <= min(scores.values()) * (1.0 + SIMPLER_WITHIN), laws[lw]
+    assert f"('{laws['maxwell-slip']['structure']}', chosen by leave-one-pressure-out" in d[
+        "summary"
+    ], d["summary"]
+    assert "duhem" in laws and "structure" not in laws["duhem"]
 
 
 @pytest.mark.parametrize("law", ["maxwell-slip", "prandtl-ishlinskii"])

@@ -101,3 +101,19 @@ def test_the_joint_fit_never_strides_a_long_run_below_100_samples_a_cycle():
     # a campaign run (a few cycles) keeps its former stride: 200 a cycle
     assert joint_stride(int(20 / 0.15 * FS), FS, 0.15) == math.ceil(int(20 / 0.15 * FS) / 2500)
     assert joint_stride(30_000, FS, 0.15) == 16
+
+
+def test_the_loop_direction_of_a_record_of_hundreds_of_cycles():
+    """The branch masks' smoothing stays within a fraction of a cycle however many cycles a
+    record holds (at n/400 samples it spanned more than a cycle at 500 cycles and the loop
+    read as anti-physical)."""
+    from pmalab.identify.metrics import branch_masks, loop_direction
+
+    rng = np.random.default_rng(0)
+    t = np.arange(100_000) / 100.0  # 500 cycles at 0.5 Hz, 200 samples a cycle
+    x = 20 + 8 * np.sin(2 * math.pi * F * t) + rng.normal(0, 0.01, t.size)
+    v = np.cos(2 * math.pi * F * t)
+    stretch, release = branch_masks(x)
+    assert np.mean(stretch == (v < 0)) > 0.99 and np.mean(release == (v > 0)) > 0.99
+    force = 400 - 20 * x + np.where(v < 0, 30.0, -30.0)  # stretching: 60 N more tension
+    assert loop_direction(force, x) == pytest.approx(60.0, rel=0.05)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pmalab.cli import main as pmalab_main
+from pmalab.errors import PmalabError
 from pmalab.identify.schema import check_identification
 from pmalab.identify.static import Geometry, StaticModel, fit_static, get_static_map
 from pmalab.rig.sim.static_stand import isometric_campaign, load_static_truth, run_test
@@ -114,7 +115,7 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
     assert th["diameter_mm"] == pytest.approx(truth.diameter_mm, rel=0.03)
 
 
-def test_free_runs_separate_the_pressure_and_the_contraction_loops():
+def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
         run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
@@ -122,11 +123,20 @@ def test_free_runs_separate_the_pressure_and_the_contraction_loops():
         )
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
+    others = [
+        run_test(truth, "isometric", held_mm=18.0, seed=50, period_s=6.0).to_run("iso18"),
+        run_test(truth, "isobaric", held_mm=15.0, pressure_MPa=0.4, seed=51).to_run("bar04"),
+        run_test(truth, "isotonic", load_N=150.0, p_min=0.15, seed=52, period_s=6.0).to_run("t150"),
+    ]
     m = StaticModel(get_static_map("chou-hannaford", Geometry(length_mm=200.0)), "duhem", "both")
-    fit = fit_static(m, runs)
+    fit = fit_static(m, runs, others)
     w = fit.hysteresis_widths()
     assert w["p"] == pytest.approx(truth.pressure_friction_N, rel=0.10)
     assert w["x"] == pytest.approx(truth.position_friction_N, rel=0.10)
+    # one model of the muscle predicts its isometric, isobaric and isotonic runs
+    assert [v.rec.run.test_type for v in fit.validation] == ["isometric", "isobaric", "isotonic"]
+    for v in fit.validation:
+        assert v.nrmse < 2.0 * v.noise_floor_nrmse, (v.rec.label, v.nrmse, v.noise_floor_nrmse)
 
 
 def test_identify_static_from_the_command_line(tmp_path, truth):
@@ -208,3 +218,74 @@ def test_report_of_a_static_identification(tmp_path, truth):
         ["report", str(tmp_path / "id"), str(tmp_path / "id"), "--out", str(tmp_path / "r2.pdf")]
     )
     assert code != 0 and "alone" in err and not (tmp_path / "r2.pdf").exists()
+
+
+def test_diagnose_isometric_runs_ranks_the_pressure_laws_on_a_held_out_length(tmp_path):
+    code, _, err = _cli(
+        [
+            "stand",
+            "--test",
+            "isometric",
+            "--held",
+            "0,12,24,36",
+            "--period",
+            "4",
+            "--out",
+            str(tmp_path / "iso.h5"),
+            "--text",
+            str(tmp_path / "raw"),
+        ]
+    )
+    assert code == 0, err
+    assert len(list((tmp_path / "raw").iterdir())) == 4
+    code, _out, err = _cli(
+        [
+            "diagnose",
+            str(tmp_path / "iso.h5"),
+            "--model",
+            "duhem",
+            "--static",
+            "chou-hannaford",
+            "--length",
+            "200",
+            "--laws",
+            "duhem",
+            "--out",
+            str(tmp_path / "d"),
+        ]
+    )
+    assert code == 0, err
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
+    assert doc["settings"]["held_out"] == ["iso.h5:isometric_24mm"]
+    assert doc["ladder"][0]["law"] is None and doc["ladder"][1]["law"] == "duhem"
+    floor = doc["noise_floor"]["mean_nrmse"]
+    # the map alone is far from the floor; the pressure law brings it there
+    assert doc["ladder"][0]["nrmse"] > 3 * floor
+    assert doc["laws"][0]["significant"] and doc["ladder"][1]["nrmse"] < 1.3 * floor
+    assert doc["verdict"] == "floor"
+
+
+def test_a_static_identification_is_refused_by_simulate_with_one_line(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=3.0))
+    code, _, err = _cli(
+        ["identify", str(tmp_path / "iso.h5"), "--model", "none", "--out", str(tmp_path / "id")]
+    )
+    assert code == 0, err
+    code, _, err = _cli(
+        [
+            "simulate",
+            str(tmp_path / "id"),
+            str(tmp_path / "iso.h5"),
+            "--out",
+            str(tmp_path / "s.h5"),
+        ]
+    )
+    assert code != 0 and "static characterization" in err and "Traceback" not in err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_law_on_a_drive_no_run_moves_is_refused(truth):
+    runs = isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0)
+    m = StaticModel(get_static_map("linear"), "duhem", "position")
+    with pytest.raises(PmalabError, match=r"contraction is held in every run.*--drive pressure"):
+        fit_static(m, runs)

@@ -53,7 +53,14 @@ import numpy as np
 from pmalab.channels import Channels
 from pmalab.errors import OutputError
 from pmalab.paths import output_failure
-from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION, declare_channels
+from pmalab.runfile import (
+    CANONICAL_UNITS,
+    CHECKSUM,
+    FORMAT,
+    FORMAT_VERSION,
+    declare_channels,
+    seal_attrs,
+)
 
 if TYPE_CHECKING:
     import h5py
@@ -374,6 +381,7 @@ class Recorder:
             f.attrs["format_version"] = FORMAT_VERSION
             for k, v in root_attrs.items():
                 f.attrs[k] = _attr(v)
+            seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
                 g = grp.create_group(name)
@@ -381,20 +389,35 @@ class Recorder:
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():
                     ds = g.create_dataset(
-                        c, shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float64
+                        c,
+                        shape=(0,),
+                        maxshape=(None,),
+                        chunks=(CHUNK,),
+                        dtype=np.float64,
+                        **CHECKSUM,
                     )
                     ds.attrs["units"] = units
                 if self.declared is not None:
                     declare_channels(g, self.declared)
                 if summary:
                     ds = g.create_dataset(
-                        "summary", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.uint8
+                        "summary",
+                        shape=(0,),
+                        maxshape=(None,),
+                        chunks=(CHUNK,),
+                        dtype=np.uint8,
+                        **CHECKSUM,
                     )
                     ds.attrs["description"] = (
                         "UTF-8 JSON: the run's end-of-run facts (empty until the run ends)"
                     )
                 ds = g.create_dataset(
-                    "lateness", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float32
+                    "lateness",
+                    shape=(0,),
+                    maxshape=(None,),
+                    chunks=(CHUNK,),
+                    dtype=np.float32,
+                    **CHECKSUM,
                 )
                 ds.attrs["units"] = "s"
                 ds.attrs["description"] = (
@@ -404,7 +427,12 @@ class Recorder:
                 )
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
                 gp = g.create_dataset(
-                    "gaps", shape=(0, 2), maxshape=(None, 2), chunks=(64, 2), dtype=np.float64
+                    "gaps",
+                    shape=(0, 2),
+                    maxshape=(None, 2),
+                    chunks=(64, 2),
+                    dtype=np.float64,
+                    **CHECKSUM,
                 )
                 gp.attrs["fields"] = json.dumps(["start_s", "samples_missed"])
                 gp.attrs["description"] = (
@@ -412,7 +440,12 @@ class Recorder:
                     "its first missing sample's time (s from the run's first sample) and "
                     "how many; never filled with invented samples"
                 )
-                t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
+                t = g.create_dataset(
+                    "timing",
+                    data=np.full(len(TIMING_FIELDS), np.nan),
+                    chunks=(len(TIMING_FIELDS),),
+                    **CHECKSUM,
+                )
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)
                 d = g.create_dataset(
                     "device_stats", data=np.bytes_(b""), dtype=f"S{DEVICE_STATS_LEN}"
@@ -421,6 +454,7 @@ class Recorder:
                     "JSON: the devices' link/fault counters at the "
                     "run's end, cumulative since the rig was opened"
                 )
+                seal_attrs(g)  # the run's and its datasets' attributes are final
             f.flush()
             f.swmr_mode = True  # from here on: no new attrs/objects, only data writes
             os.replace(tmp, self.path)

@@ -143,8 +143,16 @@ def _rule(c: Channel, i: int, lo: float, hi: float, margin: float) -> Callable[[
         return lambda x: (
             f"{who} {x:.2f} mm outside the travel [{lo:g}, {hi:g}] mm" if x > hi or x < lo else None
         )
+    if not math.isfinite(lo):
+        return lambda v: (
+            f"{c.label} {v:.6g} {c.unit} above the limit {hi:g} {c.unit}" if v > hi else None
+        )
+    if not math.isfinite(hi):
+        return lambda v: (
+            f"{c.label} {v:.6g} {c.unit} below the limit {lo:g} {c.unit}" if v < lo else None
+        )
     return lambda v: (
-        f"{c.label} {v:.4g} {c.unit} outside [{lo:g}, {hi:g}] {c.unit}"
+        f"{c.label} {v:.6g} {c.unit} outside [{lo:g}, {hi:g}] {c.unit}"
         if v > hi or v < lo
         else None
     )

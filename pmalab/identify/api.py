@@ -28,7 +28,7 @@ from pmalab.identify.campaign import (
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.campaign.trajectory import run_trajectory
-from pmalab.identify.long_records import long_runs
+from pmalab.identify.long_records import fit_part, long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
@@ -63,6 +63,7 @@ def load(
     *paths: str | Path | Sequence[str | Path],
     runs: Iterable[str] | None = None,
     include_aborted: bool = False,
+    muscle: str | None = None,
 ) -> RunList:
     """Every complete run of the given contract files (or the named ``runs``), canonical units.
 
@@ -71,7 +72,9 @@ def load(
     or named in ``runs``; a file given twice is refused.  A long run (≥
     :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
     time and decimated, as its attrs' ``decimation`` states
-    (:mod:`pmalab.identify.long_records`).
+    (:mod:`pmalab.identify.long_records`).  ``muscle``: which muscle of a file recording
+    several (an antagonistic pair) — its isobaric runs, its channels
+    (:func:`pmalab.runfile.read_runs`).
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -83,7 +86,15 @@ def load(
     wanted = None if runs is None else list(runs)
     out = RunList()
     for p in flat:
-        out.extend(read_runs(p, wanted, skip_incomplete=not include_aborted, long_runs=long_runs()))
+        out.extend(
+            read_runs(
+                p,
+                wanted,
+                skip_incomplete=not include_aborted,
+                long_runs=long_runs(),
+                muscle=muscle,
+            )
+        )
     check_distinct_runs(out)
     return out
 
@@ -173,6 +184,10 @@ def identify(
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
+    # a long record's run-level fit uses its first cycles; its trajectory all of it
+    records = list(runs_l)
+    runs_l = [fit_part(r) for r in records]
+    record_of = {id(p): r for p, r in zip(runs_l, records)}
     ident, held = split_roles(runs_l)
     notes: list[str] = [
         note(
@@ -217,7 +232,7 @@ def identify(
     trajectory = []
     if output == "force":
         for run, rf in zip(ident, cf.runs):
-            tr = run_trajectory(run, cf.model, rf.result)
+            tr = run_trajectory(record_of.get(id(run), run), cf.model, rf.result)
             if tr is not None:
                 trajectory.append(tr)
     return Identification(

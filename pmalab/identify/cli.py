@@ -7,10 +7,19 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
-from pmalab.console import VERBOSE, add_verbosity, note, show_progress, verbosity, warning
+from pmalab.console import (
+    VERBOSE,
+    add_verbosity,
+    note,
+    show_progress,
+    table_printer,
+    verbosity,
+    warning,
+)
 from pmalab.errors import PmalabError
 
 
@@ -38,9 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _register_identify(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "identify",
-        help="fit Bouc-Wen or Duhem models per run, pressure quadratics, validation",
+        help="fit hysteresis models ({laws}) per run, pressure laws, validation",
         description=(
-            "Identify F = k·x + c0 + h (Bouc-Wen or Duhem h) on every run of the given files, "
+            "Identify F = k·x + c0 + h (h: one of the laws {laws}) on every run of the given files, "
             "fit each parameter as a quadratic in muscle pressure, and validate the "
             "pressure-quadratic model on held-out runs (runs with role 'validation' in the "
             "inputs, and every run of --validate files).  Writes OUT/identification.json "
@@ -49,11 +58,17 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="identification run files")
     p.add_argument(
+        "--muscle",
+        metavar="NAME|all",
+        help="files recording several muscles (an antagonistic pair): identify this one "
+        "from the runs that held it isobaric; 'all': each into OUT/NAME/",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
-        help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
-        "any law file in identify/laws/); several, comma-separated, identify each "
+        help="hysteresis law: {laws} (or any law file in identify/laws/); several, "
+        "comma-separated, identify each "
         "into OUT/LAW/ and print one table ranking them",
     )
     p.add_argument(
@@ -61,7 +76,7 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="EFFECT",
-        help="add an effect by id (repeatable), e.g. viscous-friction",
+        help="add an effect by id (repeatable): {effects}",
     )
     p.add_argument(
         "--effects",
@@ -134,10 +149,18 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "(free), one profile scaled in magnitude (scaled), and its slip displacements "
         "scaled too (scaled-thresholds)",
     )
+    _add_static_options(p, "identify")
+    add_verbosity(p)
+    _add_input_options(p)
+    p.set_defaults(func=run_identify)
+
+
+def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
+    """``--static``, ``--drive``, ``--length``, ``--diameter`` (identify and diagnose)."""
     p.add_argument(
         "--static",
         metavar="MAP",
-        help="static characterization: the static map F_s(x, p) — linear (k(p)·x + "
+        help=f"static characterization ({verb}): the static map F_s(x, p) — linear (k(p)·x + "
         "c0(p)), chou-hannaford (braid angle, diameter, end effect; needs --length) or "
         "tondu-lopez (needs --length and --diameter) — plus the --model law on --drive, "
         "one set of parameters for every run of any test type (default for "
@@ -162,9 +185,6 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         metavar="MM",
         help="with --static tondu-lopez: the muscle's relaxed outer diameter in mm",
     )
-    add_verbosity(p)
-    _add_input_options(p)
-    p.set_defaults(func=run_identify)
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
@@ -197,10 +217,33 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
+
+
+def _identify_each_muscle(args: argparse.Namespace) -> int:
+    """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
+    from pathlib import Path
+
+    from pmalab.runfile import muscles_of
+
+    names: list[str] = []
+    for f in args.files:
+        for m in muscles_of(f):
+            if m not in names:
+                names.append(m)
+    for m in names:
+        print(f"muscle {m}:")
+        sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
+        rc = run_identify(sub)
+        if rc:
+            return rc
+    return 0
 
 
 def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[list, list]:
@@ -237,13 +280,18 @@ def run_identify(args: argparse.Namespace) -> int:
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
+    if args.muscle == "all":
+        return _identify_each_muscle(args)
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    m = args.muscle
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
+    )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]
@@ -279,12 +327,13 @@ def run_identify(args: argparse.Namespace) -> int:
     jpath, hpath = res.save(out, force=args.force)
 
     level = verbosity(args)
+    show = table_printer(args)
     w = max(
         [len(rf.label) for rf in res.campaign.runs]
         + [len(v.run.label) for v in res.validation]
         + [10]
     )
-    print(
+    show(
         f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
         f"{len(res.validation)} validation run(s)"
     )
@@ -292,13 +341,13 @@ def run_identify(args: argparse.Namespace) -> int:
     for i, rf in enumerate(res.campaign.runs):
         r = rf.result
         if oe is not None:
-            print(
+            show(
                 f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
                 f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
                 f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)"
             )
             continue
-        print(
+        show(
             f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
             f"rmse {r.rmse:7.3g} N"
         )
@@ -306,28 +355,28 @@ def run_identify(args: argparse.Namespace) -> int:
         m = v.metrics
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
         if getattr(v, "diverged", False):
-            print(head + f"prediction DIVERGED ({v.message})")
+            show(head + f"prediction DIVERGED ({v.message})")
             continue
         if "rmse_position_m" in m:
-            print(
+            show(
                 head + f"position rmse {m['rmse_position_m']:9.3g} m  "
                 f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %"
             )
             continue
-        print(
+        show(
             head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
     st = getattr(res.campaign, "structure", None)
     if st is not None:
-        print(f"  {structure_line(st)}")
+        show(f"  {structure_line(st)}")
     if res.campaign.output != "position":
         from pmalab.identify.outputs import validation_headline
 
         line = validation_headline(res.validation)
         if line:
-            print(line)
+            show(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -362,10 +411,15 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE.h5", help="run files to diagnose")
     p.add_argument(
+        "--muscle",
+        metavar="NAME",
+        help="files recording several muscles (an antagonistic pair): diagnose this one",
+    )
+    p.add_argument(
         "--model",
         required=True,
         metavar="LAW",
-        help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)",
+        help="hysteresis law: {laws} (or any law file in identify/laws/)",
     )
     p.add_argument(
         "--validate",
@@ -388,7 +442,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=None,
         metavar="EFFECT",
-        help="rank only these effect ids (repeatable; default: all)",
+        help="rank only these effect ids (repeatable; default: all of {effects})",
     )
     p.add_argument(
         "--max-steps",
@@ -407,6 +461,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--plot", default=None, metavar="FILE.png", help="also save the ranking/ladder figure"
     )
+    _add_static_options(p, "diagnose")
     add_verbosity(p)
     _add_input_options(p)
     p.set_defaults(func=run_diagnose)
@@ -417,7 +472,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import long_runs
+    from pmalab.identify.long_records import fit_part, long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -433,15 +488,31 @@ def run_diagnose(args: argparse.Namespace) -> int:
             raise PmalabError(f"--plot {args.plot}: cannot write there")
     check_distinct(args.files, args.validate)
     lr = long_runs()
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr)
+    mus = args.muscle
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [
+        fit_part(r)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
+    ]
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr)
+        [
+            fit_part(r)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
+        ]
         if args.validate
         else []
     )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    if args.static or any(r.test_type != "isobaric" for r in runs):
+        from pmalab.identify.static.cli import run_static_diagnose
+
+        return run_static_diagnose(args, runs, val, out, laws)
     d = diagnose(
         runs,
         model=args.model,
@@ -457,23 +528,34 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
-    print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
-    print(
+    show = table_printer(args)
+    show(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
+    show(
         f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
         f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):"
     )
-    print(d.ranking_table())
+    show(d.ranking_table())
     if d.ambiguous:
-        print(
+        show(
             f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: {d.suggested_experiment}"
         )
-    print("\nLadder (the error falling step by step):")
-    print(d.ladder_table())
+    show("\nLadder (the error falling step by step):")
+    show(d.ladder_table())
     if d.laws:
-        print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
-        print(
+        show("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
+        show(
             _table(
-                [("law", "nrmse before", "nrmse after", "fall %", "× floor gain", "significant")]
+                [
+                    (
+                        "law",
+                        "nrmse before",
+                        "nrmse after",
+                        "fall %",
+                        "× floor gain",
+                        "significant",
+                        "structure",
+                    )
+                ]
                 + [
                     (
                         lw["law"],
@@ -484,6 +566,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
                         "fit failed"
                         if lw.get("status") == "failed"
                         else ("yes" if lw["significant"] else "no"),
+                        lw.get("structure") or "-",
                     )
                     for lw in d.laws
                 ]
@@ -501,11 +584,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
             "--out DIR",
         ]
     )
-    print(f"\nSame numbers from identification: {hint}")
-    print(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
+    show(f"\nSame numbers from identification: {hint}")
+    show(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
     for key in worst_runs(d.diagnostics, 3):
-        print(f"  {key}: {d.diagnostics[key]['worst_region']}")
-    print(f"\n{d.summary}")
+        show(f"  {key}: {d.diagnostics[key]['worst_region']}")
+    show()
+    print(d.summary)
     if args.plot:
         d.plot(check_output(args.plot, args.force))
     print(f"wrote {jpath} and {hpath}")
@@ -530,7 +614,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
-    laws = [m.strip() for m in args.model.split(",") if m.strip()]
+    laws = [m.strip() for m in args.model.split(",")]
+    if not any(laws):
+        raise PmalabError(f"--model {args.model!r}: names no law (choose from {', '.join(LAWS)})")
+    if not all(laws):
+        raise PmalabError(
+            f"--model {args.model!r}: an empty name between commas (e.g. bouc-wen,duhem)"
+        )
     for m in laws:
         if m not in LAWS:
             raise PmalabError(f"--model {m}: unknown law (choose from {', '.join(LAWS)})")
@@ -553,8 +643,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     }
     table_path = check_output(Path(args.out) / "laws.json", args.force)
     check_distinct(args.files, args.validate)
-    runs = load(args.files, include_aborted=args.include_aborted)
-    val = load(args.validate, include_aborted=args.include_aborted) if args.validate else []
+    mus = getattr(args, "muscle", None)
+    runs = load(args.files, include_aborted=args.include_aborted, muscle=mus)
+    val = (
+        load(args.validate, include_aborted=args.include_aborted, muscle=mus)
+        if args.validate
+        else []
+    )
     check_distinct_runs([*runs, *val])
     rows = []
     floors: list[float] = []
@@ -602,6 +697,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
             }
         )
     floor = float(np.mean(floors)) if floors else None
+    show = table_printer(args)
     for r in rows:
         v = r["validation_nrmse"]
         r["x_floor"] = (v / floor) if (v is not None and floor) else None
@@ -612,12 +708,12 @@ def run_identify_many(args: argparse.Namespace) -> int:
             r["identification_nrmse"],
         )
     )
-    print(
+    show(
         f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
         + (f" (noise floor {floor:.4f})" if floor else "")
         + ", best first:"
     )
-    print(
+    show(
         _table(
             [
                 (
@@ -644,7 +740,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
-    print(f"side by side: pmalab report {args.out} --out laws.pdf")
+    show(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
 
 

@@ -395,6 +395,14 @@ class LawEntry(TypedDict):
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
     per_run_after: NotRequired[list[float | None]]
+    #: the pressure structure the law's elements took (``free`` | ``scaled`` |
+    #: ``scaled-thresholds``), chosen by leave-one-pressure-out held-out error; absent for
+    #: a law without structures
+    structure: NotRequired[str | None]
+    #: how much higher (%) the runner-up structure's held-out error was
+    structure_margin_percent: NotRequired[float | None]
+    #: structure → its leave-one-pressure-out held-out nrmse
+    structure_heldout_nrmse: NotRequired[dict[str, float | None]]
 
 
 class NoiseFloor(TypedDict):

@@ -171,6 +171,19 @@ class Block:
         return cls(a([t]), a([position]), a([force]), a([muscle_pressure]), a([cylinder_pressure]))
 
 
+#: the largest magnitude a rig file's ``[limits]`` may give: a McKibben muscle is rated
+#: 0.6 MPa and proportional regulators 0.9 MPa (1.2 MPa is beyond any such rig), a DMSP
+#: muscle pulls at most ~1.5 kN (20 kN is a load cell's range, never a muscle's), and a
+#: muscle of a few hundred mm contracts by a quarter of its length (500 mm)
+PHYSICAL_LIMITS = {
+    "max_muscle_pressure_MPa": 1.2,
+    "max_cylinder_pressure_MPa": 1.2,
+    "max_force_N": 20e3,
+    "min_position_mm": 500.0,
+    "max_position_mm": 500.0,
+}
+
+
 @dataclass
 class Limits:
     """Safety limits enforced by the runner on every sample (from the rig file)."""
@@ -200,6 +213,13 @@ class Limits:
         for key in ("max_muscle_pressure_MPa", "max_cylinder_pressure_MPa", "max_force_N"):
             if values[key] <= 0:
                 raise ConfigError(f"{where}: limits.{key}: must be > 0")
+        for key, hi in PHYSICAL_LIMITS.items():
+            v = values[key]
+            if abs(v) > hi:
+                raise ConfigError(
+                    f"{where}: limits.{key} = {v:g}: beyond what any PMA rig reaches "
+                    f"(|value| ≤ {hi:g}); a unit mistake?"
+                )
         return Limits(**values)
 
 
@@ -244,6 +264,8 @@ class VentResult:
 VENT_ACTIONS: dict[str, str] = {
     "cylinder regulator": "close the cylinder's supply valve and exhaust the cylinder by hand",
     "muscle regulator": "close the muscle's supply valve and exhaust the muscle by hand",
+    "flexor regulator": "close the flexor's supply valve and exhaust it by hand",
+    "extensor regulator": "close the extensor's supply valve and exhaust it by hand",
 }
 MANUAL_ACTION = "turn it to 0 MPa and exhaust the muscle"
 
@@ -264,10 +286,12 @@ class VentReport:
 
     cylinder: VentResult
     muscle: VentResult
+    #: how the two regulators are named (a pair of muscles: each muscle's regulator)
+    roles: tuple[str, str] = ("cylinder regulator", "muscle regulator")
 
     @property
     def items(self) -> tuple[tuple[str, VentResult], ...]:
-        return (("cylinder regulator", self.cylinder), ("muscle regulator", self.muscle))
+        return ((self.roles[0], self.cylinder), (self.roles[1], self.muscle))
 
     @property
     def failed(self) -> list[str]:
@@ -285,7 +309,9 @@ class VentReport:
         def pick(a: VentResult, b: VentResult) -> VentResult:
             return a if a.ok and not b.ok else b
 
-        return VentReport(pick(self.cylinder, later.cylinder), pick(self.muscle, later.muscle))
+        return VentReport(
+            pick(self.cylinder, later.cylinder), pick(self.muscle, later.muscle), self.roles
+        )
 
     def line(self) -> str:
         """Every regulator's outcome, ``; ``-separated (one line)."""

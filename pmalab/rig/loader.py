@@ -29,7 +29,7 @@ from typing import Any
 
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
-from pmalab.paths import RIGS_DIR, shipped
+from pmalab.paths import RIGS_DIR, shipped, shipped_names
 from pmalab.registry import Registry
 from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig, make_t7_stream_rig
@@ -79,6 +79,73 @@ def _make_sim(
     return make_sim_rig(truth_path, seed=seed, clock=clock, manual_muscle_regulator=manual)
 
 
+def _truth_path(
+    section: dict[str, Any], key: str, rig_file: Path | None, where: str
+) -> Path | None:
+    """A ``[rig]`` truth-file field as a path (relative to the rig file), checked."""
+    truth = section.get(key)
+    if truth is None:
+        return None
+    if not isinstance(truth, str) or not truth:
+        raise ConfigError(f"{where}: rig.{key}: must be a path (text)")
+    path = Path(truth)
+    if not path.is_absolute() and rig_file is not None:
+        path = rig_file.parent / path
+    if not path.exists():
+        raise ConfigError(f"{where}: rig.{key}: file not found: {path}")
+    return path
+
+
+def _make_sim_pair(
+    section: dict[str, Any],
+    rig_file: Path | None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
+) -> Rig:
+    """The simulated antagonistic joint: ``flexor_truth``/``extensor_truth`` (truth files),
+    ``seed`` and any :class:`~pmalab.rig.sim.pair.PairSpec` field (radius_mm,
+    inertia_kg_m2, damping_N_m_s_per_rad, spring_N_m_per_rad, ...)."""
+    from dataclasses import fields
+
+    from pmalab.errors import RigError
+    from pmalab.rig.sim.pair import PairSpec, make_sim_pair
+
+    where = str(rig_file) if rig_file is not None else "sim-pair"
+    spec_keys = {f.name for f in fields(PairSpec)}
+    allowed = {"flexor_truth", "extensor_truth", "seed", *spec_keys}
+    check_keys(
+        section,
+        allowed,
+        "{where}: rig.{key}: unknown key for kind 'sim-pair' (known: {known})",
+        known=["kind", *sorted(allowed)],
+        where=where,
+    )
+    values = {}
+    for k in spec_keys & set(section):
+        v = section[k]
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise ConfigError(f"{where}: rig.{k}: must be a number")
+        values[k] = float(v)
+    try:
+        spec = PairSpec(**values).checked()
+    except RigError as exc:
+        raise ConfigError(f"{where}: rig.{str(exc).removeprefix('pair: ')}") from None
+    if "seed" in section:
+        s = section["seed"]
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
+        if seed is None:
+            seed = s
+    return make_sim_pair(
+        _truth_path(section, "flexor_truth", rig_file, where),
+        _truth_path(section, "extensor_truth", rig_file, where),
+        spec=spec,
+        seed=0 if seed is None else seed,
+        clock=clock,
+    )
+
+
 #: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
 #: every rig-file ``kind`` → its factory; a backend is one file plus one line here
 RIG_KINDS: Registry[RigFactory] = Registry("rig kind", ConfigError)
@@ -91,6 +158,12 @@ RIG_KINDS.register(
 )
 RIG_KINDS.register(
     "nidaqmx", make_nidaq_rig, order=3, title="an NI DAQ card under NI-DAQmx (hardware-timed)"
+)
+RIG_KINDS.register(
+    "sim-pair",
+    _make_sim_pair,
+    order=1.5,
+    title="a simulated antagonistic joint: two muscles on a pulley, each on its own regulator",
 )
 RIG_KINDS.register(
     "labjack-t7-stream",
@@ -132,7 +205,10 @@ def load_rig(
         return rig
     path = shipped(spec, RIGS_DIR)  # a shipped rig's name or clone path works anywhere
     where = str(spec)
-    doc, text = load_toml(path, "rig file", hint=" (use 'sim' or a rig TOML file)")
+    names = ", ".join(dict.fromkeys(["sim", *shipped_names(RIGS_DIR)]))
+    doc, text = load_toml(
+        path, "rig file", hint=f" (give a rig TOML file or a shipped rig: {names})"
+    )
     check_keys(
         doc, ("rig", "limits"), "{where}: {key}: unknown section (known: rig, limits)", where=where
     )

@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -317,6 +317,41 @@ def _ranking_json(
     return out
 
 
+#: what each pressure structure of an element law says about the muscle
+STRUCTURE_WORDS = {
+    "free": "every element parameter its own pressure law",
+    "scaled": "one element profile whose magnitude scales with pressure",
+    "scaled-thresholds": "one element profile whose magnitude and slip displacements "
+    "scale with pressure",
+}
+
+
+def _structure_keys(js: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The ``laws[i]`` keys naming the law's pressure structure (empty without one)."""
+    if not js:
+        return {}
+    return {
+        "structure": js.get("chosen"),
+        "structure_margin_percent": js.get("margin_percent"),
+        "structure_heldout_nrmse": {
+            c["structure"]: c.get("heldout_nrmse") for c in js.get("candidates", [])
+        },
+    }
+
+
+def structure_phrase(row: Mapping[str, Any]) -> str:
+    """`` with <the structure in words> (chosen by … by N %)`` for a laws row, or ``""``."""
+    st = row.get("structure")
+    if not st:
+        return ""
+    m = row.get("structure_margin_percent")
+    by = f", {m:.0f} % ahead" if isinstance(m, float) and m == m else ""
+    return (
+        f" with {STRUCTURE_WORDS.get(st, st)} ('{st}', chosen by leave-one-pressure-out "
+        f"held-out error{by})"
+    )
+
+
 def _summary(
     model: str,
     ladder: list[dict],
@@ -376,8 +411,10 @@ def _summary(
     if switch is not None:
         prev = ladder[switch["step"] - 1]
         fall = 100.0 * (1.0 - switch["nrmse"] / prev["nrmse"]) if prev["nrmse"] > 0 else 0.0
+        lw_row = next((lw for lw in laws if lw["law"] == switch["switched_law"]), {})
         parts.append(
-            f"The loop's shape is the {switch['switched_law']} law's: try `--model "
+            f"The loop's shape is the {switch['switched_law']} law's"
+            f"{structure_phrase(lw_row)}: try `--model "
             f"{switch['switched_law']}`: {prev['nrmse']:.4f} → {switch['nrmse']:.4f} "
             f"(−{fall:.0f} %)."
         )
@@ -386,7 +423,8 @@ def _summary(
         if better:
             b = better[0]
             parts.append(
-                f"Also significant: try `--model {b['law']}`: {b['nrmse_before']:.4f} → "
+                f"Also significant: the {b['law']} law{structure_phrase(b)}: try "
+                f"`--model {b['law']}`: {b['nrmse_before']:.4f} → "
                 f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %)."
             )
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
@@ -548,6 +586,9 @@ def diagnose(
             "runs_improved": float(c.runs_improved),
             "significant": bool(c.significant),
             "per_run_after": [float(v) for v in c.after.nrmse],
+            # how the law's elements change with pressure, chosen by the identification's
+            # own leave-one-pressure-out evidence (None: the law offers no structures)
+            **_structure_keys(c.after.structure),
         }
         for c in (rounds[0].laws if rounds else [])
     ]

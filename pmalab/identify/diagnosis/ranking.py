@@ -95,6 +95,9 @@ class Scored:
     #: physical sign, is not counted), and the number of identification runs
     at_bounds: dict[str, int] = field(default_factory=dict, repr=False)
     n_runs: int = 0
+    #: the pressure structure the law's elements took in this identification
+    #: (``identification.json`` ``pressure_structure``; None: the law offers none)
+    structure: dict[str, Any] | None = field(default=None, repr=False)
 
     @property
     def mean(self) -> float:
@@ -135,6 +138,7 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         names,
         hits,
         len(cf.runs),
+        None if getattr(cf, "structure", None) is None else dict(cf.structure.as_json()),
     )
 
 

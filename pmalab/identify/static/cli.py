@@ -94,9 +94,12 @@ def _parse_fixed(items: Sequence[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
 
 
@@ -117,7 +120,7 @@ def _print(doc: dict[str, Any], fit: Any) -> None:
     for n, p in sm["parameters"].items():
         print(f"  {n:<16} {_fmt(p['value'], p['stderr']):>22} {p['unit']:<10} {p['doc']}")
     for n, p in sm["derived"].items():
-        print(f"  {n:<16} {p['value']:>22.5g} {p['unit']:<10} {p['doc']}")
+        print(f"  {n:<24} {p['value']:>14.5g} {p['unit']:<10} {p['doc']}")
     h = doc["hysteresis"]
     if h:
         for n, p in h["parameters"].items():
@@ -143,3 +146,48 @@ def _print(doc: dict[str, Any], fit: Any) -> None:
         )
     for m in fit.messages:
         print(f"warning: {m}", file=sys.stderr)
+
+
+def run_static_diagnose(
+    args: Any, runs: Sequence[Run], val: Sequence[Run], out: Path, laws: list[str] | None
+) -> int:
+    """``pmalab diagnose`` on static test types: the laws ranked against the map alone on
+    held-out runs (:mod:`pmalab.identify.static.diagnose`); writes ``OUT/diagnosis.json``."""
+    from pmalab.identify.schema import check_diagnosis
+    from pmalab.identify.static.diagnose import diagnose_static
+    from pmalab.identify.static.maps import Geometry, get_static_map
+    from pmalab.paths import check_output, write_together
+
+    geometry = Geometry(
+        length_mm=check_geometry(args.length, "--length"),
+        diameter_mm=check_geometry(args.diameter, "--diameter"),
+    )
+    smap = get_static_map(args.static or "linear", geometry)
+    try:
+        doc = diagnose_static(smap, runs, val, laws=laws, drive=args.drive)
+    except ValueError as exc:
+        raise PmalabError(f"diagnose: {exc}") from None
+    check_diagnosis(doc, "diagnosis.json")
+    jpath = check_output(out / "diagnosis.json", args.force)
+    out.mkdir(parents=True, exist_ok=True)
+    write_together(
+        {jpath: lambda p: p.write_text(json.dumps(doc, indent=1, allow_nan=False) + "\n")}
+    )
+    floor = doc["noise_floor"]["mean_nrmse"]
+    print(f"Held out ({doc['settings']['validation']}): {', '.join(doc['settings']['held_out'])}")
+    print(
+        f"Laws on the {doc['drive']} against the static map {smap.name} alone "
+        f"(held-out nrmse; noise floor {floor:.4f}):"
+    )
+    print(f"  {'static map alone':<22} {doc['ladder'][0]['nrmse']:.4f}")
+    for r in doc["laws"]:
+        if r.get("status") == "failed":
+            print(f"  {r['law']:<22} failed: {r['reason']}")
+            continue
+        print(
+            f"  {r['law']:<22} {r['nrmse_after']:.4f}  ({r['nrmse_after'] / floor:.2f}× floor, "
+            f"−{r['fall_percent']:.0f} %){'  significant' if r['significant'] else ''}"
+        )
+    print(doc["summary"])
+    print(f"wrote {jpath}")
+    return 0

@@ -21,6 +21,12 @@ errors come from the Jacobian at the optimum, scaled by the residual variance an
 residual's autocorrelation (an effective sample count, as a white-noise formula would
 understate them on a smooth misfit).
 
+A run that holds one drive (the contraction of an isometric run beside isobaric ones) keeps
+that law at its start state: a constant of the run, as free as the force offset.  Such a
+mixed campaign fits each run well, but the offset and those constants trade against each
+other, so a prediction of a free run (both laws saturating) can carry that trade; free runs
+in the identification pin it.
+
 A held-out run (``--validate``) is predicted with every muscle parameter held and only its
 start state h0 refitted — the same initial-state policy as the isobaric validation — so a
 model identified on isometric runs can be scored on isobaric ones (the map meets x that
@@ -319,14 +325,19 @@ def fit_static(
                 f"--fix {n}: not a parameter of {model.name} (parameters: {', '.join(model.names)})"
             )
     recs = [prepare(r) for r in runs]
-    if model.law is not None and model.drive in ("position", "both"):
-        for rec in recs:
-            if float(np.ptp(rec.x)) < 0.05:
-                raise PmalabError(
-                    f"{rec.label}: --drive {model.drive}: the contraction is held "
-                    f"({rec.run.test_type} test), so a law on the contraction has no stroke "
-                    "to fit; use --drive pressure"
-                )
+    # a law needs its drive to move in some run (runs of other test types may hold it: an
+    # isometric run beside isobaric ones keeps the contraction law at its start state)
+    for inp in model.inputs:
+        if all(
+            float(np.ptp(r.x if inp == "x" else r.p)) < (0.05 if inp == "x" else 0.01) for r in recs
+        ):
+            what = "contraction" if inp == "x" else "pressure"
+            other = "pressure" if inp == "x" else "position"
+            raise PmalabError(
+                f"--drive {model.drive}: the {what} is held in every run "
+                f"({', '.join(sorted({r.run.test_type for r in recs}))}), so a law on the "
+                f"{what} has nothing to fit; use --drive {other}"
+            )
     # ---- stage 1: the static map alone (closed-form start, then least squares)
     xs = np.concatenate([r.x[:: r.stride] for r in recs])
     ps = np.concatenate([r.p[:: r.stride] for r in recs])
