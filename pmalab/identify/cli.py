@@ -174,6 +174,14 @@ def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
         "(one law on each, free runs)",
     )
     p.add_argument(
+        "--loop-scale",
+        choices=("none", "pressure"),
+        default="none",
+        help="with --static: 'pressure' scales the pressure law's loop by p/p_max (friction "
+        "proportional to the contact pressure, Tondu-Lopez: the loop pinches at p = 0); "
+        "default none (one width at every pressure)",
+    )
+    p.add_argument(
         "--length",
         type=float,
         metavar="MM",
