@@ -12,12 +12,14 @@ contraction; ``--negate position`` flips a DAQ that records elongation.
 
 from __future__ import annotations
 
+import contextlib
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named, read_head
-from pmalab.errors import RunFileError
+from pmalab.errors import RunFileError, RunFileWarning
 from pmalab.runfile import Run
 
 
@@ -29,11 +31,46 @@ def _open(path: Path):
         raise RunFileError(
             f"{path}: not a TDMS file (no 'TDSm' lead-in; a .tdms_index file or another format?)"
         )
+    with _nptdms_messages() as said:
+        try:
+            f = TdmsFile.read(str(path))
+        except Exception as exc:  # npTDMS raises ValueError/KeyError/struct.error on damage
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise RunFileError(f"{path}: not a readable TDMS file ({first[:120]})") from None
+    if said:
+        # npTDMS read past damage (a file cut mid-segment): say so in one line, as ours
+        warnings.warn(
+            RunFileWarning(f"{path}: damaged or cut TDMS file: {said[0]}; check the samples read"),
+            stacklevel=2,
+        )
+    return f
+
+
+@contextlib.contextmanager
+def _nptdms_messages():
+    """Collect npTDMS's own log lines (it prints them to stderr itself) instead of letting
+    them reach the terminal: the caller reports them in one line."""
+    import logging
+
+    from nptdms.log import log_manager
+
+    said: list[str] = []
+
+    class Grab(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            said.append(record.getMessage())
+
+    grab = Grab(logging.WARNING)
+    loggers = list(log_manager.loggers.values())
+    for lg in loggers:
+        lg.removeHandler(log_manager.console_handler)
+        lg.addHandler(grab)
     try:
-        return TdmsFile.read(str(path))
-    except Exception as exc:  # npTDMS raises ValueError/KeyError/struct.error on damage
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RunFileError(f"{path}: not a readable TDMS file ({first[:120]})") from None
+        yield said
+    finally:
+        for lg in loggers:
+            lg.removeHandler(grab)
+            lg.addHandler(log_manager.console_handler)
 
 
 def _values(path: Path, group: str, name: str, channel) -> np.ndarray:
