@@ -13,13 +13,12 @@ contraction; ``--negate position`` flips a DAQ that records elongation.
 from __future__ import annotations
 
 import contextlib
-import warnings
 from pathlib import Path
 
 import numpy as np
 
 from pmalab.acquisition.csv_import import CsvImportOptions, finish_run, match_named, read_head
-from pmalab.errors import RunFileError, RunFileWarning
+from pmalab.errors import RunFileError
 from pmalab.runfile import Run
 
 
@@ -38,10 +37,10 @@ def _open(path: Path):
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise RunFileError(f"{path}: not a readable TDMS file ({first[:120]})") from None
     if said:
-        # npTDMS read past damage (a file cut mid-segment): say so in one line, as ours
-        warnings.warn(
-            RunFileWarning(f"{path}: damaged or cut TDMS file: {said[0]}; check the samples read"),
-            stacklevel=2,
+        # npTDMS read past damage (a file cut mid-segment) and would guess the rest
+        raise RunFileError(
+            f"{path}: a cut or damaged TDMS file ({said[0][:100]}): not imported; its writer "
+            "stopped mid-segment or the copy is incomplete"
         )
     return f
 
