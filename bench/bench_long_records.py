@@ -63,13 +63,17 @@ def record(d: Path, hours: float, rate_Hz: float) -> tuple[Path, float, float]:
     """The record (reused when present in a kept directory), wall s and peak MiB (nan: reused)."""
     tag = f"{hours:g}h-{rate_Hz:g}Hz"
     out = d / f"fatigue-{tag}.h5"
-    if out.exists():
-        return out, float("nan"), float("nan")
+    facts = d / f"fatigue-{tag}.json"  # the recording's own wall time and peak memory
+    if out.exists() and facts.exists():
+        m = json.loads(facts.read_text())
+        return out, float(m["wall_s"]), float(m["peak_MiB"])
     proto = d / f"fatigue-{tag}.toml"
     proto.write_text(protocol(hours, rate_Hz))
     wall, rss, _ = timed(
-        pmalab("run", "--rig", str(RIG), "--protocol", str(proto), "--out", str(out), "--quiet")
+        pmalab("run", "--rig", str(RIG), "--protocol", str(proto), "--out", str(out), "--quiet",
+               "--force")
     )
+    facts.write_text(json.dumps({"wall_s": wall, "peak_MiB": rss}))
     return out, wall, rss
 
 

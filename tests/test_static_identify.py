@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pmalab.cli import main as pmalab_main
+from pmalab.errors import PmalabError
 from pmalab.identify.schema import check_identification
 from pmalab.identify.static import Geometry, StaticModel, fit_static, get_static_map
 from pmalab.rig.sim.static_stand import isometric_campaign, load_static_truth, run_test
@@ -281,3 +282,28 @@ def test_a_static_identification_is_refused_by_simulate_with_one_line(tmp_path, 
     )
     assert code != 0 and "static characterization" in err and "Traceback" not in err
     assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_law_on_a_drive_no_run_moves_is_refused(truth):
+    runs = isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0)
+    m = StaticModel(get_static_map("linear"), "duhem", "position")
+    with pytest.raises(PmalabError, match=r"contraction is held in every run.*--drive pressure"):
+        fit_static(m, runs)
+
+
+def test_a_loop_proportional_to_pressure_needs_the_pressure_scale():
+    """Friction ∝ contact pressure (the loop pinches at p = 0): a constant-width law stays
+    ~3× the noise floor; --loop-scale pressure reaches it and recovers the width."""
+    truth = load_static_truth("geometric-scaled")
+    runs = isometric_campaign(truth, HELD, seed=1, period_s=6.0)
+    geo = Geometry(length_mm=200.0)
+    flat = fit_static(StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure"), runs)
+    m = StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure", "pressure")
+    fit = fit_static(m, runs)
+    assert all(rf.nrmse > 2.0 * rf.noise_floor_nrmse for rf in flat.runs)
+    assert all(rf.nrmse < 1.2 * rf.noise_floor_nrmse for rf in fit.runs)
+    ref = truth.pressure_friction_reference_MPa
+    assert m.p_ref is not None
+    width_at_ref = fit.hysteresis_widths()["p"] * ref / m.p_ref
+    assert width_at_ref == pytest.approx(truth.pressure_friction_N, rel=0.10)
+    assert fit.theta["theta0_deg"] == pytest.approx(truth.braid_angle_deg, rel=0.03)

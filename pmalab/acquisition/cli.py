@@ -32,11 +32,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "power cut pmalab still reads the file, but h5dump/HDFView open it only "
         "after 'pmalab recover FILE' (or 'h5clear -s FILE').",
     )
-    p.add_argument("--rig", required=True, help="'sim' or a rig TOML file")
+    p.add_argument(
+        "--rig", required=True, help="'sim', a rig TOML file or a shipped rig's name: {rigs}"
+    )
     p.add_argument(
         "--protocol",
         required=True,
-        help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)",
+        help="protocol TOML file, or the name of a shipped one: {protocols}",
     )
     p.add_argument("--out", required=True, help="output HDF5 run file")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")

@@ -79,7 +79,7 @@ from typing import Any
 
 from pmalab.config import check_keys, parse_toml, read_text
 from pmalab.errors import ConfigError
-from pmalab.paths import PROTOCOLS_DIR, shipped
+from pmalab.paths import PROTOCOLS_DIR, shipped, shipped_hint
 
 WAVEFORMS = ("sine", "triangle", "square")
 ROLES = ("identification", "validation", "other")
@@ -224,7 +224,7 @@ def resolve_protocol_path(spec: str | Path) -> Path:
     p = shipped(spec, PROTOCOLS_DIR)
     if p.exists():
         return p
-    raise ConfigError(f"{spec}: no such protocol file")
+    raise ConfigError(f"{spec}: no such protocol file{shipped_hint(PROTOCOLS_DIR, 'protocols')}")
 
 
 def load_protocol(path: str | Path) -> Protocol:

@@ -32,12 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "pressures and gains, and print step/tracking metrics.",
     )
     # no argparse choices: the registry (pmalab.control.pid.CONTROLLERS) is the list, and
-    # importing it here would load numpy at every start-up; an unknown id is one line
+    # importing it here would load numpy at every start-up; an unknown id is one line, and
+    # the help names the registered ids when it is printed ({controllers})
     p.add_argument(
         "--controller",
         metavar="ID",
-        help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
-        "built-ins; any registered controller's id)",
+        help="the controller, both loops use it: {controllers}",
     )
     p.add_argument(
         "--reference",

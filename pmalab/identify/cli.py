@@ -11,7 +11,15 @@ import math
 import os
 import sys
 
-from pmalab.console import VERBOSE, add_verbosity, note, show_progress, verbosity, warning
+from pmalab.console import (
+    VERBOSE,
+    add_verbosity,
+    note,
+    show_progress,
+    table_printer,
+    verbosity,
+    warning,
+)
 from pmalab.errors import PmalabError
 
 
@@ -39,9 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _register_identify(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "identify",
-        help="fit Bouc-Wen or Duhem models per run, pressure quadratics, validation",
+        help="fit hysteresis models ({laws}) per run, pressure laws, validation",
         description=(
-            "Identify F = k·x + c0 + h (Bouc-Wen or Duhem h) on every run of the given files, "
+            "Identify F = k·x + c0 + h (h: one of the laws {laws}) on every run of the given files, "
             "fit each parameter as a quadratic in muscle pressure, and validate the "
             "pressure-quadratic model on held-out runs (runs with role 'validation' in the "
             "inputs, and every run of --validate files).  Writes OUT/identification.json "
@@ -59,8 +67,8 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
-        help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
-        "any law file in identify/laws/); several, comma-separated, identify each "
+        help="hysteresis law: {laws} (or any law file in identify/laws/); several, "
+        "comma-separated, identify each "
         "into OUT/LAW/ and print one table ranking them",
     )
     p.add_argument(
@@ -68,7 +76,7 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="EFFECT",
-        help="add an effect by id (repeatable), e.g. viscous-friction",
+        help="add an effect by id (repeatable): {effects}",
     )
     p.add_argument(
         "--effects",
@@ -164,6 +172,14 @@ def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
         help="with --static: what drives the law — the pressure (inflation vs deflation; "
         "default for isometric/isotonic runs), the contraction (isobaric runs) or both "
         "(one law on each, free runs)",
+    )
+    p.add_argument(
+        "--loop-scale",
+        choices=("none", "pressure"),
+        default="none",
+        help="with --static: 'pressure' scales the pressure law's loop by p/p_max (friction "
+        "proportional to the contact pressure, Tondu-Lopez: the loop pinches at p = 0); "
+        "default none (one width at every pressure)",
     )
     p.add_argument(
         "--length",
@@ -319,12 +335,13 @@ def run_identify(args: argparse.Namespace) -> int:
     jpath, hpath = res.save(out, force=args.force)
 
     level = verbosity(args)
+    show = table_printer(args)
     w = max(
         [len(rf.label) for rf in res.campaign.runs]
         + [len(v.run.label) for v in res.validation]
         + [10]
     )
-    print(
+    show(
         f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
         f"{len(res.validation)} validation run(s)"
     )
@@ -332,13 +349,13 @@ def run_identify(args: argparse.Namespace) -> int:
     for i, rf in enumerate(res.campaign.runs):
         r = rf.result
         if oe is not None:
-            print(
+            show(
                 f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
                 f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
                 f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)"
             )
             continue
-        print(
+        show(
             f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
             f"rmse {r.rmse:7.3g} N"
         )
@@ -346,28 +363,28 @@ def run_identify(args: argparse.Namespace) -> int:
         m = v.metrics
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
         if getattr(v, "diverged", False):
-            print(head + f"prediction DIVERGED ({v.message})")
+            show(head + f"prediction DIVERGED ({v.message})")
             continue
         if "rmse_position_m" in m:
-            print(
+            show(
                 head + f"position rmse {m['rmse_position_m']:9.3g} m  "
                 f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %"
             )
             continue
-        print(
+        show(
             head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
     st = getattr(res.campaign, "structure", None)
     if st is not None:
-        print(f"  {structure_line(st)}")
+        show(f"  {structure_line(st)}")
     if res.campaign.output != "position":
         from pmalab.identify.outputs import validation_headline
 
         line = validation_headline(res.validation)
         if line:
-            print(line)
+            show(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -410,7 +427,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         "--model",
         required=True,
         metavar="LAW",
-        help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)",
+        help="hysteresis law: {laws} (or any law file in identify/laws/)",
     )
     p.add_argument(
         "--validate",
@@ -433,7 +450,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=None,
         metavar="EFFECT",
-        help="rank only these effect ids (repeatable; default: all)",
+        help="rank only these effect ids (repeatable; default: all of {effects})",
     )
     p.add_argument(
         "--max-steps",
@@ -519,21 +536,22 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
-    print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
-    print(
+    show = table_printer(args)
+    show(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
+    show(
         f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
         f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):"
     )
-    print(d.ranking_table())
+    show(d.ranking_table())
     if d.ambiguous:
-        print(
+        show(
             f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: {d.suggested_experiment}"
         )
-    print("\nLadder (the error falling step by step):")
-    print(d.ladder_table())
+    show("\nLadder (the error falling step by step):")
+    show(d.ladder_table())
     if d.laws:
-        print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
-        print(
+        show("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
+        show(
             _table(
                 [
                     (
@@ -574,11 +592,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
             "--out DIR",
         ]
     )
-    print(f"\nSame numbers from identification: {hint}")
-    print(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
+    show(f"\nSame numbers from identification: {hint}")
+    show(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
     for key in worst_runs(d.diagnostics, 3):
-        print(f"  {key}: {d.diagnostics[key]['worst_region']}")
-    print(f"\n{d.summary}")
+        show(f"  {key}: {d.diagnostics[key]['worst_region']}")
+    show()
+    print(d.summary)
     if args.plot:
         d.plot(check_output(args.plot, args.force))
     print(f"wrote {jpath} and {hpath}")
@@ -686,6 +705,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
             }
         )
     floor = float(np.mean(floors)) if floors else None
+    show = table_printer(args)
     for r in rows:
         v = r["validation_nrmse"]
         r["x_floor"] = (v / floor) if (v is not None and floor) else None
@@ -696,12 +716,12 @@ def run_identify_many(args: argparse.Namespace) -> int:
             r["identification_nrmse"],
         )
     )
-    print(
+    show(
         f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
         + (f" (noise floor {floor:.4f})" if floor else "")
         + ", best first:"
     )
-    print(
+    show(
         _table(
             [
                 (
@@ -728,7 +748,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
-    print(f"side by side: pmalab report {args.out} --out laws.pdf")
+    show(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
 
 

@@ -119,7 +119,7 @@ def decimate(w: RunWindows, block: int = BLOCK) -> Run:
     return Run(name=w.name, attrs=attrs, file=str(w.path), **out)
 
 
-def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
+def fit_part(run: Run, cycles: int | None = None) -> Run:
     """What a fit of the whole run uses: a long record (one read decimated) of more than
     ``cycles`` excitation cycles is fitted on its first ``cycles`` whole cycles — the muscle
     as the test began; how it changes after is its parameter trajectory
@@ -128,6 +128,7 @@ def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
     shows (on a 10-hour fatigue record it is not even near the start or the end), and its
     free-run fit costs gigabytes.  Other runs are returned as they are.  The part's attrs
     say what it is (``fit_part``)."""
+    cycles = FIT_CYCLES if cycles is None else int(cycles)
     dec = run.attrs.get("decimation")
     f = run.frequency
     if not dec or int(dec.get("stride", 1)) <= 1 or not f or len(run) < 2:
@@ -150,7 +151,9 @@ def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
     return part
 
 
-def long_runs(min_samples: int = LONG_RUN_SAMPLES) -> LongRuns:
+def long_runs(min_samples: int | None = None) -> LongRuns:
     """What analysis passes to :func:`~pmalab.runfile.read_runs`: runs of at least
-    ``min_samples`` samples are read decimated (:func:`decimate`)."""
-    return LongRuns(min_samples=min_samples, read=decimate)
+    ``min_samples`` samples (default :data:`LONG_RUN_SAMPLES`) are read decimated
+    (:func:`decimate`)."""
+    n = LONG_RUN_SAMPLES if min_samples is None else int(min_samples)
+    return LongRuns(min_samples=n, read=decimate)

@@ -24,7 +24,7 @@ from typing import Any
 
 from pmalab.config import load_toml, unknown_keys
 from pmalab.errors import ConfigError
-from pmalab.paths import TRUTH_DIR, shipped
+from pmalab.paths import TRUTH_DIR, shipped, shipped_hint
 
 DEFAULT_TRUTH = TRUTH_DIR / "default.toml"
 
@@ -403,7 +403,7 @@ def load_truth(path: str | Path | None = None) -> Truth:
     """
     p = DEFAULT_TRUTH if path is None else shipped(path, TRUTH_DIR)
     source = str(path) if path is not None else str(p)
-    doc, _ = load_toml(p, "truth file", where=source)
+    doc, _ = load_toml(p, "truth file", where=source, hint=shipped_hint(TRUTH_DIR, "truths"))
     return validate(doc, source)
 
 
