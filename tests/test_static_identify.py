@@ -307,3 +307,15 @@ def test_a_loop_proportional_to_pressure_needs_the_pressure_scale():
     width_at_ref = fit.hysteresis_widths()["p"] * ref / m.p_ref
     assert width_at_ref == pytest.approx(truth.pressure_friction_N, rel=0.10)
     assert fit.theta["theta0_deg"] == pytest.approx(truth.braid_angle_deg, rel=0.03)
+
+
+def test_options_outside_the_static_characterization_are_refused(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0))
+    base = ["identify", str(tmp_path / "iso.h5"), "--out", str(tmp_path / "o")]
+    for extra, word in (
+        (["--model", "duhem", "--add", "viscous-friction"], "--add"),
+        (["--model", "duhem,bouc-wen", "--static", "linear"], "diagnose --static"),
+    ):
+        code, _, err = _cli([*base, *extra])
+        assert code != 0 and word in err and "Traceback" not in err
+        assert not (tmp_path / "o").exists()
