@@ -43,6 +43,7 @@ import numpy as np
 
 from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
 from pmalab.errors import ConfigError, RunFileError, RunFileWarning
+from pmalab.health import check_health
 
 if TYPE_CHECKING:  # the windowed reader sits above this module
     from pmalab.runwindows import LongRuns
@@ -550,6 +551,7 @@ def read_runs(
                 out.append(run)
                 continue
             chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
+            check_health(str(path), name, chans)
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:

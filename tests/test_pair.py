@@ -171,3 +171,18 @@ def test_control_cli_runs_the_joint_and_records_it(tmp_path, capsys):
     assert main(["control", "--controller", "pid", "--reference", "square:0.1Hz:20deg",
                  "--duration", "5", "--out", str(tmp_path / "x.h5")]) != 0
     assert "needs a pair rig" in capsys.readouterr().err
+
+
+def test_the_report_draws_both_muscles(pair_file, tmp_path):
+    from pmalab.reports.build import build_report
+    from pmalab.reports.pair import is_pair_file, load_pair_file, loops_figure
+
+    out, _ = pair_file
+    assert is_pair_file(out)
+    pf = load_pair_file(out)
+    fig = loops_figure(pf)
+    axes = fig.axes
+    assert [len(ax.lines) for ax in axes] == [2, 2]  # each muscle: its two held runs
+    assert axes[0].get_title().startswith("flexor") and axes[1].get_title().startswith("extensor")
+    pdf = build_report([out], tmp_path / "pair.pdf", png_dir=tmp_path / "png")
+    assert pdf.stat().st_size > 0 and len(list((tmp_path / "png").glob("*.png"))) == 5

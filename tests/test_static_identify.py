@@ -118,9 +118,9 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
 def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
-        run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
-            f"f{x:g}"
-        )
+        run_test(
+            truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, period_s=10.0, x_period_s=2.5
+        ).to_run(f"f{x:g}")
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
     others = [
@@ -289,3 +289,33 @@ def test_a_law_on_a_drive_no_run_moves_is_refused(truth):
     m = StaticModel(get_static_map("linear"), "duhem", "position")
     with pytest.raises(PmalabError, match=r"contraction is held in every run.*--drive pressure"):
         fit_static(m, runs)
+
+
+def test_a_loop_proportional_to_pressure_needs_the_pressure_scale():
+    """Friction ∝ contact pressure (the loop pinches at p = 0): a constant-width law stays
+    ~3× the noise floor; --loop-scale pressure reaches it and recovers the width."""
+    truth = load_static_truth("geometric-scaled")
+    runs = isometric_campaign(truth, HELD, seed=1, period_s=6.0)
+    geo = Geometry(length_mm=200.0)
+    flat = fit_static(StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure"), runs)
+    m = StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure", "pressure")
+    fit = fit_static(m, runs)
+    assert all(rf.nrmse > 2.0 * rf.noise_floor_nrmse for rf in flat.runs)
+    assert all(rf.nrmse < 1.2 * rf.noise_floor_nrmse for rf in fit.runs)
+    ref = truth.pressure_friction_reference_MPa
+    assert m.p_ref is not None
+    width_at_ref = fit.hysteresis_widths()["p"] * ref / m.p_ref
+    assert width_at_ref == pytest.approx(truth.pressure_friction_N, rel=0.10)
+    assert fit.theta["theta0_deg"] == pytest.approx(truth.braid_angle_deg, rel=0.03)
+
+
+def test_options_outside_the_static_characterization_are_refused(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0))
+    base = ["identify", str(tmp_path / "iso.h5"), "--out", str(tmp_path / "o")]
+    for extra, word in (
+        (["--model", "duhem", "--add", "viscous-friction"], "--add"),
+        (["--model", "duhem,bouc-wen", "--static", "linear"], "diagnose --static"),
+    ):
+        code, _, err = _cli([*base, *extra])
+        assert code != 0 and word in err and "Traceback" not in err
+        assert not (tmp_path / "o").exists()

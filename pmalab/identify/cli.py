@@ -174,6 +174,14 @@ def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
         "(one law on each, free runs)",
     )
     p.add_argument(
+        "--loop-scale",
+        choices=("none", "pressure"),
+        default="none",
+        help="with --static: 'pressure' scales the pressure law's loop by p/p_max (friction "
+        "proportional to the contact pressure, Tondu-Lopez: the loop pinches at p = 0); "
+        "default none (one width at every pressure)",
+    )
+    p.add_argument(
         "--length",
         type=float,
         metavar="MM",
@@ -282,6 +290,11 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--effects {f}: no such file")
     if args.muscle == "all":
         return _identify_each_muscle(args)
+    if "," in args.model and args.static:
+        raise PmalabError(
+            f"--model {args.model}: with --static give one law (or none); "
+            "`pmalab diagnose --static` ranks the laws"
+        )
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written

@@ -119,7 +119,7 @@ def decimate(w: RunWindows, block: int = BLOCK) -> Run:
     return Run(name=w.name, attrs=attrs, file=str(w.path), **out)
 
 
-def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
+def fit_part(run: Run, cycles: int | None = None) -> Run:
     """What a fit of the whole run uses: a long record (one read decimated) of more than
     ``cycles`` excitation cycles is fitted on its first ``cycles`` whole cycles — the muscle
     as the test began; how it changes after is its parameter trajectory
@@ -128,21 +128,26 @@ def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
     shows (on a 10-hour fatigue record it is not even near the start or the end), and its
     free-run fit costs gigabytes.  Other runs are returned as they are.  The part's attrs
     say what it is (``fit_part``)."""
+    cycles = FIT_CYCLES if cycles is None else int(cycles)
     dec = run.attrs.get("decimation")
     f = run.frequency
     if not dec or int(dec.get("stride", 1)) <= 1 or not f or len(run) < 2:
         return run
     t0 = float(run.time[0])
+    # the first full-amplitude cycles: from the recorded steady window's start, unless the
+    # run was already cut to it (Run.steady leaves "window_s"), so identify (which cuts
+    # first) and diagnose (which cuts after) fit and hold out the same samples
+    s0 = 0.0 if "window_s" in run.attrs else float(run.attrs.get("steady_start_s") or 0.0)
     span = cycles / f
-    if float(run.time[-1]) - t0 <= span:
+    if float(run.time[-1]) - t0 - s0 <= span:
         return run
-    part = run.window(0.0, span - 0.5 * float(np.median(np.diff(run.time[:4096]))))
+    part = run.window(s0, s0 + span - 0.5 * float(np.median(np.diff(run.time[:4096]))))
     part.attrs.pop("window_s", None)
-    total = (float(run.time[-1]) - t0) * f
+    total = (float(run.time[-1]) - t0 - s0) * f
     part.attrs["fit_part"] = {
         "cycles": cycles,
         "of_cycles": round(total, 1),
-        "time_s": [0.0, span],
+        "time_s": [s0, s0 + span],
         "note": "the run-level fit uses the first cycles; the trajectory covers the record",
     }
     for key in ("steady_start_s", "steady_end_s"):
@@ -150,7 +155,9 @@ def fit_part(run: Run, cycles: int = FIT_CYCLES) -> Run:
     return part
 
 
-def long_runs(min_samples: int = LONG_RUN_SAMPLES) -> LongRuns:
+def long_runs(min_samples: int | None = None) -> LongRuns:
     """What analysis passes to :func:`~pmalab.runfile.read_runs`: runs of at least
-    ``min_samples`` samples are read decimated (:func:`decimate`)."""
-    return LongRuns(min_samples=min_samples, read=decimate)
+    ``min_samples`` samples (default :data:`LONG_RUN_SAMPLES`) are read decimated
+    (:func:`decimate`)."""
+    n = LONG_RUN_SAMPLES if min_samples is None else int(min_samples)
+    return LongRuns(min_samples=n, read=decimate)

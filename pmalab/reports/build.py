@@ -756,6 +756,18 @@ def build_report(
         return build_static_report(
             statics[0], out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
         )
+    from pmalab.reports.pair import build_pair_report, is_pair_file
+
+    pairs = [p for p in inputs if is_pair_file(p)]
+    if pairs:
+        if len(pairs) != len(inputs):
+            raise ReportError(
+                f"{inputs[0] if inputs[0] not in pairs else inputs[-1]}: give antagonistic-"
+                "pair run files without other inputs"
+            )
+        return build_pair_report(
+            pairs, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+        )
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
         if len(controls) != len(inputs):
