@@ -105,6 +105,7 @@ def _blocks(text: str, lang: str) -> list[str]:
     return re.findall(rf"```{lang}\n(.*?)```", text, flags=re.S)
 
 
+@pytest.mark.timeout(900)  # a minute or two idle; several on a loaded machine
 @pytest.mark.parametrize("page", ["campaign", "import", "control", "bouc-wen-benchmark"])
 def test_tutorial_commands_run(page, tmp_path):
     text = (ROOT / "docs" / "tutorials" / f"{page}.md").read_text()
