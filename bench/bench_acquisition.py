@@ -21,6 +21,7 @@ from pmalab.acquisition.protocol import load_protocol, parse_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
 from pmalab.rig.base import RealClock
 from pmalab.rig.loader import load_rig
+from pmalab.runfile import decode_attr
 
 
 def _campaign(name: str, out: Path) -> list[object]:
@@ -67,7 +68,7 @@ def _realtime(seconds: float, out: Path) -> list[object]:
     import h5py
 
     with h5py.File(out, "r") as f:
-        print(f"   real-time scheduling: {f.attrs.get('scheduling', '?')}")
+        print(f"   real-time scheduling: {decode_attr(f.attrs.get('scheduling', '?'))}")
     t = res.timing
     return ["sim rig, real time (RealClock)", round(res.duration_s, 1), round(wall, 2),
             f"{res.duration_s / wall:.2f}×", res.n_samples, int(t["late"]), int(t["missed"]),

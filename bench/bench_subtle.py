@@ -50,7 +50,7 @@ CASES = [
     Case("sensor-delay", ("sensor-delay",)),
     Case("inertia", ("inertia",)),
     Case("sensor-drift", ("sensor-drift",)),  # tared at each run's start
-    Case("sensor-drift-carried", ("sensor-drift",)),
+    Case("sensor-drift-carried", ("sensor-drift",)),  # a between-run offset only: not claimed
     Case("two-effects", ("viscous-friction", "asymmetric-hysteresis")),
     # each alone ≈ 1 floor: base ≈ 4.7× (errors add in quadrature), all three ≈ 1.4×
     Case("three-modest-effects", ("asymmetric-hysteresis", "nonlinear-stiffness", "sensor-delay")),

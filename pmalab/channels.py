@@ -156,6 +156,8 @@ class Channels(tuple[Channel, ...]):
     def from_attr(cls, text: Any, where: str = "") -> Channels:
         """Parse a run file's ``channels`` attr; one-line :class:`ConfigError` on bad text."""
         try:
+            if isinstance(text, bytes):  # stored as fixed-length UTF-8 text
+                text = text.decode("utf-8")
             doc = json.loads(text) if isinstance(text, str) else text
             return cls(
                 Channel(str(d["name"]), str(d["kind"]), str(d["unit"]), str(d.get("muscle", "")))

@@ -10,7 +10,11 @@ import argparse
 import importlib
 import os
 import sys
+import textwrap
 import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 from pmalab import __version__
 from pmalab.errors import PmalabError, RunFileWarning
@@ -19,7 +23,7 @@ from pmalab.paths import missing_roots, remove_empty_dirs
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
 #: ``func(args) -> int`` as the parser default.
 VERB_MODULES = (
-    "pmalab.acquisition.cli",  # run, import, recover, view
+    "pmalab.acquisition.cli",  # run, import, recover, check, view
     "pmalab.rig.cli",  # emulate
     "pmalab.identify.cli",  # identify, diagnose
     "pmalab.active.cli",  # diagnose --rig RIG --run-suggested (after identify.cli)
@@ -29,10 +33,95 @@ VERB_MODULES = (
 )
 
 
+def _registered(module: str, registry: str, folder: str, key: str) -> list[str]:
+    """The ids in ``module.registry`` when that module is loaded already (a user's law or
+    effect registered at run time included), else the ids its source files declare
+    (:func:`pmalab.registry.declared_ids`: help stays free of the numerical libraries)."""
+    if module in sys.modules:
+        return list(getattr(sys.modules[module], registry))
+    from pmalab.registry import declared_ids
+
+    return declared_ids(Path(__file__).parent.joinpath(*folder.split("/")), key)
+
+
+def _laws() -> list[str]:
+    return _registered("pmalab.identify.laws", "LAWS", "identify/laws", "name")
+
+
+def _effects() -> list[str]:
+    return _registered("pmalab.identify.effects", "EFFECTS", "identify/effects", "id")
+
+
+def _controllers() -> list[str]:
+    return _registered("pmalab.control.controllers", "CONTROLLERS", "control", "name")
+
+
+def _rigs() -> list[str]:
+    from pmalab.paths import RIGS_DIR, shipped_names
+
+    return shipped_names(RIGS_DIR)
+
+
+def _protocols() -> list[str]:
+    from pmalab.paths import PROTOCOLS_DIR, shipped_names
+
+    return shipped_names(PROTOCOLS_DIR)
+
+
+#: placeholders a help text may hold, each filled from its registry (or the shipped files)
+#: when help is printed, so the help names what exists; a parser builds without importing
+#: the registries (``pmalab identify`` starts fast)
+REGISTRY_PLACEHOLDERS: dict[str, Callable[[], list[str]]] = {
+    "{laws}": _laws,
+    "{effects}": _effects,
+    "{controllers}": _controllers,
+    "{protocols}": _protocols,
+    "{rigs}": _rigs,
+}
+
+
+def fill_registries(text: str) -> str:
+    """``text`` with each registry placeholder (``{laws}``, ...) replaced by the ids
+    registered now, comma-separated; other braces are left alone."""
+    for key, ids in REGISTRY_PLACEHOLDERS.items():
+        if key in text:
+            text = text.replace(key, ", ".join(ids()))
+    return text
+
+
+class RegistryHelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, filling the registry placeholders of help texts and
+    descriptions (:func:`fill_registries`) when help is printed."""
+
+    def _expand_help(self, action: argparse.Action) -> str:
+        return fill_registries(super()._expand_help(action))
+
+    def _format_text(self, text: str) -> str:
+        return super()._format_text(fill_registries(text))
+
+    # ids such as prandtl-ishlinskii are wrapped whole, never split at their hyphens
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        return textwrap.fill(
+            " ".join(text.split()),
+            width,
+            initial_indent=indent,
+            subsequent_indent=indent,
+            break_on_hyphens=False,
+        )
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse's parser, but a mistake on the command line is one line (the quality bar:
     one line naming the option), with a pointer to ``--help`` instead of the usage block.
-    Sub-command parsers inherit the class."""
+    Sub-command parsers inherit the class, and help texts name the registered laws,
+    effects, ... (:class:`RegistryHelpFormatter`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", RegistryHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

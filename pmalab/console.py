@@ -2,15 +2,16 @@
 
 Results go to stdout; progress bars, ``note:`` lines (information) and ``warning:`` lines
 (something the user should look at) go to stderr, so a piped stdout stays clean.  Every
-verb that does long work takes ``-q/--quiet`` (warnings and errors only, no progress) and
-``-v/--verbose`` (also the per-run details); a progress bar is drawn only when stderr is
-a terminal.
+verb that does long work takes ``-q/--quiet`` (no tables, notes or progress: the one line
+that names the outputs, and warnings and errors) and ``-v/--verbose`` (also the per-run
+details); a progress bar is drawn only when stderr is a terminal.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 
 QUIET, NORMAL, VERBOSE = 0, 1, 2
 
@@ -22,7 +23,9 @@ def add_verbosity(p: argparse.ArgumentParser, *, quiet_help: str = "") -> None:
         "-q",
         "--quiet",
         action="store_true",
-        help=quiet_help or "print results and warnings only (no progress, no notes)",
+        help=quiet_help
+        or "print only the line naming the outputs, warnings and errors (no tables, no notes, "
+        "no progress)",
     )
     g.add_argument(
         "-v", "--verbose", action="store_true", help="also print per-run notes and details"
@@ -36,6 +39,18 @@ def verbosity(args: argparse.Namespace) -> int:
     if getattr(args, "verbose", False):
         return VERBOSE
     return NORMAL
+
+
+def table_printer(args: argparse.Namespace) -> Callable[..., None]:
+    """``print`` for a verb's tables and per-run lines: silent under ``-q`` (the line that
+    names the outputs, warnings and errors are printed with ``print`` as always)."""
+    if verbosity(args) <= QUIET:
+        return _silent
+    return print
+
+
+def _silent(*_args: object, **_kwargs: object) -> None:
+    """``print``'s signature, printing nothing."""
 
 
 def show_progress(args: argparse.Namespace) -> bool:

@@ -24,6 +24,7 @@ import shutil
 import time
 from pathlib import Path
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.console import add_verbosity
 from pmalab.errors import OutputError, OutputExistsError, PmalabError
 from pmalab.paths import PROTOCOLS_DIR, RIGS_DIR, TRUTH_DIR
@@ -75,7 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the effect switched on in the simulated muscle (default: "
         "asymmetric-hysteresis, which the Bouc-Wen seed paper reports missing)",
     )
-    p.add_argument("--seed", type=int, default=7, help="random seed of the simulated rig")
+    p.add_argument("--seed", type=seed_arg, default=7, help="random seed of the simulated rig")
     add_verbosity(p, quiet_help="pass -q to every step: results and warnings only")
     p.set_defaults(func=run_demo)
 

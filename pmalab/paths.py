@@ -47,6 +47,22 @@ def shipped(spec: str | Path, folder: Path, suffix: str = ".toml") -> Path:
     return p
 
 
+def shipped_names(folder: Path, suffix: str = ".toml") -> list[str]:
+    """The names a user can give for the files shipped in ``folder`` (``seed-bouc-wen``,
+    ``subtle/clean``: the path inside ``folder`` without ``suffix``), sorted."""
+    if not folder.is_dir():
+        return []
+    return sorted(
+        p.relative_to(folder).with_suffix("").as_posix() for p in folder.rglob(f"*{suffix}")
+    )
+
+
+def shipped_hint(folder: Path, what: str, suffix: str = ".toml") -> str:
+    """`` (shipped WHAT: a, b, c)`` for an error about a name that matched nothing."""
+    names = shipped_names(folder, suffix)
+    return f" (shipped {what}: {', '.join(names)})" if names else ""
+
+
 def check_output(path: str | Path, force: bool) -> Path:
     """Refuse to overwrite ``path`` unless ``force``; return it as a Path.
 

@@ -11,8 +11,10 @@ a new law, effect, controller or rig kind is tested the moment its file exists.
 
 from __future__ import annotations
 
+import ast
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Generic, TypeVar
 
 from pmalab.errors import PmalabError
@@ -89,3 +91,32 @@ class Registry(Mapping[str, T]):
 
     def __repr__(self) -> str:
         return f"Registry({self.kind}: {', '.join(self)})"
+
+
+def declared_ids(folder: Path, key: str = "name") -> list[str]:
+    """The ids the classes in ``folder``'s modules declare (``key = "..."`` beside an
+    ``order = N`` in a class body), in their declared order — what the registry filled from
+    those modules will hold, read from the source without importing it, so a help text
+    can name them without loading the numerical libraries the modules need."""
+    found: list[tuple[float, str]] = []
+    for path in sorted(folder.glob("*.py")):
+        try:
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+        except (OSError, SyntaxError, UnicodeDecodeError):
+            continue
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            values: dict[str, object] = {}
+            for st in node.body:
+                if (
+                    isinstance(st, ast.Assign)
+                    and len(st.targets) == 1
+                    and isinstance(st.targets[0], ast.Name)
+                    and isinstance(st.value, ast.Constant)
+                ):
+                    values[st.targets[0].id] = st.value.value
+            ident, order = values.get(key), values.get("order")
+            if isinstance(ident, str) and isinstance(order, int | float):
+                found.append((float(order), ident))
+    return list(dict.fromkeys(i for _, i in sorted(found)))

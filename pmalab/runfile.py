@@ -43,6 +43,7 @@ import numpy as np
 
 from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
 from pmalab.errors import ConfigError, RunFileError, RunFileWarning
+from pmalab.health import check_health
 
 if TYPE_CHECKING:  # the windowed reader sits above this module
     from pmalab.runwindows import LongRuns
@@ -52,6 +53,14 @@ FORMAT = "pmalab.run"
 FORMAT_VERSION = 2
 #: versions read (1: the single-muscle channels, undeclared)
 READABLE_VERSIONS = (1, 2)
+
+#: every sample dataset pmalab writes carries HDF5's Fletcher32 checksum per chunk: a bit
+#: flipped or a block zeroed on disk fails the read (one line naming file, run and
+#: dataset) instead of reading as plausible samples.  Files written without it still read.
+CHECKSUM: dict[str, Any] = {"fletcher32": True}
+#: samples per chunk of a dataset written whole (a checksum covers one chunk: 4096 float64
+#: samples are 32 KiB, 8 s at 500 Hz)
+WRITE_CHUNK = 4096
 
 REQUIRED_CHANNELS = ("time", "position", "force", "muscle_pressure")
 OPTIONAL_CHANNELS = ("cylinder_pressure", "cylinder_pressure_command", "branch")
@@ -453,6 +462,7 @@ def read_runs(
                 f"unsupported format_version {ver!r} (this pmalab reads "
                 f"{', '.join(map(str, READABLE_VERSIONS))}: a newer pmalab wrote it?)",
             )
+        check_attrs_digest(path, None, f)
         if "runs" not in f:
             raise _fail(path, None, None, "no '/runs' group")
         runs_g = f["runs"]
@@ -492,9 +502,10 @@ def read_runs(
                     try:
                         values = ds[()]
                     except OSError as exc:
-                        raise _fail(path, name, src, f"unreadable ({_short(exc)})") from None
+                        raise _fail(path, name, src, damage_words(exc)) from None
                     raw[ch] = (values, decode_attr(ds.attrs.get("units")))
-            extra = _recording_state(g)
+            check_attrs_digest(path, name, g)
+            extra = _recording_state(g, path, name)
             if extra:
                 # written by the acquisition recorder: a run never started (or aborted
                 # before its first samples) holds nothing to read; a run cut by a crash
@@ -540,6 +551,7 @@ def read_runs(
                 out.append(run)
                 continue
             chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
+            check_health(str(path), name, chans)
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
@@ -561,8 +573,10 @@ def read_runs(
                 + ")"
                 + (f"; {recover_hint(path)}" if killed else ""),
             )
-    except (OSError, KeyError) as exc:
-        raise _fail(path, None, None, f"damaged file ({_short(exc)})") from None
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError, UnicodeError) as exc:
+        # HDF5 meets damaged metadata (a header, B-tree or heap whose checksum fails) as an
+        # exception of whichever kind the call raises: one line, never a traceback
+        raise _fail(path, None, None, f"damaged file ({_short(exc)}); {CHECK_HINT}") from None
     finally:
         f.close()
     for name, status in skipped:
@@ -722,15 +736,103 @@ def _text_hint(path: Path) -> str:
     return f"; it is text: a CSV export? convert it with 'pmalab import {path} --out RUN.h5'"
 
 
-def _recording_state(g: Any) -> dict[str, Any]:
-    """``status`` and ``timing`` of a run made by the acquisition recorder (else {})."""
+#: what tells a user which parts of a damaged file are intact
+CHECK_HINT = "'pmalab check FILE' reports what is intact"
+#: the run attr holding the SHA-256 of the run's other attrs (:func:`attrs_digest`)
+DIGEST_ATTR = "attrs_sha256"
+#: the statuses the recorder writes (``aborted: …``, ``not run: …`` carry a reason)
+_STATUSES = ("pending", "running", "completed")
+_STATUS_PREFIXES = ("aborted: ", "not run: ")
+
+
+def damage_words(exc: BaseException) -> str:
+    """An HDF5 read error of a dataset as words: a failed Fletcher32 checksum (a flipped
+    bit, a zeroed block) says the stored samples are damaged."""
+    text = _short(exc)
+    if "filter returned failure" in text or "checksum" in text.lower():
+        return f"stored samples damaged (checksum failed: {text}); {CHECK_HINT}"
+    return f"unreadable ({text}); {CHECK_HINT}"
+
+
+def attrs_digest(obj: Any) -> str:
+    """SHA-256 (hex) of the attributes of a run group and of every dataset in it (a file's
+    root: its own attributes only), as stored, except :data:`DIGEST_ATTR` itself.
+
+    HDF5 checksums object headers but not the heaps where text attributes and a group's
+    many attributes live, so a damaged byte there could change a nominal pressure, a
+    frequency or a channel's units silently; writers store this digest once the
+    attributes are final and readers compare it."""
+    items = [(str(k), repr(decode_attr(v))) for k, v in obj.attrs.items() if k != DIGEST_ATTR]
+    if getattr(obj, "name", "/") != "/":
+
+        def visit(name: str, child: Any) -> None:
+            items.extend((f"{name}/{k}", repr(decode_attr(v))) for k, v in child.attrs.items())
+
+        obj.visititems(visit)
+    return hashlib.sha256(repr(sorted(items)).encode("utf-8")).hexdigest()
+
+
+def seal_attrs(obj: Any) -> None:
+    """Make the attributes of ``obj`` (a run group and everything in it, or a file's root)
+    tamper-evident once they are final: text stored as fixed-length UTF-8 (inside the
+    checksummed object headers, not in HDF5's global heap, which has no checksum and whose
+    damage can even hang the library), then :func:`attrs_digest` stored beside them."""
+    _fixed_text(obj)
+    if getattr(obj, "name", "/") != "/":
+        obj.visititems(lambda _name, child: _fixed_text(child))
+    obj.attrs[DIGEST_ATTR] = attrs_digest(obj)
+
+
+def _fixed_text(obj: Any) -> None:
+    """Rewrite ``obj``'s variable-length text attributes as fixed-length UTF-8 bytes (read
+    back through :func:`decode_attr` as the same text)."""
+    for k in list(obj.attrs.keys()):
+        v = obj.attrs[k]
+        if isinstance(v, str):
+            obj.attrs[k] = np.bytes_(v.encode("utf-8"))
+
+
+def check_attrs_digest(path: Path | str, run: str | None, obj: Any) -> None:
+    """Refuse a group whose attributes no longer match their digest (files without a
+    digest, written before it existed, are read as they are)."""
+    want = obj.attrs.get(DIGEST_ATTR)
+    if want is None:
+        return
+    if decode_attr(want) != attrs_digest(obj):
+        raise _fail(
+            path,
+            run,
+            None,
+            "attributes changed since written (their checksum does not match: damaged, or "
+            f"edited by another tool; after a deliberate edit delete the '{DIGEST_ATTR}' "
+            f"attribute); {CHECK_HINT}",
+        )
+
+
+def _recording_state(
+    g: Any, path: Path | str | None = None, run: str | None = None
+) -> dict[str, Any]:
+    """``status`` and ``timing`` of a run made by the acquisition recorder (else {}).
+
+    With ``path`` (the reader): a status the recorder never writes (a damaged byte) is
+    refused rather than read as some state."""
     out: dict[str, Any] = {}
     if "status" in g:
-        out["status"] = decode_attr(g["status"][()]).rstrip("\x00 ")
+        raw_status = g["status"][()]
+        out["status"] = decode_attr(raw_status).rstrip("\x00 ")
+        st = out["status"]
+        if path is not None and not (st in _STATUSES or st.startswith(_STATUS_PREFIXES)):
+            raise _fail(
+                path, run, "status", f"damaged ({st[:40]!r} is no recorded status); {CHECK_HINT}"
+            )
     if "timing" in g:
         try:
             fields = json.loads(decode_attr(g["timing"].attrs.get("fields", "[]")))
             vals = [float(v) for v in g["timing"][()]]
+            if path is not None and vals and all(v == 0.0 for v in vals):
+                # written NaN, then real statistics (a start time > 0): all zeros is a block
+                # of zeros over the chunk and its checksum (Fletcher32 of zeros is zero)
+                raise _fail(path, run, "timing", f"damaged (all zeros); {CHECK_HINT}")
             out["timing"] = {k: v for k, v in zip(fields, vals) if v == v}
         except (ValueError, TypeError):
             pass
@@ -881,7 +983,8 @@ def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Pa
     path = check_output(path, force)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        f = h5py.File(path, "w")
+        # object headers version 2 (HDF5 1.10+): checksummed, so damaged metadata is refused
+        f = h5py.File(path, "w", libver=("v110", "latest"))
     except OSError as exc:
         if not path.is_dir():
             path.unlink(missing_ok=True)  # an empty file a full disk let h5py create
@@ -902,6 +1005,7 @@ def _write_groups(f: Any, runs: Sequence[Run]) -> None:
     """The contract's root attrs, one group per run and its channels (canonical units)."""
     f.attrs["format"] = FORMAT
     f.attrs["format_version"] = FORMAT_VERSION
+    seal_attrs(f)
     grp = f.create_group("runs")
     for run in runs:
         g = grp.create_group(run.name)
@@ -912,8 +1016,12 @@ def _write_groups(f: Any, runs: Sequence[Run]) -> None:
                 continue
             g.attrs[k] = v
         for ch, values in run.channels().items():
-            ds = g.create_dataset(ch, data=np.asarray(values, dtype=np.float64))
+            data = np.asarray(values, dtype=np.float64)
+            ds = g.create_dataset(
+                ch, data=data, chunks=(max(1, min(WRITE_CHUNK, data.shape[0])),), **CHECKSUM
+            )
             ds.attrs["units"] = CANONICAL_UNITS[ch]
         declare_channels(
             g, Channels(c for c in (*STANDARD_CHANNELS, BRANCH_CHANNEL) if c.name in g)
         )
+        seal_attrs(g)

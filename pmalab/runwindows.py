@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import RunFileError
-from pmalab.runfile import Run, validate_channels
+from pmalab.runfile import Run, damage_words, validate_channels
 
 #: samples read to estimate the sample interval of a run without a nominal rate
 _RATE_PROBE = 4096
@@ -86,7 +86,15 @@ class RunWindows:
 
         A fault names the file, run and channel and where the window starts."""
         start, stop = max(0, int(start)), min(self.n, int(stop))
-        raw = {ch: (ds[start:stop], units) for ch, (ds, units) in self.datasets.items()}
+        raw = {}
+        for ch, (ds, units) in self.datasets.items():
+            try:
+                raw[ch] = (ds[start:stop], units)
+            except (OSError, RuntimeError) as exc:  # a chunk failing its checksum, say
+                raise RunFileError(
+                    f"{self.path}: run '{self.name}': channel '{ch}': {damage_words(exc)} "
+                    f"(in the window of samples {start}–{stop - 1})"
+                ) from None
         try:
             return validate_channels(
                 self.path, self.name, raw, exempt_last=self.exempt_last and stop == self.n

@@ -40,7 +40,7 @@ def test_a_round_is_appended_in_place_without_copying_the_campaign(tmp_path):
     assert _offsets(camp, ["a", "b"]) == before  # its own runs' data untouched
     with h5py.File(camp, "r") as f:
         assert STAGING not in f
-        assert f["runs/c"].attrs["appended_from"] == "r.h5"
+        assert f["runs/c"].attrs["appended_from"] == b"r.h5"  # fixed-length UTF-8 text
     got = {r.name: r for r in read_runs(camp)}
     assert sorted(got) == ["a", "a-2", "b", "c"]
     src = {r.name: r for r in read_runs(rnd)}

@@ -11,7 +11,7 @@ import pytest
 from pmalab.cli import main
 from pmalab.control.experiments import SEED_EXPERIMENTS, load_experiments
 from pmalab.errors import ConfigError
-from pmalab.runfile import read_runs
+from pmalab.runfile import decode_attr, read_runs
 
 
 def test_one_run_writes_a_contract_run_file_with_units_gains_and_metrics(tmp_path, capsys):
@@ -25,15 +25,17 @@ def test_one_run_writes_a_contract_run_file_with_units_gains_and_metrics(tmp_pat
     assert run.attrs["status"] == "completed"
     with h5py.File(out) as f:
         g = f["runs/sn-pid"]
-        units = {k: g[k].attrs["units"] for k in ("time", "position", "position_reference",
+        # text attrs are fixed-length UTF-8 (inside checksummed headers): decode_attr reads them
+        units = {k: decode_attr(g[k].attrs["units"]) for k in ("time", "position", "position_reference",
                                                    "muscle_pressure", "muscle_pressure_command")}
         assert units == {"time": "s", "position": "mm", "position_reference": "mm",
                          "muscle_pressure": "MPa", "muscle_pressure_command": "MPa"}
         assert set(g["gains"]) == {"outer_kp", "outer_ki", "outer_kd", "inner_kp", "inner_ki",
                                    "inner_kd"}
-        assert g["gains/outer_kp"].attrs["units"] == "N/mm"
-        assert g.attrs["controller"] == "sn-pid" and g.attrs["loop"] == "position"
-        settings = json.loads(g.attrs["settings"])
+        assert decode_attr(g["gains/outer_kp"].attrs["units"]) == "N/mm"
+        assert decode_attr(g.attrs["controller"]) == "sn-pid"
+        assert decode_attr(g.attrs["loop"]) == "position"
+        settings = json.loads(decode_attr(g.attrs["settings"]))
         assert g["status"][()].rstrip(b"\x00") == b"completed"
     metrics = run.attrs["metrics"]  # the run's summary (written at its end), as attrs
     assert run.attrs["vent_confirmed"] is True and run.attrs["n_samples"] == 1001
@@ -49,8 +51,8 @@ def test_pressure_loop_records_its_reference(tmp_path):
                  "--duration", "1", "--out", str(out)]) == 0
     with h5py.File(out) as f:
         g = f["runs/pid"]
-        assert g.attrs["loop"] == "pressure"
-        assert g["muscle_pressure_reference"].attrs["units"] == "MPa"
+        assert decode_attr(g.attrs["loop"]) == "pressure"
+        assert decode_attr(g["muscle_pressure_reference"].attrs["units"]) == "MPa"
         assert float(np.max(g["muscle_pressure_reference"])) == pytest.approx(0.4)
 
 

@@ -48,7 +48,7 @@ def test_identify_writes_the_contract(files, capsys) -> None:
     d, ident, val = files
     out = d / "out"
     rc = main(["identify", str(ident), "--model", "duhem", "--validate", str(val), "--out",
-               str(out), "--jobs", "1", "--quiet"])
+               str(out), "--jobs", "1"])
     assert rc == 0
     stdout = capsys.readouterr().out
     assert stdout.count("identify ") == 3 and stdout.count("validate ") == 2

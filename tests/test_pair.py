@@ -124,3 +124,65 @@ def test_a_new_channel_kind_is_the_rig_declaration_only(tmp_path, monkeypatch):
     (first,) = read_runs(out, ["first"])  # the single-muscle view is unchanged
     assert len(first) == len(d["temperature"][0]) and first.nominal_pressure == 0.4
     assert rig.cylinder_regulator.calls[-1][1] == "vent"
+
+
+@pytest.mark.parametrize(("controller", "p0"), [("pid", 0.2), ("rbf-pid", 0.35)])
+def test_joint_square_at_a_cocontraction_level(controller, p0):
+    """The seeds' controllers on the joint angle: a 20° square step up and down within
+    overshoot ≤ 5 % and settling ≤ 2 s (the bench holds all three at two levels)."""
+    from pmalab.control.joint import StaticPair, default_joint_settings, run_joint
+    from pmalab.control.model import IdentifiedModel
+    from pmalab.control.reference import parse_reference
+
+    rig = load_rig("data/rigs/sim-pair.toml")
+    model = IdentifiedModel.load(None)
+    g = rig.geometry
+    with rig:
+        run = run_joint(rig, controller, parse_reference("square:0.1Hz:20deg"), 10.0,
+                        default_joint_settings(p0),
+                        StaticPair(model, model, g.mount_contraction_mm, g.radius_mm))
+    assert run.completed and run.vent_confirmed
+    m = run.metrics
+    assert len(m["steps"]) == 2  # the step up at 0 s and down at 5 s
+    assert m["overshoot_pct"] <= 5.0 and m["settling_time_s"] <= 2.0, m
+    # co-contraction: both muscles stay pressurised around p0 while the joint turns
+    sig = run.signals
+    late = sig["time"] > 3.0
+    mean = 0.5 * (sig["muscle_pressure_command_flexor"] + sig["muscle_pressure_command_extensor"])
+    assert np.allclose(mean[late], p0, atol=0.02)
+
+
+def test_control_cli_runs_the_joint_and_records_it(tmp_path, capsys):
+    from pmalab.cli import main
+    from pmalab.runfile import read_run_datasets
+
+    out = tmp_path / "joint.h5"
+    rc = main(["control", "--rig", "data/rigs/sim-pair.toml", "--controller", "sn-pid",
+               "--reference", "square:0.2Hz:15deg", "--cocontraction", "0.3",
+               "--duration", "5", "--out", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "joint angle, co-contraction 0.3 MPa" in text and "extensor regulator vented" in text
+    d = read_run_datasets(out, "sn-pid")
+    assert d["angle"][1] == "deg" and d["angle_reference"][0].max() == 15.0
+    assert main(["control", "--rig", "data/rigs/sim-pair.toml", "--controller", "pid",
+                 "--reference", "square:0.2Hz:15deg", "--duration", "5", "--out", str(out)]) != 0
+    assert "exists" in capsys.readouterr().err  # never overwritten without --force
+    assert main(["control", "--controller", "pid", "--reference", "square:0.1Hz:20deg",
+                 "--duration", "5", "--out", str(tmp_path / "x.h5")]) != 0
+    assert "needs a pair rig" in capsys.readouterr().err
+
+
+def test_the_report_draws_both_muscles(pair_file, tmp_path):
+    from pmalab.reports.build import build_report
+    from pmalab.reports.pair import is_pair_file, load_pair_file, loops_figure
+
+    out, _ = pair_file
+    assert is_pair_file(out)
+    pf = load_pair_file(out)
+    fig = loops_figure(pf)
+    axes = fig.axes
+    assert [len(ax.lines) for ax in axes] == [2, 2]  # each muscle: its two held runs
+    assert axes[0].get_title().startswith("flexor") and axes[1].get_title().startswith("extensor")
+    pdf = build_report([out], tmp_path / "pair.pdf", png_dir=tmp_path / "png")
+    assert pdf.stat().st_size > 0 and len(list((tmp_path / "png").glob("*.png"))) == 5

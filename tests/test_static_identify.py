@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from pmalab.cli import main as pmalab_main
+from pmalab.errors import PmalabError
 from pmalab.identify.schema import check_identification
 from pmalab.identify.static import Geometry, StaticModel, fit_static, get_static_map
 from pmalab.rig.sim.static_stand import isometric_campaign, load_static_truth, run_test
@@ -114,7 +115,7 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
     assert th["diameter_mm"] == pytest.approx(truth.diameter_mm, rel=0.03)
 
 
-def test_free_runs_separate_the_pressure_and_the_contraction_loops():
+def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
         run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
@@ -122,11 +123,20 @@ def test_free_runs_separate_the_pressure_and_the_contraction_loops():
         )
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
+    others = [
+        run_test(truth, "isometric", held_mm=18.0, seed=50, period_s=6.0).to_run("iso18"),
+        run_test(truth, "isobaric", held_mm=15.0, pressure_MPa=0.4, seed=51).to_run("bar04"),
+        run_test(truth, "isotonic", load_N=150.0, p_min=0.15, seed=52, period_s=6.0).to_run("t150"),
+    ]
     m = StaticModel(get_static_map("chou-hannaford", Geometry(length_mm=200.0)), "duhem", "both")
-    fit = fit_static(m, runs)
+    fit = fit_static(m, runs, others)
     w = fit.hysteresis_widths()
     assert w["p"] == pytest.approx(truth.pressure_friction_N, rel=0.10)
     assert w["x"] == pytest.approx(truth.position_friction_N, rel=0.10)
+    # one model of the muscle predicts its isometric, isobaric and isotonic runs
+    assert [v.rec.run.test_type for v in fit.validation] == ["isometric", "isobaric", "isotonic"]
+    for v in fit.validation:
+        assert v.nrmse < 2.0 * v.noise_floor_nrmse, (v.rec.label, v.nrmse, v.noise_floor_nrmse)
 
 
 def test_identify_static_from_the_command_line(tmp_path, truth):
@@ -253,3 +263,59 @@ def test_diagnose_isometric_runs_ranks_the_pressure_laws_on_a_held_out_length(tm
     assert doc["ladder"][0]["nrmse"] > 3 * floor
     assert doc["laws"][0]["significant"] and doc["ladder"][1]["nrmse"] < 1.3 * floor
     assert doc["verdict"] == "floor"
+
+
+def test_a_static_identification_is_refused_by_simulate_with_one_line(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=3.0))
+    code, _, err = _cli(
+        ["identify", str(tmp_path / "iso.h5"), "--model", "none", "--out", str(tmp_path / "id")]
+    )
+    assert code == 0, err
+    code, _, err = _cli(
+        [
+            "simulate",
+            str(tmp_path / "id"),
+            str(tmp_path / "iso.h5"),
+            "--out",
+            str(tmp_path / "s.h5"),
+        ]
+    )
+    assert code != 0 and "static characterization" in err and "Traceback" not in err
+    assert not (tmp_path / "s.h5").exists()
+
+
+def test_a_law_on_a_drive_no_run_moves_is_refused(truth):
+    runs = isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0)
+    m = StaticModel(get_static_map("linear"), "duhem", "position")
+    with pytest.raises(PmalabError, match=r"contraction is held in every run.*--drive pressure"):
+        fit_static(m, runs)
+
+
+def test_a_loop_proportional_to_pressure_needs_the_pressure_scale():
+    """Friction ∝ contact pressure (the loop pinches at p = 0): a constant-width law stays
+    ~3× the noise floor; --loop-scale pressure reaches it and recovers the width."""
+    truth = load_static_truth("geometric-scaled")
+    runs = isometric_campaign(truth, HELD, seed=1, period_s=6.0)
+    geo = Geometry(length_mm=200.0)
+    flat = fit_static(StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure"), runs)
+    m = StaticModel(get_static_map("chou-hannaford", geo), "duhem", "pressure", "pressure")
+    fit = fit_static(m, runs)
+    assert all(rf.nrmse > 2.0 * rf.noise_floor_nrmse for rf in flat.runs)
+    assert all(rf.nrmse < 1.2 * rf.noise_floor_nrmse for rf in fit.runs)
+    ref = truth.pressure_friction_reference_MPa
+    assert m.p_ref is not None
+    width_at_ref = fit.hysteresis_widths()["p"] * ref / m.p_ref
+    assert width_at_ref == pytest.approx(truth.pressure_friction_N, rel=0.10)
+    assert fit.theta["theta0_deg"] == pytest.approx(truth.braid_angle_deg, rel=0.03)
+
+
+def test_options_outside_the_static_characterization_are_refused(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0))
+    base = ["identify", str(tmp_path / "iso.h5"), "--out", str(tmp_path / "o")]
+    for extra, word in (
+        (["--model", "duhem", "--add", "viscous-friction"], "--add"),
+        (["--model", "duhem,bouc-wen", "--static", "linear"], "diagnose --static"),
+    ):
+        code, _, err = _cli([*base, *extra])
+        assert code != 0 and word in err and "Traceback" not in err
+        assert not (tmp_path / "o").exists()

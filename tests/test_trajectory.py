@@ -83,3 +83,25 @@ def test_the_trend_line_weights_windows_by_their_errors():
     # without errors the scatter sets the line's error
     loose = trend(t, y, None)
     assert loose["per_hour_stderr"] > 10 * tr["per_hour_stderr"]
+
+
+def test_a_long_record_read_decimated_is_fitted_on_its_first_cycles(tmp_path, monkeypatch):
+    """The long-record path end to end, scaled down: a record above the (lowered) long-run
+    threshold is read decimated to 200 samples a cycle, its run-level fit uses its first
+    (here 12) cycles, its trajectory all of it, and identification.json says so."""
+    import pmalab.identify.long_records as lr
+
+    monkeypatch.setattr(lr, "LONG_RUN_SAMPLES", 20_000)
+    monkeypatch.setattr(lr, "FIT_CYCLES", 12)
+    f = _record(tmp_path, 48)
+    assert main(["identify", str(f), "--model", "bouc-wen", "--out", str(tmp_path / "id"),
+                 "--quiet"]) == 0
+    doc = json.loads((tmp_path / "id" / "identification.json").read_text())
+    (dec,) = doc["decimation"]
+    assert dec["read"]["stride"] == 5 and dec["read"]["samples_read"] > 48_000
+    assert dec["read"]["samples_per_cycle"] == pytest.approx(200, rel=0.01)
+    assert dec["fit_part"]["cycles"] == 12 and dec["samples"] == pytest.approx(12 * 200, abs=2)
+    (tr,) = doc["trajectory"]
+    assert len(tr["windows"]) == 12  # the whole record, not the fitted part
+    assert tr["trend"]["k"]["percent_per_hour"] == pytest.approx(DRIFT, rel=0.15)
+    assert doc["runs"][0]["fit_percent"] > 95

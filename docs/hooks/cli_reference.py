@@ -22,12 +22,14 @@ def _verbs() -> list[tuple[str, argparse.ArgumentParser]]:
 
 
 def render() -> str:
+    from pmalab.cli import fill_registries
+
     os.environ.setdefault("COLUMNS", "100")  # argparse wraps help at the terminal width
     out = ["Generated from the parsers at build time: what `pmalab VERB --help` prints.\n"]
     for name, p in _verbs():
         out.append(f"## `pmalab {name}`\n")
         if p.description:
-            out.append(p.description.strip() + "\n")
+            out.append(fill_registries(p.description.strip()) + "\n")
         help_text = p.format_help()
         out.append("```text\n" + help_text.rstrip() + "\n```\n")
     return "\n".join(out)

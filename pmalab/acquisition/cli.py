@@ -17,7 +17,8 @@ import signal
 import sys
 import time
 
-from pmalab.errors import ConfigError, PmalabError, SafetyAbort
+from pmalab.arguments import seed as seed_arg
+from pmalab.errors import ConfigError, PmalabError, RunFileError, SafetyAbort
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,17 +32,19 @@ def register(sub: argparse._SubParsersAction) -> None:
         "power cut pmalab still reads the file, but h5dump/HDFView open it only "
         "after 'pmalab recover FILE' (or 'h5clear -s FILE').",
     )
-    p.add_argument("--rig", required=True, help="'sim' or a rig TOML file")
+    p.add_argument(
+        "--rig", required=True, help="'sim', a rig TOML file or a shipped rig's name: {rigs}"
+    )
     p.add_argument(
         "--protocol",
         required=True,
-        help="protocol TOML file (or the name of a shipped one, e.g. seed-bouc-wen)",
+        help="protocol TOML file, or the name of a shipped one: {protocols}",
     )
     p.add_argument("--out", required=True, help="output HDF5 run file")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="sensor-noise seed of a simulated rig (default: the rig file's, else 0)",
     )
@@ -274,6 +277,17 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="overwrite --out if it exists; rewrite even a healthy file",
     )
     r.set_defaults(func=cmd_recover)
+
+    c = sub.add_parser(
+        "check",
+        help="report which runs and channels of a run file are intact",
+        description="Reads every chunk of every dataset against its checksum and every "
+        "run's attributes against their digest, then reads the file as identify does. "
+        "Prints what is intact and what is damaged (run, channel, samples); exit 0 when "
+        "everything is intact, 2 otherwise.",
+    )
+    c.add_argument("file", nargs="+", help="run files")
+    c.set_defaults(func=cmd_check)
 
 
 def load_rig_spec(
@@ -603,6 +617,20 @@ def cmd_recover(args: argparse.Namespace) -> int:
         f"{where}: closed; "
         + (f"marked aborted: {', '.join(fixed)}" if fixed else "no run was cut mid-recording")
     )
+    return 0
+
+
+def cmd_check(args: argparse.Namespace) -> int:
+    from pmalab.acquisition.check import report
+
+    bad = []
+    for path in args.file:
+        lines, ok = report(path)
+        print("\n".join(lines))
+        if not ok:
+            bad.append(path)
+    if bad:
+        raise RunFileError(f"{', '.join(bad)}: damaged or refused (see the report above)")
     return 0
 
 

@@ -49,7 +49,9 @@ from typing import cast
 
 import numpy as np
 
+from pmalab.acquisition.import_checks import check_import
 from pmalab.errors import OutputError, RunFileError
+from pmalab.health import check_health
 from pmalab.runfile import (
     CANONICAL_UNITS,
     PLAUSIBLE,
@@ -272,6 +274,30 @@ def _is_number(text: str) -> bool:
     return True
 
 
+def _check_last_row(path: Path, rows: list[tuple[int, str]], delimiter: str) -> None:
+    """Refuse a last row cut off mid-number: a file without a final line end whose last row
+    has fewer fields, or a field shorter than that field in every one of the rows before it
+    (``0.4012`` cut to ``0``, read as 0 MPa)."""
+    if len(rows) < 3:
+        return
+    last = _split(rows[-1][1], delimiter)
+    before = [_split(ln, delimiter) for _, ln in rows[-21:-1]]
+    width = max(len(f) for f in before)
+    if len(last) < width:
+        raise RunFileError(
+            f"{path}: line {rows[-1][0]}: the last row has {len(last)} of {width} fields and no "
+            "line end: the file was cut off (delete that line to import the rest)"
+        )
+    for k, cell in enumerate(last):
+        prev = [len(f[k]) for f in before if k < len(f)]
+        if prev and len(cell.strip()) < min(prev):
+            raise RunFileError(
+                f"{path}: line {rows[-1][0]}: the last row's field {k + 1} is {cell.strip()!r} "
+                f"where every row before has {min(prev)}+ characters, and the file has no line "
+                "end: it was cut off mid-number (delete that line to import the rest)"
+            )
+
+
 def _read_text(path: Path, opts: CsvImportOptions) -> str:
     try:
         data = path.read_bytes()
@@ -313,7 +339,13 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
             f"--pressure: must be a muscle pressure > 0 and ≤ "
             f"{PLAUSIBLE['muscle_pressure'].hi:g} MPa, got {opts.pressure_MPa:g}"
         )
-    lines = _read_text(path, opts).splitlines()
+    text = _read_text(path, opts)
+    if "\x00" in text:
+        raise RunFileError(
+            f"{path}: binary zeros at character {text.index(chr(0))}: a damaged text file "
+            "(a lost disk block?), not an export"
+        )
+    lines = text.splitlines()
     d = opts.delimiter
 
     # ---- the names row (after the metadata block) and the units row
@@ -357,15 +389,24 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
     ]
     if not data_rows:
         raise RunFileError(f"{path}: not a readable CSV file (no data rows after line {i})")
+    if text and not text.endswith(("\n", "\r")):
+        _check_last_row(path, data_rows, d)
 
     def find(ch: str, explicit: bool) -> int | None:
         name = opts.columns.get(ch, DEFAULT_COLUMNS[ch])
         for pool in (names, base_names):
-            if name in pool:
-                return pool.index(name)
             low = [c.lower() for c in pool]
-            if name.lower() in low:
-                return low.index(name.lower())
+            hits = [k for k, c in enumerate(pool) if c == name] or [
+                k for k, c in enumerate(low) if c == name.lower()
+            ]
+            if len(hits) > 1:
+                raise RunFileError(
+                    f"{path}: run '{run}': channel '{ch}': column '{name}' appears "
+                    f"{len(hits)} times (fields {', '.join(str(k + 1) for k in hits)}); "
+                    "rename one, or name the fields with --columns"
+                )
+            if hits:
+                return hits[0]
         if explicit:
             needed = [
                 opts.columns.get(c, DEFAULT_COLUMNS[c])
@@ -528,6 +569,15 @@ def finish_run(
         held_position = None
     raw, dropped = _duplicate_times(path, run, raw, opts.drop_duplicate_times)
     chans = validate_channels(path, run, raw, units_hint=_csv_units_hint)
+    check_import(
+        path,
+        run,
+        chans,
+        {c: str(normalize_unit(c, u) or u) for c, (_, u) in raw.items()},
+        held_position=held_position is not None,
+        pressure_given=opts.pressure_MPa is not None,
+    )
+    check_health(str(path), run, chans)
     nominal = (
         float(opts.pressure_MPa)
         if opts.pressure_MPa is not None

@@ -79,11 +79,16 @@ from typing import Any
 
 from pmalab.config import check_keys, parse_toml, read_text
 from pmalab.errors import ConfigError
-from pmalab.paths import PROTOCOLS_DIR, shipped
+from pmalab.paths import PROTOCOLS_DIR, shipped, shipped_hint
 
 WAVEFORMS = ("sine", "triangle", "square")
 ROLES = ("identification", "validation", "other")
 SAMPLE_RATE_HZ = 500.0
+#: the fastest rate a protocol may ask for (a hardware-timed card; a polled rig refuses more
+#: in its own file's check)
+MAX_SAMPLE_RATE_HZ = 100e3
+#: a gauge pressure beyond any PMA rig (muscles are rated 0.6 MPa, regulators 0.9 MPa)
+MAX_GAUGE_MPA = 1.2
 
 #: fields a run (or campaign, or [defaults]) may set, with their type and default
 _FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
@@ -219,7 +224,7 @@ def resolve_protocol_path(spec: str | Path) -> Path:
     p = shipped(spec, PROTOCOLS_DIR)
     if p.exists():
         return p
-    raise ConfigError(f"{spec}: no such protocol file")
+    raise ConfigError(f"{spec}: no such protocol file{shipped_hint(PROTOCOLS_DIR, 'protocols')}")
 
 
 def load_protocol(path: str | Path) -> Protocol:
@@ -251,8 +256,16 @@ def parse_protocol(text: str, where: str = "<protocol>") -> Protocol:
     if not isinstance(name, str) or not name:
         raise ConfigError(f"{where}: [protocol]: field 'name' must be a non-empty string")
     rate = head.get("sample_rate_Hz", SAMPLE_RATE_HZ)
-    if not isinstance(rate, int | float) or isinstance(rate, bool) or rate <= 0:
-        raise ConfigError(f"{where}: [protocol]: field 'sample_rate_Hz' must be a number > 0")
+    if (
+        not isinstance(rate, int | float)
+        or isinstance(rate, bool)
+        or not math.isfinite(rate)
+        or not 0 < rate <= MAX_SAMPLE_RATE_HZ
+    ):
+        raise ConfigError(
+            f"{where}: [protocol]: field 'sample_rate_Hz' must be a number > 0 and "
+            f"≤ {MAX_SAMPLE_RATE_HZ:g} Hz, got {rate!r}"
+        )
     defaults = doc.get("defaults", {})
     if not isinstance(defaults, dict):
         raise ConfigError(f"{where}: [defaults] must be a table")
@@ -355,9 +368,22 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         raise ConfigError(
             f"{ctx}: field 'role' must be one of {', '.join(ROLES)}, got {get['role']!r}"
         )
+    for k, v in get.items():
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ConfigError(f"{ctx}: field '{k}' must be a finite number, got {v}")
     f = float(get["frequency_Hz"])
     checks = [
         ("muscle_pressure_MPa", float(get["muscle_pressure_MPa"]) > 0, "must be > 0"),
+        (
+            "muscle_pressure_MPa",
+            float(get["muscle_pressure_MPa"]) <= MAX_GAUGE_MPA,
+            f"must be ≤ {MAX_GAUGE_MPA:g} MPa (beyond any PMA rig; a unit mistake?)",
+        ),
+        (
+            "offset_MPa",
+            off + amp <= MAX_GAUGE_MPA,
+            f"+ amplitude_MPa must be ≤ {MAX_GAUGE_MPA:g} MPa (beyond any regulator)",
+        ),
         ("frequency_Hz", f > 0, "must be > 0"),
         (
             "frequency_Hz",

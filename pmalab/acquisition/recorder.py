@@ -53,7 +53,14 @@ import numpy as np
 from pmalab.channels import Channels
 from pmalab.errors import OutputError
 from pmalab.paths import output_failure
-from pmalab.runfile import CANONICAL_UNITS, FORMAT, FORMAT_VERSION, declare_channels
+from pmalab.runfile import (
+    CANONICAL_UNITS,
+    CHECKSUM,
+    FORMAT,
+    FORMAT_VERSION,
+    declare_channels,
+    seal_attrs,
+)
 
 if TYPE_CHECKING:
     import h5py
@@ -131,6 +138,69 @@ def check_free_space(path: str | Path, need_bytes: int) -> None:
             f"{p}: refused: the recording needs about {need_bytes / 1e6:.1f} MB, only "
             f"{free / 1e6:.1f} MB free on {where}"
         )
+
+
+#: a dataset up to this many samples is read whole for its percentiles
+PERCENTILE_WHOLE = 1 << 22
+#: samples read at a time (and histogram bins) for the percentiles of a longer one
+PERCENTILE_BLOCK = 1 << 20
+
+
+def dataset_percentiles(ds: Any, n: int, qs: tuple[float, ...]) -> tuple[float, ...]:
+    """``np.percentile`` (linear interpolation) of the first ``n`` values of ``ds`` at
+    ``qs``, in bounded memory: a run of hours at 10 kHz has hundreds of millions of
+    lateness values, which read whole (and sorted) were gigabytes at the run's end.
+
+    Up to :data:`PERCENTILE_WHOLE` values: read whole (as before).  Beyond: three passes of
+    :data:`PERCENTILE_BLOCK` values — range, a histogram locating each needed order
+    statistic's bin, then only the values in those bins, sorted — the same order statistics,
+    interpolated the same way."""
+    if n <= PERCENTILE_WHOLE:
+        lat = np.asarray(ds[:n], dtype=np.float64)
+        return tuple(float(v) for v in np.percentile(lat, list(qs)))
+
+    def blocks():
+        for a in range(0, n, PERCENTILE_BLOCK):
+            yield np.asarray(ds[a : min(n, a + PERCENTILE_BLOCK)], dtype=np.float64)
+
+    lo, hi = np.inf, -np.inf
+    for b in blocks():
+        lo, hi = min(lo, float(b.min())), max(hi, float(b.max()))
+    if not hi > lo:
+        return tuple(lo for _ in qs)
+    edges = np.linspace(lo, hi, PERCENTILE_BLOCK + 1)
+    counts = np.zeros(PERCENTILE_BLOCK, dtype=np.int64)
+    for b in blocks():
+        idx = np.clip(np.searchsorted(edges, b, side="right") - 1, 0, PERCENTILE_BLOCK - 1)
+        counts += np.bincount(idx, minlength=PERCENTILE_BLOCK)
+    cum = np.cumsum(counts)
+    ranks = sorted({r for q in qs for r in _order_ranks(q, n)})
+    bins = {r: int(np.searchsorted(cum, r, side="right")) for r in ranks}
+    wanted = sorted(set(bins.values()))
+    picked: dict[int, list[np.ndarray]] = {k: [] for k in wanted}
+    for b in blocks():
+        idx = np.clip(np.searchsorted(edges, b, side="right") - 1, 0, PERCENTILE_BLOCK - 1)
+        for k in wanted:
+            picked[k].append(b[idx == k])
+    value: dict[int, float] = {}
+    for r, k in bins.items():
+        vals = np.sort(np.concatenate(picked[k]))
+        below = int(cum[k - 1]) if k > 0 else 0
+        value[r] = float(vals[r - below])
+    out = []
+    for q in qs:
+        r0, r1 = _order_ranks(q, n)
+        t = q / 100.0 * (n - 1) - r0
+        a, b_ = value[r0], value[r1]
+        out.append(float(a + (b_ - a) * t))
+    return tuple(out)
+
+
+def _order_ranks(q: float, n: int) -> tuple[int, int]:
+    """The two order statistics (0-based) the linear percentile ``q`` interpolates."""
+    pos = q / 100.0 * (n - 1)
+    r0 = int(np.floor(pos))
+    return r0, min(n - 1, r0 + 1)
 
 
 class RunWriter:
@@ -291,8 +361,7 @@ class RunWriter:
         if final and self.n:
             # read back from the file: keeping every sample's lateness in memory grew the
             # recorder by 8 bytes a sample (7 MB in a 30-minute run)
-            lat = np.asarray(self._late_ds[: self.n], dtype=np.float64)
-            p50, p99 = (float(v) for v in np.percentile(lat, [50, 99]))
+            p50, p99 = dataset_percentiles(self._late_ds, self.n, (50.0, 99.0))
         scheduled = self.n + self.n_missed
         missed_frac = self.n_missed / scheduled if scheduled else 0.0
         late_frac = self.n_late / self.n if self.n else 0.0
@@ -374,6 +443,7 @@ class Recorder:
             f.attrs["format_version"] = FORMAT_VERSION
             for k, v in root_attrs.items():
                 f.attrs[k] = _attr(v)
+            seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
                 g = grp.create_group(name)
@@ -381,20 +451,35 @@ class Recorder:
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():
                     ds = g.create_dataset(
-                        c, shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float64
+                        c,
+                        shape=(0,),
+                        maxshape=(None,),
+                        chunks=(CHUNK,),
+                        dtype=np.float64,
+                        **CHECKSUM,
                     )
                     ds.attrs["units"] = units
                 if self.declared is not None:
                     declare_channels(g, self.declared)
                 if summary:
                     ds = g.create_dataset(
-                        "summary", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.uint8
+                        "summary",
+                        shape=(0,),
+                        maxshape=(None,),
+                        chunks=(CHUNK,),
+                        dtype=np.uint8,
+                        **CHECKSUM,
                     )
                     ds.attrs["description"] = (
                         "UTF-8 JSON: the run's end-of-run facts (empty until the run ends)"
                     )
                 ds = g.create_dataset(
-                    "lateness", shape=(0,), maxshape=(None,), chunks=(CHUNK,), dtype=np.float32
+                    "lateness",
+                    shape=(0,),
+                    maxshape=(None,),
+                    chunks=(CHUNK,),
+                    dtype=np.float32,
+                    **CHECKSUM,
                 )
                 ds.attrs["units"] = "s"
                 ds.attrs["description"] = (
@@ -404,7 +489,12 @@ class Recorder:
                 )
                 g.create_dataset("status", data=np.bytes_(b"pending"), dtype=f"S{STATUS_LEN}")
                 gp = g.create_dataset(
-                    "gaps", shape=(0, 2), maxshape=(None, 2), chunks=(64, 2), dtype=np.float64
+                    "gaps",
+                    shape=(0, 2),
+                    maxshape=(None, 2),
+                    chunks=(64, 2),
+                    dtype=np.float64,
+                    **CHECKSUM,
                 )
                 gp.attrs["fields"] = json.dumps(["start_s", "samples_missed"])
                 gp.attrs["description"] = (
@@ -412,7 +502,12 @@ class Recorder:
                     "its first missing sample's time (s from the run's first sample) and "
                     "how many; never filled with invented samples"
                 )
-                t = g.create_dataset("timing", data=np.full(len(TIMING_FIELDS), np.nan))
+                t = g.create_dataset(
+                    "timing",
+                    data=np.full(len(TIMING_FIELDS), np.nan),
+                    chunks=(len(TIMING_FIELDS),),
+                    **CHECKSUM,
+                )
                 t.attrs["fields"] = json.dumps(TIMING_FIELDS)
                 d = g.create_dataset(
                     "device_stats", data=np.bytes_(b""), dtype=f"S{DEVICE_STATS_LEN}"
@@ -421,6 +516,7 @@ class Recorder:
                     "JSON: the devices' link/fault counters at the "
                     "run's end, cumulative since the rig was opened"
                 )
+                seal_attrs(g)  # the run's and its datasets' attributes are final
             f.flush()
             f.swmr_mode = True  # from here on: no new attrs/objects, only data writes
             os.replace(tmp, self.path)

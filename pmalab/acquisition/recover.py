@@ -22,7 +22,7 @@ import numpy as np
 
 from pmalab.errors import RunFileError
 from pmalab.paths import output_failure
-from pmalab.runfile import FORMAT, open_h5
+from pmalab.runfile import CHECKSUM, FORMAT, open_h5
 
 
 def is_healthy(path: Path) -> bool:
@@ -88,8 +88,18 @@ def _copy_group(src, dst, n: int) -> None:
                 sub.attrs[k] = v
             _copy_group(obj, sub, n)
             continue
-        data = obj[:n] if _is_channel(obj) else obj[()]
-        new = dst.create_dataset(c, data=data, dtype=obj.dtype)
+        if obj.chunks is not None:  # samples: chunked as recorded, each chunk checksummed
+            data = obj[:n] if _is_channel(obj) else obj[()]
+            new = dst.create_dataset(
+                c,
+                data=data,
+                dtype=obj.dtype,
+                chunks=obj.chunks,
+                maxshape=obj.maxshape,
+                **CHECKSUM,
+            )
+        else:
+            new = dst.create_dataset(c, data=obj[()], dtype=obj.dtype)
         for k, v in obj.attrs.items():
             new.attrs[k] = v
 

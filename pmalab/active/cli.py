@@ -13,6 +13,7 @@ import signal
 import sys
 from pathlib import Path
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import PmalabError
 
 
@@ -51,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     g.add_argument(
         "--seed",
-        type=int,
+        type=seed_arg,
         default=None,
         help="simulated rig: sensor-noise seed of the first round (+1 per round)",
     )

@@ -36,9 +36,9 @@ from typing import Any, cast
 from pmalab.active.design import MIN_SEPARATION, Experiment, design, experiment_toml
 from pmalab.errors import PmalabError
 from pmalab.identify.diagnosis import diagnose
-from pmalab.identify.long_records import long_runs
+from pmalab.identify.long_records import fit_part, long_runs
 from pmalab.identify.schema import ActiveRoundEntry
-from pmalab.runfile import read_runs
+from pmalab.runfile import read_runs, seal_attrs
 
 #: rounds at most (each is one recorded experiment)
 MAX_ROUNDS = 3
@@ -186,7 +186,7 @@ def diagnose_active(
     say = log or (lambda s: print(s, file=sys.stderr))
     if budget_s <= 0 or not math.isfinite(budget_s):
         raise ActiveError(f"--budget: must be a positive number of seconds, got {budget_s:g}")
-    runs = read_runs(path, skip_incomplete=True, long_runs=long_runs())
+    runs = [fit_part(r) for r in read_runs(path, skip_incomplete=True, long_runs=long_runs())]
     d = diagnose(runs, model, effects=effects, jobs=jobs)
     initial = verdict_of(d)
     rounds: list[ActiveRound] = []
@@ -241,7 +241,8 @@ def diagnose_active(
         added = append_runs(path, round_file, names)
         spent += best.duration_s
         # only the round's runs are read: the campaign's were read before
-        runs = [*runs, *read_runs(path, added, long_runs=long_runs())] if added else runs
+        new_runs = read_runs(path, added, long_runs=long_runs()) if added else []
+        runs = [*runs, *(fit_part(r) for r in new_runs)]
         d = diagnose(runs, model, effects=effects, jobs=jobs)
         rounds.append(
             ActiveRound(
@@ -337,6 +338,7 @@ def append_runs(campaign: Path, round_file: Path, names: Sequence[str]) -> list[
                 # round_file is the run file the round's recorder wrote (its /runs group)
                 src.copy(cast(h5py.Group, src["runs"])[n], stage, name=new)
                 stage[new].attrs["appended_from"] = str(round_file.name)
+                seal_attrs(stage[new])  # the attrs' digest covers the new one too
                 dst.flush()
                 dst.move(f"{STAGING}/{new}", f"runs/{new}")
                 dst.flush()

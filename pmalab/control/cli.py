@@ -17,6 +17,7 @@ import signal
 import sys
 from collections.abc import Callable
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError
 
 
@@ -31,12 +32,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         "pressures and gains, and print step/tracking metrics.",
     )
     # no argparse choices: the registry (pmalab.control.pid.CONTROLLERS) is the list, and
-    # importing it here would load numpy at every start-up; an unknown id is one line
+    # importing it here would load numpy at every start-up; an unknown id is one line, and
+    # the help names the registered ids when it is printed ({controllers})
     p.add_argument(
         "--controller",
         metavar="ID",
-        help="the controller, both loops use it: pid, sn-pid, rbf-pid (the "
-        "built-ins; any registered controller's id)",
+        help="the controller, both loops use it: {controllers}",
     )
     p.add_argument(
         "--reference",
@@ -85,7 +86,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(identification.json) run forward instead of the simulated truth; "
         "mechanics and regulator as the simulated manipulator's",
     )
-    p.add_argument("--seed", type=int, default=None, help="sensor-noise seed (default 0)")
+    p.add_argument(
+        "--rig",
+        metavar="RIG",
+        help="an antagonistic pair (rig kind sim-pair: data/rigs/sim-pair.toml) for a joint-"
+        "angle reference in deg, e.g. square:0.1Hz:20deg",
+    )
+    p.add_argument(
+        "--cocontraction",
+        type=float,
+        metavar="MPA",
+        default=None,
+        help="joint control: both muscles' common pressure p0, which sets the joint's "
+        "stiffness (default 0.25 MPa)",
+    )
+    p.add_argument("--seed", type=seed_arg, default=None, help="sensor-noise seed (default 0)")
     p.add_argument(
         "--real-time",
         action="store_true",
@@ -136,9 +151,104 @@ def cmd_control(args: argparse.Namespace) -> int:
         for flag in ("controller", "reference", "duration"):
             if getattr(args, flag) is None:
                 raise ConfigError(f"--{flag}: required (or give --experiments FILE)")
+        if args.rig is not None or args.reference.strip().lower().endswith("deg"):
+            return _run_joint(args, check_duration, metrics_line)
+        if args.cocontraction is not None:
+            raise ConfigError("--cocontraction: only for a joint (--rig PAIR, a deg reference)")
         return _run_one(args, check_duration, metrics_line)
     finally:
         signal.signal(signal.SIGTERM, old)
+
+
+def _run_joint(args, check_duration, metrics_line) -> int:
+    """Joint-angle control of an antagonistic pair (``--rig``, a deg reference)."""
+    import json
+
+    import numpy as np
+
+    from pmalab.acquisition.recorder import Recorder
+    from pmalab.control.controllers import CONTROLLERS
+    from pmalab.control.joint import JOINT_SIGNALS, StaticPair, default_joint_settings, run_joint
+    from pmalab.control.model import IdentifiedModel
+    from pmalab.control.reference import parse_reference
+    from pmalab.errors import SafetyAbort
+    from pmalab.paths import check_output
+    from pmalab.rig.loader import load_rig
+    from pmalab.rig.pair import PairRig
+
+    if args.controller not in CONTROLLERS:
+        raise ConfigError(
+            f"--controller: unknown '{args.controller}' (choose from {', '.join(CONTROLLERS)})"
+        )
+    ref = parse_reference(args.reference)
+    if ref.unit != "deg":
+        raise ConfigError(f"--reference: '{args.reference}': a joint follows an angle in deg")
+    for flag in ("loop", "plant", "truth", "hysteresis_compensation"):
+        if getattr(args, flag) is not None:
+            raise ConfigError(f"--{flag.replace('_', '-')}: not with a joint (--rig PAIR)")
+    if args.rig is None:
+        raise ConfigError(
+            "--rig: a joint-angle reference needs a pair rig (data/rigs/sim-pair.toml)"
+        )
+    duration = check_duration(args.duration, "--duration")
+    p0 = 0.25 if args.cocontraction is None else float(args.cocontraction)
+    check_output(args.out, args.force)
+    model = IdentifiedModel.load(args.model)
+    rig = load_rig(args.rig, seed=args.seed)
+    if not isinstance(rig, PairRig) or rig.geometry is None:
+        rig.close()
+        raise ConfigError(f"--rig {args.rig}: not an antagonistic pair (rig kind sim-pair)")
+    g = rig.geometry
+    statics = StaticPair(model, model, g.mount_contraction_mm, g.radius_mm)
+    settings = default_joint_settings(p0)
+    with rig:
+        run = run_joint(rig, args.controller, ref, duration, settings, statics)
+    units = {
+        "time": "s",
+        "angle": "deg",
+        "angle_reference": "deg",
+        "angle_setpoint": "deg",
+        "differential_feedforward": "MPa",
+    }
+    chans = {k: units.get(k, "MPa") for k in JOINT_SIGNALS}
+    attrs = {
+        "controller": args.controller,
+        "reference": ref.text,
+        "cocontraction_MPa": p0,
+        "duration_s": duration,
+        "model": model.source,
+        "settings": json.dumps({"loop": settings.loop.gains.as_tuple(), "p0": p0}),
+        "rig": args.rig,
+    }
+    with Recorder(
+        args.out,
+        [(args.controller, attrs)],
+        {"command_line": " ".join(sys.argv)},
+        channels=chans,
+        summary=True,
+    ) as rec:
+        w = rec.writer(args.controller)
+        w.extend([run.signals[k] for k in JOINT_SIGNALS], np.zeros(len(run.signals["time"])))
+        w.set_summary(
+            {
+                "metrics": run.metrics,
+                "vent": run.vent,
+                "vent_confirmed": run.vent_confirmed,
+                "cocontraction_MPa": p0,
+            }
+        )
+        w.finish(run.status)
+    m = run.metrics
+    print(
+        f"{args.out}: {args.controller} {ref.text} (joint angle, co-contraction {p0:g} MPa), "
+        f"{len(run.signals['time'])} samples, {duration / max(run.wall_s, 1e-9):.0f}× real "
+        f"time; {run.status}"
+    )
+    print(f"  {metrics_line({**m, 'unit': 'deg'})}")
+    print(f"  {run.vent}")
+    if not run.completed:
+        raise SafetyAbort(f"{args.out}: run {run.status}; {run.vent}")
+    return 0
 
 
 def _note_ignored(model) -> None:

@@ -1,7 +1,8 @@
 """Reference signals: ``square:0.1Hz:15mm``, ``sine:0.1Hz:20mm``, ``square:0.1Hz:0.5MPa``.
 
 ``KIND:FREQ Hz:MAGNITUDE UNIT`` with KIND ``square`` or ``sine``, the unit ``mm`` (a
-position reference) or ``MPa`` (a pressure reference).  Both run from 0 to the magnitude,
+position reference), ``MPa`` (a pressure reference) or ``deg`` (the joint angle of an
+antagonistic pair).  Both run from 0 to the magnitude,
 like the protocol files' ``magnitude_MPa = M`` (a muscle only contracts):
 
 * square: M for the first half period, 0 for the second (the seeds' step up at t = 0 and
@@ -20,11 +21,13 @@ from dataclasses import dataclass
 
 from pmalab.errors import ConfigError
 
-_SPEC = re.compile(r"^(square|sine):([0-9.eE+-]+)hz:([0-9.eE+-]+)(mm|mpa)$")
+_SPEC = re.compile(r"^(square|sine):([0-9.eE+-]+)hz:([0-9.eE+-]+)(mm|mpa|deg)$")
 
 #: the largest references the manipulator and the DMSP-20 can take
 MAX_POSITION_MM = 25.0
 MAX_PRESSURE_MPA = 0.6
+#: the largest joint-angle reference (deg) of an antagonistic pair (its stops are ±40°)
+MAX_ANGLE_DEG = 35.0
 
 
 @dataclass(frozen=True)
@@ -34,12 +37,12 @@ class Reference:
     kind: str
     frequency_Hz: float
     magnitude: float
-    unit: str  # "mm" | "MPa"
+    unit: str  # "mm" | "MPa" | "deg"
 
     @property
     def quantity(self) -> str:
-        """``position`` or ``pressure``."""
-        return "position" if self.unit == "mm" else "pressure"
+        """``position``, ``pressure`` or ``angle`` (a joint of two muscles)."""
+        return {"mm": "position", "deg": "angle"}.get(self.unit, "pressure")
 
     @property
     def period_s(self) -> float:
@@ -78,17 +81,17 @@ def parse_reference(text: str, where: str = "--reference") -> Reference:
     if not m:
         raise ConfigError(
             f"{where}: '{text}': expected KIND:FREQHz:MAGNITUDE with KIND square|"
-            "sine and a magnitude in mm or MPa, e.g. square:0.1Hz:15mm"
+            "sine and a magnitude in mm, MPa or deg (a joint), e.g. square:0.1Hz:15mm"
         )
     kind, f_txt, m_txt, unit = m.groups()
     try:
         f, mag = float(f_txt), float(m_txt)
     except ValueError:
         raise ConfigError(f"{where}: '{text}': frequency and magnitude must be numbers") from None
-    unit = "mm" if unit == "mm" else "MPa"
+    unit = {"mm": "mm", "deg": "deg"}.get(unit, "MPa")
     if not (math.isfinite(f) and 0.0 < f <= 5.0):
         raise ConfigError(f"{where}: '{text}': frequency must be in (0, 5] Hz")
-    top = MAX_POSITION_MM if unit == "mm" else MAX_PRESSURE_MPA
+    top = {"mm": MAX_POSITION_MM, "deg": MAX_ANGLE_DEG}.get(unit, MAX_PRESSURE_MPA)
     if not (math.isfinite(mag) and 0.0 < mag <= top):
         raise ConfigError(
             f"{where}: '{text}': magnitude must be in (0, {top:g}] {unit} "

@@ -188,6 +188,10 @@ def run_control(
     """
     dt = settings.outer.dt
     loop = reference.quantity
+    if loop == "angle":
+        raise PmalabError(
+            f"{reference.text}: a joint angle needs an antagonistic pair (pmalab.control.joint)"
+        )
     if loop == "position" and model is None:
         raise PmalabError("the position loop needs an identified model (--model)")
     p_max = float(min(rig.muscle_regulator.max_pressure_MPa, rig.limits.max_muscle_pressure_MPa))

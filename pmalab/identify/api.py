@@ -28,7 +28,7 @@ from pmalab.identify.campaign import (
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.campaign.trajectory import run_trajectory
-from pmalab.identify.long_records import long_runs
+from pmalab.identify.long_records import fit_part, long_runs
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
@@ -104,6 +104,28 @@ def split_roles(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
     ident = [r for r in runs if r.attrs.get("role") != "validation"]
     val = [r for r in runs if r.attrs.get("role") == "validation"]
     return ident, val
+
+
+def long_record_notes(runs: Sequence[Run]) -> list[str]:
+    """One note per long record: how it was read and which part the run-level fit used."""
+    out: list[str] = []
+    for r in runs:
+        dec = r.attrs.get("decimation") or {}
+        if int(dec.get("stride", 1)) <= 1:
+            continue
+        part = r.attrs.get("fit_part") or {}
+        text = (
+            f"{r.label}: a long record ({dec.get('samples_read'):,} samples) read in windows "
+            f"and decimated to {dec.get('samples_per_cycle', 0):.0f} samples a cycle "
+            "(anti-aliased; identification.json 'decimation')"
+        )
+        if part:
+            text += (
+                f"; its run-level fit uses its first {part.get('cycles')} of "
+                f"{part.get('of_cycles'):g} cycles, its parameter trajectory all of them"
+            )
+        out.append(note("long-record", text, run=r.label))
+    return out
 
 
 def gap_notes(runs: Sequence[Run]) -> list[str]:
@@ -184,6 +206,12 @@ def identify(
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
         validate = None if validate is None else [r.steady() for r in validate]
+    # a long record's run-level fit uses its first cycles, its trajectory all of it; held-out
+    # long records are validated on the same part as `pmalab diagnose` holds out
+    records = list(runs_l)
+    runs_l = [fit_part(r) for r in records]
+    record_of = {id(p): r for p, r in zip(runs_l, records)}
+    validate = None if validate is None else [fit_part(r) for r in validate]
     ident, held = split_roles(runs_l)
     notes: list[str] = [
         note(
@@ -194,6 +222,7 @@ def identify(
         for r in held
     ]
     notes += gap_notes([*runs_l, *(validate or [])])
+    notes += long_record_notes([*runs_l, *(validate or [])])
     if not ident:
         raise PmalabError(
             "no identification runs: every run read from the files has role 'validation'"
@@ -228,7 +257,7 @@ def identify(
     trajectory = []
     if output == "force":
         for run, rf in zip(ident, cf.runs):
-            tr = run_trajectory(run, cf.model, rf.result)
+            tr = run_trajectory(record_of.get(id(run), run), cf.model, rf.result)
             if tr is not None:
                 trajectory.append(tr)
     return Identification(

@@ -7,10 +7,19 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
-from pmalab.console import VERBOSE, add_verbosity, note, show_progress, verbosity, warning
+from pmalab.console import (
+    VERBOSE,
+    add_verbosity,
+    note,
+    show_progress,
+    table_printer,
+    verbosity,
+    warning,
+)
 from pmalab.errors import PmalabError
 
 
@@ -38,9 +47,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _register_identify(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "identify",
-        help="fit Bouc-Wen or Duhem models per run, pressure quadratics, validation",
+        help="fit hysteresis models ({laws}) per run, pressure laws, validation",
         description=(
-            "Identify F = k·x + c0 + h (Bouc-Wen or Duhem h) on every run of the given files, "
+            "Identify F = k·x + c0 + h (h: one of the laws {laws}) on every run of the given files, "
             "fit each parameter as a quadratic in muscle pressure, and validate the "
             "pressure-quadratic model on held-out runs (runs with role 'validation' in the "
             "inputs, and every run of --validate files).  Writes OUT/identification.json "
@@ -58,8 +67,8 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "--model",
         required=True,
         metavar="LAW[,LAW...]",
-        help="hysteresis law: bouc-wen, duhem, prandtl-ishlinskii, maxwell-slip (or "
-        "any law file in identify/laws/); several, comma-separated, identify each "
+        help="hysteresis law: {laws} (or any law file in identify/laws/); several, "
+        "comma-separated, identify each "
         "into OUT/LAW/ and print one table ranking them",
     )
     p.add_argument(
@@ -67,7 +76,7 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=[],
         metavar="EFFECT",
-        help="add an effect by id (repeatable), e.g. viscous-friction",
+        help="add an effect by id (repeatable): {effects}",
     )
     p.add_argument(
         "--effects",
@@ -165,6 +174,14 @@ def _add_static_options(p: argparse.ArgumentParser, verb: str) -> None:
         "(one law on each, free runs)",
     )
     p.add_argument(
+        "--loop-scale",
+        choices=("none", "pressure"),
+        default="none",
+        help="with --static: 'pressure' scales the pressure law's loop by p/p_max (friction "
+        "proportional to the contact pressure, Tondu-Lopez: the loop pinches at p = 0); "
+        "default none (one width at every pressure)",
+    )
+    p.add_argument(
         "--length",
         type=float,
         metavar="MM",
@@ -208,9 +225,12 @@ def _parse_fix(items: list[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
 
 
@@ -270,6 +290,11 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--effects {f}: no such file")
     if args.muscle == "all":
         return _identify_each_muscle(args)
+    if "," in args.model and args.static:
+        raise PmalabError(
+            f"--model {args.model}: with --static give one law (or none); "
+            "`pmalab diagnose --static` ranks the laws"
+        )
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
@@ -315,12 +340,13 @@ def run_identify(args: argparse.Namespace) -> int:
     jpath, hpath = res.save(out, force=args.force)
 
     level = verbosity(args)
+    show = table_printer(args)
     w = max(
         [len(rf.label) for rf in res.campaign.runs]
         + [len(v.run.label) for v in res.validation]
         + [10]
     )
-    print(
+    show(
         f"model {res.model.name}: {len(res.campaign.runs)} identification run(s), "
         f"{len(res.validation)} validation run(s)"
     )
@@ -328,13 +354,13 @@ def run_identify(args: argparse.Namespace) -> int:
     for i, rf in enumerate(res.campaign.runs):
         r = rf.result
         if oe is not None:
-            print(
+            show(
                 f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  position rmse "
                 f"{oe.rmse_mm[i] * 1e-3:9.3g} m  nrmse {oe.nrmse[i]:.4f}  (output error; "
                 f"force-direction start {oe.rmse_mm_start[i] * 1e-3:.3g} m)"
             )
             continue
-        print(
+        show(
             f"  identify  {rf.label:<{w}}  p={rf.p_nom:6.4f} MPa  fit {r.fit_percent:6.2f} %  "
             f"rmse {r.rmse:7.3g} N"
         )
@@ -342,28 +368,28 @@ def run_identify(args: argparse.Namespace) -> int:
         m = v.metrics
         head = f"  validate  {v.run.label:<{w}}  p={v.run.nominal_pressure:6.4f} MPa  "
         if getattr(v, "diverged", False):
-            print(head + f"prediction DIVERGED ({v.message})")
+            show(head + f"prediction DIVERGED ({v.message})")
             continue
         if "rmse_position_m" in m:
-            print(
+            show(
                 head + f"position rmse {m['rmse_position_m']:9.3g} m  "
                 f"nrmse {m['nrmse_position']:.4f}  fit {m['fit_percent_position']:6.2f} %"
             )
             continue
-        print(
+        show(
             head + f"fit {m['fit_percent']:6.2f} %  rmse {m['rmse']:7.3g} N  "
             f"energy {m['energy_error_percent']:+.1f} %"
             + ("  (extrapolated in pressure)" if getattr(v, "status", "") == "extrapolated" else "")
         )
     st = getattr(res.campaign, "structure", None)
     if st is not None:
-        print(f"  {structure_line(st)}")
+        show(f"  {structure_line(st)}")
     if res.campaign.output != "position":
         from pmalab.identify.outputs import validation_headline
 
         line = validation_headline(res.validation)
         if line:
-            print(line)
+            show(line)
     sys.stdout.flush()
     msgs = sort_messages(
         [*res.notes, *res.warnings],
@@ -406,7 +432,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         "--model",
         required=True,
         metavar="LAW",
-        help="hysteresis law: bouc-wen, duhem (or any law file in identify/laws/)",
+        help="hysteresis law: {laws} (or any law file in identify/laws/)",
     )
     p.add_argument(
         "--validate",
@@ -429,7 +455,7 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=None,
         metavar="EFFECT",
-        help="rank only these effect ids (repeatable; default: all)",
+        help="rank only these effect ids (repeatable; default: all of {effects})",
     )
     p.add_argument(
         "--max-steps",
@@ -459,7 +485,7 @@ def run_diagnose(args: argparse.Namespace) -> int:
 
     from pmalab.identify.diagnosis import diagnose, write_outputs
     from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import long_runs
+    from pmalab.identify.long_records import fit_part, long_runs
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
@@ -476,9 +502,20 @@ def run_diagnose(args: argparse.Namespace) -> int:
     check_distinct(args.files, args.validate)
     lr = long_runs()
     mus = args.muscle
-    runs = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [
+        fit_part(r)
+        for r in read_many(
+            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+        )
+    ]
     val = (
-        read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+        [
+            fit_part(r)
+            for r in read_many(
+                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+            )
+        ]
         if args.validate
         else []
     )
@@ -504,21 +541,22 @@ def run_diagnose(args: argparse.Namespace) -> int:
     )
     jpath, hpath = write_outputs(d, out, force=args.force)
     st = d.settings
-    print(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
-    print(
+    show = table_printer(args)
+    show(f"Held out ({st['validation']}): {', '.join(st['held_out'])}")
+    show(
         f"Effect ranking ({args.model}; validation nrmse of `pmalab identify` without → "
         f"with each effect; noise floor {d.noise_floor['mean_nrmse']:.4f}):"
     )
-    print(d.ranking_table())
+    show(d.ranking_table())
     if d.ambiguous:
-        print(
+        show(
             f"ambiguous: {', '.join(d.ambiguous)} — suggested experiment: {d.suggested_experiment}"
         )
-    print("\nLadder (the error falling step by step):")
-    print(d.ladder_table())
+    show("\nLadder (the error falling step by step):")
+    show(d.ladder_table())
     if d.laws:
-        print("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
-        print(
+        show("\nOther laws (validation nrmse of `pmalab identify --model LAW`, same runs):")
+        show(
             _table(
                 [
                     (
@@ -559,11 +597,12 @@ def run_diagnose(args: argparse.Namespace) -> int:
             "--out DIR",
         ]
     )
-    print(f"\nSame numbers from identification: {hint}")
-    print(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
+    show(f"\nSame numbers from identification: {hint}")
+    show(f"\nWhere the base model fails (worst runs first: {WORST_BY}):")
     for key in worst_runs(d.diagnostics, 3):
-        print(f"  {key}: {d.diagnostics[key]['worst_region']}")
-    print(f"\n{d.summary}")
+        show(f"  {key}: {d.diagnostics[key]['worst_region']}")
+    show()
+    print(d.summary)
     if args.plot:
         d.plot(check_output(args.plot, args.force))
     print(f"wrote {jpath} and {hpath}")
@@ -588,7 +627,13 @@ def run_identify_many(args: argparse.Namespace) -> int:
     from pmalab.paths import check_output, prepare_output_dir
     from pmalab.runfile import check_distinct, check_distinct_runs
 
-    laws = [m.strip() for m in args.model.split(",") if m.strip()]
+    laws = [m.strip() for m in args.model.split(",")]
+    if not any(laws):
+        raise PmalabError(f"--model {args.model!r}: names no law (choose from {', '.join(LAWS)})")
+    if not all(laws):
+        raise PmalabError(
+            f"--model {args.model!r}: an empty name between commas (e.g. bouc-wen,duhem)"
+        )
     for m in laws:
         if m not in LAWS:
             raise PmalabError(f"--model {m}: unknown law (choose from {', '.join(LAWS)})")
@@ -665,6 +710,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
             }
         )
     floor = float(np.mean(floors)) if floors else None
+    show = table_printer(args)
     for r in rows:
         v = r["validation_nrmse"]
         r["x_floor"] = (v / floor) if (v is not None and floor) else None
@@ -675,12 +721,12 @@ def run_identify_many(args: argparse.Namespace) -> int:
             r["identification_nrmse"],
         )
     )
-    print(
+    show(
         f"Laws on {len(runs)} run(s), validated on {len(floors)} held-out run(s)"
         + (f" (noise floor {floor:.4f})" if floor else "")
         + ", best first:"
     )
-    print(
+    show(
         _table(
             [
                 (
@@ -707,7 +753,7 @@ def run_identify_many(args: argparse.Namespace) -> int:
     )
     table_path.write_text(json.dumps({"noise_floor_nrmse": floor, "laws": rows}, indent=1))
     print(f"wrote {', '.join(str(outs[r['law']]) for r in rows)} and {table_path}")
-    print(f"side by side: pmalab report {args.out} --out laws.pdf")
+    show(f"side by side: pmalab report {args.out} --out laws.pdf")
     return 0
 
 

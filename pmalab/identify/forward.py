@@ -627,6 +627,12 @@ class IdentifiedPlant:
 
         law = doc.get("model")
         fits = doc.get("pressure_fits")
+        if doc.get("kind") == "static":
+            raise ForwardError(
+                f"{source}: a static characterization (identify --static "
+                f"{doc.get('static_map', {}).get('id', '')}) has no forward model: "
+                "identify an isobaric campaign for simulate and control"
+            )
         if not isinstance(law, str) or not isinstance(fits, Mapping):
             raise ForwardError(
                 f"{source}: not an identification.json (no 'model' and 'pressure_fits')"

@@ -46,6 +46,8 @@ SAMPLES_PER_CYCLE = 200
 ANTI_ALIAS_FRACTION = 0.6
 #: samples read per block (2 MB a channel in float64)
 BLOCK = 1 << 18
+#: a long record's run-level fit uses its first this many whole cycles (:func:`fit_part`)
+FIT_CYCLES = 500
 #: channels low-passed before they are decimated (they drive the model)
 FILTERED = ("position", "muscle_pressure", "cylinder_pressure")
 
@@ -117,7 +119,45 @@ def decimate(w: RunWindows, block: int = BLOCK) -> Run:
     return Run(name=w.name, attrs=attrs, file=str(w.path), **out)
 
 
-def long_runs(min_samples: int = LONG_RUN_SAMPLES) -> LongRuns:
+def fit_part(run: Run, cycles: int | None = None) -> Run:
+    """What a fit of the whole run uses: a long record (one read decimated) of more than
+    ``cycles`` excitation cycles is fitted on its first ``cycles`` whole cycles — the muscle
+    as the test began; how it changes after is its parameter trajectory
+    (:mod:`pmalab.identify.campaign.trajectory`), fitted along all of it.  One set of
+    constant parameters through hours of a drifting muscle is a compromise no single cycle
+    shows (on a 10-hour fatigue record it is not even near the start or the end), and its
+    free-run fit costs gigabytes.  Other runs are returned as they are.  The part's attrs
+    say what it is (``fit_part``)."""
+    cycles = FIT_CYCLES if cycles is None else int(cycles)
+    dec = run.attrs.get("decimation")
+    f = run.frequency
+    if not dec or int(dec.get("stride", 1)) <= 1 or not f or len(run) < 2:
+        return run
+    t0 = float(run.time[0])
+    # the first full-amplitude cycles: from the recorded steady window's start, unless the
+    # run was already cut to it (Run.steady leaves "window_s"), so identify (which cuts
+    # first) and diagnose (which cuts after) fit and hold out the same samples
+    s0 = 0.0 if "window_s" in run.attrs else float(run.attrs.get("steady_start_s") or 0.0)
+    span = cycles / f
+    if float(run.time[-1]) - t0 - s0 <= span:
+        return run
+    part = run.window(s0, s0 + span - 0.5 * float(np.median(np.diff(run.time[:4096]))))
+    part.attrs.pop("window_s", None)
+    total = (float(run.time[-1]) - t0 - s0) * f
+    part.attrs["fit_part"] = {
+        "cycles": cycles,
+        "of_cycles": round(total, 1),
+        "time_s": [s0, s0 + span],
+        "note": "the run-level fit uses the first cycles; the trajectory covers the record",
+    }
+    for key in ("steady_start_s", "steady_end_s"):
+        part.attrs.pop(key, None)
+    return part
+
+
+def long_runs(min_samples: int | None = None) -> LongRuns:
     """What analysis passes to :func:`~pmalab.runfile.read_runs`: runs of at least
-    ``min_samples`` samples are read decimated (:func:`decimate`)."""
-    return LongRuns(min_samples=min_samples, read=decimate)
+    ``min_samples`` samples (default :data:`LONG_RUN_SAMPLES`) are read decimated
+    (:func:`decimate`)."""
+    n = LONG_RUN_SAMPLES if min_samples is None else int(min_samples)
+    return LongRuns(min_samples=n, read=decimate)

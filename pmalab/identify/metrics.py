@@ -35,10 +35,28 @@ def moving_mean(x: np.ndarray, w: int) -> np.ndarray:
     return (c[w:] - c[:-w]) / w
 
 
+def _cycle_samples(x: np.ndarray) -> float:
+    """Samples per cycle of a cycling position, from its swings across the middle of its
+    range (a Schmitt trigger at ±25 % of the range, so noise at a crossing counts once);
+    the record's length when it swings less than once."""
+    lo, hi = np.percentile(x, [5, 95])
+    mid, band = 0.5 * (lo + hi), 0.25 * (hi - lo)
+    state = np.where(x > mid + band, 1, np.where(x < mid - band, -1, 0))
+    s = state[state != 0]
+    swings = int(np.count_nonzero(np.diff(s))) if s.size > 1 else 0
+    return x.shape[0] / (swings / 2.0) if swings >= 2 else float(x.shape[0])
+
+
 def branch_masks(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Boolean masks (stretch, release): x decreasing / x increasing."""
+    """Boolean masks (stretch, release): x decreasing / x increasing.
+
+    The direction is read from a moving mean of the position (n/400 samples wide), never
+    wider than a twentieth of a cycle (a record of hundreds of cycles would otherwise be
+    smoothed flat)."""
     x = np.asarray(x, dtype=np.float64)
     w = max(1, x.shape[0] // 400)
+    if w > 1:
+        w = max(1, min(w, int(_cycle_samples(x) // 20)))
     xs = moving_mean(x, w) if w > 1 else x
     v = np.gradient(xs)
     return v < 0.0, v > 0.0

@@ -395,6 +395,8 @@ def _decimation_block(res: Identification) -> list[dict]:
             "sample_rate_Hz": fs,
             "read": read,
         }
+        if run.attrs.get("fit_part"):  # a long record: the run-level fit's part of it
+            row["fit_part"] = run.attrs["fit_part"]
         if role == "identification" and res.campaign.joint is not None and np.isfinite(fs):
             k = joint_stride(n, fs, f)
             row["joint_fit"] = {

@@ -68,6 +68,45 @@ def derivatives(
     return v, np.gradient(v, t), fc
 
 
+#: share of the position's variance below the motion band of a run whose frequency is unknown
+MOTION_BAND_SHARE = 0.999
+
+
+def motion_band_Hz(t: np.ndarray, x: np.ndarray) -> float:
+    """The frequency (Hz) below which :data:`MOTION_BAND_SHARE` of the position's variance
+    lies (its spectrum on the median sample interval; the mean and linear trend removed)."""
+    t = np.asarray(t, dtype=np.float64)
+    y = np.asarray(x, dtype=np.float64)
+    if y.size < 16:
+        return 0.0
+    y = y - np.polyval(np.polyfit(t - t[0], y, 1), t - t[0])
+    power = np.abs(np.fft.rfft(y)) ** 2
+    power[0] = 0.0
+    total = float(power.sum())
+    if total <= 0:
+        return 0.0
+    freqs = np.fft.rfftfreq(y.size, float(np.median(np.diff(t))))
+    return float(freqs[int(np.searchsorted(np.cumsum(power), MOTION_BAND_SHARE * total))])
+
+
+def filter_frequency_Hz(run: Run) -> float | None:
+    """The excitation frequency the filters and derivatives are set from.
+
+    The run's ``frequency_Hz`` when known (> 0).  Unknown (absent or 0, as a broadband
+    record may say): the filters assume 0.5 Hz, which suits a slow test but would low-pass
+    a fast one (a 5–150 Hz multisine) to nothing — so when the position's own motion band
+    (:func:`motion_band_Hz`) reaches beyond the band that assumption covers, the band's upper
+    edge is taken as the frequency: every filter and the fit's decimation then keep the
+    whole band (a 5–150 Hz multisine recorded at 750 Hz: filtered as if declared 150 Hz)."""
+    f = run.frequency
+    if f is not None and f > 0:
+        return f
+    band = motion_band_Hz(run.time, run.position)
+    if band > DERIVATIVE_HARMONICS * 0.5:
+        return band
+    return None
+
+
 def default_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
     """Cut-off of the zero-phase position filter: 60× the excitation (≥ 5 Hz, ≤ fs/5)."""
     f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else 0.5
@@ -145,7 +184,7 @@ class Signals:
             run.position,
             run.muscle_pressure,
             p_nom=run.nominal_pressure,
-            frequency_Hz=run.frequency,
+            frequency_Hz=filter_frequency_Hz(run),
             cutoff_Hz=cutoff_Hz,
         )
 

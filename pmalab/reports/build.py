@@ -613,12 +613,7 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
         )
     effects = list(doc.get("effects") or [])
     summary = (data.diagnosis or {}).get("summary")
-    inputs = list((data.identification or {}).get("inputs") or [])
-    if not inputs:
-        seen: dict[str, list[str]] = {}
-        for t in data.traces:
-            seen.setdefault(Path(t.file).name or "?", []).append(t.run)
-        inputs = [{"file": f, "runs": r} for f, r in seen.items()]
+    inputs = _with_roles(data.identification) or _inputs_by_role(data)
     headline = None
     if data.identification and data.improved:
         fall = error_fall(data.identification, data.improved)
@@ -636,6 +631,53 @@ def _title_page(data: ReportData, contents: list[str]) -> Figure:
         summary=summary,
         contents=contents,
     )
+
+
+def _with_roles(ident: dict | None) -> list[dict]:
+    """identification.json's ``inputs``, each with the ``roles`` of its runs (files written
+    without them: a run the document validates on is held out)."""
+    if not ident:
+        return []
+    held = {
+        (Path(str(v.get("file", ""))).name, v.get("run")) for v in ident.get("validation") or []
+    }
+    out = []
+    for inp in ident.get("inputs") or []:
+        name = Path(str(inp.get("file", ""))).name
+        roles = dict(inp.get("roles") or {})
+        for r in inp.get("runs") or []:
+            roles.setdefault(r, "validation" if (name, r) in held else "identification")
+        out.append({**inp, "roles": roles})
+    return out
+
+
+def _inputs_by_role(data: ReportData) -> list[dict]:
+    """The data files and their runs by role (``{"file", "runs", "roles"}``, as
+    identification.json's ``inputs``) when no identification directory lists them: the
+    diagnosis's split of the campaign (identification runs and held-out runs), else the
+    traces, each run once (a diagnosis holds a held-out run for the base and the final
+    model; both are the run's validation)."""
+    by_file: dict[str, dict] = {}
+
+    def add(file: str, run: str, role: str) -> None:
+        d = by_file.setdefault(file or "?", {"file": file or "?", "runs": [], "roles": {}})
+        if run not in d["roles"]:
+            d["runs"].append(run)
+            d["roles"][run] = role
+
+    st = (data.diagnosis or {}).get("settings") or {}
+    ident_runs, held_out = st.get("identification_runs"), st.get("held_out")
+    if isinstance(ident_runs, list) and isinstance(held_out, list):
+        for role, labels in (("identification", ident_runs), ("validation", held_out)):
+            for label in labels:
+                file, sep, run = str(label).rpartition(":")
+                add(file if sep else "", run, role)
+        return list(by_file.values())
+    order = ("identification", "validation", "diagnosis", "diagnosis-final")
+    for t in sorted(data.traces, key=lambda t: order.index(t.role) if t.role in order else 9):
+        role = "identification" if t.role.endswith("identification") else "validation"
+        add(Path(t.file).name, t.run, role)
+    return list(by_file.values())
 
 
 def _directories(data: ReportData, limit: int = 110) -> str:
@@ -713,6 +755,18 @@ def build_report(
             )
         return build_static_report(
             statics[0], out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+        )
+    from pmalab.reports.pair import build_pair_report, is_pair_file
+
+    pairs = [p for p in inputs if is_pair_file(p)]
+    if pairs:
+        if len(pairs) != len(inputs):
+            raise ReportError(
+                f"{inputs[0] if inputs[0] not in pairs else inputs[-1]}: give antagonistic-"
+                "pair run files without other inputs"
+            )
+        return build_pair_report(
+            pairs, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
         )
     controls = [p for p in inputs if is_control_file(p)]
     if controls:

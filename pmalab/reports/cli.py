@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="BASE_DIR [IMPROVED_DIR] [DIAG_DIR]: identification directories "
         "(base first) and/or a diagnosis directory, in any mix; or a laws directory "
         "(identify --model a,b,c); or 'pmalab control' run files (CONTROL.h5: a page per "
-        "experiment)",
+        "experiment); or antagonistic-pair run files (both muscles' loops, every run)",
     )
     p.add_argument("--out", required=True, metavar="REPORT.pdf", help="the PDF to write")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")

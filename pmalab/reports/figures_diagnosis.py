@@ -291,8 +291,8 @@ def plot_ladder(ax: Axes, ladder: Sequence[Mapping[str, Any]]) -> Line2D:
     (line,) = ax.plot(steps, nr, "o-", color=style.MODEL, lw=1.8, ms=6)
     labels = []
     for s in ladder:
-        added = s.get("added")
-        labels.append("base model" if not added else f"+ {added}")
+        added, law = s.get("added"), s.get("switched_law")
+        labels.append(f"+ {added}" if added else (f"law {law}" if law else "base model"))
     ax.set_xticks(steps, labels, rotation=20, ha="right")
     for st, v, s in zip(steps, nr, ladder):
         fp = s.get("fit_percent")

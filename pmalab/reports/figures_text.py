@@ -55,6 +55,21 @@ TITLE_ROW = 0.0215
 TITLE_MAX_SUMMARY_LINES = 3
 
 
+#: how the title page names a run's role
+ROLE_NAMES = {"identification": "identification", "validation": "held out"}
+
+
+def runs_by_role(inp: Mapping[str, Any]) -> str:
+    """``identification (2): a, b; held out (1): c`` for one input file (its ``runs`` and
+    their ``roles``; a run without a role counts as identification), each run once."""
+    roles = inp.get("roles") or {}
+    groups: dict[str, list[str]] = {}
+    for r in dict.fromkeys(str(r) for r in inp.get("runs") or []):
+        role = str(roles.get(r, "identification"))
+        groups.setdefault(ROLE_NAMES.get(role, role), []).append(r)
+    return "; ".join(f"{name} ({len(rs)}): {', '.join(rs)}" for name, rs in groups.items())
+
+
 @style.styled
 def title_page_figure(
     *,
@@ -120,8 +135,7 @@ def title_page_figure(
     if inputs:
         lines = []
         for inp in inputs:
-            runs = [str(r) for r in inp.get("runs") or []]
-            line = f"{inp.get('file', '?')}: {len(runs)} run(s) {', '.join(runs)}"
+            line = f"{inp.get('file', '?')}: {runs_by_role(inp)}"
             lines.append(line if len(line) <= 150 else line[:149] + "…")
         if len(lines) > 3:
             lines = [*lines[:2], f"… and {len(lines) - 2} more files"]

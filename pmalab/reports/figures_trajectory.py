@@ -81,7 +81,7 @@ def trajectory_figure(
                 else f": {t['per_hour']:+.3g} {unit}/h"
             )
             if pct is not None:
-                head += f" ({pct:+.1f} %/h)"
+                head += f" ({pct:+.1f} %/h)" if abs(pct) >= 0.95 else f" ({pct:+.2g} %/h)"
         ax.set_title(head, fontsize=9)
         ax.set_xlabel("Cycle count")
         ax.set_ylabel(f"{n} ({unit})" if unit else n)

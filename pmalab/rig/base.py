@@ -171,6 +171,19 @@ class Block:
         return cls(a([t]), a([position]), a([force]), a([muscle_pressure]), a([cylinder_pressure]))
 
 
+#: the largest magnitude a rig file's ``[limits]`` may give: a McKibben muscle is rated
+#: 0.6 MPa and proportional regulators 0.9 MPa (1.2 MPa is beyond any such rig), a DMSP
+#: muscle pulls at most ~1.5 kN (20 kN is a load cell's range, never a muscle's), and a
+#: muscle of a few hundred mm contracts by a quarter of its length (500 mm)
+PHYSICAL_LIMITS = {
+    "max_muscle_pressure_MPa": 1.2,
+    "max_cylinder_pressure_MPa": 1.2,
+    "max_force_N": 20e3,
+    "min_position_mm": 500.0,
+    "max_position_mm": 500.0,
+}
+
+
 @dataclass
 class Limits:
     """Safety limits enforced by the runner on every sample (from the rig file)."""
@@ -200,6 +213,13 @@ class Limits:
         for key in ("max_muscle_pressure_MPa", "max_cylinder_pressure_MPa", "max_force_N"):
             if values[key] <= 0:
                 raise ConfigError(f"{where}: limits.{key}: must be > 0")
+        for key, hi in PHYSICAL_LIMITS.items():
+            v = values[key]
+            if abs(v) > hi:
+                raise ConfigError(
+                    f"{where}: limits.{key} = {v:g}: beyond what any PMA rig reaches "
+                    f"(|value| ≤ {hi:g}); a unit mistake?"
+                )
         return Limits(**values)
 
 

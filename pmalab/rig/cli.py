@@ -22,6 +22,7 @@ import threading
 import time
 from typing import TYPE_CHECKING
 
+from pmalab.arguments import seed as seed_arg
 from pmalab.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -47,7 +48,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="truth TOML of the simulated rig (default: the rig file's [rig.emulator] truth)",
     )
     p.add_argument(
-        "--seed", type=int, default=None, help="sensor-noise seed (default: [rig.emulator] seed)"
+        "--seed",
+        type=seed_arg,
+        default=None,
+        help="sensor-noise seed (default: [rig.emulator] seed)",
     )
     p.add_argument(
         "--port", type=int, default=None, help="TCP port to listen on instead of the rig file's"
@@ -169,7 +173,7 @@ def _register_stand(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--stroke", type=float, default=10.0, metavar="MM", help="length swing (isobaric, free)"
     )
-    p.add_argument("--seed", type=int, default=0, help="sensor noise (default 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="sensor noise (default 0)")
     p.add_argument("--out", required=True, metavar="FILE.h5", help="the run file to write")
     p.add_argument("--text", metavar="DIR", help="also write headerless text files here")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
@@ -189,8 +193,17 @@ def run_stand(args: argparse.Namespace) -> int:
         raise ConfigError(f"--held {args.held!r}: numbers separated by commas") from None
     if not values:
         raise ConfigError("--held: give at least one value")
-    if not (0 < args.p_max <= 1.0) or args.period <= 0 or args.cycles <= 0:
-        raise ConfigError("--p-max must be in (0, 1] MPa; --period and --cycles > 0")
+    import math
+
+    if not (0 < args.p_max <= 1.0):
+        raise ConfigError(f"--p-max {args.p_max:g}: must be a pressure in (0, 1] MPa")
+    for opt, v, hi in (("--period", args.period, 3600.0), ("--cycles", args.cycles, 100.0)):
+        if not (math.isfinite(v) and 0 < v <= hi):
+            raise ConfigError(f"{opt} {v:g}: must be > 0 and ≤ {hi:g}")
+    if not (math.isfinite(args.stroke) and 0 <= args.stroke <= 50.0):
+        raise ConfigError(f"--stroke {args.stroke:g}: must be 0 … 50 mm")
+    if not all(math.isfinite(v) for v in values):
+        raise ConfigError(f"--held {args.held!r}: finite numbers only")
     truth = load_static_truth(args.truth)
     unit, key = {
         "isometric": ("mm", "held_mm"),
@@ -248,7 +261,9 @@ def _register_benchmark(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("name", choices=("bouc-wen",), help="which benchmark")
     p.add_argument("--out", required=True, metavar="DIR", help="directory for the three files")
-    p.add_argument("--seed", type=int, default=0, help="multisine phases and noise (default 0)")
+    p.add_argument(
+        "--seed", type=seed_arg, default=0, help="multisine phases and noise (default 0)"
+    )
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.set_defaults(func=run_benchmark)
 

@@ -29,7 +29,7 @@ from typing import Any
 
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError
-from pmalab.paths import RIGS_DIR, shipped
+from pmalab.paths import RIGS_DIR, shipped, shipped_names
 from pmalab.registry import Registry
 from pmalab.rig.base import Clock, Rig
 from pmalab.rig.drivers import make_modbus_rig, make_nidaq_rig, make_t7_stream_rig
@@ -205,7 +205,10 @@ def load_rig(
         return rig
     path = shipped(spec, RIGS_DIR)  # a shipped rig's name or clone path works anywhere
     where = str(spec)
-    doc, text = load_toml(path, "rig file", hint=" (use 'sim' or a rig TOML file)")
+    names = ", ".join(dict.fromkeys(["sim", *shipped_names(RIGS_DIR)]))
+    doc, text = load_toml(
+        path, "rig file", hint=f" (give a rig TOML file or a shipped rig: {names})"
+    )
     check_keys(
         doc, ("rig", "limits"), "{where}: {key}: unknown section (known: rig, limits)", where=where
     )

@@ -41,10 +41,12 @@ from pmalab.identify.diagnosis.ranking import (
     scored_part,
 )
 from pmalab.identify.effects import EFFECTS, load_user_effects
+from pmalab.identify.labels import check_runs
 from pmalab.identify.laws import LAWS
 from pmalab.identify.predictions import PredictionItem, write_predictions_file
 from pmalab.identify.schema import DiagnosisDoc
 from pmalab.identify.signals import Signals
+from pmalab.pressure_labels import label_warning
 from pmalab.runfile import Run
 
 #: the final model "reaches the noise floor" unless it exceeds it by at least what the
@@ -500,6 +502,8 @@ def diagnose(
     for r in [*runs, *validate]:
         if len(r) < 200:
             raise DiagnoseError(f"{r.label}: too few samples to diagnose ({len(r)}; need ≥ 200)")
+    # runs whose measured mean pressure is not their label: said with the pressure effects
+    label_checks = check_runs([*runs, *validate], whole_run=True)
     split = choose(runs, validate)
     if not split.train:
         raise DiagnoseError("no identification runs left: every run is held out")
@@ -609,6 +613,19 @@ def diagnose(
         rest,
         single_frequency=one_frequency(split.train),
     )
+    labels_line = label_warning(label_checks)
+    if labels_line:
+        # a label offset is a per-run pressure error, not within-run variation: every model
+        # estimates each held-out record's force zero (most of such an offset's force), and
+        # pressure-variation fits what is left along the stroke
+        pv = any(s.added == "pressure-variation" for s in steps[1:])
+        summary += f" Pressure labels: {labels_line.split(' — give')[0]}." + (
+            " pressure-variation was added with these labels: part of its fall may be "
+            "the runs' label offsets, not variation within the runs — compare with "
+            "--pressure measured."
+            if pv
+            else " Compare with --pressure measured."
+        )
     campaign = campaign_diagnostics(camp_items)
     rounds_json = [
         {
@@ -626,7 +643,10 @@ def diagnose(
         "max_steps": max_steps,
         "candidates": cand,
         "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
-        "runs (one identification per candidate)",
+        "runs (one identification per candidate); each held-out run's record parameters "
+        "(start state, force zero, effect nuisances) estimated on its early part, the "
+        "error scored on the rest",
+        "pressure_labels": [c.as_json() for c in label_checks],
     }
     return Diagnosis(
         model=model,

@@ -8,10 +8,11 @@ with the estimator it fits with.  The numbers in the ranking are therefore the n
 user gets from ``pmalab identify --add EFFECT --validate ...``.
 
 Nuisance-fair scoring.  Every held-out run is predicted the way ``pmalab identify``
-validates it: the record's own parameters (the start state h0 and the record nuisances of
-the effects — a drifting zero's offset and rate) are fitted on the run's *early part* and
-the error is scored on the *rest* (:mod:`pmalab.identify.estimation.records`), the same
-samples for the null model and for every candidate.  An effect with per-record freedom must
+validates it: the record's own parameters (the start state h0, the record's force zero —
+for every model alike — and the record nuisances of the effects, e.g. a drift rate pulled
+toward the campaign's) are fitted on the run's *early part* and the error is scored on the
+*rest* (:mod:`pmalab.identify.estimation.records`), the same samples and the same
+per-record freedom for the null model and for every candidate.  An effect with per-record freedom must
 therefore predict the rest of the record from its start: a real linear drift extrapolates,
 a decaying softening or a misfit of the loop's shape does not.
 

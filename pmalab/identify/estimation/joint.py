@@ -103,7 +103,7 @@ def prepare(run: Run, error_scale: float | None = None) -> Record:
     sig = Signals.from_run(run)
     n = sig.t.shape[0]
     fs = 1.0 / float(np.median(np.diff(sig.t)))
-    stride = joint_stride(n, fs, run.frequency)
+    stride = joint_stride(n, fs, sig.frequency_Hz)  # an unknown one: from the motion band
     s = sig.every(stride)
     force = np.asarray(run.force, dtype=np.float64)[::stride]
     sd = max(float(np.std(force)), 1e-9)

@@ -1,8 +1,10 @@
 """The one record policy: how a run's own parameters are set when a model predicts it.
 
 A *record parameter* belongs to one recording, not to the muscle: the law's start state h0
-and the effects' ``nuisance_params`` (a load cell's drift rate during that run), plus — for a
-model with a drifting-zero effect (``Effect.tare``) — the record's force zero c0.  Every fit
+and the effects' ``nuisance_params`` (a load cell's drift rate during that run), plus the
+record's force zero c0 — in the fit only for a model with a drifting-zero effect
+(``Effect.tare``), in every *prediction* of another record (``RECORD_OFFSET``: the same
+per-record freedom for every model, so a record's offset is evidence for no effect).  Every fit
 gives them one value per run (:mod:`.problem`, per-run blocks).  When a model predicts a run
 it was not fitted on (validation, diagnosis, reports), the muscle parameters come from the
 pressure laws and the record parameters are set by ``initial``:
@@ -57,10 +59,16 @@ TARE_NOTE = (
 )
 
 
+#: every model's prediction of another record estimates that record's force zero c0 on its
+#: early part (the same per-record freedom for a null model and for a candidate with a
+#: drifting zero: a record's offset is then no evidence for any effect)
+RECORD_OFFSET = True
+
+
 def record_names(model: ForceModel) -> tuple[str, ...]:
     """The record parameters of ``model`` (see the module docstring)."""
     out = list(model.record_params)
-    if model.tares and "c0" not in out:
+    if (model.tares or RECORD_OFFSET) and "c0" not in out:
         out.append("c0")
     return tuple(out)
 

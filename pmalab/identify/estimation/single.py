@@ -37,6 +37,7 @@ Nothing is excluded: every sample of the run enters the fit.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -53,7 +54,7 @@ from pmalab.identify.estimation.solver import STDERR_METHOD, one_blas_thread, so
 from pmalab.identify.messages import Message, detail, note, warn
 from pmalab.identify.metrics import information_criteria, loop_direction, metrics
 from pmalab.identify.model import ForceModel
-from pmalab.identify.params import Params
+from pmalab.identify.params import Param, Params
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
@@ -64,6 +65,22 @@ FIX_TOLERANCE = 0.01  # accept an identifiability fix if nrmse rises by < 1 % (r
 
 class FitError(PmalabError):
     """A fit cannot be done on this input (too short, constant position...)."""
+
+
+def check_fix(model: ForceModel, p: Param, value: float | None) -> None:
+    """Refuse a fixed value (``--fix NAME=VALUE``) that is not finite or lies outside the
+    parameter's bounds (the range the fitter itself may explore): one line naming it."""
+    if value is None:
+        return
+    v = float(value)
+    if not math.isfinite(v):
+        raise FitError(f"--fix {p.name}={value}: the value must be a finite number")
+    if not (p.lo <= v <= p.hi):
+        unit = f" {p.unit}" if p.unit not in ("", "-") else ""
+        raise FitError(
+            f"--fix {p.name}={v:g}: outside the range of {model.name}'s '{p.name}' "
+            f"[{p.lo:g}, {p.hi:g}]{unit}"
+        )
 
 
 # --------------------------------------------------------------------------- results
@@ -355,6 +372,7 @@ def _fit_once(
                 f"unknown parameter '{name}' for model {model.name} (has: {', '.join(ps.names())})"
             )
     for name, v in fixed.items():
+        check_fix(model, ps[name], v)
         ps[name].value = float(v)
         ps[name].vary = False
     law_names = ["k", "c0"] + [lp.name for lp in model.law.params]
@@ -448,6 +466,7 @@ def _fit_run(
             raise FitError(
                 f"unknown parameter '{k}' for model {model.name} (has: {', '.join(ps0.names())})"
             )
+        check_fix(model, ps0[k], v)
         fix[k] = float(init.get(k, ps0[k].value)) if v is None else float(v)
 
     # fit on ≤ SAMPLES_PER_CYCLE samples per excitation cycle (the laws are rate independent

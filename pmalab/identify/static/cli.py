@@ -48,6 +48,17 @@ def run_static(
     from pmalab.identify.static.maps import Geometry, get_static_map
     from pmalab.paths import check_output, write_together
 
+    for opt, given in (
+        ("--add", bool(getattr(args, "add", None))),
+        ("--effects", bool(getattr(args, "effects", None))),
+        ("--free", bool(getattr(args, "free", None))),
+        ("--output position", getattr(args, "output", "force") != "force"),
+    ):
+        if given:
+            raise PmalabError(
+                f"{opt}: not part of the static characterization (a static map and a law); "
+                "identify isobaric runs for effects and output error"
+            )
     geometry = Geometry(
         length_mm=check_geometry(args.length, "--length"),
         diameter_mm=check_geometry(args.diameter, "--diameter"),
@@ -57,7 +68,7 @@ def run_static(
     if drive not in DRIVES:
         raise PmalabError(f"--drive {drive}: one of {', '.join(DRIVES)}")
     law = None if args.model == "none" else args.model
-    model = StaticModel(smap, law, drive)
+    model = StaticModel(smap, law, drive, args.loop_scale)
     if auto:
         kinds = ", ".join(sorted({r.test_type for r in runs}))
         print(
@@ -94,9 +105,12 @@ def _parse_fixed(items: Sequence[str]) -> dict[str, float]:
         try:
             if not sep or not name:
                 raise ValueError
-            out[name.strip()] = float(val)
+            v = float(val)
         except ValueError:
             raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
     return out
 
 
@@ -117,13 +131,18 @@ def _print(doc: dict[str, Any], fit: Any) -> None:
     for n, p in sm["parameters"].items():
         print(f"  {n:<16} {_fmt(p['value'], p['stderr']):>22} {p['unit']:<10} {p['doc']}")
     for n, p in sm["derived"].items():
-        print(f"  {n:<16} {p['value']:>22.5g} {p['unit']:<10} {p['doc']}")
+        print(f"  {n:<24} {p['value']:>14.5g} {p['unit']:<10} {p['doc']}")
     h = doc["hysteresis"]
     if h:
         for n, p in h["parameters"].items():
             print(f"  {n:<16} {_fmt(p['value'], p['stderr']):>22} {p['unit']:<10} {p['doc']}")
         for k, v in h["loop_half_width_N"].items():
-            print(f"  loop half-width on the {k}: {v:.3g} N")
+            at = (
+                f" at {h['loop_reference_MPa']:.3g} MPa (∝ p)"
+                if k == "pressure" and h.get("loop_scale") == "pressure"
+                else ""
+            )
+            print(f"  loop half-width on the {k}: {v:.3g} N{at}")
     w = max(
         [len(f"{Path(r['file'] or '').name}:{r['run']}") for r in doc["runs"] + doc["validation"]]
         + [10]
@@ -161,7 +180,9 @@ def run_static_diagnose(
     )
     smap = get_static_map(args.static or "linear", geometry)
     try:
-        doc = diagnose_static(smap, runs, val, laws=laws, drive=args.drive)
+        doc = diagnose_static(
+            smap, runs, val, laws=laws, drive=args.drive, loop_scale=args.loop_scale
+        )
     except ValueError as exc:
         raise PmalabError(f"diagnose: {exc}") from None
     check_diagnosis(doc, "diagnosis.json")

@@ -55,6 +55,7 @@ def diagnose_static(
     *,
     laws: Sequence[str] | None = None,
     drive: str | None = None,
+    loop_scale: str = "none",
 ) -> dict[str, Any]:
     """The static diagnosis as ``diagnosis.json`` (the contract's keys; module docstring)."""
     if validate:
@@ -70,7 +71,7 @@ def diagnose_static(
     fits: dict[str, StaticFit] = {}
     for name in laws if laws is not None else list(LAWS):
         try:
-            fit = fit_static(StaticModel(smap, name, drv), ident, held)
+            fit = fit_static(StaticModel(smap, name, drv, loop_scale), ident, held)
         except Exception as exc:  # a failed fit is reported, never ranked
             rows.append(
                 {
@@ -143,7 +144,7 @@ def diagnose_static(
         + ("" if verdict == "floor" else "; the rest is not explained by these laws")
     )
     return {
-        "model": "none",
+        "model": f"{smap.name} (static map)",
         "kind": "static",
         "static_map": smap.name,
         "drive": drv,

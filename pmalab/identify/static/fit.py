@@ -21,6 +21,12 @@ errors come from the Jacobian at the optimum, scaled by the residual variance an
 residual's autocorrelation (an effective sample count, as a white-noise formula would
 understate them on a smooth misfit).
 
+A run that holds one drive (the contraction of an isometric run beside isobaric ones) keeps
+that law at its start state: a constant of the run, as free as the force offset.  Such a
+mixed campaign fits each run well, but the offset and those constants trade against each
+other, so a prediction of a free run (both laws saturating) can carry that trade; free runs
+in the identification pin it.
+
 A held-out run (``--validate``) is predicted with every muscle parameter held and only its
 start state h0 refitted — the same initial-state policy as the isobaric validation — so a
 model identified on isometric runs can be scored on isobaric ones (the map meets x that
@@ -47,6 +53,8 @@ from pmalab.identify.static.maps import StaticMap
 from pmalab.runfile import Run
 
 DRIVES = ("pressure", "position", "both")
+#: how the pressure law's loop scales with the pressure
+LOOP_SCALES = ("none", "pressure")
 #: default drive per test type: what moves the muscle's friction
 DEFAULT_DRIVE = {"isometric": "pressure", "isotonic": "pressure", "isobaric": "position"}
 #: zero-phase cut-off of the drives (Hz): a static test's ramps are slow
@@ -92,9 +100,25 @@ def prepare(run: Run, cutoff_Hz: float = CUTOFF_HZ) -> StaticRecord:
 class StaticModel:
     """A static map plus an optional law on a drive; parameters in :attr:`names` order."""
 
-    def __init__(self, smap: StaticMap, law: HysteresisLaw | str | None, drive: str) -> None:
+    def __init__(
+        self,
+        smap: StaticMap,
+        law: HysteresisLaw | str | None,
+        drive: str,
+        loop_scale: str = "none",
+    ) -> None:
         if drive not in DRIVES:
             raise PmalabError(f"--drive: unknown '{drive}' (one of {', '.join(DRIVES)})")
+        if loop_scale not in LOOP_SCALES:
+            raise PmalabError(
+                f"--loop-scale: unknown '{loop_scale}' (one of {', '.join(LOOP_SCALES)})"
+            )
+        #: ``pressure``: the pressure law's output times p/p_ref (friction ∝ contact
+        #: pressure, Tondu & Lopez), ``none``: as the law gives it
+        self.loop_scale = loop_scale
+        #: the reference pressure (MPa) of a pressure-scaled loop: the campaign's largest,
+        #: set by the fit; the law's parameters describe the loop there
+        self.p_ref: float | None = None
         self.map = smap
         self.law = get_law(law) if isinstance(law, str) else law
         self.drive = drive
@@ -153,7 +177,8 @@ class StaticModel:
     def name(self) -> str:
         if self.law is None:
             return self.map.name
-        return f"{self.map.name}+{self.law.name}({self.drive})"
+        scaled = "·p" if self.loop_scale == "pressure" else ""
+        return f"{self.map.name}+{self.law.name}({self.drive}){scaled}"
 
     def units(self) -> dict[str, str]:
         """Unit of every parameter; a law's ``mm`` reads ``MPa`` on the pressure drive."""
@@ -205,8 +230,16 @@ class StaticModel:
         for inp, h in zip(self.inputs, h0, strict=True):
             assert self.law is not None
             path = p if inp == "p" else x
-            out[f"hysteresis_{inp}"] = self.law.h(path, self._law_theta(theta, inp, h))
+            out[f"hysteresis_{inp}"] = self.law.h(path, self._law_theta(theta, inp, h)) * (
+                self.scale(p) if inp == "p" else 1.0
+            )
         return out
+
+    def scale(self, p: np.ndarray) -> np.ndarray | float:
+        """The pressure law's output factor: p/p_ref for a pressure-scaled loop, else 1."""
+        if self.loop_scale != "pressure":
+            return 1.0
+        return np.asarray(p, dtype=float) / float(self.p_ref or 1.0)
 
     def predict(
         self,
@@ -319,14 +352,23 @@ def fit_static(
                 f"--fix {n}: not a parameter of {model.name} (parameters: {', '.join(model.names)})"
             )
     recs = [prepare(r) for r in runs]
-    if model.law is not None and model.drive in ("position", "both"):
-        for rec in recs:
-            if float(np.ptp(rec.x)) < 0.05:
-                raise PmalabError(
-                    f"{rec.label}: --drive {model.drive}: the contraction is held "
-                    f"({rec.run.test_type} test), so a law on the contraction has no stroke "
-                    "to fit; use --drive pressure"
-                )
+    if model.loop_scale == "pressure" and model.p_ref is None:
+        model.p_ref = max(float(np.max(r.p)) for r in recs)
+        if not model.p_ref > 0:
+            raise PmalabError("--loop-scale pressure: the runs never reach a positive pressure")
+    # a law needs its drive to move in some run (runs of other test types may hold it: an
+    # isometric run beside isobaric ones keeps the contraction law at its start state)
+    for inp in model.inputs:
+        if all(
+            float(np.ptp(r.x if inp == "x" else r.p)) < (0.05 if inp == "x" else 0.01) for r in recs
+        ):
+            what = "contraction" if inp == "x" else "pressure"
+            other = "pressure" if inp == "x" else "position"
+            raise PmalabError(
+                f"--drive {model.drive}: the {what} is held in every run "
+                f"({', '.join(sorted({r.run.test_type for r in recs}))}), so a law on the "
+                f"{what} has nothing to fit; use --drive {other}"
+            )
     # ---- stage 1: the static map alone (closed-form start, then least squares)
     xs = np.concatenate([r.x[:: r.stride] for r in recs])
     ps = np.concatenate([r.p[:: r.stride] for r in recs])
@@ -495,7 +537,15 @@ def _law_start(
         lth[law.scale_param] = 1.0
         if not law.scale_valid(lth):
             continue
-        cols = [np.concatenate([law.h(pth, lth) for pth in paths])]
+        pss = [r.p[:: r.stride] for r in recs]
+        cols = [
+            np.concatenate(
+                [
+                    law.h(pth, lth) * (model.scale(pp) if inp == "p" else 1.0)
+                    for pth, pp in zip(paths, pss, strict=True)
+                ]
+            )
+        ]
         for i, n in enumerate(lens):  # one constant per run
             c = np.zeros(len(y))
             c[sum(lens[:i]) : sum(lens[:i]) + n] = 1.0
@@ -580,7 +630,15 @@ def summary_doc(fit: StaticFit, geometry: Mapping[str, Any]) -> dict[str, Any]:
                 ("pressure" if k == "p" else "position"): v for k, v in widths.items()
             },
             "loop_half_width_doc": "half the force gap between the rising and falling "
-            "branches at mid-swing, over the campaign's largest drive swing (N)",
+            "branches at mid-swing, over the campaign's largest drive swing (N)"
+            + (
+                f"; the pressure loop at the reference pressure {m.p_ref:.4g} MPa, "
+                "scaled by p/p_ref elsewhere"
+                if m.loop_scale == "pressure"
+                else ""
+            ),
+            "loop_scale": m.loop_scale,
+            "loop_reference_MPa": m.p_ref,
         }
 
     def row(rf: RunFit) -> dict[str, Any]:

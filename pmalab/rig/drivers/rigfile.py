@@ -29,6 +29,7 @@ vent, and probes the block-read rate (timing honesty).  Each failure is one line
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -250,7 +251,9 @@ def parse_modbus_rig(section: Mapping[str, Any], rig_file: Path | None = None) -
             continue
         outputs[oname] = _parse_output(oname, o, where)
 
-    rate = _num(rig.get("sample_rate_Hz", 500.0), f"{where}: [rig] sample_rate_Hz", 1.0)
+    rate = _num(
+        rig.get("sample_rate_Hz", 500.0), f"{where}: [rig] sample_rate_Hz", 1.0, MAX_RATE_HZ
+    )
     return ModbusRigSpec(
         path=path,
         text=text,
@@ -276,7 +279,8 @@ def _parse_output(name: str, o: Any, where: str) -> OutputSpec:
     if not isinstance(o, Mapping):
         raise ConfigError(f"{w} must be a table")
     otype = str(o.get("type", "analog")).lower()
-    maxp = _num(o.get("max_pressure_MPa", 0.9), f"{w} max_pressure_MPa", 0.01)
+    # a proportional regulator's range: 0.9 MPa (ITV1050); 1.2 MPa is beyond any PMA rig
+    maxp = _num(o.get("max_pressure_MPa", 0.9), f"{w} max_pressure_MPa", 0.01, 1.2)
     if otype == "analog":
         return OutputSpec(
             name=name,
@@ -521,11 +525,18 @@ def _table(data: Mapping[str, Any], key: str, where: str) -> Mapping[str, Any]:
     return t
 
 
-def _num(x: Any, where: str, lo: float | None = None) -> float:
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
+#: the fastest a polled rig can be asked to sample: a Modbus request/response takes ≥ 0.2 ms
+#: on a LAN (a hardware-timed card has its own limit in its driver)
+MAX_RATE_HZ = 5000.0
+
+
+def _num(x: Any, where: str, lo: float | None = None, hi: float | None = None) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         raise ConfigError(f"{where}: expected a number, got {x!r}")
     if lo is not None and x < lo:
         raise ConfigError(f"{where}: {x} is below {lo}")
+    if hi is not None and x > hi:
+        raise ConfigError(f"{where}: {x:g} is above {hi:g}")
     return float(x)
 
 

@@ -70,7 +70,9 @@ class PairSpec:
     stop_damping_N_m_s_per_rad: float = 5.0
     volume_cm3: float = 50.0  #: each muscle + tubing volume at nominal length (cm³)
     dvolume_cm3_per_mm: float = 1.0  #: volume growth per mm of contraction (cm³/mm)
-    fill_time_constant_s: float = 0.12  #: regulator → muscle filling at volume_cm3 (s)
+    fill_time_constant_s: float = (
+        0.03  #: regulator → muscle filling at volume_cm3 (s): a well-sized line
+    )
     encoder_resolution_deg: float = 0.01  #: angle encoder quantum (deg)
     encoder_noise_deg: float = 0.005  #: angle encoder rms noise (deg)
 

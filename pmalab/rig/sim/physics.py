@@ -159,6 +159,27 @@ class RigPhysics:
         self._k_drift = (
             float(truth.section("muscle")["stiffness_drift_percent_per_hour"]) / 100.0 / 3600.0
         )
+        # off-catalogue effects, applied between kernel steps (each step is one sample
+        # period; all of them are slow or sensor-side)
+        self._fmax0 = float(self._par[K.P_FMAX])
+        cond = truth.effect("conditioning")
+        self._cond = (cond["stiffening_percent"] / 100.0, float(cond["path_mm"])) if cond else None
+        warm = truth.effect("warming")
+        self._warm = (
+            (warm["stiffness_change_percent"] / 100.0, float(warm["time_constant_s"]))
+            if warm
+            else None
+        )
+        brk = truth.effect("breakaway")
+        self._brk = (float(brk["spike_N"]), float(brk["decay_ms"]) * 1e-3) if brk else None
+        hum = truth.effect("mains_pickup")
+        self._hum = (float(hum["amplitude_N"]), float(hum["frequency_Hz"])) if hum else None
+        self._path = 0.0  # path the muscle has moved since switch-on (mm)
+        self._x_last = 0.0
+        self._v_sign = 0.0  # sign of the motion since the last reversal
+        self._t_rev = -math.inf  # time of the last reversal (s)
+        self._slow = bool(self._k_drift or self._cond or self._warm)
+        self._sensor = bool(self._brk or self._hum)
         # the sled starts at rest at nominal length, every pressure at zero
         self._st[K.S_YX] = 0.0
 
@@ -174,16 +195,52 @@ class RigPhysics:
             return
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
-        if self._k_drift:
+        if self._slow:
             self._drift_stiffness(t)
         rc = K.advance(self._w, self._pend, self._ptr, self._hist, float(t))
         if rc:
             self._diverged()
+        if self._sensor:
+            self._track_motion()
 
     def _drift_stiffness(self, t: float) -> None:
-        """Set the muscle's stiffness for rig time ``t`` (s): k0·(1 + r·t), held over the
-        step to ``t`` (a sample period: the drift is hours slow)."""
-        self._par[K.P_XMAX] = self._xmax0 / max(0.05, 1.0 + self._k_drift * t)
+        """Set the muscle's stiffness for rig time ``t`` (s): k0·(1 + r·t) (fatigue) times
+        the warming factor 1 + b·(1 − exp(−t/τ)), and its conditioning F0·(1 + a·exp(−S/S0))
+        (S the path moved so far), held over the step to ``t`` (a sample period: all slow)."""
+        k = max(0.05, 1.0 + self._k_drift * t)
+        if self._warm:
+            b, tau = self._warm
+            k *= max(0.05, 1.0 + b * (1.0 - math.exp(-t / tau)))
+        self._par[K.P_XMAX] = self._xmax0 / k
+        if self._cond:
+            x = float(self._st[K.S_X])
+            self._path += abs(x - self._x_last)
+            self._x_last = x
+            a, s0 = self._cond
+            self._par[K.P_FMAX] = self._fmax0 * (1.0 + a * math.exp(-self._path / s0))
+
+    def _track_motion(self) -> None:
+        """Note a reversal of the true motion (for the break-away spikes)."""
+        v = float(self._st[K.S_V])
+        # a reversal: the motion (beyond 0.5 mm/s, not noise or rest) changes sign
+        if abs(v) > 0.5:
+            sg = 1.0 if v > 0 else -1.0
+            if sg != self._v_sign:
+                if self._v_sign != 0.0:
+                    self._t_rev = float(self._st[K.S_T])
+                self._v_sign = sg
+
+    def _sensor_terms(self, t: float) -> float:
+        """Off-catalogue force on the load-cell reading at time ``t`` (N): the break-away
+        spike since the last reversal (up while stretching: −sign(ẋ)) and the mains hum."""
+        f = 0.0
+        if self._brk and math.isfinite(self._t_rev):
+            a, tau = self._brk
+            f -= a * self._v_sign * math.exp(-(t - self._t_rev) / tau)
+        if self._hum:
+            a, fr = self._hum
+            f += a * math.sin(2.0 * math.pi * fr * t + 0.3)
+        return f
 
     def stiffness_factor(self, t: float | None = None) -> float:
         """k(t)/k0 of the stiffness drift at rig time ``t`` (s; default now)."""
@@ -260,6 +317,8 @@ class RigPhysics:
         if K.measure(self._w, self._ptr, self._hist, self._noise):
             self._refill_noise()
         o = self._out
+        if self._sensor:
+            o[2] += self._sensor_terms(float(o[0]))
         return {
             "time": float(o[0]),
             "position": float(o[1]),
@@ -275,13 +334,16 @@ class RigPhysics:
         """
         if not math.isfinite(t):
             raise RigError(f"simulated rig: cannot advance to t = {t}")
-        if self._k_drift:
+        if self._slow:
             self._drift_stiffness(t)
         rc = K.advance_measure(self._w, self._pend, self._ptr, self._hist, self._noise, float(t))
         if rc:
             if rc & 1:
                 self._diverged()
             self._refill_noise()
+        if self._sensor:
+            self._track_motion()
+            self._out[2] += self._sensor_terms(float(self._out[0]))
         return self._out
 
     def truth_state(self) -> dict[str, Any]:

@@ -20,7 +20,9 @@ Truth (written apart from the identification models, imports nothing from ``iden
   attributes the loop to it) seen as a Maxwell-slip set of elements driven by the pressure
   (element i deflects with the pressure by at most δ_i MPa, then slips; h = −W·Σ w_i·z_i/δ_i):
   force lower while inflating than while venting at the same pressure, a loop of half-width
-  W (N) once every element slips;
+  W (N) once every element slips — or, with ``pressure_friction_reference_MPa`` = p_ref > 0,
+  W·p/p_ref (friction proportional to the contact pressure, as in Tondu & Lopez's model:
+  the loop pinches at p = 0);
 * optional **position-domain hysteresis** of the same kind driven by the contraction (mm), for
   isobaric and free tests;
 * a first-order pressure regulator, sensor noise and quantization, and (the real stand-ins'
@@ -62,6 +64,9 @@ class StaticTruth:
     offset_N: float = 0.0
     #: pressure-domain loop half-width W (N)
     pressure_friction_N: float = 6.0
+    #: > 0: the friction grows with the contact pressure, W·p/p_ref (Tondu & Lopez's friction
+    #: is proportional to the pressure), so the loop pinches at p = 0; 0: constant W
+    pressure_friction_reference_MPa: float = 0.0
     #: pressure-domain elements' slip ranges δ_i (MPa) and weights
     pressure_presliding_MPa: tuple[float, ...] = (0.01, 0.03, 0.06, 0.1)
     pressure_weights: tuple[float, ...] = (0.3, 0.3, 0.25, 0.15)
@@ -108,6 +113,7 @@ _FIELDS: dict[str, dict[str, tuple[float, float]]] = {
     },
     "friction": {
         "pressure_friction_N": (0.0, 500.0),
+        "pressure_friction_reference_MPa": (0.0, 1.2),
         "pressure_presliding_MPa": (1e-5, 1.0),
         "pressure_weights": (0.0, 1.0),
         "position_friction_N": (0.0, 500.0),
@@ -313,14 +319,16 @@ def run_test(
         x = np.full(n, float(held_mm))
     hp = _Slip(truth.pressure_friction_N, truth.pressure_presliding_MPa, truth.pressure_weights)
     hx = _Slip(truth.position_friction_N, truth.position_presliding_mm, truth.position_weights)
+    ref = truth.pressure_friction_reference_MPa
+    scale = p / ref if ref > 0 else np.ones(n)  # friction ∝ contact pressure (or constant)
     hp.start(-1.0)  # the muscle was vented before the test
     hx.start(-1.0)
     F = np.empty(n)
     if test_type == "isotonic":
         # quasi-static: the length where the muscle's tension carries the load
-        xk = _solve_length(truth, p[0], load_N - hp.step(0.0) - hx.step(0.0), held_mm)
+        xk = _solve_length(truth, p[0], load_N - hp.step(0.0) * scale[0] - hx.step(0.0), held_mm)
         for k in range(n):
-            h_p = hp.step(p[k] - p[k - 1]) if k else hp.step(0.0)
+            h_p = (hp.step(p[k] - p[k - 1]) if k else hp.step(0.0)) * scale[k]
             target = load_N - h_p
             x_new = _solve_length(truth, p[k], target - hx.step(0.0), xk)
             h_x = hx.step(x_new - xk)
@@ -329,7 +337,7 @@ def run_test(
             F[k] = load_N
     else:
         for k in range(n):
-            h_p = hp.step(p[k] - p[k - 1]) if k else hp.step(0.0)
+            h_p = (hp.step(p[k] - p[k - 1]) if k else hp.step(0.0)) * scale[k]
             h_x = hx.step(x[k] - x[k - 1]) if k else hx.step(0.0)
             F[k] = float(truth.static_force(x[k], p[k])) + h_p + h_x
     rising = np.gradient(cmd) >= 0.0

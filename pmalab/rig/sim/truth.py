@@ -24,7 +24,7 @@ from typing import Any
 
 from pmalab.config import load_toml, unknown_keys
 from pmalab.errors import ConfigError
-from pmalab.paths import TRUTH_DIR, shipped
+from pmalab.paths import TRUTH_DIR, shipped, shipped_hint
 
 DEFAULT_TRUTH = TRUTH_DIR / "default.toml"
 
@@ -192,6 +192,50 @@ SCHEMA: dict[str, dict[str, Field]] = {
     "effects.inertia": {
         "enabled": F(False, kind="bool"),
         "mass_kg": F(0.0, 0.0, None, False, "moving mass between muscle and load cell (kg)"),
+    },
+    # ---- off-catalogue effects: no identification effect models them; the diagnosis must
+    # not claim a catalogue effect for them (look-alikes of slow catalogue effects)
+    "effects.conditioning": {
+        "enabled": F(False, kind="bool"),
+        "stiffening_percent": F(
+            0.0,
+            0.0,
+            100.0,
+            False,
+            "bladder conditioning (Mullins-like): the virgin muscle's tension is higher by "
+            "this % and softens as it is stretched: F0·(1 + a·exp(−S/S0)), S the path (mm) "
+            "the muscle has moved since switch-on",
+        ),
+        "path_mm": F(200.0, 0.0, None, True, "path S0 (mm) over which the softening decays"),
+    },
+    "effects.warming": {
+        "enabled": F(False, kind="bool"),
+        "stiffness_change_percent": F(
+            0.0,
+            -50.0,
+            50.0,
+            False,
+            "stiffness change as the muscle warms (%): k(t) = k0·(1 + b·(1 − exp(−t/τ))), "
+            "t the rig time since switch-on, the tension at x = 0 unchanged",
+        ),
+        "time_constant_s": F(60.0, 0.0, None, True, "warming time constant τ (s)"),
+    },
+    "effects.breakaway": {
+        "enabled": F(False, kind="bool"),
+        "spike_N": F(
+            0.0,
+            0.0,
+            None,
+            False,
+            "braid stiction breaking away at each reversal: a tension spike of this size "
+            "(N), raised while stretching and lowered while contracting",
+        ),
+        "decay_ms": F(30.0, 0.0, None, True, "decay time of the spike (ms)"),
+    },
+    "effects.mains_pickup": {
+        "enabled": F(False, kind="bool"),
+        "amplitude_N": F(0.0, 0.0, None, False, "mains hum on the load-cell reading (N, peak)"),
+        "frequency_Hz": F(50.0, 0.0, None, True, "mains frequency (Hz)"),
     },
     "effects.sensor_drift": {
         "enabled": F(False, kind="bool"),
@@ -403,7 +447,7 @@ def load_truth(path: str | Path | None = None) -> Truth:
     """
     p = DEFAULT_TRUTH if path is None else shipped(path, TRUTH_DIR)
     source = str(path) if path is not None else str(p)
-    doc, _ = load_toml(p, "truth file", where=source)
+    doc, _ = load_toml(p, "truth file", where=source, hint=shipped_hint(TRUTH_DIR, "truths"))
     return validate(doc, source)
 
 

@@ -1,0 +1,32 @@
+"""Argument types shared by the command line's verbs: a number a user types is checked
+where it is parsed, so a bad one is one line naming the option (exit 2), never a traceback
+deep in a library (an HDF5 attribute cannot hold a 90-digit integer)."""
+
+from __future__ import annotations
+
+import argparse
+
+#: the largest seed: it is stored with the recording as a 64-bit integer attribute
+MAX_SEED = 2**63 - 1
+
+
+def seed(text: str) -> int:
+    """A random seed: an integer 0 … 2**63 − 1.
+
+    Parameters
+    ----------
+    text
+        The option's text.
+
+    Returns
+    -------
+    int
+        The seed.
+    """
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if not 0 <= v <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"{text}: must be an integer 0 … 2**63-1")
+    return v
