@@ -41,7 +41,7 @@ from pmalab.runfile import Run
 #: than this fraction
 SIMPLER_WITHIN = 0.01
 #: function evaluations of a structured candidate's joint fit
-CANDIDATE_NFEV = 60
+CANDIDATE_NFEV = 120
 #: pressure levels (distinct nominal pressures, rounded to 1 kPa) a LOPO choice needs: one
 #: interior level left out still leaves ≥ 3 levels for a quadratic
 MIN_LEVELS = 4
@@ -295,9 +295,9 @@ def _joint_structured(cf, runs: Sequence[Run], model, thetas: Sequence[Mapping[s
         nuisance_start=j.nuisance or None,
         fixed_order=[*shape, *(n for n in model.campaign_shared if n in start)],
         lopo=True,
-        # a candidate is one refinement from the free laws: no order pruning, a bounded
-        # number of evaluations (it starts close; the scores compare like with like)
-        prune=False,
+        # one refinement from the free laws, its orders pruned like the free fit's (the
+        # candidates compare like with like)
+        prune=True,
         max_nfev=CANDIDATE_NFEV,
     )
     return fit
