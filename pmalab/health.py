@@ -11,9 +11,9 @@ failures read as plausible numbers and would be fitted as data:
   16 times running with a probability below 1e-15; a coarsely quantised one (a slow
   pressure gauge) legitimately repeats and is not judged;
 * **spike** — one sample away from both neighbours by more than :data:`SPIKE_NOISE` noise
-  levels and beyond what the quantity can do in one sample interval (the position: a
-  muscle contracts at most :data:`MAX_SPEED_MM_S`), while the neighbours agree with each
-  other: a flipped bit or a transmission error, not motion.
+  levels and beyond what the quantity can do in one sample interval (the position: out and
+  back within :data:`MAX_ACCEL_MM_S2`), while the neighbours agree with each other: a
+  flipped bit or a transmission error, not motion.
 
 Channels a run was given as constants (``--pressure``, ``--position`` of an import) are not
 judged.  Each finding is one line naming the file, run, channel and sample.
@@ -31,9 +31,10 @@ STUCK_SAMPLES = 16
 RESOLVED_NOISE = 3.0
 #: a spike departs from both neighbours by more than this many noise levels ...
 SPIKE_NOISE = 12.0
-#: ... and (position) faster than a muscle moves: McKibben muscles contract at up to ~1 m/s
-#: unloaded; 3 m/s is beyond any of them
-MAX_SPEED_MM_S = 3000.0
+#: ... and (position) out and back faster than a muscle accelerates: a spike of height h in
+#: one sample interval dt needs an acceleration of about 2h/dt²; 100 m/s² (10 g) is beyond a
+#: muscle pulling a test rig's cylinder and load cell
+MAX_ACCEL_MM_S2 = 1e5
 #: the channels judged, with the least change (canonical units) a spike must make: below
 #: it a sample is within any sensor's glitch-free error
 JUDGED = {"position": 0.2, "force": 5.0, "muscle_pressure": 0.02}
@@ -103,7 +104,7 @@ def check_health(
                 )
         limit = max(SPIKE_NOISE * sigma, least)
         if ch == "position":
-            limit = max(limit, MAX_SPEED_MM_S * dt)
+            limit = max(limit, 0.5 * MAX_ACCEL_MM_S2 * dt * dt)
         a, b, c = y[:-2], y[1:-1], y[2:]
         dev = np.minimum(np.abs(b - a), np.abs(b - c))
         spike = (dev > limit) & (np.sign(b - a) == np.sign(b - c)) & (np.abs(a - c) < limit / 2)

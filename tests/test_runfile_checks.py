@@ -93,7 +93,7 @@ def test_identify_cli_prints_the_skip_warning_and_fits_the_rest(tmp_path, capsys
     frag.attrs["status"] = "aborted: interrupted (Ctrl-C)"
     f = write_runs(tmp_path / "c.h5", [*runs, frag])
     rc = main(["identify", str(f), "--model", "duhem", "--out", str(tmp_path / "o"),
-               "--jobs", "1", "--quiet"])
+               "--jobs", "1"])
     out, err = capsys.readouterr()
     assert rc == 0, err
     assert (f"pmalab identify: warning: {f}: run 'frag' skipped: aborted: interrupted "

@@ -58,6 +58,7 @@ from pmalab.runfile import (
     CHECKSUM,
     FORMAT,
     FORMAT_VERSION,
+    create_run_group,
     declare_channels,
     seal_attrs,
 )
@@ -466,7 +467,7 @@ class Recorder:
             seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
-                g = grp.create_group(name)
+                g = create_run_group(grp, name)
                 for k, v in attrs.items():
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():
