@@ -118,9 +118,9 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
 def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
-        run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
-            f"f{x:g}"
-        )
+        run_test(
+            truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, period_s=10.0, x_period_s=2.5
+        ).to_run(f"f{x:g}")
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
     others = [

@@ -58,6 +58,7 @@ from pmalab.runfile import (
     CHECKSUM,
     FORMAT,
     FORMAT_VERSION,
+    create_run_group,
     declare_channels,
     seal_attrs,
 )
@@ -227,6 +228,8 @@ class RunWriter:
         self._gaps = ds("gaps") if "gaps" in g else None
         self._gap_buf: list[tuple[float, float]] = []
         self._buf: list[list[float]] = [[] for _ in self.channels]
+        #: samples appended one at a time (rows), turned into columns at the next commit
+        self._rows: list[Sequence[float]] = []
         self._late_buf: list[float] = []
         self.n = 0  # samples written to the file
         self.n_late = 0
@@ -243,9 +246,25 @@ class RunWriter:
     def append(self, row: Sequence[float], lateness: float) -> None:
         """Buffer one sample: its values in :attr:`channels` order (the rig's declaration:
         time, the sampled channels, the commands) and its lateness (s)."""
-        for buf, v in zip(self._buf, row, strict=True):
-            buf.append(v)
+        self._rows.append(row)
         self._late_buf.append(lateness)
+
+    def _fold_rows(self) -> None:
+        """Move the appended rows into the per-channel buffers (one transpose a commit)."""
+        rows = self._rows
+        if not rows:
+            return
+        nch = len(self._buf)
+        bad = next((r for r in rows if len(r) != nch), None)
+        if bad is not None:
+            rows.clear()
+            raise ValueError(
+                f"run '{self.name}': a sample has {len(bad)} values for {nch} channels "
+                f"({', '.join(self.channels)})"
+            )
+        for buf, col in zip(self._buf, zip(*rows), strict=True):
+            buf.extend(col)
+        rows.clear()
 
     def add(
         self, t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
@@ -257,6 +276,7 @@ class RunWriter:
     def extend(self, columns: Sequence[np.ndarray], lateness: np.ndarray) -> None:
         """Buffer a block of samples: one array per channel (in :attr:`channels` order, equal
         lengths) and the samples' lateness (s)."""
+        self._fold_rows()
         for buf, col in zip(self._buf, columns, strict=True):
             buf.extend(np.asarray(col, dtype=np.float64).tolist())
         self._late_buf.extend(np.asarray(lateness, dtype=np.float64).tolist())
@@ -306,6 +326,7 @@ class RunWriter:
         samples written before, so the run's channels keep equal lengths, and the buffer
         is kept; the error is raised.
         """
+        self._fold_rows()
         k = len(self._late_buf)
         if k:
             n0, n1 = self.n, self.n + k
@@ -446,7 +467,7 @@ class Recorder:
             seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
-                g = grp.create_group(name)
+                g = create_run_group(grp, name)
                 for k, v in attrs.items():
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():
