@@ -12,6 +12,9 @@ Environment: ``PMALAB_BENCH_LONG_HOURS`` (default ``0.1667,1,10``: the record le
 500 Hz), ``PMALAB_BENCH_LONG_10K_HOURS`` (default ``1``; ``0`` skips it),
 ``PMALAB_BENCH_LONG_DIR`` (keep the records there and reuse them; default: a temporary
 directory), ``PMALAB_BENCH_LONG_STAGES`` (default ``run,identify,diagnose,report``).
+First, the trajectory's drift recovery over ``PMALAB_BENCH_LONG_SEEDS`` (default 10) noise
+seeds on 100-s records of a −600 %/h drift (the suite test's setting);
+``PMALAB_BENCH_LONG_ONLY_SEEDS=1`` stops after it.
 Slow: the 10-hour record alone takes tens of minutes of simulation.  Not in the suite.
 """
 
@@ -77,7 +80,47 @@ def record(d: Path, hours: float, rate_Hz: float) -> tuple[Path, float, float]:
     return out, wall, rss
 
 
+def drift_recovery(seeds: int, drift: float = -600.0, cycles: int = 48) -> None:
+    """The trajectory's k trend over ``seeds`` noise seeds on short records of a fast drift
+    (the suite test's setting): error against the truth and how often the truth lies within
+    ± 2 of the trend's standard errors."""
+    import numpy as np
+
+    from pmalab.cli import main as cli
+
+    rows, errs, inside = [], [], 0
+    with tempfile.TemporaryDirectory() as td:
+        d = Path(td)
+        (d / "truth.toml").write_text(f"[muscle]\nstiffness_drift_percent_per_hour = {drift}\n")
+        (d / "p.toml").write_text(
+            '[protocol]\nname = "fatigue"\n[[run]]\nname = "fatigue"\nmuscle_pressure_MPa = 0.4\n'
+            f'waveform = "sine"\nfrequency_Hz = 0.5\nmagnitude_MPa = 0.3\ncycles = {cycles}\n'
+            "ramp_s = 1.0\nsettle_s = 0.5\n"
+        )
+        for seed in range(seeds):
+            (d / "rig.toml").write_text(f'[rig]\nkind = "sim"\ntruth = "truth.toml"\nseed = {seed}\n')
+            f, out = d / f"r{seed}.h5", d / f"id{seed}"
+            cli(["run", "--rig", str(d / "rig.toml"), "--protocol", str(d / "p.toml"), "--out",
+                 str(f), "--quiet"])
+            cli(["identify", str(f), "--model", "bouc-wen", "--out", str(out), "--quiet"])
+            k = json.loads((out / "identification.json").read_text())["trajectory"][0]["trend"]["k"]
+            pct = float(k["percent_per_hour"])
+            se = 100.0 * float(k["per_hour_stderr"]) / abs(float(k["start"]))
+            errs.append(100.0 * (pct / drift - 1.0))
+            inside += abs(pct - drift) <= 2 * se
+            rows.append([seed, round(pct, 1), round(se, 1), round(errs[-1], 1)])
+    print_table(["seed", "k trend %/h", "s.e. %/h", "error % of truth"], rows)
+    e = np.abs(np.array(errs))
+    print(f"truth {drift:g} %/h over {cycles} cycles: |error| mean {e.mean():.1f} %, max "
+          f"{e.max():.1f} % (suite tolerance 10 %); truth within ± 2 s.e. on {inside} of {seeds}")
+
+
 def main() -> None:
+    seeds = int(os.environ.get("PMALAB_BENCH_LONG_SEEDS", "10"))
+    if seeds > 0:
+        drift_recovery(seeds)
+    if os.environ.get("PMALAB_BENCH_LONG_ONLY_SEEDS"):
+        return
     hours = [float(h) for h in os.environ.get("PMALAB_BENCH_LONG_HOURS", "0.1667,1,10").split(",")]
     h10k = float(os.environ.get("PMALAB_BENCH_LONG_10K_HOURS", "1"))
     stages = os.environ.get("PMALAB_BENCH_LONG_STAGES", "run,identify,diagnose,report").split(",")

@@ -130,7 +130,8 @@ def _import_table(d: Path) -> None:
 
     n = int(os.environ.get("PMALAB_BENCH_TRUST_N", "100"))
     counts, odd = import_outcomes(d, n, seed=2)
-    outs = ("refused", "warned", "imported", "silent-change", "traceback")
+    outs = ("refused", "warned", "imported", "shorter", "within-noise", "silent-change",
+            "traceback", "hang")
     rows = [[fmt, *(counts[(fmt, o)] for o in outs)] for fmt in FORMATS]
     rows.append(["all", *(sum(counts[(f, o)] for f in FORMATS) for o in outs)])
     print_table(["damage (importer input)", *outs], rows)
@@ -138,9 +139,71 @@ def _import_table(d: Path) -> None:
         print("   " + line)
 
 
+def _health_table(d: Path) -> None:
+    """Channel health on clean data: simulated campaigns over seeds and every simulated rig,
+    and the shipped real records — none may trip (the thresholds' calibration)."""
+    import contextlib
+    import io
+
+    from pmalab.cli import main as cli
+    from pmalab.health import _longest_repeat, check_health, noise_level, resolution
+    from pmalab.paths import RIGS_DIR
+    from pmalab.runfile import read_runs
+
+    seeds = int(os.environ.get("PMALAB_BENCH_TRUST_SEEDS", "20"))
+    # single-muscle simulated rigs (a pair's protocol names its muscle)
+    rigs = ["sim", *sorted(str(p) for p in RIGS_DIR.glob("sim-*.toml") if "pair" not in p.name)]
+    proto = d / "h.toml"
+    proto.write_text("".join(
+        f'[[run]]\nname = "{n}"\nmuscle_pressure_MPa = {p}\nwaveform = "{w}"\n'
+        f'frequency_Hz = {f}\nmagnitude_MPa = 0.3\ncycles = 3\nramp_s = 0.5\nsettle_s = 0.2\n'
+        for n, p, w, f in (("a", 0.2, "sine", 0.5), ("b", 0.45, "triangle", 0.3),
+                           ("c", 0.6, "sine", 1.0))))
+    rows = []
+    for rig in rigs:
+        runs = trips = 0
+        worst_rep = 0
+        for s in range(seeds if rig == "sim" else max(1, seeds // 5)):
+            out = d / "h.h5"
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                rc = cli(["run", "--rig", rig, "--protocol", str(proto), "--out", str(out),
+                          "--force", "--quiet", "--seed", str(s)])
+            if rc:
+                raise RuntimeError(f"recording on {rig} failed")
+            for r in read_runs(out):
+                runs += 1
+                for c in ("position", "force"):
+                    y = r.channels()[c]
+                    if resolution(y) > 0 and noise_level(y) >= 3 * resolution(y):
+                        worst_rep = max(worst_rep, _longest_repeat(y)[1])
+                try:
+                    check_health(str(out), r.name, r.channels())
+                except Exception:
+                    trips += 1
+        rows.append([Path(rig).stem, runs, trips, worst_rep])
+    sys.path.insert(0, str(TESTS))
+    from pmalab.acquisition.csv_import import CsvImportOptions, parse_layout, read_export
+    from pmalab.paths import DATA_DIR
+
+    runs = trips = 0
+    for f in sorted((DATA_DIR / "real" / "zillen-oring257").glob("*.csv")):
+        o = CsvImportOptions(delimiter="\t", no_header=True,
+                             layout=parse_layout("time,-,-,-,position,pressure,force"),
+                             units={"time": "ms", "muscle_pressure": "bar"},
+                             negate=("position",))
+        try:
+            runs += len(read_export(f, o))
+        except Exception:
+            trips += 1
+    rows.append(["real: zillen-oring257", runs, trips, "-"])
+    print_table(["clean data (channel health)", "runs", "tripped (must be 0)",
+                 "longest repeat (stuck ≥ 16)"], rows)
+
+
 def main() -> None:
     with tempfile.TemporaryDirectory() as td:
         d = Path(td)
+        _health_table(d)
         _recording_table(d)
         _runfile_table(d)
         if (TESTS / "corrupt_imports.py").exists():

@@ -1,10 +1,14 @@
-"""The documentation's figures, made by the code they document (``make docs`` runs this).
+"""The documentation's figures, made by the code they document.
 
-docs/assets/loop.png: one held-out run of the tutorial's campaign (a simulated muscle that
-hides viscous friction): the measured force-position loop, the Bouc-Wen seed model's
-prediction and the prediction once diagnosis added the missing effect.
+loop.png: one held-out run of the tutorial's campaign (a simulated muscle that hides
+viscous friction): the measured force-position loop, the Bouc-Wen seed model's prediction
+and the prediction once diagnosis added the missing effect.
 
-Usage: python docs/make_figures.py [OUT_DIR]   (default docs/assets)
+The documentation build runs this into its cache (``docs/hooks/show.py``; the site shows
+``generated/figures/loop.png``).  The README's copy, ``docs/assets/loop.png``, is tracked
+and renewed by hand: ``python docs/make_figures.py docs/assets``.
+
+Usage: python docs/make_figures.py OUT_DIR
 """
 
 from __future__ import annotations

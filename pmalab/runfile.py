@@ -43,6 +43,7 @@ import numpy as np
 
 from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
 from pmalab.errors import ConfigError, RunFileError, RunFileWarning
+from pmalab.health import check_health
 
 if TYPE_CHECKING:  # the windowed reader sits above this module
     from pmalab.runwindows import LongRuns
@@ -550,6 +551,7 @@ def read_runs(
                 out.append(run)
                 continue
             chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
+            check_health(str(path), name, chans)
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
@@ -768,6 +770,23 @@ def attrs_digest(obj: Any) -> str:
 
         obj.visititems(visit)
     return hashlib.sha256(repr(sorted(items)).encode("utf-8")).hexdigest()
+
+
+#: attributes a run group keeps in its (checksummed) object header before HDF5 would move
+#: them to "dense" storage — a heap and a B-tree whose damage can send the library round a
+#: loop instead of failing a checksum
+COMPACT_ATTRS = 1000
+
+
+def create_run_group(parent: Any, name: str) -> Any:
+    """A new run group in ``parent`` whose attributes stay in its object header
+    (:data:`COMPACT_ATTRS`), where HDF5 checksums them."""
+    import h5py
+
+    gcpl = h5py.h5p.create(h5py.h5p.GROUP_CREATE)
+    gcpl.set_attr_phase_change(COMPACT_ATTRS, COMPACT_ATTRS - 1)
+    h5py.h5g.create(parent.id, name.encode("utf-8"), gcpl=gcpl)
+    return parent[name]
 
 
 def seal_attrs(obj: Any) -> None:
@@ -1006,7 +1025,7 @@ def _write_groups(f: Any, runs: Sequence[Run]) -> None:
     seal_attrs(f)
     grp = f.create_group("runs")
     for run in runs:
-        g = grp.create_group(run.name)
+        g = create_run_group(grp, run.name)
         for k, v in run.attrs.items():
             if isinstance(v, dict | list):
                 v = json.dumps(v)

@@ -63,7 +63,7 @@ def test_diagnose_writes_contract_outputs(viscous_file: Path, tmp_path: Path,
                                           capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "diag"
     rc = pmalab_main(["diagnose", str(viscous_file), "--model", "bouc-wen", "--out", str(out),
-                      "--max-steps", "1", "--quiet"])
+                      "--max-steps", "1"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "Effect ranking" in text and "Ladder" in text and "viscous-friction" in text

@@ -117,3 +117,42 @@ def test_the_loop_direction_of_a_record_of_hundreds_of_cycles():
     assert np.mean(stretch == (v < 0)) > 0.99 and np.mean(release == (v > 0)) > 0.99
     force = 400 - 20 * x + np.where(v < 0, 30.0, -30.0)  # stretching: 60 N more tension
     assert loop_direction(force, x) == pytest.approx(60.0, rel=0.05)
+
+
+@pytest.mark.parametrize("kind", ["exponential", "zeros", "mostly-zero", "ties"])
+def test_the_recorder_percentiles_of_a_long_run_in_bounded_memory(tmp_path, monkeypatch, kind):
+    """A run's lateness percentiles at its end, read in blocks past a size (a 10 kHz run of
+    hours would read and sort gigabytes): the same values as np.percentile."""
+    import pmalab.acquisition.recorder as rec
+
+    monkeypatch.setattr(rec, "PERCENTILE_WHOLE", 1000)
+    monkeypatch.setattr(rec, "PERCENTILE_BLOCK", 4096)
+    rng = np.random.default_rng(1)
+    data = {
+        "exponential": rng.exponential(1e-4, 100_003),
+        "zeros": np.zeros(50_000),
+        "mostly-zero": np.r_[np.zeros(90_000), rng.exponential(1e-3, 10_000)],
+        "ties": np.round(rng.normal(0, 1, 77_777), 2),
+    }[kind]
+    with h5py.File(tmp_path / "x.h5", "w") as f:
+        f["x"] = data
+    with h5py.File(tmp_path / "x.h5", "r") as f:
+        got = rec.dataset_percentiles(f["x"], len(data), (50.0, 99.0))
+    np.testing.assert_allclose(got, np.percentile(data, [50, 99]), rtol=1e-12, atol=0)
+
+
+def test_the_fitted_part_is_the_same_samples_whether_cut_to_its_steady_window_or_not():
+    """identify cuts a run to its full-amplitude window before taking a long record's
+    first cycles, diagnose after: both fit (and hold out) the same samples."""
+    from pmalab.identify.long_records import fit_part
+
+    r = _run("long", 200.0)
+    r = Run(r.name, r.time[::5], r.position[::5], r.force[::5], r.muscle_pressure[::5],
+            attrs={**r.attrs, "steady_start_s": 3.0, "steady_end_s": 195.0,
+                   "decimation": {"stride": 5}})
+    a = fit_part(r.steady(), cycles=20)
+    b = fit_part(r, cycles=20).steady()
+    np.testing.assert_array_equal(a.time, b.time)
+    assert a.time[0] == pytest.approx(r.time[0] + 3.0, abs=0.011)
+    assert a.time[-1] - a.time[0] == pytest.approx(40.0, abs=0.02)  # 20 cycles at 0.5 Hz
+    assert a.attrs["fit_part"]["cycles"] == 20

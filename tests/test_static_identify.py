@@ -118,9 +118,9 @@ def test_the_geometric_map_from_isobaric_runs_too(truth):
 def test_free_runs_separate_the_loops_and_predict_every_other_test_type():
     truth = load_static_truth("geometric-both")
     runs = [
-        run_test(truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, x_period_s=3.3).to_run(
-            f"f{x:g}"
-        )
+        run_test(
+            truth, "free", held_mm=x, stroke_mm=10.0, seed=20 + i, period_s=10.0, x_period_s=2.5
+        ).to_run(f"f{x:g}")
         for i, x in enumerate((5.0, 15.0, 25.0))
     ]
     others = [
@@ -307,3 +307,15 @@ def test_a_loop_proportional_to_pressure_needs_the_pressure_scale():
     width_at_ref = fit.hysteresis_widths()["p"] * ref / m.p_ref
     assert width_at_ref == pytest.approx(truth.pressure_friction_N, rel=0.10)
     assert fit.theta["theta0_deg"] == pytest.approx(truth.braid_angle_deg, rel=0.03)
+
+
+def test_options_outside_the_static_characterization_are_refused(tmp_path, truth):
+    write_runs(tmp_path / "iso.h5", isometric_campaign(truth, HELD[:2], seed=1, period_s=2.0))
+    base = ["identify", str(tmp_path / "iso.h5"), "--out", str(tmp_path / "o")]
+    for extra, word in (
+        (["--model", "duhem", "--add", "viscous-friction"], "--add"),
+        (["--model", "duhem,bouc-wen", "--static", "linear"], "diagnose --static"),
+    ):
+        code, _, err = _cli([*base, *extra])
+        assert code != 0 and word in err and "Traceback" not in err
+        assert not (tmp_path / "o").exists()

@@ -151,7 +151,7 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
     _run([pmalab, "benchmark", "bouc-wen", "--out", "bw"], cwd=work, env=env)
     out = _run([pmalab, "identify", "bw/train.h5", "--output", "position", "--model",
                 "bouc-wen", "--add", "inertia", "--add", "viscous-friction", "--validate",
-                "bw/test-multisine.h5", "--out", "bwid", "--quiet"], cwd=work, env=env)
+                "bw/test-multisine.h5", "--out", "bwid"], cwd=work, env=env)
     assert "position rmse" in out, out
     _run([pmalab, "simulate", "bwid", "bw/test-sweep.h5", "--out", "sim.h5"], cwd=work, env=env)
     assert (work / "sim.h5").is_file()

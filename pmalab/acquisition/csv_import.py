@@ -50,7 +50,8 @@ from typing import cast
 import numpy as np
 
 from pmalab.acquisition.import_checks import check_import
-from pmalab.errors import OutputError, RunFileError
+from pmalab.errors import OutputError, RunFileError, printable
+from pmalab.health import check_health
 from pmalab.runfile import (
     CANONICAL_UNITS,
     PLAUSIBLE,
@@ -289,7 +290,7 @@ def _check_last_row(path: Path, rows: list[tuple[int, str]], delimiter: str) -> 
         )
     for k, cell in enumerate(last):
         prev = [len(f[k]) for f in before if k < len(f)]
-        if prev and len(cell.strip()) < min(prev) - 1:
+        if prev and len(cell.strip()) < min(prev):
             raise RunFileError(
                 f"{path}: line {rows[-1][0]}: the last row's field {k + 1} is {cell.strip()!r} "
                 f"where every row before has {min(prev)}+ characters, and the file has no line "
@@ -339,6 +340,11 @@ def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
             f"{PLAUSIBLE['muscle_pressure'].hi:g} MPa, got {opts.pressure_MPa:g}"
         )
     text = _read_text(path, opts)
+    if "\x00" in text:
+        raise RunFileError(
+            f"{path}: binary zeros at character {text.index(chr(0))}: a damaged text file "
+            "(a lost disk block?), not an export"
+        )
     lines = text.splitlines()
     d = opts.delimiter
 
@@ -571,6 +577,7 @@ def finish_run(
         held_position=held_position is not None,
         pressure_given=opts.pressure_MPa is not None,
     )
+    check_health(str(path), run, chans)
     nominal = (
         float(opts.pressure_MPa)
         if opts.pressure_MPa is not None
@@ -1095,7 +1102,9 @@ def match_named(
             )
             shown = ", ".join(names[:12]) + (", …" if len(names) > 12 else "")
             raise RunFileError(
-                f"{where}: {what} for '{ch}': no {what} '{want}' "
-                f"({what}s: {shown or 'none'}); name it with {opt} NAME"
+                printable(
+                    f"{where}: {what} for '{ch}': no {what} '{want}' "
+                    f"({what}s: {shown or 'none'}); name it with {opt} NAME"
+                )
             )
     return out

@@ -33,6 +33,7 @@ import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from operator import attrgetter
 from typing import Any, Protocol
 
 from pmalab.rig.base import SINGLE_MUSCLE_CHANNELS, Clock, Sampler, sampled
@@ -200,6 +201,9 @@ def sample_loop(
     dt = 1.0 / rate_Hz
     pace = pacing_for(sampler, clock, dt)
     names = tuple(channels)
+    # the single-muscle fields in one C call; a declaration with other channels by name
+    fields = {"position", "force", "muscle_pressure", "cylinder_pressure"}
+    getter = attrgetter(*names) if names and set(names) <= fields else None
     k = 0
     cmd: Any = None
     t0 = getattr(pace, "t0", None) or 0.0
@@ -211,10 +215,14 @@ def sample_loop(
             lateness = pace.wait(k)
             t0 = pace.t0
         blk = sampler.read_block()
-        cols = [blk.column(c).tolist() for c in names]
+        arrs = getter(blk) if getter is not None and not blk.extra else None
+        if arrs is None or len(names) == 1:
+            arrs = [blk.column(c) for c in names]
         times = blk.time.tolist()
+        one = len(times) == 1  # a software-polled sample: no per-column lists
+        cols = [] if one else [a.tolist() for a in arrs]
         for j, t in enumerate(times):
-            v: Sample = tuple([col[j] for col in cols])
+            v: Sample = tuple([a.item(0) for a in arrs]) if one else tuple([c[j] for c in cols])
             if isinstance(pace, DeviceClockPacing):
                 gap, lateness = pace.stamp(t, k)
                 assert pace.t0 is not None
@@ -247,4 +255,4 @@ def sample_loop(
                 stats.n_missed += skip
                 stats.add_gap(k * dt, skip)
                 k += skip
-    return t0
+    return float(t0 or 0.0)

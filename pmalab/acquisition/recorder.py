@@ -58,6 +58,7 @@ from pmalab.runfile import (
     CHECKSUM,
     FORMAT,
     FORMAT_VERSION,
+    create_run_group,
     declare_channels,
     seal_attrs,
 )
@@ -140,6 +141,69 @@ def check_free_space(path: str | Path, need_bytes: int) -> None:
         )
 
 
+#: a dataset up to this many samples is read whole for its percentiles
+PERCENTILE_WHOLE = 1 << 22
+#: samples read at a time (and histogram bins) for the percentiles of a longer one
+PERCENTILE_BLOCK = 1 << 20
+
+
+def dataset_percentiles(ds: Any, n: int, qs: tuple[float, ...]) -> tuple[float, ...]:
+    """``np.percentile`` (linear interpolation) of the first ``n`` values of ``ds`` at
+    ``qs``, in bounded memory: a run of hours at 10 kHz has hundreds of millions of
+    lateness values, which read whole (and sorted) were gigabytes at the run's end.
+
+    Up to :data:`PERCENTILE_WHOLE` values: read whole (as before).  Beyond: three passes of
+    :data:`PERCENTILE_BLOCK` values — range, a histogram locating each needed order
+    statistic's bin, then only the values in those bins, sorted — the same order statistics,
+    interpolated the same way."""
+    if n <= PERCENTILE_WHOLE:
+        lat = np.asarray(ds[:n], dtype=np.float64)
+        return tuple(float(v) for v in np.percentile(lat, list(qs)))
+
+    def blocks():
+        for a in range(0, n, PERCENTILE_BLOCK):
+            yield np.asarray(ds[a : min(n, a + PERCENTILE_BLOCK)], dtype=np.float64)
+
+    lo, hi = np.inf, -np.inf
+    for b in blocks():
+        lo, hi = min(lo, float(b.min())), max(hi, float(b.max()))
+    if not hi > lo:
+        return tuple(lo for _ in qs)
+    edges = np.linspace(lo, hi, PERCENTILE_BLOCK + 1)
+    counts = np.zeros(PERCENTILE_BLOCK, dtype=np.int64)
+    for b in blocks():
+        idx = np.clip(np.searchsorted(edges, b, side="right") - 1, 0, PERCENTILE_BLOCK - 1)
+        counts += np.bincount(idx, minlength=PERCENTILE_BLOCK)
+    cum = np.cumsum(counts)
+    ranks = sorted({r for q in qs for r in _order_ranks(q, n)})
+    bins = {r: int(np.searchsorted(cum, r, side="right")) for r in ranks}
+    wanted = sorted(set(bins.values()))
+    picked: dict[int, list[np.ndarray]] = {k: [] for k in wanted}
+    for b in blocks():
+        idx = np.clip(np.searchsorted(edges, b, side="right") - 1, 0, PERCENTILE_BLOCK - 1)
+        for k in wanted:
+            picked[k].append(b[idx == k])
+    value: dict[int, float] = {}
+    for r, k in bins.items():
+        vals = np.sort(np.concatenate(picked[k]))
+        below = int(cum[k - 1]) if k > 0 else 0
+        value[r] = float(vals[r - below])
+    out = []
+    for q in qs:
+        r0, r1 = _order_ranks(q, n)
+        t = q / 100.0 * (n - 1) - r0
+        a, b_ = value[r0], value[r1]
+        out.append(float(a + (b_ - a) * t))
+    return tuple(out)
+
+
+def _order_ranks(q: float, n: int) -> tuple[int, int]:
+    """The two order statistics (0-based) the linear percentile ``q`` interpolates."""
+    pos = q / 100.0 * (n - 1)
+    r0 = int(np.floor(pos))
+    return r0, min(n - 1, r0 + 1)
+
+
 class RunWriter:
     """Appends one run's samples; :meth:`commit` writes and flushes what is buffered."""
 
@@ -164,6 +228,8 @@ class RunWriter:
         self._gaps = ds("gaps") if "gaps" in g else None
         self._gap_buf: list[tuple[float, float]] = []
         self._buf: list[list[float]] = [[] for _ in self.channels]
+        #: samples appended one at a time (rows), turned into columns at the next commit
+        self._rows: list[Sequence[float]] = []
         self._late_buf: list[float] = []
         self.n = 0  # samples written to the file
         self.n_late = 0
@@ -180,9 +246,25 @@ class RunWriter:
     def append(self, row: Sequence[float], lateness: float) -> None:
         """Buffer one sample: its values in :attr:`channels` order (the rig's declaration:
         time, the sampled channels, the commands) and its lateness (s)."""
-        for buf, v in zip(self._buf, row, strict=True):
-            buf.append(v)
+        self._rows.append(row)
         self._late_buf.append(lateness)
+
+    def _fold_rows(self) -> None:
+        """Move the appended rows into the per-channel buffers (one transpose a commit)."""
+        rows = self._rows
+        if not rows:
+            return
+        nch = len(self._buf)
+        bad = next((r for r in rows if len(r) != nch), None)
+        if bad is not None:
+            rows.clear()
+            raise ValueError(
+                f"run '{self.name}': a sample has {len(bad)} values for {nch} channels "
+                f"({', '.join(self.channels)})"
+            )
+        for buf, col in zip(self._buf, zip(*rows), strict=True):
+            buf.extend(col)
+        rows.clear()
 
     def add(
         self, t: float, x: float, f: float, pm: float, pc: float, cmd: float, lateness: float
@@ -194,6 +276,7 @@ class RunWriter:
     def extend(self, columns: Sequence[np.ndarray], lateness: np.ndarray) -> None:
         """Buffer a block of samples: one array per channel (in :attr:`channels` order, equal
         lengths) and the samples' lateness (s)."""
+        self._fold_rows()
         for buf, col in zip(self._buf, columns, strict=True):
             buf.extend(np.asarray(col, dtype=np.float64).tolist())
         self._late_buf.extend(np.asarray(lateness, dtype=np.float64).tolist())
@@ -243,6 +326,7 @@ class RunWriter:
         samples written before, so the run's channels keep equal lengths, and the buffer
         is kept; the error is raised.
         """
+        self._fold_rows()
         k = len(self._late_buf)
         if k:
             n0, n1 = self.n, self.n + k
@@ -298,8 +382,7 @@ class RunWriter:
         if final and self.n:
             # read back from the file: keeping every sample's lateness in memory grew the
             # recorder by 8 bytes a sample (7 MB in a 30-minute run)
-            lat = np.asarray(self._late_ds[: self.n], dtype=np.float64)
-            p50, p99 = (float(v) for v in np.percentile(lat, [50, 99]))
+            p50, p99 = dataset_percentiles(self._late_ds, self.n, (50.0, 99.0))
         scheduled = self.n + self.n_missed
         missed_frac = self.n_missed / scheduled if scheduled else 0.0
         late_frac = self.n_late / self.n if self.n else 0.0
@@ -384,7 +467,7 @@ class Recorder:
             seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:
-                g = grp.create_group(name)
+                g = create_run_group(grp, name)
                 for k, v in attrs.items():
                     g.attrs[k] = _attr(v)
                 for c, units in self.channels.items():

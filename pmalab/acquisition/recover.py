@@ -22,7 +22,7 @@ import numpy as np
 
 from pmalab.errors import RunFileError
 from pmalab.paths import output_failure
-from pmalab.runfile import CHECKSUM, FORMAT, open_h5
+from pmalab.runfile import CHECKSUM, FORMAT, create_run_group, open_h5
 
 
 def is_healthy(path: Path) -> bool:
@@ -149,7 +149,7 @@ def recover(
                     raise RunFileError(
                         f"{src_path}: damaged run file (run '{name}' is not a group)"
                     )
-                d = runs.create_group(name)
+                d = create_run_group(runs, name)
                 for k, v in g.attrs.items():
                     d.attrs[k] = v
                 _copy_group(g, d, _samples(g))

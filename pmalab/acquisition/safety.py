@@ -190,6 +190,39 @@ class SafetyMonitor:
         rules.sort(key=lambda r: (r[0], r[1]))
         self._rules = [(i, fn) for _, _, i, fn in rules]
 
+        standard = tuple((c.name, c.lo, c.hi) for c in self.channels) == tuple(
+            (n, -math.inf, math.inf) for n in sampled(SINGLE_MUSCLE_CHANNELS)
+        )
+        if standard:  # the single-muscle rig: the same checks, inline (500 times a second)
+            self.check = self._check_single  # type: ignore[method-assign]
+
+    def _check_single(self, values: Sequence[float]) -> str | None:
+        """:meth:`check` for the single-muscle declaration (same reasons, no loop)."""
+        position, force, muscle, cylinder = values
+        lim = self.limits
+        if not (
+            force == force and position == position and muscle == muscle and cylinder == cylinder
+        ):
+            return "sensor returned NaN (sample not stored)"
+        if abs(force) > lim.max_force_N:
+            return f"force {force:.1f} N beyond the load cell's range ±{lim.max_force_N:g} N"
+        if position > lim.max_position_mm or position < lim.min_position_mm:
+            return (
+                f"position {position:.2f} mm outside the travel "
+                f"[{lim.min_position_mm:g}, {lim.max_position_mm:g}] mm"
+            )
+        if muscle > self._muscle_trip:
+            return (
+                f"muscle pressure {muscle:.3f} MPa above the limit "
+                f"{lim.max_muscle_pressure_MPa:g} MPa"
+            )
+        if cylinder > self._cyl_trip:
+            return (
+                f"cylinder pressure {cylinder:.3f} MPa above the limit "
+                f"{lim.max_cylinder_pressure_MPa:g} MPa"
+            )
+        return None
+
     def check(self, values: Sequence[float]) -> str | None:
         """Return the trip reason, or None when every channel is within its limit."""
         # NaN compares false everywhere; a sensor returning NaN is a fault, so test for it

@@ -12,6 +12,7 @@ contraction; ``--negate position`` flips a DAQ that records elongation.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -29,11 +30,46 @@ def _open(path: Path):
         raise RunFileError(
             f"{path}: not a TDMS file (no 'TDSm' lead-in; a .tdms_index file or another format?)"
         )
+    with _nptdms_messages() as said:
+        try:
+            f = TdmsFile.read(str(path))
+        except Exception as exc:  # npTDMS raises ValueError/KeyError/struct.error on damage
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise RunFileError(f"{path}: not a readable TDMS file ({first[:120]})") from None
+    if said:
+        # npTDMS read past damage (a file cut mid-segment) and would guess the rest
+        raise RunFileError(
+            f"{path}: a cut or damaged TDMS file ({said[0][:100]}): not imported; its writer "
+            "stopped mid-segment or the copy is incomplete"
+        )
+    return f
+
+
+@contextlib.contextmanager
+def _nptdms_messages():
+    """Collect npTDMS's own log lines (it prints them to stderr itself) instead of letting
+    them reach the terminal: the caller reports them in one line."""
+    import logging
+
+    from nptdms.log import log_manager
+
+    said: list[str] = []
+
+    class Grab(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            said.append(record.getMessage())
+
+    grab = Grab(logging.WARNING)
+    loggers = list(log_manager.loggers.values())
+    for lg in loggers:
+        lg.removeHandler(log_manager.console_handler)
+        lg.addHandler(grab)
     try:
-        return TdmsFile.read(str(path))
-    except Exception as exc:  # npTDMS raises ValueError/KeyError/struct.error on damage
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RunFileError(f"{path}: not a readable TDMS file ({first[:120]})") from None
+        yield said
+    finally:
+        for lg in loggers:
+            lg.removeHandler(grab)
+            lg.addHandler(log_manager.console_handler)
 
 
 def _values(path: Path, group: str, name: str, channel) -> np.ndarray:

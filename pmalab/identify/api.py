@@ -72,9 +72,31 @@ def load(
     or named in ``runs``; a file given twice is refused.  A long run (≥
     :data:`~pmalab.identify.long_records.LONG_RUN_SAMPLES` samples) is read a window at a
     time and decimated, as its attrs' ``decimation`` states
-    (:mod:`pmalab.identify.long_records`).  ``muscle``: which muscle of a file recording
-    several (an antagonistic pair) — its isobaric runs, its channels
-    (:func:`pmalab.runfile.read_runs`).
+    (:mod:`pmalab.identify.long_records`).
+
+    Parameters
+    ----------
+    *paths
+        Run files (HDF5, ``pmalab.run`` contract), or lists of them.
+    runs
+        Names of the runs to read (default: every complete run).
+    include_aborted
+        Also read aborted and interrupted runs (the samples they hold).
+    muscle
+        Which muscle of a file recording several (an antagonistic pair): its isobaric
+        runs and its channels (:func:`pmalab.runfile.read_runs`).
+
+    Returns
+    -------
+    RunList
+        The runs in canonical units: time s, position mm (contraction positive), force N
+        (tension positive), pressure MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming file, run and channel: a missing file or channel, unequal lengths,
+        time not increasing, NaNs, a file given twice.
     """
     flat: list[str | Path] = []
     for p in paths:
@@ -186,19 +208,54 @@ def identify(
     """Identify ``model`` on ``runs`` and validate on held-out runs.
 
     Runs whose ``role`` attr is ``"validation"`` are held out automatically (and added to
-    ``validate``); nothing else is dropped.  ``effects``: effect ids to add (``--add``);
-    ``effects_files``: Python files defining user effects.  ``initial``: how a validation
-    run's start state is set (``estimate`` | ``burn-in`` | ``zero``).  ``pressure_model``:
-    ``"joint"`` (default: the pressure laws refined on all runs at once,
-    :mod:`pmalab.identify.estimation.joint`) or ``"per-run"`` (the seeds' quadratics through the per-run
-    values).  ``whole_run``: use every sample instead of each recorded run's full-amplitude
-    cycles (:meth:`~pmalab.runfile.Run.steady`).  ``output``: ``"force"`` (the model driven
-    by the measured position predicts the force) or ``"position"`` (output error: the model
-    driven by the measured force is integrated forward and its simulated position fitted,
-    :mod:`pmalab.identify.estimation.output_error`).  ``structure``: the pressure structure of
-    an element law's elements (``"auto"``: chosen by leave-one-pressure-out evidence,
-    :mod:`pmalab.identify.campaign.structure`; ``"free"``, ``"scaled"``,
-    ``"scaled-thresholds"``: as named).
+    ``validate``); nothing else is dropped.
+
+    Parameters
+    ----------
+    runs
+        The identification runs (canonical units, as :func:`load` gives them).
+    model
+        A law id (``"bouc-wen"``, ``"duhem"``, ``"prandtl-ishlinskii"``,
+        ``"maxwell-slip"``) or a composed :class:`~pmalab.identify.model.ForceModel`.
+    effects
+        Effect ids to add (``--add``), e.g. ``["viscous-friction"]``.
+    effects_files
+        Python files defining user effects.
+    validate
+        Held-out runs the pressure-law model predicts free-running.
+    jobs, scheduler
+        Worker processes, or a Dask scheduler address (``tcp://host:port``).
+    fixed, free
+        Parameters held at a value, and parameters the law fixes by default set free.
+    initial
+        How a validation run's start state is set: ``"estimate"`` (from the first 50 ms
+        of force), ``"burn-in"`` or ``"zero"``.
+    progress
+        Draw a progress bar on stderr.
+    pressure_model
+        ``"joint"`` (default: the pressure laws refined on all runs at once,
+        :mod:`pmalab.identify.estimation.joint`) or ``"per-run"`` (the seeds' quadratics
+        through the per-run values).
+    whole_run
+        Use every sample instead of each recorded run's full-amplitude cycles
+        (:meth:`~pmalab.runfile.Run.steady`).
+    output
+        ``"force"`` (the model driven by the measured position predicts the force) or
+        ``"position"`` (output error: the model driven by the measured force is integrated
+        forward and its simulated position fitted,
+        :mod:`pmalab.identify.estimation.output_error`).
+    structure
+        The pressure structure of an element law's elements: ``"auto"`` (chosen by
+        leave-one-pressure-out evidence, :mod:`pmalab.identify.campaign.structure`),
+        ``"free"``, ``"scaled"`` or ``"scaled-thresholds"``.
+
+    Returns
+    -------
+    Identification
+        Per-run parameters with standard errors (N, mm, MPa units of each law), the
+        pressure laws, and the validation metrics (``nrmse``: RMS error over the standard
+        deviation of the measured force); ``save(dir)`` writes what ``pmalab identify``
+        writes.
     """
     if output not in ("force", "position"):
         raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
@@ -378,10 +435,26 @@ def _scalars(row: dict) -> dict:
 
 
 def diagnose(runs: Sequence[Run] | Run, model: str = "bouc-wen", **kwargs) -> DiagnosisResult:
-    """Diagnose ``model`` on ``runs`` (see :func:`pmalab.identify.diagnosis.diagnose` for the
-    options: ``validate``, ``effects``, ``effects_files``, ``max_steps``, ``jobs``,
-    ``progress``, ``whole_run``, ``laws``, ``scheduler``) and return the notebook view of
-    the result."""
+    """Diagnose ``model`` on ``runs``: what ``pmalab diagnose`` computes, as a notebook view.
+
+    Parameters
+    ----------
+    runs
+        The campaign (runs tagged ``role = "validation"`` are held out; without any, some
+        runs are held out as ``pmalab diagnose`` does).
+    model
+        The base law id.
+    **kwargs
+        The options of :func:`pmalab.identify.diagnosis.diagnose`: ``validate``,
+        ``effects``, ``effects_files``, ``max_steps``, ``jobs``, ``progress``,
+        ``whole_run``, ``laws``, ``scheduler``.
+
+    Returns
+    -------
+    DiagnosisResult
+        The ranking of candidate effects (held-out nrmse without and with each), the ladder
+        of the error falling, the worst runs and the summary sentence.
+    """
     from pmalab.identify.diagnosis import diagnose as _diagnose
 
     runs_l = [runs] if isinstance(runs, Run) else list(runs)

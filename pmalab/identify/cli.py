@@ -290,6 +290,11 @@ def run_identify(args: argparse.Namespace) -> int:
             raise PmalabError(f"--effects {f}: no such file")
     if args.muscle == "all":
         return _identify_each_muscle(args)
+    if "," in args.model and args.static:
+        raise PmalabError(
+            f"--model {args.model}: with --static give one law (or none); "
+            "`pmalab diagnose --static` ranks the laws"
+        )
     if "," in args.model:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written

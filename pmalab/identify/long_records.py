@@ -134,16 +134,20 @@ def fit_part(run: Run, cycles: int | None = None) -> Run:
     if not dec or int(dec.get("stride", 1)) <= 1 or not f or len(run) < 2:
         return run
     t0 = float(run.time[0])
+    # the first full-amplitude cycles: from the recorded steady window's start, unless the
+    # run was already cut to it (Run.steady leaves "window_s"), so identify (which cuts
+    # first) and diagnose (which cuts after) fit and hold out the same samples
+    s0 = 0.0 if "window_s" in run.attrs else float(run.attrs.get("steady_start_s") or 0.0)
     span = cycles / f
-    if float(run.time[-1]) - t0 <= span:
+    if float(run.time[-1]) - t0 - s0 <= span:
         return run
-    part = run.window(0.0, span - 0.5 * float(np.median(np.diff(run.time[:4096]))))
+    part = run.window(s0, s0 + span - 0.5 * float(np.median(np.diff(run.time[:4096]))))
     part.attrs.pop("window_s", None)
-    total = (float(run.time[-1]) - t0) * f
+    total = (float(run.time[-1]) - t0 - s0) * f
     part.attrs["fit_part"] = {
         "cycles": cycles,
         "of_cycles": round(total, 1),
-        "time_s": [0.0, span],
+        "time_s": [s0, s0 + span],
         "note": "the run-level fit uses the first cycles; the trajectory covers the record",
     }
     for key in ("steady_start_s", "steady_end_s"):

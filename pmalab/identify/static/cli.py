@@ -48,6 +48,17 @@ def run_static(
     from pmalab.identify.static.maps import Geometry, get_static_map
     from pmalab.paths import check_output, write_together
 
+    for opt, given in (
+        ("--add", bool(getattr(args, "add", None))),
+        ("--effects", bool(getattr(args, "effects", None))),
+        ("--free", bool(getattr(args, "free", None))),
+        ("--output position", getattr(args, "output", "force") != "force"),
+    ):
+        if given:
+            raise PmalabError(
+                f"{opt}: not part of the static characterization (a static map and a law); "
+                "identify isobaric runs for effects and output error"
+            )
     geometry = Geometry(
         length_mm=check_geometry(args.length, "--length"),
         diameter_mm=check_geometry(args.diameter, "--diameter"),
