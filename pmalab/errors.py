@@ -10,6 +10,17 @@ from __future__ import annotations
 from typing import Any
 
 
+def printable(text: str) -> str:
+    """``text`` with control characters shown as escapes (``\\n``, ``\\x00``).
+
+    Names read from a user's file (channel, group, column) can hold any character; an
+    error that quotes them must stay one line on a terminal.
+    """
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
 class PmalabError(Exception):
     """An error the user can fix; its message is one line naming the file/run/channel/field."""
 

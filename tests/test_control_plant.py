@@ -12,6 +12,7 @@ from pmalab.cli import main
 from pmalab.control.model import SHIPPED_IDENTIFICATION
 from pmalab.control.plant import make_plant_manipulator
 from pmalab.identify.forward import IdentifiedPlant
+from pmalab.runfile import decode_attr
 
 
 def test_the_plant_settles_where_the_model_muscle_balances_the_spring():
@@ -42,7 +43,7 @@ def test_every_controller_runs_against_the_identified_model(controller, tmp_path
                  "--duration", "5", "--plant", str(SHIPPED_IDENTIFICATION),
                  "--out", str(out)]) == 0
     with h5py.File(out) as f:
-        assert str(f.attrs["plant"]) == str(SHIPPED_IDENTIFICATION)
+        assert decode_attr(f.attrs["plant"]) == str(SHIPPED_IDENTIFICATION)
         g = f[f"runs/{controller}"]
         x, r = g["position"][:], g["position_reference"][:]
         summary = json.loads(bytes(g["summary"][()]).decode())

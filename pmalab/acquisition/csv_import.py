@@ -50,7 +50,7 @@ from typing import cast
 import numpy as np
 
 from pmalab.acquisition.import_checks import check_import
-from pmalab.errors import OutputError, RunFileError
+from pmalab.errors import OutputError, RunFileError, printable
 from pmalab.health import check_health
 from pmalab.runfile import (
     CANONICAL_UNITS,
@@ -1102,7 +1102,9 @@ def match_named(
             )
             shown = ", ".join(names[:12]) + (", …" if len(names) > 12 else "")
             raise RunFileError(
-                f"{where}: {what} for '{ch}': no {what} '{want}' "
-                f"({what}s: {shown or 'none'}); name it with {opt} NAME"
+                printable(
+                    f"{where}: {what} for '{ch}': no {what} '{want}' "
+                    f"({what}s: {shown or 'none'}); name it with {opt} NAME"
+                )
             )
     return out

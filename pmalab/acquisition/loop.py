@@ -255,4 +255,4 @@ def sample_loop(
                 stats.n_missed += skip
                 stats.add_gap(k * dt, skip)
                 k += skip
-    return t0
+    return float(t0 or 0.0)

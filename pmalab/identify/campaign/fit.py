@@ -329,15 +329,12 @@ def fit_campaign(
     progress: bool = False,
     pressure_model: str = "joint",
     structure: str = "auto",
-    shape: dict[str, float] | None = None,
 ) -> CampaignFit:
     """Fit every run, make the fixes consistent, fit the pressure laws.
 
     ``structure``: the pressure structure of an element law's elements — ``"auto"`` (chosen
     by leave-one-pressure-out evidence, :mod:`pmalab.identify.campaign.structure`),
     ``"free"`` (every parameter its own pressure law) or one the law offers.
-    ``shape``: hold the law's shared shape at these values on every run (no search for a
-    reference run) and refine it jointly as constants.
 
     ``pressure_model``: ``"joint"`` (default) refines the per-run quadratics jointly on all
     runs with chosen orders (:mod:`pmalab.identify.estimation.joint`); ``"per-run"`` keeps the seeds'
@@ -354,11 +351,7 @@ def fit_campaign(
     if structure not in ("auto", "free", *fm.law.structures):
         offers = ", ".join(["free", *fm.law.structures])
         raise PmalabError(f"--structure {structure}: {fm.law.name} offers {offers}")
-    kwargs = {
-        "fixed": {**(fixed or {}), **(shape or {})} or None,
-        "init": init,
-        "free": tuple(free),
-    }
+    kwargs = {"fixed": fixed, "init": init, "free": tuple(free)}
     results = fit_runs(runs, model, jobs=jobs, scheduler=scheduler, progress=progress, **kwargs)
     warnings: list[str] = list(default_fixed_notes(fm, free))
     if fm.tares:
@@ -418,13 +411,10 @@ def fit_campaign(
                 "only (collinear there); its quadratic mixes fixed and fitted values"
             )
 
-    if shape:
-        shape_ref: dict[str, float] = dict(shape)
-    else:
-        results, shape_ref, shape_notes = share_shape(
-            fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
-        )
-        warnings += shape_notes
+    results, shape_ref, shape_notes = share_shape(
+        fm, runs, results, kwargs, jobs=jobs, scheduler=scheduler, progress=progress
+    )
+    warnings += shape_notes
 
     rfs = []
     for run, res in zip(runs, results):
@@ -460,16 +450,7 @@ def fit_campaign(
     if fm.law.structures and structure != "free" and len(rfs) > 1:
         from pmalab.identify.campaign.structure import choose_structure
 
-        choose_structure(
-            cf,
-            runs,
-            fixed=fixed,
-            jobs=jobs,
-            scheduler=scheduler,
-            progress=progress,
-            pressure_model=pressure_model,
-            structure=structure,
-        )
+        choose_structure(cf, runs, fixed=fixed, structure=structure)
     return cf
 
 

@@ -6,18 +6,19 @@ business (:mod:`pmalab.identify.laws.structures` lists the candidates: ``free``,
 best and may predict other levels worst (per-weight quadratics follow each run's noise); one
 with few may miss how the muscle really changes.  So the campaign asks the data:
 
-**Criterion (leave-one-pressure-out, LOPO).**  For every *interior* identification
-pressure level L (the lowest and highest are never left out: predicting them would be
-extrapolation, which a campaign never promises), every parameter's pressure law is fitted
-through the per-run values of the runs at the *other* levels (the one polynomial fit,
-:func:`~pmalab.identify.estimation.basis.fit_polynomial`: 1/stderr weights, order 0–2 by
-BIC, at most levels − 1), and the runs at L are predicted free-run from those laws (their
-start state estimated on the record, as validation does).  A structure's score is the root
+**Criterion (leave-one-pressure-out, LOPO).**  Every candidate is refined jointly on all
+identification runs (:mod:`pmalab.identify.estimation.joint`; a structured candidate starts
+from the free structure's joint laws).  Then, for every *interior* identification pressure
+level L (the lowest and highest are never left out: predicting them would be
+extrapolation, which a campaign never promises), the joint problem without the runs at L is
+stepped once from the joint solution (Gauss–Newton: the influence approximation of
+refitting without them, :func:`pmalab.identify.estimation.joint.approx_lopo`) and the runs
+at L predicted, their start states re-estimated on them.  A structure's score is the root
 mean square of those held-out nrmse; the lowest wins.  A simpler structure (fewer
-parameters) is preferred unless the richer one's score is lower by more than
-``SIMPLER_WITHIN`` (relative): the choice never hinges on round-off.  The per-run values
-are the engine's own fits of each structure (the structured laws hold the profile pooled
-over every run; only their magnitude and threshold scale are per run).
+pressure-law coefficients) is preferred unless the richer one's score is lower by more than
+``SIMPLER_WITHIN`` (relative): the choice never hinges on round-off.  Known leaks, the same
+for every candidate: the pressure orders and a structured candidate's start profile come
+from all runs.
 
 The winner's pressure laws (refined jointly like any campaign's) replace the free ones,
 mapped onto the base law's parameters (:func:`pmalab.identify.laws.structures.base_laws`),
@@ -33,16 +34,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pmalab.identify.estimation.basis import fit_polynomial, weights
-from pmalab.identify.estimation.records import predict_record
-from pmalab.identify.estimation.single import FitResult
 from pmalab.identify.schema import PressureStructure, StructureCandidate
-from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
 
 #: a structure with fewer parameters wins unless a richer one's LOPO score is lower by more
 #: than this fraction
 SIMPLER_WITHIN = 0.01
+#: function evaluations of a structured candidate's joint fit
+CANDIDATE_NFEV = 120
 #: pressure levels (distinct nominal pressures, rounded to 1 kPa) a LOPO choice needs: one
 #: interior level left out still leaves ≥ 3 levels for a quadratic
 MIN_LEVELS = 4
@@ -113,57 +112,6 @@ def levels_of(pressures: Sequence[float] | np.ndarray) -> list[float]:
     return sorted({round(float(p), 3) for p in pressures})
 
 
-def lopo_score(
-    model,
-    runs: Sequence[Run],
-    results: Sequence[FitResult],
-    bounds: Mapping[str, tuple[float, float]],
-) -> tuple[float, list[float], list[float], int]:
-    """Leave-one-pressure-out score of one structure's per-run fits (see module doc).
-
-    Returns (RMS held-out nrmse, per held-out run nrmse, the levels left out, the number of
-    muscle parameters with a pressure law)."""
-    record = set(model.record_params)
-    names = [n for n in results[0].params.names() if n not in record]
-    pressures = np.array([float(r.nominal_pressure) for r in runs])
-    lv = levels_of(pressures)
-    key = np.round(pressures, 3)
-    varying = [n for n in names if any(r.params[n].vary for r in results)]
-    nrmse: list[float] = []
-    folds = lv[1:-1]
-    for L in folds:
-        train = key != L
-        th: dict[str, float] = {}
-        n_train_levels = len(set(key[train]))
-        for n in names:
-            vals = np.array([float(r.params[n].value) for r in results])
-            if n not in varying:
-                th[n] = float(vals[0])
-                continue
-            se = [r.params[n].stderr for i, r in enumerate(results) if train[i]]
-            pf = fit_polynomial(
-                pressures[train],
-                vals[train],
-                weights(se, int(train.sum())),
-                max_degree=min(2, n_train_levels - 1),
-                select=True,
-            )
-            v = float(pf(L))
-            lo, hi = bounds.get(n, (-np.inf, np.inf))
-            th[n] = float(min(max(v, lo), hi))
-        for n in record:
-            th[n] = 0.0
-        for i in np.flatnonzero(~train).tolist():
-            run = runs[int(i)]
-            sig = Signals.from_run(run)
-            yh = predict_record(model, sig, th, force=run.force, bounds=bounds)
-            y = np.asarray(run.force, dtype=np.float64)
-            sd = float(np.std(y))
-            nrmse.append(float(np.sqrt(np.mean((yh - y) ** 2)) / sd) if sd > 0 else float("nan"))
-    score = float(np.sqrt(np.mean(np.square(nrmse)))) if nrmse else float("nan")
-    return score, nrmse, folds, len(varying)
-
-
 def pick(scores: Mapping[str, float], n_params: Mapping[str, int]) -> str:
     """The winner: the lowest score, unless a structure with fewer parameters is within
     ``SIMPLER_WITHIN`` of it (then the simplest such)."""
@@ -178,19 +126,20 @@ def choose_structure(
     runs: Sequence[Run],
     *,
     fixed: Mapping[str, float | None] | None = None,
-    jobs: int = 1,
-    scheduler: str | None = None,
-    progress: bool = False,
-    pressure_model: str = "joint",
     structure: str = "auto",
 ) -> StructureChoice | None:
     """Choose ``cf``'s pressure structure (``"auto"``: by LOPO; or the one named) and, when it
     is not ``"free"``, replace ``cf.pressure``'s laws by the winner's (in place; see module
-    doc).  Returns the choice (also in ``cf.structure``), None when the law offers no
-    structures, the campaign has too few levels, or the user fixed element parameters."""
+    doc).  Returns the choice (also in ``cf.structure``); None when the law offers no
+    structures, the campaign has too few levels, its pressure laws were not refined jointly
+    (the evidence is the joint fit's), or the user fixed element parameters.
+
+    Each structured candidate is one joint fit on the free campaign's records, started from
+    the free structure's joint laws (k, c0 and the effects' laws as they are, the magnitude
+    s(p) through the free laws' summed element stiffness, t = 1, the profile corrections
+    1): no per-run fits are needed, the laws are the joint fit's anyway."""
     from dataclasses import replace
 
-    from pmalab.identify.campaign.fit import fit_campaign, parameter_bounds
     from pmalab.identify.campaign.pressure import weighted_r2
     from pmalab.identify.laws.structures import base_laws, profile, structured_law
     from pmalab.identify.messages import note
@@ -215,10 +164,17 @@ def choose_structure(
         )
         return None
     lv = levels_of([rf.p_nom for rf in cf.runs])
-    if structure == "auto" and len(lv) < MIN_LEVELS:
+    if cf.joint is None:
+        if structure != "auto":
+            cf.warnings.append(
+                f"--structure {structure}: not applied — the pressure laws were not refined "
+                "jointly (the structures are fitted jointly)"
+            )
         return None
-    kappa, delta = profile(law, [cf.theta(rf.p_nom) for rf in cf.runs])
-    others = {n: v for n, v in (fixed or {}).items() if n not in elem}
+    if structure == "auto" and (len(lv) < MIN_LEVELS or not cf.joint.lopo):
+        return None
+    thetas = [cf.theta(rf.p_nom) for rf in cf.runs]
+    kappa, delta = profile(law, thetas)
     cands = ["free", *law.structures] if structure == "auto" else [structure]
     models = {
         s: ForceModel(structured_law(law, s, kappa, delta), cf.model.effects)
@@ -228,50 +184,29 @@ def choose_structure(
     choice = StructureChoice(
         law=law.name,
         chosen=structure,
-        criterion="leave-one-pressure-out" if structure == "auto" else "user",
+        criterion="leave-one-pressure-out (joint fit, one Gauss-Newton step per left-out level)"
+        if structure == "auto"
+        else "user",
         scores={},
         n_params={},
-        folds=[],
+        folds=lv[1:-1],
     )
-    camps = {}
+    joints: dict = {"free": cf.joint}
     for s, m in models.items():
         try:
-            camps[s] = fit_campaign(
-                runs,
-                m,
-                fixed=others or None,
-                shape={n: 1.0 for n in m.law.shared_shape},
-                jobs=jobs,
-                scheduler=scheduler,
-                progress=progress,
-                pressure_model=pressure_model,
-            )
-        except Exception as exc:  # a failed candidate is reported, not fatal
+            joints[s] = _joint_structured(cf, runs, m, thetas)
+        except (ValueError, np.linalg.LinAlgError) as exc:  # reported, never fatal
             choice.failed[s] = str(exc)
     if structure == "auto":
-        every = {"free": cf, **camps}
-        joint = all(c.joint is not None and c.joint.lopo for c in every.values())
-        choice.criterion = (
-            "leave-one-pressure-out (joint fit, one Gauss-Newton step per left-out level)"
-            if joint
-            else "leave-one-pressure-out (per-run values)"
-        )
-        for s, c in every.items():
-            if joint:
-                per = c.joint.lopo
-                labels = [rf.label for rf in c.runs if rf.label in per]
-                per_run = [per[lb] for lb in labels]
-                choice.folds = levels_of([rf.p_nom for rf in c.runs])[1:-1]
-                # pressure-law coefficients of the muscle (record parameters excluded)
-                n_par = sum(d + 1 for d in c.joint.degree.values())
-                score = float(np.sqrt(np.mean(np.square(per_run)))) if per_run else float("nan")
-            else:
-                m = cf.model if s == "free" else models[s]
-                bounds = parameter_bounds(c.runs)
-                score, per_run, choice.folds, n_par = lopo_score(
-                    m, runs, [rf.result for rf in c.runs], bounds
-                )
-            choice.scores[s], choice.per_run[s], choice.n_params[s] = score, per_run, n_par
+        for s, j in joints.items():
+            labels = [rf.label for rf in cf.runs if rf.label in j.lopo]
+            per_run = [j.lopo[lb] for lb in labels]
+            choice.scores[s] = (
+                float(np.sqrt(np.mean(np.square(per_run)))) if per_run else float("nan")
+            )
+            choice.per_run[s] = per_run
+            # pressure-law coefficients of the muscle (record parameters excluded)
+            choice.n_params[s] = sum(d + 1 for d in j.degree.values())
         choice.chosen = pick(choice.scores, choice.n_params)
     elif structure in choice.failed:
         from pmalab.errors import PmalabError
@@ -280,21 +215,16 @@ def choose_structure(
     cf.structure = choice
     if choice.chosen != "free":
         sm = models[choice.chosen]
-        cs = camps[choice.chosen]
-        own = ("s", "t", *sm.law.shared_shape)
-        coefs = base_laws(
-            law,
-            sm.law,  # type: ignore[arg-type]
-            {n: cs.pressure[n].coef for n in own if n in cs.pressure},
-        )
-        deg = {n: cs.pressure[n].degree for n in ("s", "t") if n in cs.pressure}
+        js = joints[choice.chosen]
+        coefs = base_laws(law, sm.law, js.coef)  # type: ignore[arg-type]
         new = dict(cf.pressure)
         for n, pf in cf.pressure.items():
             if n in coefs:
                 q = coefs[n]
-                d = deg.get("s" if n in k_names else "t", 2)
-            elif n in cs.pressure and n not in cf.model.record_params:
-                q, d = cs.pressure[n].coef, cs.pressure[n].degree
+                src = "s" if n in k_names else "t"
+                d = js.degree.get(src, 0)
+            elif n in js.coef:
+                q, d = js.coef[n], js.degree[n]
             else:
                 continue
             fitted = [q[0] + q[1] * p + q[2] * p * p for p in pf.pressures]
@@ -320,10 +250,54 @@ def choose_structure(
     return choice
 
 
-def _bounds(results: Sequence[FitResult]) -> dict[str, tuple[float, float]]:
-    out: dict[str, tuple[float, float]] = {}
-    for r in results:
-        for p in r.params:
-            lo, hi = out.get(p.name, (np.inf, -np.inf))
-            out[p.name] = (min(lo, p.lo), max(hi, p.hi))
-    return out
+def _joint_structured(cf, runs: Sequence[Run], model, thetas: Sequence[Mapping[str, float]]):
+    """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
+    ``cf``'s records, started from ``cf``'s free joint laws (see :func:`choose_structure`)."""
+    from pmalab.identify.campaign.fit import parameter_bounds
+    from pmalab.identify.estimation.basis import fit_polynomial
+    from pmalab.identify.estimation.joint import prepare, refine
+
+    j = cf.joint
+    law = model.law
+    base = cf.model.law
+    elem = {*base.element_names()[0], *base.element_names()[1]}
+    own = {p.name for p in law.params}
+    bounds = {n: b for n, b in parameter_bounds(cf.runs).items() if n not in elem}
+    bounds.update({p.name: (p.lo, p.hi) for p in law.params})
+    constants = {n: v for n, v in j.constants.items() if n not in elem}
+    constants.update({n: float(v) for n, v in law.default_fixed.items() if v is not None})
+    start: dict[str, tuple[float, float, float]] = {}
+    degree: dict[str, int] = {}
+    for n, q in j.coef.items():
+        if n not in elem:
+            start[n], degree[n] = q, j.degree[n]
+    top = min(2, len(levels_of([rf.p_nom for rf in cf.runs])) - 1)
+    # the magnitude: the free laws' summed element stiffness at every run (κ sums to 1)
+    ps = [rf.p_nom for rf in cf.runs]
+    mag = [float(np.sum(base.elements(th)[0])) for th in thetas]
+    pf = fit_polynomial(ps, mag, max_degree=top)
+    start["s"], degree["s"] = pf.coef, top
+    if "t" not in constants:
+        start["t"], degree["t"] = (1.0, 0.0, 0.0), top
+    shape = [n for n in law.shared_shape if n in own]
+    for n in shape:
+        start[n], degree[n] = (1.0, 0.0, 0.0), 0
+    jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, cf.runs)]
+    h0 = list(j.h0) if j.h0 else None
+    fit, _ = refine(
+        model,
+        jruns,
+        start,
+        degree,
+        constants,
+        bounds,
+        h0,
+        nuisance_start=j.nuisance or None,
+        fixed_order=[*shape, *(n for n in model.campaign_shared if n in start)],
+        lopo=True,
+        # one refinement from the free laws, its orders pruned like the free fit's (the
+        # candidates compare like with like)
+        prune=True,
+        max_nfev=CANDIDATE_NFEV,
+    )
+    return fit

@@ -352,24 +352,34 @@ def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]
     record's force, on the joint fit's subsampled records.
     """
     r = prob.residual(z)
+    J = np.asarray(J, dtype=np.float64)
     keys = np.array([round(float(rec.p_nom), 3) for rec in prob.records])
     levels = sorted(set(keys.tolist()))
     R = len(prob.records)
     nc = prob.n_coef
     run_cols = [[prob.block(j).start + i for j in range(len(prob.run_params))] for i in range(R)]
+    # normal equations once; a fold removes its runs' rows (J_G'J_G, J_G'r_G) and columns
+    A = J.T @ J
+    g = J.T @ r
     out: dict[str, float] = {}
     for L in levels[1:-1]:
         G = [i for i in range(R) if keys[i] == L]
         T = [i for i in range(R) if keys[i] != L]
-        rows_t = np.concatenate([np.arange(prob.rows[i].start, prob.rows[i].stop) for i in T])
-        cols_t = np.array(list(range(nc)) + [c for i in T for c in run_cols[i]], dtype=np.intp)
-        step, *_ = np.linalg.lstsq(J[np.ix_(rows_t, cols_t)], -r[rows_t], rcond=None)
+        rows_g = np.concatenate([np.arange(prob.rows[i].start, prob.rows[i].stop) for i in G])
+        Jg = J[rows_g]
+        cols = np.array(list(range(nc)) + [c for i in T for c in run_cols[i]], dtype=np.intp)
+        At = (A - Jg.T @ Jg)[np.ix_(cols, cols)]
+        gt = (g - Jg.T @ r[rows_g])[cols]
+        # column scaling (the coefficients and start states differ by orders of magnitude)
+        d = np.sqrt(np.maximum(np.diag(At), 0.0))
+        d = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+        step = -d * np.linalg.lstsq(At * d[:, None] * d[None, :], gt * d, rcond=1e-12)[0]
         dc = step[:nc]
         for i in G:
             rows = np.arange(prob.rows[i].start, prob.rows[i].stop)
-            e = r[rows] + J[np.ix_(rows, np.arange(nc))] @ dc
+            e = r[rows] + J[rows, :nc] @ dc
             if run_cols[i]:
-                Jr = J[np.ix_(rows, run_cols[i])]
+                Jr = J[np.ix_(rows, np.array(run_cols[i], dtype=np.intp))]
                 eps, *_ = np.linalg.lstsq(Jr, -e, rcond=None)
                 e = e + Jr @ eps
             rec = prob.records[i]
