@@ -47,7 +47,9 @@ def test_parallel_pages_equal_serial_pages(serial, tmp_path, method):
         assert ta == tb, f"page {i}: text differs"
         assert ia.shape == ib.shape and np.array_equal(ia, ib), f"page {i}: pixels differ"
     # progress lines in page order, one PNG per page, no scratch files left beside the PDF
-    assert [ln.split(":")[0] for ln in lines] == [f"page {i}/{len(a)}" for i in range(1, len(a) + 1)]
+    assert [ln.split(":")[0] for ln in lines] == [
+        f"page {i}/{len(a)}" for i in range(1, len(a) + 1)
+    ]
     assert len(list(png.glob("*.png"))) == len(a)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["par.pdf", "png"]
     meta = pdfium.PdfDocument(str(two)).get_metadata_dict()
@@ -57,5 +59,5 @@ def test_parallel_pages_equal_serial_pages(serial, tmp_path, method):
 def test_join_refuses_a_file_that_is_not_a_pdf(tmp_path):
     bad = tmp_path / "x.pdf"
     bad.write_bytes(b"not a pdf")
-    with pytest.raises(ReportError, match="x.pdf: not a complete PDF"):
+    with pytest.raises(ReportError, match=r"x\.pdf: not a complete PDF"):
         join_pdfs([bad], tmp_path / "out.pdf", {"Title": "t"})

@@ -797,7 +797,7 @@ def build_report(
     from pmalab.reports.parallel import default_jobs, render_parallel
 
     jobs = default_jobs() if jobs is None else jobs
-    parallel = None
+    parallel: Callable[[Path, Callable[[int], None]], list[Path]] | None = None
     if jobs > 1 and len(pages) > 1:
         args = (
             [str(p) for p in inputs],
@@ -805,7 +805,7 @@ def build_report(
             None if svg_dir is None else str(svg_dir),
         )
 
-        def parallel(tmpdir: Path, done: Callable[[int], None]) -> list[Path]:
+        def render_all(tmpdir: Path, done: Callable[[int], None]) -> list[Path]:
             return render_parallel(
                 _page_renderer,
                 args,
@@ -815,6 +815,8 @@ def build_report(
                 start_method=start_method,
                 done=done,
             )
+
+        parallel = render_all
 
     return write_pdf(
         out,

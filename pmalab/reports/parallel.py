@@ -20,6 +20,7 @@ import os
 import re
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
+from itertools import pairwise
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -59,8 +60,8 @@ def _objects(data: bytes, name: str) -> tuple[dict[int, bytes], int, int]:
     root = re.search(rb"/Root (\d+) 0 R", trailer.group(1)) if trailer else None
     if root is None:
         raise ReportError(f"{name}: no catalog")
-    bounds = sorted(offsets.values()) + [xref]
-    nxt = {a: b for a, b in zip(bounds, bounds[1:], strict=False)}
+    bounds = [*sorted(offsets.values()), xref]
+    nxt = dict(pairwise(bounds))
     objs: dict[int, bytes] = {}
     for num, off in offsets.items():
         chunk = data[off : nxt[off]]
