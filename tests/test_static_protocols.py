@@ -39,7 +39,7 @@ def test_isometric_protocol_holds_lengths_ramps_pressure_and_identifies_the_brai
     tmp_path,
 ):
     out = tmp_path / "iso.h5"
-    code, stdout, err = _cli(
+    code, _, err = _cli(
         ["run", "--rig", "sim-static", "--protocol", "isometric", "--out", str(out)]
     )
     assert code == 0, err

@@ -190,8 +190,8 @@ class StaticSampler(Sampler):
 
     def read_block(self) -> Block:
         self.physics.advance_to(self.clock.now())
-        o = self.physics.sample()
-        return Block(*(np.array([v]) for v in o))
+        t, x, f, pm, pc = self.physics.sample()
+        return Block(np.array([t]), np.array([x]), np.array([f]), np.array([pm]), np.array([pc]))
 
 
 class _NoCylinder(PressureRegulator):
