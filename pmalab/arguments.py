@@ -28,5 +28,5 @@ def seed(text: str) -> int:
     except ValueError:
         raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
     if not 0 <= v <= MAX_SEED:
-        raise argparse.ArgumentTypeError(f"{text}: must be an integer 0 … 2**63-1")
+        raise argparse.ArgumentTypeError(f"must be an integer ≥ 0 and ≤ 2**63-1, got {text}")
     return v
