@@ -67,7 +67,7 @@ DIVERGED_NRMSE = 10.0
 #: a held-out error rising by more than this fraction marks the candidate's fit failed
 FAILED_FALL = 1.0
 #: ... and so does a fall below −``SCATTER_MIN_RISE`` whose standard error exceeds it
-SCATTER_MIN_RISE = 0.1
+SCATTER_MIN_RISE = 0.3
 #: share of the identification runs on which new parameters sit on a bound (other than a
 #: physical sign bound at 0) for a rising error to count as a failed fit
 BOUND_SHARE = 0.5
