@@ -423,7 +423,8 @@ def _run_protocol(
     check_free_space(
         out,
         estimated_file_size(
-            [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs]
+            [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs],
+            len(rig.channels),
         ),
     )
     if warning:
