@@ -151,3 +151,19 @@ def test_the_muscle_command_is_recorded_and_a_stand_without_cylinder_refuses_iso
             load_rig("sim-static"), load_protocol("quick"), tmp_path / "b.h5", options=_opts()
         )
     assert not (tmp_path / "b.h5").exists()
+
+
+def test_a_trip_in_an_isometric_run_vents_the_muscle_regulator_and_keeps_the_samples(tmp_path):
+    from pmalab.errors import SafetyAbort
+
+    rig = load_rig("sim-static")
+    rig.limits.max_force_N = 200.0  # the 0 mm ramp passes 200 N about 40 % of the way up
+    out = tmp_path / "trip.h5"
+    proto = load_protocol("isometric").select(names=["iso-0mm", "iso-12mm"])
+    with pytest.raises(SafetyAbort, match="muscle regulator vented \\(confirmed"):
+        run_protocol(rig, proto, out, options=_opts())
+    physics = rig.sampler.physics  # type: ignore[attr-defined]
+    assert physics.command == 0.0
+    runs = read_runs(out, skip_incomplete=False)
+    assert runs[0].attrs["status"].startswith("aborted") and len(runs[0]) > 1000
+    assert float(runs[0].force.max()) > 195.0
