@@ -65,6 +65,58 @@ def _identification(d: Path) -> None:
           "static law at the run's pressure; Bouc-Wen with n free")
 
 
+def _stiffness(d: Path) -> None:
+    """Co-contraction stiffens the joint (pair-stiffness): the same ±0.05 MPa swing of the
+    extensor's pressure turns the joint less the higher both pressures are.  Beside the
+    measured swing, the truth's joint stiffness r²·(k_f + k_e) at the held pressure."""
+    import json
+
+    import numpy as np
+
+    from pmalab.runfile import read_run_datasets
+
+    out = d / "stiffness.h5"
+    rig = load_rig(RIG, seed=3)
+    with rig:
+        run_protocol(rig, load_protocol("pair-stiffness"), out,
+                     options=RunnerOptions(progress=False))
+    physics = rig.info["physics"]
+    r_m = rig.geometry.radius_mm * 1e-3
+    rows = []
+    for r in read_runs_all(out):
+        ds = read_run_datasets(out, r)
+        t = ds["time"][0] - ds["time"][0][0]
+        spec = json.loads(physics_attr(out, r))
+        t0 = spec["settle_s"] + spec["ramp_s"]
+        keep = (t >= t0) & (t <= t0 + spec["cycles"] / spec["frequency_Hz"])
+        swing = float(np.ptp(ds["angle"][0][keep]))
+        p = spec["muscle_pressure_MPa"]
+        k_joint = r_m**2 * 1e3 * (physics.stiffness(0, p) + physics.stiffness(1, p))
+        rows.append([r, f"{p:.2f}", f"{swing:.2f}", f"{k_joint:.1f}", f"{swing * k_joint:.0f}"])
+    print()
+    print("co-contraction stiffens the joint (pair-stiffness: the flexor held at p, the "
+          "extensor swung ±0.05 MPa around p, 0.5 Hz): the angle's peak-to-peak swing and "
+          "the truth's joint stiffness r²·(k_f + k_e):")
+    print_table(["run", "p MPa", "swing deg", "truth N·m/rad", "swing × stiffness"], rows)
+
+
+def read_runs_all(path: Path) -> list[str]:
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        return list(f["runs"].keys())
+
+
+def physics_attr(path: Path, run: str) -> str:
+    from pmalab.runfile import decode_attr, open_h5
+
+    f = open_h5(path)
+    try:
+        return str(decode_attr(f["runs"][run].attrs["protocol"]))
+    finally:
+        f.close()
+
+
 def _single_muscle(model: IdentifiedModel) -> dict[str, dict]:
     """The seeds' single-muscle figures: the cascade on the manipulator's 15 mm square."""
     ref = parse_reference("square:0.1Hz:15mm")
@@ -114,6 +166,7 @@ def _control() -> None:
 def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         _identification(Path(d))
+        _stiffness(Path(d))
     _control()
 
 

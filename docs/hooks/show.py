@@ -187,7 +187,19 @@ def built() -> Path:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     _state["dir"] = final
+    _prune(final.parent, keep=8)
     return final
+
+
+def _prune(root: Path, keep: int) -> None:
+    """Remove all but the ``keep`` most recently made builds (older sources' outputs)."""
+    done = sorted(
+        (d for d in root.iterdir() if (d / "done").exists()),
+        key=lambda d: (d / "done").stat().st_mtime,
+        reverse=True,
+    )
+    for old in done[keep:]:
+        shutil.rmtree(old, ignore_errors=True)
 
 
 # --------------------------------------------------------------------------- the hooks

@@ -1,0 +1,122 @@
+"""The documentation site, built strictly as ``make docs`` builds it.
+
+* the build succeeds with ``--strict`` and writes nothing into the tree; strictness is real:
+  a broken link or an unresolved cross-reference fails it;
+* every CLI verb has its section in the generated CLI reference; the API reference renders
+  the public functions, with no raw Sphinx role left;
+* the campaign tutorial shows each command's output and the figures the commands wrote
+  (the build ran them in an empty directory: their files are checked here), the notebook
+  executed with its figure inline (the build ran it: its outputs are checked here), and the
+  gallery every page of the tutorial's report.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = str(Path(sys.executable).parent)
+
+pytestmark = pytest.mark.slow
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["PATH"] = BIN + os.pathsep + env.get("PATH", "")
+    env["NO_MKDOCS_2_WARNING"] = "1"
+    env["MPLBACKEND"] = "Agg"
+    return env
+
+
+def _mkdocs(config: Path, site: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
+                           str(config), "-d", str(site)], cwd=ROOT, capture_output=True,
+                          text=True, env=_env(), timeout=1800)
+
+
+def _tracked_state() -> str:
+    return subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=ROOT,
+                          capture_output=True, text=True).stdout
+
+
+def _build_cache() -> Path:
+    """Where the build ran the tutorial, the notebook and the figure script (the hook's
+    cache directory for the current sources)."""
+    spec = importlib.util.spec_from_file_location("docs_show", ROOT / "docs" / "hooks" / "show.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.built()
+
+
+@pytest.mark.timeout(1800)  # the first build runs the campaign tutorial and the notebook
+def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
+    before = _tracked_state()
+    p = _mkdocs(ROOT / "mkdocs.yml", tmp_path / "site")
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert _tracked_state() == before  # the build writes nothing into the tree
+    site = tmp_path / "site"
+    # the campaign tutorial shows what each command printed and the figures they wrote
+    camp = (site / "tutorials" / "campaign" / "index.html").read_text()
+    assert camp.count("<pre") >= 8  # 4 command blocks, each followed by its output
+    for printed in ("campaign.h5: 10 runs", "validate  campaign.h5:valid-", "Ladder (the error",
+                    "wrote improved/identification.json", "report written: report.pdf"):
+        assert printed in camp, printed
+    assert "viscous-friction" in camp and len(re.findall(r"<img [^>]*generated/", camp)) >= 3
+    for src in re.findall(r'<img [^>]*src="([^"]+)"', camp):
+        assert (site / "tutorials" / "campaign" / src).resolve().is_file(), src
+    # the notebook executed at build, its figure inline
+    nb = (site / "tutorials" / "notebook" / "index.html").read_text()
+    assert "validation nrmse" in nb and re.search(r"<img [^>]*notebooks/tutorial-1\.png", nb)
+    # the gallery: every page of the campaign's report
+    gallery = (site / "gallery" / "index.html").read_text()
+    assert len(re.findall(r"<img [^>]*report-pages/", gallery)) >= 8
+    # what the tutorial's commands wrote, in the empty directory the build ran them in
+    work = _build_cache() / "generated" / "runs" / "campaign"
+    assert (work / "report.pdf").stat().st_size > 10_000
+    assert "viscous-friction" in (work / "diag" / "diagnosis.json").read_text()
+    # the notebook, executed top to bottom by the build (nbclient)
+    nb_md = (_build_cache() / "notebooks" / "tutorial.md").read_text()
+    assert "viscous-friction" in nb_md and "validation nrmse" in nb_md
+    assert "notebooks/tutorial-1.png" in nb_md  # the ladder's figure, shown inline
+    from pmalab.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    cli = (tmp_path / "site" / "reference" / "cli" / "index.html").read_text()
+    for verb in sub.choices:
+        assert f"pmalab {verb}</code>" in cli or f"pmalab {verb}" in cli, verb
+    api = (tmp_path / "site" / "reference" / "api" / "index.html").read_text()
+    # the docstrings' Sphinx roles became links or code, their >>> examples code blocks
+    assert not re.search(r":(class|meth|func|mod|attr|data|exc):`", api)
+    assert "autorefs-internal" in api and "<blockquote>" not in api
+    for name in ("identify", "diagnose", "load", "read_runs", "run_protocol", "load_rig",
+                 "import_files", "read_tdms_runs", "read_mat_runs", "residual_shares",
+                 "HysteresisLaw", "build_report"):
+        assert f'id="{name}' in api or f".{name}" in api, name
+
+
+@pytest.mark.parametrize("broken, needle", [
+    ("[gone](nowhere.md)", "nowhere.md"),
+    ("[a cross-reference][pmalab.identify.api.no_such_function]", "no_such_function"),
+])
+@pytest.mark.timeout(1800)
+def test_strict_mode_is_real_a_broken_link_or_reference_fails(tmp_path, broken, needle):
+    docs = tmp_path / "docs"
+    shutil.copytree(ROOT / "docs", docs)
+    shutil.copytree(ROOT / "examples", tmp_path / "examples")  # the notebook page's source
+    (docs / "index.md").write_text((docs / "index.md").read_text() + f"\n{broken}\n")
+    cfg = (ROOT / "mkdocs.yml").read_text().replace("docs_dir: docs", f"docs_dir: {docs}")
+    cfg = cfg.replace("docs/hooks/", f"{docs}/hooks/")
+    (tmp_path / "mkdocs.yml").write_text(cfg)
+    p = _mkdocs(tmp_path / "mkdocs.yml", tmp_path / "site")
+    assert p.returncode != 0 and needle in p.stdout + p.stderr
+
+
