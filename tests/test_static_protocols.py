@@ -102,7 +102,7 @@ def test_a_rig_without_a_commanded_muscle_regulator_refuses_before_anything_move
     code, _, err = _cli(["run", "--rig", "sim", "--protocol", "isometric", "--out", str(out)])
     assert code != 0
     line = err.strip().splitlines()[-1]
-    assert "rig 'sim'" in line and "muscle_command" in line and "Traceback" not in err
+    assert "rig 'sim'" in line and "muscle_pressure_command" in line and "Traceback" not in err
     assert not out.exists()
     rig = load_rig("sim")
     with pytest.raises(ProtocolRefused, match="no commanded muscle regulator"):
@@ -132,3 +132,38 @@ def test_static_run_fields_are_checked(body, msg):
     text = f'[[run]]\nname = "a"\nfrequency_Hz = 0.1\n{body}\n'
     with pytest.raises(ConfigError, match=msg):
         parse_protocol(text, "p.toml")
+
+
+def test_the_muscle_command_is_recorded_and_a_stand_without_cylinder_refuses_isobaric(tmp_path):
+    import h5py
+
+    rig = load_rig("sim-static")
+    proto = load_protocol("isometric").select(names=["iso-12mm"])
+    out = tmp_path / "a.h5"
+    run_protocol(rig, proto, out, options=_opts())
+    with h5py.File(out) as f:
+        g = f["runs"]["iso-12mm"]
+        cmd = g["muscle_pressure_command"][:]
+        assert float(cmd.max()) == pytest.approx(0.6, abs=1e-3) and float(cmd[0]) == 0.0
+        assert float(np.abs(g["cylinder_pressure_command"][:]).max()) == 0.0
+    with pytest.raises(ProtocolRefused, match="has none"):
+        run_protocol(
+            load_rig("sim-static"), load_protocol("quick"), tmp_path / "b.h5", options=_opts()
+        )
+    assert not (tmp_path / "b.h5").exists()
+
+
+def test_a_trip_in_an_isometric_run_vents_the_muscle_regulator_and_keeps_the_samples(tmp_path):
+    from pmalab.errors import SafetyAbort
+
+    rig = load_rig("sim-static")
+    rig.limits.max_force_N = 200.0  # the 0 mm ramp passes 200 N about 40 % of the way up
+    out = tmp_path / "trip.h5"
+    proto = load_protocol("isometric").select(names=["iso-0mm", "iso-12mm"])
+    with pytest.raises(SafetyAbort, match="muscle regulator vented \\(confirmed"):
+        run_protocol(rig, proto, out, options=_opts())
+    physics = rig.sampler.physics  # type: ignore[attr-defined]
+    assert physics.command == 0.0
+    runs = read_runs(out, skip_incomplete=False)
+    assert runs[0].attrs["status"].startswith("aborted") and len(runs[0]) > 1000
+    assert float(runs[0].force.max()) > 195.0

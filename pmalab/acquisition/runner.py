@@ -755,8 +755,8 @@ def _record(
     since = [0, 0]  # samples delivered, samples the progress bar has shown
     # the recorded row is the rig's declaration: time, the sampled channels, the commands
     commands = command_row(rig, spec)
-    if spec.static:  # the recorded cylinder command: none
-        commands = lambda _cmd: (0.0,)  # noqa: E731
+    if spec.static and getattr(rig, "command_values", None) is None:
+        commands = lambda _cmd: (0.0,)  # noqa: E731  (a rig declaring no muscle command)
 
     def step(k: int, t_rel: float, v: Sample, lateness: float) -> float:
         # the waveform's value at this sample's nominal time (computed a block of deadlines ahead);

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pmalab.channels import KINDS, STANDARD_CHANNELS, Channel, Channels
 from pmalab.errors import RigError
 from pmalab.rig.base import (
     Block,
@@ -228,6 +229,12 @@ class _Supply(MusclePressureSupply):
         return VentResult.confirmed("simulated muscle regulator commanded to 0 MPa")
 
 
+def _command_values(cmd: float, spec: object) -> tuple[float, float]:
+    """The recorded commands (cylinder, muscle) in MPa for a waveform value ``cmd``: a static
+    run plays it on the muscle's regulator; the stand has no cylinder."""
+    return (0.0, float(cmd))
+
+
 def make_static_rig(
     truth: str | Path | None = None,
     *,
@@ -254,9 +261,15 @@ def make_static_rig(
             "clock": "virtual" if clock.virtual else "real",
         },
     )
+    # the recorded commands: the (absent) cylinder's, then the muscle regulator's
+    rig.channels = Channels(
+        (*STANDARD_CHANNELS, Channel("muscle_pressure_command", "command", KINDS["command"]))
+    )
     reg = SimulatedRegulator(physics, clock, physics.max_pressure_MPa, physics.set_command)
     # attributes the runner looks for: a commanded muscle regulator and the two holds
     rig.muscle_regulator = reg  # type: ignore[attr-defined]
     rig.hold_length = physics.hold_length  # type: ignore[attr-defined]
     rig.hang_load = physics.hang_load  # type: ignore[attr-defined]
+    rig.has_cylinder = False  # type: ignore[attr-defined]
+    rig.command_values = _command_values  # type: ignore[attr-defined]
     return rig
