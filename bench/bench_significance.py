@@ -59,33 +59,36 @@ def main() -> None:
         for seed in range(100, 100 + n_clean):
             d = _diagnose(_campaign(SUBTLE / "clean.toml", seed, work))
             r0 = d.ranking[0]
-            best_gain = max(r["gain_x_floor"] for r in d.ranking)
+            best_gain = max((r["gain_x_floor"] or 0.0) for r in d.ranking)
             ts = [r["block_t"] for r in d.ranking if r["block_t"] is not None]
             best_t = max(ts) if ts else float("nan")
             gains.append(best_gain)
             # the other laws are scored like effects: a law claimed on clean data is a
             # false claim too (the clean muscle's friction is Maxwell-slip-shaped, so the
             # element laws come closer to the floor, but never by a significant gain)
-            law_gains.append(max((lw["gain_x_floor"] for lw in d.laws), default=float("nan")))
+            law_gains.append(
+                max((lw["gain_x_floor"] or 0.0 for lw in d.laws), default=float("nan")))
             sig = [r["effect"] for r in d.ranking if r["significant"]]
             sig += [f"law {lw['law']}" for lw in d.laws if lw["significant"]]
             claims += bool(sig)
             rows.append((seed, f"{d.ladder[0]['nrmse'] / d.noise_floor['mean_nrmse']:.2f}",
                          r0["effect"], f"{best_gain:.3f}", f"{best_t:.1f}",
                          ", ".join(sig) or "-"))
-        print("Clean data (diagnosis-test campaign, data/truth/subtle/clean.toml):")
-        print_table(["seed", "base × floor", "first", "max gain × floor", "max block t",
-                     "claimed"], rows)
-        print(f"false claims: {claims} of {n_clean} seeds; largest gain of any candidate "
-              f"{max(gains):.3f}× floor (95th percentile {np.percentile(gains, 95):.3f}×); "
-              f"largest gain of another law {np.nanmax(law_gains):.3f}× floor")
+        if n_clean:
+            print("Clean data (diagnosis-test campaign, data/truth/subtle/clean.toml):")
+            print_table(["seed", "base × floor", "first", "max gain × floor", "max block t",
+                         "claimed"], rows)
+            print(f"false claims: {claims} of {n_clean} seeds; largest gain of any candidate "
+                  f"{max(gains):.3f}× floor (95th percentile {np.percentile(gains, 95):.3f}×); "
+                  f"largest gain of another law {np.nanmax(law_gains):.3f}× floor", flush=True)
         rows = []
         for eff in EFFECTS:
             for seed in (201, 202, 203):
                 d = _diagnose(_campaign(SUBTLE / f"{eff}.toml", seed, work))
                 row = next(r for r in d.ranking if r["effect"] == eff)
                 rows.append((eff, seed, f"{d.ladder[0]['nrmse'] / d.noise_floor['mean_nrmse']:.2f}",
-                             f"{row['gain_x_floor']:.2f}", "-" if row["block_t"] is None else f"{row['block_t']:.1f}",
+                             "failed" if row["gain_x_floor"] is None else f"{row['gain_x_floor']:.2f}",
+                             "-" if row["block_t"] is None else f"{row['block_t']:.1f}",
                              f"{row['runs_improved']:.2f}", "yes" if row["significant"] else "NO",
                              d.ranking[0]["effect"]))
         print("\nSubtle hidden effects (2–4× the floor), the hidden effect's row:")

@@ -91,6 +91,9 @@ class FakeSampler(Sampler):
         self.last_t: float | None = None
         self.n = 0
         self.noise = noise
+        #: load-cell noise (N): a real cell is never exactly still, and the run file's
+        #: health check refuses a force that repeats one value where its noise resolves
+        self.force_noise = 0.0
         self.rng = np.random.default_rng(seed)
 
     def read_block(self) -> Block:
@@ -109,6 +112,8 @@ class FakeSampler(Sampler):
                 "cylinder_pressure": self.pc}
         if self.noise:
             vals["muscle_pressure"] += self.noise * self.rng.standard_normal()
+        if self.force_noise:
+            vals["force"] += self.force_noise * self.rng.standard_normal()
         if self.fault is not None:
             over = self.fault(t, self.n)
             if over:

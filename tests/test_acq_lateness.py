@@ -62,7 +62,7 @@ def test_a_run_that_misses_more_than_1_percent_is_flagged_and_warned(tmp_path, c
                                                                      monkeypatch):
     """Every 20th request stalls 25 ms at 100 Hz (29 ms in all): the next deadline passes
     entirely (missed) and the two after it start 9 and 3 ms late."""
-    rig = slow_rig(stall_every=20, stall_s=0.025)
+    rig = slow_rig(stall_every=20, stall_s=0.025, force_noise=0.5)
     proto = tmp_path / "short.toml"
     proto.write_text(PROTO)
     monkeypatch.setattr(acq_cli, "load_rig_spec", lambda *a, **k: rig)

@@ -126,7 +126,7 @@ def test_cli_prints_diverged_not_numbers(tmp_path, monkeypatch, capsys) -> None:
         return out * 40.0 if len(out) == 7000 else out  # only the validation run runs away
 
     monkeypatch.setattr(campaign.CampaignFit, "predict", runaway)
-    rc = pmalab_main(["identify", str(f), "--model", "bouc-wen", "--out", str(tmp_path / "o"), "--quiet", "--jobs", "1",
+    rc = pmalab_main(["identify", str(f), "--model", "bouc-wen", "--out", str(tmp_path / "o"), "--jobs", "1",
                       "--whole-run"])
     assert rc in (0, None)
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "validate" in ln)

@@ -157,7 +157,7 @@ def test_controllers_run_with_element_laws(campaign, tmp_path, law):
 def test_identify_several_laws_ranks_them_and_writes_one_identification_each(campaign, tmp_path):
     out = tmp_path / "laws"
     rc, text = _cli(["identify", str(campaign), "--model",
-                     "bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip", "--out", str(out), "-q"])
+                     "bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip", "--out", str(out)])
     assert rc == 0, text
     table = json.loads((out / "laws.json").read_text())
     # the typed reader reads what the writer wrote, unchanged

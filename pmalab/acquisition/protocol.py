@@ -63,6 +63,16 @@ On a rig with several muscles (an antagonistic pair) ``muscle = "flexor"`` names
 muscle a run holds isobaric; the other muscle's regulator is driven with the waveform in
 the cylinder's place, so it stretches and releases the held one through the joint.
 
+Test types.  ``test_type = "isobaric"`` (the default) is the above.  ``"isometric"`` and
+``"isotonic"`` drive the *muscle's* regulator with the waveform instead (the cylinder is
+not used): ``offset_MPa``/``amplitude_MPa`` (or ``magnitude_MPa``) are the muscle pressure
+command, a triangle is a ramp up and down, ``"steps"`` that triangle held in 8 stairs each
+way, a sine a smooth cycle; the run starts (``settle_s``) at the waveform's minimum and
+``ramp_s`` defaults to 0.  An isometric run holds ``held_position_mm`` (contraction, mm);
+an isotonic run hangs ``load_N`` (N) and measures the length.  ``muscle_pressure_MPa`` is
+then the command's mean, recorded, not held.  Only a rig with a commanded muscle
+regulator plays them (the runner refuses the rest before anything moves).
+
 Every mistake raises :class:`~pmalab.errors.ConfigError` with one line naming the file
 and the field (``file: run[2] 'ident': field 'frequency_Hz': must be > 0``).
 """
@@ -81,7 +91,9 @@ from pmalab.config import check_keys, parse_toml, read_text
 from pmalab.errors import ConfigError
 from pmalab.paths import PROTOCOLS_DIR, shipped, shipped_hint
 
-WAVEFORMS = ("sine", "triangle", "square")
+WAVEFORMS = ("sine", "triangle", "square", "steps")
+#: test types a protocol can play (the run file's ``test_type``; ``free`` is not playable)
+TEST_TYPES = ("isobaric", "isometric", "isotonic")
 ROLES = ("identification", "validation", "other")
 SAMPLE_RATE_HZ = 500.0
 #: the fastest rate a protocol may ask for (a hardware-timed card; a polled rig refuses more
@@ -109,6 +121,9 @@ _FIELDS: dict[str, tuple[type | tuple[type, ...], Any]] = {
     "pressure_timeout_s": ((int, float), 120.0),
     "description": (str, ""),
     "muscle": (str, ""),
+    "test_type": (str, "isobaric"),
+    "held_position_mm": ((int, float), None),
+    "load_N": ((int, float), None),
 }
 #: campaign fields that may be lists (expanded as a cartesian product)
 _LISTABLE = (
@@ -119,6 +134,8 @@ _LISTABLE = (
     "offset_MPa",
     "magnitude_MPa",
     "muscle",
+    "held_position_mm",
+    "load_N",
 )
 
 
@@ -150,6 +167,16 @@ class RunSpec:
     #: other muscle's regulator plays the cylinder's role: it stretches and releases it);
     #: "" on a single-muscle rig
     muscle: str = ""
+    #: isobaric | isometric | isotonic (see the module docstring)
+    test_type: str = "isobaric"
+    #: isometric: the contraction held (mm); isotonic: the hanging load (N)
+    held_position_mm: float | None = None
+    load_N: float | None = None
+
+    @property
+    def static(self) -> bool:
+        """The muscle's regulator plays the waveform (isometric, isotonic)."""
+        return self.test_type != "isobaric"
 
     @property
     def steady_start_s(self) -> float:
@@ -340,6 +367,38 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
     if not name:
         raise ConfigError(f"{ctx}: missing field 'name'")
     get = {k: t.get(k, d) for k, (_, d) in _FIELDS.items()}
+    tt = get["test_type"]
+    if tt not in TEST_TYPES:
+        raise ConfigError(
+            f"{ctx}: field 'test_type' must be one of {', '.join(TEST_TYPES)}, got {tt!r}"
+        )
+    static = tt != "isobaric"
+    need = {"isometric": "held_position_mm", "isotonic": "load_N"}.get(tt)
+    for k in ("held_position_mm", "load_N"):
+        if k == need and get[k] is None:
+            raise ConfigError(f"{ctx}: missing field '{k}' (an {tt} run holds it)")
+        if k != need and get[k] is not None:
+            raise ConfigError(f"{ctx}: field '{k}' does not apply to an {tt} run")
+    if static:
+        if get["muscle_pressure_MPa"] is not None:
+            raise ConfigError(
+                f"{ctx}: field 'muscle_pressure_MPa' does not apply to an {tt} run (the "
+                "waveform commands the muscle pressure: offset/amplitude or magnitude)"
+            )
+        if get["muscle"]:
+            raise ConfigError(f"{ctx}: field 'muscle' does not apply to an {tt} run")
+        get["muscle_pressure_MPa"] = 1.0  # placeholder, replaced by the command's mean
+        if "ramp_s" not in t:
+            get["ramp_s"] = 0.0
+    elif get["waveform"] == "steps":
+        raise ConfigError(
+            f"{ctx}: field 'waveform' 'steps' is for isometric and isotonic runs (a "
+            "cylinder is not stepped)"
+        )
+    if need == "load_N" and not 0 < float(get["load_N"]) <= 1e5:
+        raise ConfigError(f"{ctx}: field 'load_N' must be > 0 N and ≤ 1e5 N")
+    if need == "held_position_mm" and not -1e3 < float(get["held_position_mm"]) < 1e3:
+        raise ConfigError(f"{ctx}: field 'held_position_mm' must be within ±1000 mm")
     for req in ("muscle_pressure_MPa", "frequency_Hz"):
         if get[req] is None:
             raise ConfigError(f"{ctx}: missing field '{req}'")
@@ -413,9 +472,12 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         if not ok:
             val = {"amplitude_MPa": amp, "offset_MPa": off}.get(fld, get.get(fld))
             raise ConfigError(f"{ctx}: field '{fld}' {msg}, got {val}")
+    if static:
+        # the run starts and settles at the waveform's minimum
+        get["preload_MPa"] = off - amp
     return RunSpec(
         name=str(name),
-        muscle_pressure_MPa=float(get["muscle_pressure_MPa"]),
+        muscle_pressure_MPa=off if static else float(get["muscle_pressure_MPa"]),
         waveform=wf,
         frequency_Hz=f,
         amplitude_MPa=amp,
@@ -432,6 +494,9 @@ def _make_run(t: dict[str, Any], ctx: str, origin: str, rate: float) -> RunSpec:
         description=str(get["description"]),
         origin=origin,
         muscle=str(get["muscle"]),
+        test_type=tt,
+        held_position_mm=None if need != "held_position_mm" else float(get[need]),
+        load_N=None if need != "load_N" else float(get[need]),
     )
 
 
@@ -442,6 +507,10 @@ def _fmt_val(k: str, v: Any) -> str:
         return f"{float(v):g}Hz"
     if k == "muscle":
         return str(v)
+    if k == "held_position_mm":
+        return f"{float(v):g}mm"
+    if k == "load_N":
+        return f"{float(v):g}N"
     if k.endswith("_MPa"):
         return f"{k.split('_')[0][:3]}{round(float(v) * 1000):d}kPa"
     return str(v)

@@ -116,10 +116,11 @@ def _attr(v: Any) -> Any:
     return v
 
 
-def estimated_file_size(samples_per_run: Sequence[int]) -> int:
+def estimated_file_size(samples_per_run: Sequence[int], n_channels: int = len(RECORDED)) -> int:
     """Bytes a recording of runs with these sample counts needs on disk (an upper bound:
-    chunks are allocated whole, plus the pre-created metadata)."""
-    per_sample = 8 * len(RECORDED) + 4  # float64 channels + float32 lateness
+    chunks are allocated whole, plus the pre-created metadata); ``n_channels``: the
+    recorded channels (the rig's declaration)."""
+    per_sample = 8 * n_channels + 4  # float64 channels + float32 lateness
     total = 256 * 1024  # root attrs: protocol and rig file text, provenance
     for n in samples_per_run:
         chunks = max(1, math.ceil(n / CHUNK))

@@ -274,7 +274,36 @@ def run_attrs(
         "calibration": json.dumps(rig.info.get("calibration", {}), sort_keys=True, default=str),
         "clock": "virtual" if rig.clock.virtual else "real",
         **({"held_muscle": spec.muscle} if spec.muscle else {}),
+        **static_attrs(spec),
     }
+
+
+def static_attrs(spec: RunSpec) -> dict[str, Any]:
+    """The run file's test type and held value (the attrs the static path of ``identify``
+    reads): ``test_type``, and ``held_position_mm`` (isometric) or ``load_N`` (isotonic)."""
+    out: dict[str, Any] = {"test_type": spec.test_type}
+    if spec.held_position_mm is not None:
+        out["held_position_mm"] = spec.held_position_mm
+    if spec.load_N is not None:
+        out["load_N"] = spec.load_N
+    return out
+
+
+def muscle_regulator(rig: Rig) -> Any:
+    """The rig's commanded muscle regulator (``rig.muscle_regulator``), or None."""
+    return getattr(rig, "muscle_regulator", None)
+
+
+def _hold(rig: Rig, spec: RunSpec) -> None:
+    """Clamp the length or hang the load a static run holds (a rig that does it itself)."""
+    if spec.held_position_mm is not None:
+        fn = getattr(rig, "hold_length", None)
+        if fn is not None:
+            fn(spec.held_position_mm)
+    if spec.load_N is not None:
+        fn = getattr(rig, "hang_load", None)
+        if fn is not None:
+            fn(spec.load_N)
 
 
 def run_protocol(
@@ -394,7 +423,8 @@ def _run_protocol(
     check_free_space(
         out,
         estimated_file_size(
-            [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs]
+            [int(math.floor(r.duration_s * rate + 1e-9)) + 1 for r in protocol.runs],
+            len(rig.channels),
         ),
     )
     if warning:
@@ -444,6 +474,8 @@ def _run_protocol(
                     hold = getattr(rig, "hold", None)
                     if hold is not None:  # a rig with several muscles: which one is held
                         hold(spec.muscle)
+                    if spec.static:
+                        _hold(rig, spec)
                     if i == 0:
                         rig.cylinder_regulator.set_pressure(0.0)
                         getattr(rig.sampler, "configure", lambda _r: None)(rate)
@@ -589,11 +621,13 @@ def _wait_for_muscle_pressure(
     the standard deviation ≤ tolerance/2 (sensor noise of a PSE510-class gauge is a few
     kPa; a manual regulator still being turned moves far more than that).
     """
-    target = spec.muscle_pressure_MPa
+    target = spec.preload_MPa if spec.static else spec.muscle_pressure_MPa
     tol = spec.pressure_tolerance_MPa
     supply = rig.muscle_supply
     prompt = opts.prompt or _default_prompt
-    if supply.automatic:
+    if spec.static:  # the commanded regulator starts at the waveform's minimum
+        muscle_regulator(rig).set_pressure(target)
+    elif supply.automatic:
         supply.request(target)
     else:
         # the supply words the request; the runner adds which run and when it will start
@@ -704,7 +738,9 @@ def _record(
 ) -> None:
     """Record one run through the sample loop (:mod:`pmalab.acquisition.loop`): command the
     waveform, check, store, flush — until its end."""
-    sampler, reg = rig.sampler, rig.cylinder_regulator
+    sampler = rig.sampler
+    # a static run plays its waveform on the muscle's regulator; the cylinder stays at 0
+    reg = muscle_regulator(rig) if spec.static else rig.cylinder_regulator
     dt = 1.0 / rate
     n_total = int(math.floor(spec.duration_s * rate + 1e-9)) + 1
     add = w.append
@@ -719,6 +755,8 @@ def _record(
     since = [0, 0]  # samples delivered, samples the progress bar has shown
     # the recorded row is the rig's declaration: time, the sampled channels, the commands
     commands = command_row(rig, spec)
+    if spec.static and getattr(rig, "command_values", None) is None:
+        commands = lambda _cmd: (0.0,)  # noqa: E731  (a rig declaring no muscle command)
 
     def step(k: int, t_rel: float, v: Sample, lateness: float) -> float:
         # the waveform's value at this sample's nominal time (computed a block of deadlines ahead);

@@ -68,6 +68,28 @@ def preflight(protocol: Protocol, rig: Rig) -> None:
         )
     muscles = rig.channels.muscles
     for r in protocol.runs:
+        if r.static:
+            if getattr(rig, "muscle_regulator", None) is None:
+                name = rig.info.get("rig_file") or rig.info.get("kind") or "this rig"
+                raise ProtocolRefused(
+                    f"{where}: run '{r.name}': refused: an {r.test_type} run commands the "
+                    f"muscle pressure, but rig '{name}' has no commanded muscle regulator "
+                    "(channel 'muscle_pressure_command')"
+                )
+            if r.max_command_MPa > lim.max_muscle_pressure_MPa + 1e-9:
+                raise ProtocolRefused(
+                    f"{where}: run '{r.name}': refused: muscle pressure command peaks at "
+                    f"{r.max_command_MPa:g} MPa (offset + amplitude), above the rig's muscle "
+                    f"limit {lim.max_muscle_pressure_MPa:g} MPa"
+                )
+            continue
+        if not getattr(rig, "has_cylinder", True):
+            name = rig.info.get("rig_file") or rig.info.get("kind") or "this rig"
+            raise ProtocolRefused(
+                f"{where}: run '{r.name}': refused: an isobaric run drives a cylinder, but "
+                f"rig '{name}' has none (channel 'cylinder_pressure_command'); give the run "
+                'test_type = "isometric" or "isotonic"'
+            )
         if len(muscles) > 1 and r.muscle not in muscles:
             raise ProtocolRefused(
                 f"{where}: run '{r.name}': refused: field 'muscle' = {r.muscle!r}: the rig "

@@ -35,6 +35,10 @@ def unit_wave(waveform: str, phase: float, square_edge: float = 0.05) -> float:
         return -math.cos(TWO_PI * ph)
     if waveform == "triangle":
         return 4.0 * ph - 1.0 if ph < 0.5 else 3.0 - 4.0 * ph
+    if waveform == "steps":
+        # the triangle held in 8 stairs each way (a static test's pressure steps)
+        tri = 2.0 * ph if ph < 0.5 else 2.0 - 2.0 * ph
+        return 2.0 * (math.floor(tri * 8.0 + 0.5) / 8.0) - 1.0
     if waveform == "square":
         e = square_edge
         if e <= 0:
@@ -102,6 +106,9 @@ def unit_wave_array(waveform: str, phase: np.ndarray, square_edge: float = 0.05)
                 u = (ph[m] - centre) / e + 0.5
                 out[m] = sign * -np.cos(np.pi * u)
         return out
+    if waveform == "steps":
+        tri = np.where(ph < 0.5, 2.0 * ph, 2.0 - 2.0 * ph)
+        return 2.0 * (np.floor(tri * 8.0 + 0.5) / 8.0) - 1.0
     raise ValueError(f"unknown waveform {waveform!r}")
 
 

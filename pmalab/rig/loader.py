@@ -146,6 +146,38 @@ def _make_sim_pair(
     )
 
 
+def _make_sim_static(
+    section: dict[str, Any],
+    rig_file: Path | None,
+    *,
+    seed: int | None = None,
+    clock: Clock | None = None,
+) -> Rig:
+    """The simulated static stand (:mod:`pmalab.rig.sim.static_rig`): ``truth`` (a static
+    truth file, relative to the rig file) and ``seed``."""
+    from pmalab.rig.sim.static_rig import make_static_rig
+
+    where = str(rig_file) if rig_file is not None else "sim-static"
+    check_keys(
+        section,
+        {"truth", "seed"},
+        "{where}: rig.{key}: unknown key for kind 'sim-static' (known: {known})",
+        known=["kind", "seed", "truth"],
+        where=where,
+    )
+    if "seed" in section:
+        s = section["seed"]
+        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
+            raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
+        if seed is None:
+            seed = s
+    return make_static_rig(
+        _truth_path(section, "truth", rig_file, where),
+        seed=0 if seed is None else seed,
+        clock=clock,
+    )
+
+
 #: rig kind → factory(section, rig_file, *, seed, clock) -> Rig
 #: every rig-file ``kind`` → its factory; a backend is one file plus one line here
 RIG_KINDS: Registry[RigFactory] = Registry("rig kind", ConfigError)
@@ -164,6 +196,12 @@ RIG_KINDS.register(
     _make_sim_pair,
     order=1.5,
     title="a simulated antagonistic joint: two muscles on a pulley, each on its own regulator",
+)
+RIG_KINDS.register(
+    "sim-static",
+    _make_sim_static,
+    order=1.7,
+    title="a simulated static stand: a commanded muscle regulator, a clamp or a hanging mass",
 )
 RIG_KINDS.register(
     "labjack-t7-stream",
