@@ -725,6 +725,8 @@ def build_report(
     svg_dir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
     bar: bool = False,
+    jobs: int | None = None,
+    start_method: str | None = None,
 ) -> Path:
     """Render the report of a result directory (or of several merged: e.g. an identify
     output and a diagnose output) into the PDF ``out`` and return its path.
@@ -732,6 +734,9 @@ def build_report(
     ``png_dir``/``svg_dir`` also export every page as ``NN-<slug>.png``/``.svg``.
     ``progress`` receives one line per page written (``pmalab report -v`` prints them);
     ``bar`` draws a progress bar on stderr (the CLI's default on a terminal).
+    ``jobs`` worker processes render the pages (default: the CPUs this process may use;
+    1 renders in this process); ``start_method`` picks the multiprocessing start method
+    (default: the platform's).  The PDF's pages are the same either way.
     Raises :class:`ReportError` (bad directory/contents) or
     :class:`~pmalab.errors.OutputExistsError` (``out`` exists and not ``force``).
     """
@@ -789,6 +794,30 @@ def build_report(
     specs = [
         PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n)) for p in pages
     ]
+    from pmalab.reports.parallel import default_jobs, render_parallel
+
+    jobs = default_jobs() if jobs is None else jobs
+    parallel: Callable[[Path, Callable[[int], None]], list[Path]] | None = None
+    if jobs > 1 and len(pages) > 1:
+        args = (
+            [str(p) for p in inputs],
+            None if png_dir is None else str(png_dir),
+            None if svg_dir is None else str(svg_dir),
+        )
+
+        def render_all(tmpdir: Path, done: Callable[[int], None]) -> list[Path]:
+            return render_parallel(
+                _page_renderer,
+                args,
+                len(pages),
+                tmpdir,
+                jobs=jobs,
+                start_method=start_method,
+                done=done,
+            )
+
+        parallel = render_all
+
     return write_pdf(
         out,
         specs,
@@ -799,4 +828,29 @@ def build_report(
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
+        parallel=parallel,
     )
+
+
+def _page_renderer(
+    inputs: list[str], png_dir: str | None, svg_dir: str | None
+) -> Callable[[int, int, Path], None]:
+    """In a worker process: load the result directories once and return a function that
+    writes page ``i`` of ``n`` (as :func:`build_report` plans them) to a one-page PDF,
+    plus its PNG/SVG exports (already checked against overwriting by the parent)."""
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    data = load_report_dir(inputs if len(inputs) > 1 else inputs[0])
+    pages = plan_pages(data)
+    exports = [(Path(d), ext) for d, ext in ((png_dir, "png"), (svg_dir, "svg")) if d]
+
+    def render(i: int, n: int, path: Path) -> None:
+        page = pages[i - 1]
+        fig = draw_page(page, data, i, n)
+        with mpl.rc_context(style.RC):
+            with PdfPages(path) as pdf:
+                pdf.savefig(fig)
+        for d, ext in exports:
+            style.save_figure(fig, d / f"{i:02d}-{_slug(page.slug)}.{ext}", force=True, dpi=150)
+
+    return render

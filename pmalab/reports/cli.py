@@ -36,8 +36,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     exp = p.add_mutually_exclusive_group()
     exp.add_argument("--png", metavar="DIR", help="also export every page as PNG into DIR")
     exp.add_argument("--svg", metavar="DIR", help="also export every page as SVG into DIR")
+    p.add_argument(
+        "--jobs",
+        type=_jobs,
+        default=None,
+        metavar="N",
+        help="render the pages in N processes (default: the number of CPUs; 1: in this process)",
+    )
     add_verbosity(p, quiet_help="print nothing on success")
     p.set_defaults(func=run_report)
+
+
+def _jobs(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"give a whole number >= 1, not {text!r}")
+    return n
 
 
 def run_report(args: argparse.Namespace) -> int:
@@ -56,6 +73,7 @@ def run_report(args: argparse.Namespace) -> int:
         svg_dir=args.svg,
         progress=line if level >= VERBOSE else None,
         bar=show_progress(args),
+        jobs=args.jobs,
     )
     if level > 0:
         print(f"report written: {out}", flush=True)

@@ -46,8 +46,15 @@ def write_pdf(
     progress: Callable[[str], None] | None = None,
     bar: bool = False,
     footer: Callable[[Figure, int, int], None] | None = None,
+    parallel: Callable[[Path, Callable[[int], None]], list[Path]] | None = None,
 ) -> Path:
-    """Render ``pages`` into ``out`` (see the module docstring); returns ``out``."""
+    """Render ``pages`` into ``out`` (see the module docstring); returns ``out``.
+
+    With ``parallel``, the pages are not drawn here: ``parallel(tmpdir, done)`` renders
+    them (and their PNG/SVG exports) into one-page PDFs in ``tmpdir``, calling
+    ``done(i)`` as page ``i`` is ready, and returns those files in page order; they are
+    joined into ``out`` (:func:`pmalab.reports.parallel.join_pdfs`).
+    """
     exports: list[tuple[Path, str]] = []
     for d, ext in ((png_dir, "png"), (svg_dir, "svg")):
         if d is None:
@@ -69,6 +76,10 @@ def write_pdf(
     if subject:
         meta["Subject"] = subject
     try:
+        if parallel is not None:
+            _write_parallel(tmp, pages, meta, parallel, progress, bar)
+            os.replace(tmp, out)
+            return out
         with (
             PdfPages(tmp, metadata=meta) as pdf,
             tqdm(
@@ -99,3 +110,39 @@ def write_pdf(
         if tmp.exists():
             tmp.unlink()
     return out
+
+
+def _write_parallel(
+    tmp: Path,
+    pages: Sequence[PageSpec],
+    meta: dict,
+    parallel: Callable[[Path, Callable[[int], None]], list[Path]],
+    progress: Callable[[str], None] | None,
+    bar: bool,
+) -> None:
+    """Render through ``parallel`` into a scratch directory and join the pages."""
+    import tempfile
+
+    from pmalab.reports.parallel import join_pdfs
+
+    n = len(pages)
+    with (
+        tempfile.TemporaryDirectory(prefix=".pmalab-report-", dir=tmp.parent) as scratch,
+        tqdm(
+            total=n,
+            desc="report",
+            unit="page",
+            file=sys.stderr,
+            disable=not bar,
+            leave=False,
+            dynamic_ncols=True,
+        ) as pbar,
+    ):
+
+        def done(i: int) -> None:
+            if progress is not None:
+                progress(f"page {i}/{n}: {pages[i - 1].label}")
+            pbar.update(1)
+
+        parts = parallel(Path(scratch), done)
+        join_pdfs(parts, tmp, meta)
