@@ -53,7 +53,7 @@ def _jobs(text: str) -> int:
     except ValueError:
         n = 0
     if n < 1:
-        raise argparse.ArgumentTypeError(f"--jobs {text}: give a whole number >= 1")
+        raise argparse.ArgumentTypeError(f"give a whole number >= 1, not {text!r}")
     return n
 
 
