@@ -411,6 +411,7 @@ def read_runs(
     skip_incomplete: bool = False,
     muscle: str | None = None,
     long_runs: LongRuns | None = None,
+    health: bool = True,
 ) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
@@ -433,6 +434,10 @@ def read_runs(
     isobaric (attr ``held_muscle``) are left out, unless named in ``runs``.  A file with
     several muscles and no ``muscle`` is an error naming them; single-muscle files ignore
     ``None`` and accept their one muscle's name.
+
+    ``health``: judge every measured channel before handing it out (stuck values, spikes
+    no muscle makes: :func:`pmalab.health.check_health`) — what analysis wants.  ``False``
+    reads the codec alone, for tools that inspect synthetic or damaged values as they are.
 
     ``long_runs``: a run of at least ``long_runs.min_samples`` samples is not read whole;
     it goes, still on disk, to ``long_runs.read`` (:mod:`pmalab.runwindows`), which reads it
@@ -551,7 +556,8 @@ def read_runs(
                 out.append(run)
                 continue
             chans = validate_channels(path, name, raw, exempt_last=run_state(status) != "completed")
-            check_health(str(path), name, chans)
+            if health:
+                check_health(str(path), name, chans)
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:

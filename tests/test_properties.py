@@ -35,8 +35,10 @@ def runs(draw):
 @SETTINGS
 @given(runs())
 def test_run_file_codec_round_trips_exactly(tmp_path, run):
+    # the codec alone: arbitrary values (a lone 1 MPa sample among zeros) are not a muscle's,
+    # and the channel-health check that refuses them is tested on its own
     path = write_runs(tmp_path / "r.h5", [run], force=True)
-    (back,) = read_runs(path)
+    (back,) = read_runs(path, health=False)
     assert back.name == run.name
     for ch in ("time", "position", "force", "muscle_pressure"):
         np.testing.assert_array_equal(getattr(back, ch), getattr(run, ch))
