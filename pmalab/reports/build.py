@@ -17,13 +17,11 @@ from typing import Any
 import matplotlib as mpl
 from matplotlib.figure import Figure
 
-from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.headline import error_fall, worst_runs
 from pmalab.identify.messages import is_detail, is_note, prefixed, read_messages
-from pmalab.paths import check_output
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
-from pmalab.reports.errors import ReportError
+from pmalab.reports.errors import ReportError, report_output
 from pmalab.reports.figures_active import active_figure, has_active_rounds
 from pmalab.reports.figures_compare import (
     compare_figure,
@@ -783,12 +781,7 @@ def build_report(
         return build_control_report(
             controls, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
         )
-    try:
-        check_output(out, force)
-    except OutputExistsError:
-        raise
-    except OutputError as exc:  # e.g. below a file: the reports area's own error class
-        raise ReportError(str(exc)) from None
+    out = report_output(out, force)
     data = load_report_dir(directory)
     pages = plan_pages(data)
     specs = [

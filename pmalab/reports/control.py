@@ -13,9 +13,8 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from pmalab.errors import OutputError, OutputExistsError, PmalabError
-from pmalab.paths import check_output
-from pmalab.reports.errors import ReportError
+from pmalab.errors import PmalabError
+from pmalab.reports.errors import ReportError, report_output
 from pmalab.reports.figures_control import (
     ControlFileData,
     ControlRunData,
@@ -78,12 +77,7 @@ def build_control_report(
 ) -> Path:
     """Render the control report of ``paths`` into ``out`` (a temporary file until complete)."""
     out = Path(out)
-    try:
-        check_output(out, force)
-    except OutputExistsError:
-        raise
-    except OutputError as exc:
-        raise ReportError(str(exc)) from None
+    out = report_output(out, force)
     files = [load_control_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], Figure]]] = [
         ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))

@@ -19,9 +19,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
-from pmalab.errors import OutputError, OutputExistsError, PmalabError
-from pmalab.paths import check_output
-from pmalab.reports.errors import ReportError
+from pmalab.errors import PmalabError
+from pmalab.reports.errors import ReportError, report_output
 from pmalab.reports.pdf import PageSpec, write_pdf
 from pmalab.runfile import Run, muscles_of, open_h5, read_run_datasets, read_runs
 
@@ -191,12 +190,7 @@ def build_pair_report(
 ) -> Path:
     """Render the pair report of ``paths`` into ``out`` (a temporary file until complete)."""
     out = Path(out)
-    try:
-        check_output(out, force)
-    except OutputExistsError:
-        raise
-    except OutputError as exc:
-        raise ReportError(str(exc)) from None
+    out = report_output(out, force)
     files = [load_pair_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], Figure]]] = []
     for pf in files:

@@ -18,12 +18,10 @@ import matplotlib as mpl
 import numpy as np
 from matplotlib.figure import Figure
 
-from pmalab.errors import OutputError, OutputExistsError
 from pmalab.identify.schema import PredictionRun, read_predictions
 from pmalab.identify.static.maps import Geometry, get_static_map
-from pmalab.paths import check_output
 from pmalab.reports import style
-from pmalab.reports.errors import ReportError
+from pmalab.reports.errors import ReportError, report_output
 from pmalab.reports.pdf import PageSpec, write_pdf
 
 #: branch colours: inflating (pressure rising) and venting
@@ -278,12 +276,7 @@ def build_static_report(
 ) -> Path:
     """Render the report of one ``identify --static`` directory into the PDF ``out``."""
     path, out = Path(path), Path(out)
-    try:
-        check_output(out, force)
-    except OutputExistsError:
-        raise
-    except OutputError as exc:
-        raise ReportError(str(exc)) from None
+    out = report_output(out, force)
     doc, runs = _load(path)
     pages: list[tuple[str, Callable[[], Figure]]] = [("summary", lambda: summary_figure(doc))]
     ident = [r for r in runs if r.role != "validation"]
