@@ -21,7 +21,7 @@ test: $(STAMP) chromium
 	$(BIN)/ruff format --check pmalab
 	$(BIN)/lint-imports
 	$(BIN)/basedpyright
-	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker): ~5 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
+	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker): ~7.5 min on 2 cores (longer under load); the 10 slowest tests are listed at the end"
 	$(BIN)/python -m pytest -n auto --dist loadfile -q --durations=10
 
 # headless Chromium for the live-view browser test (Debian's package); never fails the
