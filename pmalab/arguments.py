@@ -5,6 +5,10 @@ deep in a library (an HDF5 attribute cannot hold a 90-digit integer)."""
 from __future__ import annotations
 
 import argparse
+import math
+from collections.abc import Iterable
+
+from pmalab.errors import PmalabError
 
 #: the largest seed: it is stored with the recording as a 64-bit integer attribute
 MAX_SEED = 2**63 - 1
@@ -30,3 +34,28 @@ def seed(text: str) -> int:
     if not 0 <= v <= MAX_SEED:
         raise argparse.ArgumentTypeError(f"must be an integer ≥ 0 and ≤ 2**63-1, got {text}")
     return v
+
+
+def fixes(items: Iterable[str]) -> dict[str, float]:
+    """``--fix NAME=VALUE`` options as ``{name: value}``: each value a finite number.
+
+    Raises
+    ------
+    PmalabError
+        One line naming the option, for a missing ``=``, name or number, or a value that is
+        not finite.  Whether the value lies inside the parameter's bounds is the fit's
+        check (it knows the law).
+    """
+    out: dict[str, float] = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        try:
+            if not sep or not name:
+                raise ValueError
+            v = float(val)
+        except ValueError:
+            raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
+        if not math.isfinite(v):
+            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
+        out[name.strip()] = v
+    return out

@@ -7,10 +7,10 @@ verb is one function and one line here.
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 
+from pmalab.arguments import fixes
 from pmalab.console import (
     VERBOSE,
     add_verbosity,
@@ -218,22 +218,6 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _parse_fix(items: list[str]) -> dict[str, float]:
-    out = {}
-    for it in items:
-        name, sep, val = it.partition("=")
-        try:
-            if not sep or not name:
-                raise ValueError
-            v = float(val)
-        except ValueError:
-            raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
-        if not math.isfinite(v):
-            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
-        out[name.strip()] = v
-    return out
-
-
 def _identify_each_muscle(args: argparse.Namespace) -> int:
     """``--muscle all``: identify every muscle the input files record into OUT/NAME/."""
     from pathlib import Path
@@ -328,7 +312,7 @@ def run_identify(args: argparse.Namespace) -> int:
         validate=val,
         jobs=args.jobs,
         scheduler=args.scheduler,
-        fixed=_parse_fix(args.fix),
+        fixed=fixes(args.fix),
         free=args.free,
         initial=args.initial,
         progress=show_progress(args),

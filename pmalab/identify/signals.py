@@ -202,10 +202,9 @@ class Signals:
             v, a, _ = derivatives(self.t, x, self.frequency_Hz)
         return replace(self, x=x, v=v, a=a)
 
-    def head(self, n: int) -> Signals:
-        """The first ``n`` samples (filtering and derivatives kept from the whole record,
-        the reference time of slow terms kept as the whole record's)."""
-        s = slice(0, n)
+    def _sliced(self, s: slice) -> Signals:
+        """The samples ``s`` of every per-sample array; the reference time of slow terms
+        stays the whole record's."""
         return replace(
             self,
             t=self.t[s],
@@ -216,6 +215,12 @@ class Signals:
             x_raw=self.x_raw[s],
             t_ref=self.reference_time,
         )
+
+    def head(self, n: int) -> Signals:
+        """The first ``n`` samples (filtering and derivatives kept from the whole record,
+        the reference time of slow terms kept as the whole record's)."""
+        s = slice(0, n)
+        return self._sliced(s)
 
     def every(self, stride: int) -> Signals:
         """Every ``stride``-th sample (filtering and derivatives kept from the full rate).
@@ -227,13 +232,4 @@ class Signals:
         if stride <= 1:
             return self
         s = slice(None, None, stride)
-        return replace(
-            self,
-            t=self.t[s],
-            x=self.x[s],
-            v=self.v[s],
-            a=self.a[s],
-            p=self.p[s],
-            x_raw=self.x_raw[s],
-            t_ref=self.reference_time,
-        )
+        return self._sliced(s)

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from pmalab.arguments import fixes
 from pmalab.errors import PmalabError
 from pmalab.runfile import Run
 
@@ -77,7 +78,7 @@ def run_static(
             "chou-hannaford|tondu-lopez|linear and --drive pressure|position|both)",
             file=sys.stderr,
         )
-    fixed = _parse_fixed(args.fix)
+    fixed = fixes(args.fix)
     fit = fit_static(model, runs, val, fixed=fixed)
     doc = summary_doc(fit, {"length_mm": geometry.length_mm, "diameter_mm": geometry.diameter_mm})
     jpath = check_output(out / "identification.json", args.force)
@@ -96,22 +97,6 @@ def run_static(
     _print(doc, fit)
     print(f"wrote {jpath} and {hpath}")
     return 0
-
-
-def _parse_fixed(items: Sequence[str]) -> dict[str, float]:
-    out = {}
-    for it in items:
-        name, sep, val = it.partition("=")
-        try:
-            if not sep or not name:
-                raise ValueError
-            v = float(val)
-        except ValueError:
-            raise PmalabError(f"--fix {it!r}: expected NAME=VALUE with a number") from None
-        if not math.isfinite(v):
-            raise PmalabError(f"--fix {it!r}: the value must be a finite number")
-        out[name.strip()] = v
-    return out
 
 
 def _fmt(v: float | None, se: float | None) -> str:
