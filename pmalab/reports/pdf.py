@@ -34,6 +34,19 @@ class PageSpec:
     make: Callable[[int, int], Figure]  # (page number, page count) -> figure
 
 
+def _page_bar(n: int, bar: bool) -> tqdm:
+    """The progress bar of a report's ``n`` pages on stderr (off unless ``bar``)."""
+    return tqdm(
+        total=n,
+        desc="report",
+        unit="page",
+        file=sys.stderr,
+        disable=not bar,
+        leave=False,
+        dynamic_ncols=True,
+    )
+
+
 def write_pdf(
     out: Path,
     pages: Sequence[PageSpec],
@@ -82,15 +95,7 @@ def write_pdf(
             return out
         with (
             PdfPages(tmp, metadata=meta) as pdf,
-            tqdm(
-                total=n,
-                desc="report",
-                unit="page",
-                file=sys.stderr,
-                disable=not bar,
-                leave=False,
-                dynamic_ncols=True,
-            ) as pbar,
+            _page_bar(n, bar) as pbar,
         ):
             for i, page in enumerate(pages, 1):
                 pbar.set_postfix_str(page.label[:48], refresh=True)
@@ -128,15 +133,7 @@ def _write_parallel(
     n = len(pages)
     with (
         tempfile.TemporaryDirectory(prefix=".pmalab-report-", dir=tmp.parent) as scratch,
-        tqdm(
-            total=n,
-            desc="report",
-            unit="page",
-            file=sys.stderr,
-            disable=not bar,
-            leave=False,
-            dynamic_ncols=True,
-        ) as pbar,
+        _page_bar(n, bar) as pbar,
     ):
 
         def done(i: int) -> None:
