@@ -66,13 +66,7 @@ def _make_sim(
             truth_path = rig_file.parent / truth_path
         if not truth_path.exists():
             raise ConfigError(f"{where}: rig.truth: file not found: {truth_path}")
-    if "seed" in section:
-        s = section["seed"]
-        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-            raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
-        if seed is None:  # an explicit seed (pmalab run --seed) beats the file's default
-            seed = s
-    seed = 0 if seed is None else seed
+    seed = _sim_seed(section, where, seed)
     manual = section.get("manual_muscle_regulator", False)
     if not isinstance(manual, bool):
         raise ConfigError(f"{where}: rig.manual_muscle_regulator: must be true or false")
@@ -131,19 +125,26 @@ def _make_sim_pair(
         spec = PairSpec(**values).checked()
     except RigError as exc:
         raise ConfigError(f"{where}: rig.{str(exc).removeprefix('pair: ')}") from None
+    seed = _sim_seed(section, where, seed)
+    return make_sim_pair(
+        _truth_path(section, "flexor_truth", rig_file, where),
+        _truth_path(section, "extensor_truth", rig_file, where),
+        spec=spec,
+        seed=seed,
+        clock=clock,
+    )
+
+
+def _sim_seed(section: dict[str, Any], where: str, seed: int | None) -> int:
+    """A simulated rig's noise seed: an explicit one (``pmalab run --seed``) beats the rig
+    file's ``seed`` key, which must be an integer ≥ 0; 0 when neither is given."""
     if "seed" in section:
         s = section["seed"]
         if isinstance(s, bool) or not isinstance(s, int) or s < 0:
             raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
         if seed is None:
             seed = s
-    return make_sim_pair(
-        _truth_path(section, "flexor_truth", rig_file, where),
-        _truth_path(section, "extensor_truth", rig_file, where),
-        spec=spec,
-        seed=0 if seed is None else seed,
-        clock=clock,
-    )
+    return 0 if seed is None else seed
 
 
 def _make_sim_static(
@@ -165,15 +166,10 @@ def _make_sim_static(
         known=["kind", "seed", "truth"],
         where=where,
     )
-    if "seed" in section:
-        s = section["seed"]
-        if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-            raise ConfigError(f"{where}: rig.seed: must be an integer ≥ 0")
-        if seed is None:
-            seed = s
+    seed = _sim_seed(section, where, seed)
     return make_static_rig(
         _truth_path(section, "truth", rig_file, where),
-        seed=0 if seed is None else seed,
+        seed=seed,
         clock=clock,
     )
 
