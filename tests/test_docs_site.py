@@ -4,8 +4,9 @@
   a broken link or an unresolved cross-reference fails it;
 * every CLI verb has its section in the generated CLI reference; the API reference renders
   the public functions, with no raw Sphinx role left;
-* the campaign tutorial shows each command's output and the figures the commands wrote
-  (the build ran them in an empty directory: their files are checked here), the notebook
+* every tutorial page (and the rig-file how-to) shows each command's output and the
+  figures the commands wrote (the build ran them in an empty directory: their files are
+  checked here), the notebook
   executed with its figure inline (the build ran it: its outputs are checked here), and the
   gallery every page of the tutorial's report.
 """
@@ -47,14 +48,13 @@ def _tracked_state() -> str:
                           capture_output=True, text=True).stdout
 
 
-def _build_cache() -> Path:
-    """Where the build ran the tutorial, the notebook and the figure script (the hook's
-    cache directory for the current sources)."""
+def _show():
+    """The build hook (docs/hooks/show.py) as a module."""
     spec = importlib.util.spec_from_file_location("docs_show", ROOT / "docs" / "hooks" / "show.py")
     assert spec is not None and spec.loader is not None
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    return mod.built()
+    return mod
 
 
 @pytest.mark.timeout(1800)  # the first build runs the campaign tutorial and the notebook
@@ -79,12 +79,33 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
     # the gallery: every page of the campaign's report
     gallery = (site / "gallery" / "index.html").read_text()
     assert len(re.findall(r"<img [^>]*report-pages/", gallery)) >= 8
-    # what the tutorial's commands wrote, in the empty directory the build ran them in
-    work = _build_cache() / "generated" / "runs" / "campaign"
+    # every page the build runs: each command followed by its output, the figures its
+    # commands wrote shown (and present in the site)
+    for page in _show().RUN_PAGES:
+        html = (site / page.removesuffix(".md") / "index.html").read_text()
+        imgs = re.findall(r'<img [^>]*src="([^"]+generated/runs/[^"]+)"', html)
+        assert imgs, page
+        for src in imgs:
+            assert (site / page.removesuffix(".md") / src).resolve().is_file(), (page, src)
+        assert html.count('class="language-text') >= 1, page  # what the commands printed
+    # what the tutorials' commands wrote, in the empty directories the build ran them in
+    cache = _show().built()  # where the build ran each page, the notebook, the figures
+    work = cache["campaign"] / "generated" / "runs" / "campaign"
     assert (work / "report.pdf").stat().st_size > 10_000
     assert "viscous-friction" in (work / "diag" / "diagnosis.json").read_text()
+    import json
+
+    bw = cache["bouc-wen-benchmark"] / "generated" / "runs" / "bouc-wen-benchmark"
+    doc = json.loads((bw / "bw" / "identification.json").read_text())
+    assert all(v["rmse_position_m"] <= 1e-5 for v in doc["validation"])  # the page's claim
+    assert (bw / "sweep-sim.h5").is_file()
+    oring = cache["import"] / "generated" / "runs" / "import"
+    assert json.loads((oring / "diag-real" / "diagnosis.json").read_text())["ladder"]
+    rig = (site / "how-to" / "rig-file" / "index.html").read_text()
+    assert "the two raw values must differ" in rig and "exit status 2" in rig
+    assert "try.h5: 1 runs" in rig and "vented (confirmed" in rig
     # the notebook, executed top to bottom by the build (nbclient)
-    nb_md = (_build_cache() / "notebooks" / "tutorial.md").read_text()
+    nb_md = (cache["notebook-tutorial"] / "notebook.md").read_text()
     assert "viscous-friction" in nb_md and "validation nrmse" in nb_md
     assert "notebooks/tutorial-1.png" in nb_md  # the ladder's figure, shown inline
     from pmalab.cli import build_parser
