@@ -94,7 +94,8 @@ def _without_docstrings(text: str) -> str:
             body = node.body
             if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
                 if isinstance(body[0].value.value, str):
-                    body[0] = ast.Pass()
+                    del body[0]  # a docstring added, edited or removed is the same code
+                    body[:] = body or [ast.Pass()]
     return ast.dump(tree)
 
 
@@ -298,7 +299,7 @@ def on_page_markdown(markdown: str, page, config, files) -> str:
         it = iter(json.loads((root / "outputs.json").read_text()))
 
         def with_output(m: re.Match[str]) -> str:
-            text = next(it, "").strip()
+            text = next(it, "").rstrip().lstrip("\n")  # keep the first line's indent
             shown = f"\n```text\n{_cut(text)}\n```\n" if text else ""
             return m.group(0) + shown
 

@@ -19,8 +19,8 @@ those parameters in ``nuisance_params``: the campaign fit then gives them one va
 in the joint refinement of the pressure laws (like the start state h0, never a pressure law
 θ(p)), and a prediction of *another* run sets them to 0.  ``tare = True`` says the record's
 force zero is unknown: a validation prediction with ``initial="estimate"`` then also
-estimates the run's force offset from its first ~50 ms of measured force
-(:func:`pmalab.identify.estimation.single.predict_free`).
+estimates the run's force offset with its other record parameters, on the early part of
+the record (:mod:`pmalab.identify.estimation.records`).
 
 User effects: put subclasses in a Python file and pass ``--effects my_effects.py``; every
 ``Effect`` subclass with an ``id`` found there is registered.
