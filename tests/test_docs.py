@@ -127,3 +127,14 @@ def test_every_docstring_role_names_an_object_that_exists():
     assert out == ("See [`load()`][pmalab.identify.api.load] and "
                    "[`pmalab.identify.api.no_such()`][pmalab.identify.api.no_such].")
     assert ext.broken == [("pmalab.identify.api", "pmalab.identify.api.no_such")]
+
+
+def test_make_docs_is_the_strict_build_the_site_test_runs():
+    """``make docs`` runs exactly the build test_docs_site checks leaves the tree clean
+    (``mkdocs build --strict``, nothing else that could write into the tree)."""
+    make = (ROOT / "Makefile").read_text()
+    recipe = re.search(r"^docs:.*\n((?:\t.*\n)+)", make, re.M)
+    assert recipe is not None
+    lines = [ln.strip() for ln in recipe.group(1).splitlines()]
+    assert len(lines) == 1 and re.fullmatch(r"(\S+=\S+ )*\$\(BIN\)/mkdocs build --strict",
+                                            lines[0]), lines

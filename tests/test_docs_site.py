@@ -108,6 +108,11 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
     nb_md = (cache["notebook-tutorial"] / "notebook.md").read_text()
     assert "viscous-friction" in nb_md and "validation nrmse" in nb_md
     assert "notebooks/tutorial-1.png" in nb_md  # the ladder's figure, shown inline
+    # what a reader sees at a laptop's width: nothing clipped, every figure loaded
+    pages = [pg.removesuffix(".md") for pg in _show().RUN_PAGES]
+    figures = _check_in_a_browser(site, [*pages, "tutorials/notebook", "gallery",
+                                         "reference/api", "reference/cli", ""])
+    assert all(figures[pg] >= 1 for pg in [*pages, "tutorials/notebook"]), figures
     from pmalab.cli import build_parser
 
     sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
@@ -122,6 +127,48 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
                  "import_files", "read_tdms_runs", "read_mat_runs", "residual_shares",
                  "HysteresisLaw", "build_report"):
         assert f'id="{name}' in api or f".{name}" in api, name
+
+
+#: in the browser: every code block, output and table of the page's text column shows its
+#: whole width (nothing clipped behind a horizontal scroll bar), every figure has loaded and
+#: is no wider than the column
+_FITS = """(() => {
+  const col = document.querySelector('.md-content');
+  const bad = [];
+  for (const el of col.querySelectorAll('pre, table, .md-typeset__scrollwrap')) {
+    if (el.scrollWidth > el.clientWidth + 1)
+      bad.push(el.tagName + ' ' + el.scrollWidth + '>' + el.clientWidth + ': '
+               + el.textContent.slice(0, 60));
+  }
+  const imgs = [...col.querySelectorAll('img')];
+  for (const im of imgs) {
+    if (!im.complete || im.naturalWidth === 0) bad.push('not loaded: ' + im.src);
+    else if (im.getBoundingClientRect().width > col.clientWidth + 1) bad.push('wide: ' + im.src);
+  }
+  return JSON.stringify({bad: bad, images: imgs.length});
+})()"""
+
+
+def _check_in_a_browser(site: Path, pages: list[str]) -> dict[str, int]:
+    """Open each page in headless Chromium at a laptop's width (1366 CSS px); return the
+    number of figures per page, failing on anything clipped or not loaded."""
+    import json
+
+    from cdp import Browser, chromium
+
+    exe = chromium()
+    if exe is None:
+        pytest.skip("no chromium (make test installs it)")
+    figures = {}
+    with Browser(exe, width=1366, height=900) as b:
+        for page in pages:
+            b.navigate((site / page / "index.html").as_uri())
+            b.wait_for("document.readyState === 'complete' && "
+                       "[...document.images].every(i => i.complete)", 60, f"{page} to load")
+            got = json.loads(str(b.evaluate(_FITS)))
+            assert got["bad"] == [], (page, got["bad"])
+            figures[page] = got["images"]
+    return figures
 
 
 @pytest.mark.parametrize("where, broken, needle", [
