@@ -135,7 +135,7 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
 _FITS = """(() => {
   const col = document.querySelector('.md-content');
   const bad = [];
-  for (const el of col.querySelectorAll('pre, table, .md-typeset__scrollwrap')) {
+  for (const el of col.querySelectorAll('pre, pre > code, table, .md-typeset__scrollwrap')) {
     if (el.scrollWidth > el.clientWidth + 1)
       bad.push(el.tagName + ' ' + el.scrollWidth + '>' + el.clientWidth + ': '
                + el.textContent.slice(0, 60));
