@@ -3,8 +3,8 @@
 ``identification.json`` (:class:`IdentificationDoc`, written by
 :func:`pmalab.identify.outputs.identification_dict`), ``diagnosis.json``
 (:class:`DiagnosisDoc`, :meth:`pmalab.identify.diagnosis.diagnose.Diagnosis.to_json`),
-``predictions.h5`` (:class:`PredictionsDoc`, :func:`pmalab.identify.predictions.
-write_predictions_file`) and a control run's ``summary`` (:class:`ControlSummary`,
+``predictions.h5`` (:class:`PredictionsDoc`,
+:func:`pmalab.identify.predictions.write_predictions_file`) and a control run's ``summary`` (:class:`ControlSummary`,
 :func:`pmalab.control.record.run_summary`).  docs/reference/json.md describes the keys.
 
 The TypedDicts are the single source: :func:`check` derives every test from their
