@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import pypdfium2 as pdfium
 import pytest
+from pdf_pages import assert_same_pages
 
 from pmalab.cli import main
+from pmalab.reports.control import build_control_report
 
 
 @pytest.fixture(scope="module")
@@ -58,3 +60,15 @@ def test_metrics_json_round_trips_through_its_typed_reader(control_dir, tmp_path
         read_control_metrics(bad)
     msg = str(e.value)
     assert "\n" not in msg and "results[1].metrics" in msg and "rms_error" in msg
+
+
+def test_control_pages_rendered_in_worker_processes_equal_one_process(control_dir, tmp_path):
+    files = [control_dir / "sq.h5", control_dir / "p.h5"]
+    lines: list[str] = []
+    one = build_control_report(files, tmp_path / "one.pdf", jobs=1)
+    two = build_control_report(files, tmp_path / "two.pdf", jobs=2, start_method="spawn",
+                               png_dir=tmp_path / "png", progress=lines.append)
+    n = assert_same_pages(one, two, at_least=5)
+    assert [ln.split(":")[0] for ln in lines] == [f"page {i}/{n}" for i in range(1, n + 1)]
+    assert len(list((tmp_path / "png").glob("*.png"))) == n
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.pdf", "png", "two.pdf"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from pdf_pages import assert_same_pages
 
 from pmalab.acquisition.protocol import parse_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
@@ -187,3 +188,12 @@ def test_the_report_draws_both_muscles(pair_file, tmp_path):
     assert axes[0].get_title().startswith("flexor") and axes[1].get_title().startswith("extensor")
     pdf = build_report([out], tmp_path / "pair.pdf", png_dir=tmp_path / "png")
     assert pdf.stat().st_size > 0 and len(list((tmp_path / "png").glob("*.png"))) == 5
+
+
+def test_pair_pages_rendered_in_worker_processes_equal_one_process(pair_file, tmp_path):
+    from pmalab.reports.pair import build_pair_report
+
+    out, _ = pair_file
+    one = build_pair_report([out], tmp_path / "one.pdf", jobs=1)
+    two = build_pair_report([out], tmp_path / "two.pdf", jobs=2, start_method="spawn")
+    assert assert_same_pages(one, two, at_least=5) == 5

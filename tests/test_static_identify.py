@@ -10,11 +10,13 @@ import math
 
 import numpy as np
 import pytest
+from pdf_pages import assert_same_pages
 
 from pmalab.cli import main as pmalab_main
 from pmalab.errors import PmalabError
 from pmalab.identify.schema import check_identification
 from pmalab.identify.static import Geometry, StaticModel, fit_static, get_static_map
+from pmalab.reports.static import build_static_report
 from pmalab.rig.sim.static_stand import isometric_campaign, load_static_truth, run_test
 from pmalab.runfile import write_runs
 
@@ -213,6 +215,10 @@ def test_report_of_a_static_identification(tmp_path, truth):
         "05-errors.png",
     ]
     assert (tmp_path / "r.pdf").stat().st_size > 10_000
+    # pages rendered in worker processes show exactly what one process draws
+    one = build_static_report(tmp_path / "id", tmp_path / "one.pdf", jobs=1)
+    two = build_static_report(tmp_path / "id", tmp_path / "two.pdf", jobs=2, start_method="spawn")
+    assert assert_same_pages(one, two) == len(pngs)
     # a static directory is reported on its own
     code, _, err = _cli(
         ["report", str(tmp_path / "id"), str(tmp_path / "id"), "--out", str(tmp_path / "r2.pdf")]

@@ -63,7 +63,7 @@ from pmalab.reports.figures_text import (
     title_page_figure,
 )
 from pmalab.reports.figures_trajectory import trajectory_figure, trajectory_table_figure
-from pmalab.reports.pdf import PageSpec, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
 
 TIME_PER_PAGE = 3
 LOOPS_PER_PAGE = 6
@@ -757,7 +757,15 @@ def build_report(
                 "on its own: give its directory alone"
             )
         return build_static_report(
-            statics[0], out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+            statics[0],
+            out,
+            force,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+            progress=progress,
+            bar=bar,
+            jobs=jobs,
+            start_method=start_method,
         )
     from pmalab.reports.pair import build_pair_report, is_pair_file
 
@@ -769,7 +777,15 @@ def build_report(
                 "pair run files without other inputs"
             )
         return build_pair_report(
-            pairs, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+            pairs,
+            out,
+            force,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+            progress=progress,
+            bar=bar,
+            jobs=jobs,
+            start_method=start_method,
         )
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
@@ -779,71 +795,47 @@ def build_report(
                 "control run files (pmalab control) without result directories"
             )
         return build_control_report(
-            controls, out, force, png_dir=png_dir, svg_dir=svg_dir, progress=progress
+            controls,
+            out,
+            force,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+            progress=progress,
+            bar=bar,
+            jobs=jobs,
+            start_method=start_method,
         )
     out = report_output(out, force)
-    data = load_report_dir(directory)
-    pages = plan_pages(data)
-    specs = [
-        PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n)) for p in pages
-    ]
-    from pmalab.reports.parallel import default_jobs, render_parallel
-
-    jobs = default_jobs() if jobs is None else jobs
-    parallel: Callable[[Path, Callable[[int], None]], list[Path]] | None = None
-    if jobs > 1 and len(pages) > 1:
-        args = (
-            [str(p) for p in inputs],
-            None if png_dir is None else str(png_dir),
-            None if svg_dir is None else str(svg_dir),
-        )
-
-        def render_all(tmpdir: Path, done: Callable[[int], None]) -> list[Path]:
-            return render_parallel(
-                _page_renderer,
-                args,
-                len(pages),
-                tmpdir,
-                jobs=jobs,
-                start_method=start_method,
-                done=done,
-            )
-
-        parallel = render_all
-
+    args = ([str(p) for p in inputs],)
+    plan = report_plan(*args)
     return write_pdf(
         out,
-        specs,
-        title=f"pmalab report: {data.model} ({_names(data)})",
+        plan.pages,
+        title=plan.title,
         subject="pneumatic muscle identification",
         force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
-        parallel=parallel,
+        parallel=parallel_renderer(
+            report_plan,
+            args,
+            len(plan.pages),
+            jobs=jobs,
+            start_method=start_method,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+        ),
     )
 
 
-def _page_renderer(
-    inputs: list[str], png_dir: str | None, svg_dir: str | None
-) -> Callable[[int, int, Path], None]:
-    """In a worker process: load the result directories once and return a function that
-    writes page ``i`` of ``n`` (as :func:`build_report` plans them) to a one-page PDF,
-    plus its PNG/SVG exports (already checked against overwriting by the parent)."""
-    from matplotlib.backends.backend_pdf import PdfPages
-
-    data = load_report_dir(inputs if len(inputs) > 1 else inputs[0])
-    pages = plan_pages(data)
-    exports = [(Path(d), ext) for d, ext in ((png_dir, "png"), (svg_dir, "svg")) if d]
-
-    def render(i: int, n: int, path: Path) -> None:
-        page = pages[i - 1]
-        fig = draw_page(page, data, i, n)
-        with mpl.rc_context(style.RC):
-            with PdfPages(path) as pdf:
-                pdf.savefig(fig)
-        for d, ext in exports:
-            style.save_figure(fig, d / f"{i:02d}-{_slug(page.slug)}.{ext}", force=True, dpi=150)
-
-    return render
+def report_plan(inputs: list[str]) -> ReportPlan:
+    """The pages of the report of the result directories ``inputs`` (merged), as
+    :func:`plan_pages` plans them, each drawn with its footer (:func:`draw_page`)."""
+    data = load_report_dir(inputs[0] if len(inputs) == 1 else inputs)
+    specs = [
+        PageSpec(_slug(p.slug), p.title, lambda i, n, p=p: draw_page(p, data, i, n))
+        for p in plan_pages(data)
+    ]
+    return ReportPlan(specs, f"pmalab report: {data.model} ({_names(data)})")

@@ -24,7 +24,7 @@ from pmalab.reports.figures_control import (
     sim_to_real_figure,
     sim_to_real_pairs,
 )
-from pmalab.reports.pdf import PageSpec, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
 from pmalab.runfile import decode_attr, open_h5, read_run_datasets, read_runs
 
 
@@ -66,18 +66,9 @@ def load_control_file(path: str | Path) -> ControlFileData:
     return ControlFileData(str(p), title, root, out)
 
 
-def build_control_report(
-    paths: Sequence[str | Path],
-    out: str | Path,
-    force: bool = False,
-    *,
-    png_dir: str | Path | None = None,
-    svg_dir: str | Path | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> Path:
-    """Render the control report of ``paths`` into ``out`` (a temporary file until complete)."""
-    out = Path(out)
-    out = report_output(out, force)
+def control_plan(paths: list[str]) -> ReportPlan:
+    """The control report's pages (metrics, sim-to-real, then response and gains per file)
+    and footer for the control files ``paths``."""
     files = [load_control_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], Figure]]] = [
         ("metrics", lambda: metrics_table_figure(files, "Control experiments: metrics"))
@@ -101,13 +92,47 @@ def build_control_report(
             color="0.4",
         )
 
+    return ReportPlan(specs, "pmalab control report", footer)
+
+
+def build_control_report(
+    paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    *,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: bool = False,
+    jobs: int | None = None,
+    start_method: str | None = None,
+) -> Path:
+    """Render the control report of ``paths`` into ``out`` (a temporary file until complete).
+
+    ``jobs`` worker processes render the pages (default: the CPUs this process may use;
+    1 renders in this process); the PDF's pages are the same either way.
+    """
+    out = Path(out)
+    out = report_output(out, force)
+    args = ([str(p) for p in paths],)
+    plan = control_plan(*args)
     return write_pdf(
         out,
-        specs,
-        title="pmalab control report",
+        plan.pages,
+        title=plan.title,
         force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
-        footer=footer,
+        bar=bar,
+        footer=plan.footer,
+        parallel=parallel_renderer(
+            control_plan,
+            args,
+            len(plan.pages),
+            jobs=jobs,
+            start_method=start_method,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+        ),
     )

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from pmalab.errors import PmalabError
 from pmalab.reports.errors import ReportError, report_output
-from pmalab.reports.pdf import PageSpec, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
 from pmalab.runfile import Run, muscles_of, open_h5, read_run_datasets, read_runs
 
 #: one colour per muscle, in declaration order (flexor, extensor, ...)
@@ -179,18 +179,9 @@ def run_figure(pf: PairFile, name: str) -> Figure:
     return fig
 
 
-def build_pair_report(
-    paths: Sequence[str | Path],
-    out: str | Path,
-    force: bool = False,
-    *,
-    png_dir: str | Path | None = None,
-    svg_dir: str | Path | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> Path:
-    """Render the pair report of ``paths`` into ``out`` (a temporary file until complete)."""
-    out = Path(out)
-    out = report_output(out, force)
+def pair_plan(paths: list[str]) -> ReportPlan:
+    """The pair report's pages (both muscles' loops, then one page per run) for the
+    antagonistic-pair run files ``paths``."""
     files = [load_pair_file(p) for p in paths]
     pages: list[tuple[str, Callable[[], Figure]]] = []
     for pf in files:
@@ -200,14 +191,48 @@ def build_pair_report(
         for name in pf.datasets:
             pages.append((f"{stem}-{name}", lambda pf=pf, name=name: run_figure(pf, name)))
     specs = [PageSpec(slug, slug, lambda i, n, make=make: make()) for slug, make in pages]
+    return ReportPlan(specs, "pmalab antagonistic-pair report")
+
+
+def build_pair_report(
+    paths: Sequence[str | Path],
+    out: str | Path,
+    force: bool = False,
+    *,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: bool = False,
+    jobs: int | None = None,
+    start_method: str | None = None,
+) -> Path:
+    """Render the pair report of ``paths`` into ``out`` (a temporary file until complete).
+
+    ``jobs`` worker processes render the pages (default: the CPUs this process may use;
+    1 renders in this process); the PDF's pages are the same either way.
+    """
+    out = Path(out)
+    out = report_output(out, force)
+    args = ([str(p) for p in paths],)
+    plan = pair_plan(*args)
     return write_pdf(
         out,
-        specs,
-        title="pmalab antagonistic-pair report",
+        plan.pages,
+        title=plan.title,
         force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
+        bar=bar,
+        parallel=parallel_renderer(
+            pair_plan,
+            args,
+            len(plan.pages),
+            jobs=jobs,
+            start_method=start_method,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+        ),
     )
 
 

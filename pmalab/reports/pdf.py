@@ -34,6 +34,79 @@ class PageSpec:
     make: Callable[[int, int], Figure]  # (page number, page count) -> figure
 
 
+#: the footer a report adds to each page: (figure, page number, page count) -> None
+Footer = Callable[[Figure, int, int], None]
+
+
+@dataclass
+class ReportPlan:
+    """A report's pages and footer, as one planning function builds them from its inputs.
+
+    The planning function is module-level and takes picklable arguments (paths as text),
+    so a worker process (:func:`parallel_renderer`) rebuilds the very same plan.
+    """
+
+    pages: list[PageSpec]
+    title: str
+    footer: Footer | None = None
+
+
+def _plan_renderer(
+    plan: Callable[..., ReportPlan], args: tuple, png_dir: str | None, svg_dir: str | None
+) -> Callable[[int, int, Path], None]:
+    """In a worker process: build the plan once and return a function that writes page
+    ``i`` of ``n`` to a one-page PDF, footer and PNG/SVG exports (already checked against
+    overwriting by the parent) as :func:`write_pdf` draws them in one process."""
+    built = plan(*args)
+    exports = [(Path(d), ext) for d, ext in ((png_dir, "png"), (svg_dir, "svg")) if d]
+
+    def render(i: int, n: int, path: Path) -> None:
+        page = built.pages[i - 1]
+        fig = page.make(i, n)
+        with mpl.rc_context(style.RC):
+            if built.footer is not None:
+                built.footer(fig, i, n)
+            with PdfPages(path) as pdf:
+                pdf.savefig(fig)
+        for d, ext in exports:
+            style.save_figure(fig, d / f"{i:02d}-{page.slug}.{ext}", force=True, dpi=150)
+
+    return render
+
+
+def parallel_renderer(
+    plan: Callable[..., ReportPlan],
+    args: tuple,
+    n: int,
+    *,
+    jobs: int | None,
+    start_method: str | None = None,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+) -> Callable[[Path, Callable[[int], None]], list[Path]] | None:
+    """The ``parallel`` argument of :func:`write_pdf` for a report of ``n`` pages planned by
+    ``plan(*args)``: ``jobs`` worker processes (None: the CPUs this process may use), or
+    None (render here) for one job or one page."""
+    from pmalab.reports.parallel import default_jobs, render_parallel
+
+    jobs = default_jobs() if jobs is None else jobs
+    if jobs <= 1 or n <= 1:
+        return None
+    setup_args = (
+        plan,
+        args,
+        None if png_dir is None else str(png_dir),
+        None if svg_dir is None else str(svg_dir),
+    )
+
+    def render_all(tmpdir: Path, done: Callable[[int], None]) -> list[Path]:
+        return render_parallel(
+            _plan_renderer, setup_args, n, tmpdir, jobs=jobs, start_method=start_method, done=done
+        )
+
+    return render_all
+
+
 def _page_bar(n: int, bar: bool) -> tqdm:
     """The progress bar of a report's ``n`` pages on stderr (off unless ``bar``)."""
     return tqdm(
@@ -58,7 +131,7 @@ def write_pdf(
     svg_dir: str | Path | None = None,
     progress: Callable[[str], None] | None = None,
     bar: bool = False,
-    footer: Callable[[Figure, int, int], None] | None = None,
+    footer: Footer | None = None,
     parallel: Callable[[Path, Callable[[int], None]], list[Path]] | None = None,
 ) -> Path:
     """Render ``pages`` into ``out`` (see the module docstring); returns ``out``.

@@ -22,7 +22,7 @@ from pmalab.identify.schema import PredictionRun, read_predictions
 from pmalab.identify.static.maps import Geometry, get_static_map
 from pmalab.reports import style
 from pmalab.reports.errors import ReportError, report_output
-from pmalab.reports.pdf import PageSpec, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
 
 #: branch colours: inflating (pressure rising) and venting
 INFLATING = "#1f77b4"
@@ -265,19 +265,11 @@ def residual_figure(doc: dict[str, Any], runs: Sequence[PredictionRun]) -> Figur
     return fig
 
 
-def build_static_report(
-    path: str | Path,
-    out: str | Path,
-    force: bool = False,
-    *,
-    png_dir: str | Path | None = None,
-    svg_dir: str | Path | None = None,
-    progress: Callable[[str], None] | None = None,
-) -> Path:
-    """Render the report of one ``identify --static`` directory into the PDF ``out``."""
-    path, out = Path(path), Path(out)
-    out = report_output(out, force)
-    doc, runs = _load(path)
+def static_plan(path: str) -> ReportPlan:
+    """The static report's pages (summary, loops of the identification and held-out runs,
+    the static map, the errors) and footer for one ``identify --static`` directory."""
+    p = Path(path)
+    doc, runs = _load(p)
     pages: list[tuple[str, Callable[[], Figure]]] = [("summary", lambda: summary_figure(doc))]
     ident = [r for r in runs if r.role != "validation"]
     held_out = [r for r in runs if r.role == "validation"]
@@ -305,21 +297,55 @@ def build_static_report(
         fig.text(
             0.99,
             0.005,
-            f"pmalab static report · {path.name} · page {i}/{n}",
+            f"pmalab static report · {p.name} · page {i}/{n}",
             ha="right",
             va="bottom",
             fontsize=8,
             color="0.4",
         )
 
+    return ReportPlan(specs, f"pmalab static report: {doc.get('model_full', '')}", footer)
+
+
+def build_static_report(
+    path: str | Path,
+    out: str | Path,
+    force: bool = False,
+    *,
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: bool = False,
+    jobs: int | None = None,
+    start_method: str | None = None,
+) -> Path:
+    """Render the report of one ``identify --static`` directory into the PDF ``out``.
+
+    ``jobs`` worker processes render the pages (default: the CPUs this process may use;
+    1 renders in this process); the PDF's pages are the same either way.
+    """
+    path, out = Path(path), Path(out)
+    out = report_output(out, force)
+    args = (str(path),)
+    plan = static_plan(*args)
     return write_pdf(
         out,
-        specs,
-        title=f"pmalab static report: {doc.get('model_full', '')}",
+        plan.pages,
+        title=plan.title,
         subject="pneumatic muscle static characterization",
         force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
-        footer=footer,
+        bar=bar,
+        footer=plan.footer,
+        parallel=parallel_renderer(
+            static_plan,
+            args,
+            len(plan.pages),
+            jobs=jobs,
+            start_method=start_method,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+        ),
     )

@@ -14,11 +14,9 @@ back in task order whatever order they finish in.  An error in any task is re-ra
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import sys
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
 
 from pmalab.errors import PmalabError
@@ -44,6 +42,8 @@ def _mp_context() -> Any:
     name = os.environ.get(START_METHOD_ENV, "").strip()
     if not name:
         return None
+    import multiprocessing
+
     if name not in multiprocessing.get_all_start_methods():
         raise PmalabError(
             f"{START_METHOD_ENV}={name}: not a start method here (one of "
@@ -75,6 +75,25 @@ def _pin_blas() -> None:
         pass
 
 
+class _NoBar:
+    """The progress bar when none is shown (tqdm is not even imported)."""
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _bar(total: int, desc: str, progress: bool) -> Any:
+    """A tqdm bar on stderr (runs done of ``total``), or a silent stand-in."""
+    if not progress:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, file=sys.stderr, unit="run", leave=False)
+
+
 def map_tasks(
     fn: Callable[[T], R],
     tasks: Sequence[T],
@@ -88,11 +107,7 @@ def map_tasks(
     tasks = list(tasks)
     if not tasks:
         return []
-    from tqdm import tqdm
-
-    bar = tqdm(
-        total=len(tasks), desc=desc, file=sys.stderr, disable=not progress, unit="run", leave=False
-    )
+    bar = _bar(len(tasks), desc, progress)
     try:
         if scheduler:
             return _map_dask(fn, tasks, scheduler, bar)
@@ -133,11 +148,7 @@ def map_with_context(
         return map_tasks(lambda t: fn(context, t), tasks, jobs=1, progress=progress, desc=desc)
     from functools import partial
 
-    from tqdm import tqdm
-
-    bar = tqdm(
-        total=len(tasks), desc=desc, file=sys.stderr, disable=not progress, unit="run", leave=False
-    )
+    bar = _bar(len(tasks), desc, progress)
     try:
         return _map_pool(
             partial(_call_in_context, fn), tasks, min(jobs, len(tasks)), bar, (context,)
@@ -149,6 +160,9 @@ def map_with_context(
 def _map_pool(
     fn: Callable[[T], R], tasks: list[T], jobs: int, bar: Any, initargs: tuple[Any, ...] = ()
 ) -> list[R]:
+    # imported here: a command that fits in process (most campaigns) never loads them
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
     out: list[Any] = [None] * len(tasks)
     with ProcessPoolExecutor(
         max_workers=jobs, mp_context=_mp_context(), initializer=_init_worker, initargs=initargs

@@ -346,6 +346,30 @@ def _structure_keys(js: Mapping[str, Any] | None) -> dict[str, Any]:
     }
 
 
+def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
+    """What the laws say when none is significant: the law that predicts best, if it beats
+    the base model at all, with its gain against the rule's threshold — so a user whose loop
+    has that law's shape is told, and told the base model is within noise of it; ``""``
+    when no law predicts better than the base model."""
+    ok = [
+        lw
+        for lw in laws
+        if lw.get("status") != "failed"
+        and lw.get("gain_x_floor") is not None
+        and lw["nrmse_after"] < lw["nrmse_before"]
+    ]
+    if not ok:
+        return ""
+    b = min(ok, key=lambda lw: lw["nrmse_after"])
+    within = 100.0 * (b["nrmse_before"] / b["nrmse_after"] - 1.0)
+    return (
+        f"Of the hysteresis laws, {b['law']}{structure_phrase(b)} predicts best: "
+        f"{b['nrmse_before']:.4f} → {b['nrmse_after']:.4f} ({b['gain_x_floor']:.2f} noise "
+        f"floors; a claim needs ≥ {MIN_GAIN_X_FLOOR:g}): the loop may have its shape, but "
+        f"the {model} model is within {within:.0f} % of it, so it is not claimed."
+    )
+
+
 def structure_phrase(row: Mapping[str, Any]) -> str:
     """`` with <the structure in words> (chosen by … by N %)`` for a laws row, or ``""``."""
     st = row.get("structure")
@@ -434,6 +458,8 @@ def _summary(
                 f"`--model {b['law']}`: {b['nrmse_before']:.4f} → "
                 f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %)."
             )
+        elif closest := closest_law_phrase(model, laws):
+            parts.append(closest)
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
     if ratio < UNEXPLAINED_RATIO:
         verdict = "floor"

@@ -37,6 +37,7 @@ import numpy as np
 
 from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.solver import solve
+from pmalab.identify.laws._slide import START_BRANCH
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 
@@ -44,6 +45,9 @@ from pmalab.identify.signals import Signals
 INITIAL_STATES = ("estimate", "burn-in", "zero")
 #: window used for the first estimate of the start state (s)
 INITIAL_WINDOW_S = 0.05
+#: an element law's start state moves to the other branch only when that fits the record's
+#: early part better by more than this (relative rms): the choice never hinges on round-off
+BRANCH_GAIN = 0.02
 #: Gauss–Newton evaluations for the record parameters of one predicted run
 RECORD_NFEV = 12
 #: share of a predicted record (in whole excitation cycles, at least one) on which its
@@ -236,7 +240,44 @@ def estimate_record(
     start = {n: [th[n] if n == "c0" else pr[n][0] if n in pr else 0.0] for n in names}
     z = fit_record_params(prob, prob.z_from({}, start), prior=pr)
     th.update({n: v[0] for n, v in prob.run_values(z).items()})
+    if model.law.state_size > 1 and "h0" in names:
+        # an element law's start state is h0 on one of two branches: that of the record's
+        # first motion, or — a record that starts at a turning point it reached moving the
+        # other way — that of a move against it (:mod:`pmalab.identify.laws._slide`).  The
+        # early part says which: the other branch is kept only when it fits it better by
+        # more than BRANCH_GAIN
+        alt = dict(th)
+        alt[START_BRANCH] = 1.0 - float(th.get(START_BRANCH, 0.0))
+        prob2 = replace_constants(prob, {k: v for k, v in alt.items() if k not in names})
+        z2 = fit_record_params(prob2, prob2.z_from({}, start), prior=pr)
+        c1, c2 = _cost(prob, z), _cost(prob2, z2)
+        if c2 < (1.0 - BRANCH_GAIN) ** 2 * c1:
+            alt.update({n: v[0] for n, v in prob2.run_values(z2).items()})
+            return alt
     return th
+
+
+def _cost(prob: Problem, z: np.ndarray) -> float:
+    """Sum of squared residuals (N²) of ``prob`` at ``z`` (inf when not finite)."""
+    with np.errstate(all="ignore"):
+        e = prob.residual(z)
+    c = float(e @ e)
+    return c if np.isfinite(c) else float("inf")
+
+
+def replace_constants(prob: Problem, constants: Mapping[str, float]) -> Problem:
+    """``prob`` with other held parameters (same records, free and record parameters)."""
+    return Problem(
+        prob.model,
+        prob.records,
+        free=list(prob.free),
+        degree=dict(prob.degree),
+        constants=dict(constants),
+        bounds=dict(prob.bounds),
+        run_params=list(prob.run_params),
+        cap=prob.cap,
+        basis=prob.basis,
+    )
 
 
 def predict_record(

@@ -121,7 +121,18 @@ class Uncertainty:
 
 
 def uncertainty(J: np.ndarray, r: np.ndarray, rows: Sequence[slice] | None = None) -> Uncertainty:
-    """Covariance of the least-squares solution (see the module docstring)."""
+    """Covariance of the least-squares solution (see the module docstring).
+
+    Runs with one BLAS thread, like :func:`solve`: a joint campaign's Jacobian is tall and
+    skinny (thousands of rows, tens of columns), where a second thread only adds hand-offs,
+    and on a busy machine a threaded SVD waiting for its other thread took a second
+    instead of tens of milliseconds.
+    """
+    with one_blas_thread():
+        return _uncertainty(J, r, rows)
+
+
+def _uncertainty(J: np.ndarray, r: np.ndarray, rows: Sequence[slice] | None) -> Uncertainty:
     J = np.asarray(J, dtype=float)
     r = np.asarray(r, dtype=float)
     N, p = J.shape

@@ -12,15 +12,24 @@ stretched (Δx < 0) the elements load toward +f_i, so the tension is higher than
 contracts.  A Prandtl-Ishlinskii play operator of threshold r_i and weight w_i is the same
 element with k_i = w_i, f_i = w_i·r_i (its output w_i·(y_i − x)); a Maxwell-slip element is
 it with (k_i, f_i) free.  The state is the vector z (N), its output h = Σ z_i; the record's
-start state is one number h0, spread over the elements in proportion to their slip forces
-(the state on the major loop's branch the record's first motion follows, :func:`slide_start`),
-so h[0] = h0 whenever |h0| ≤ Σ f_i.
+start state is one number h0, spread over the elements on a branch of the major loop
+(:func:`slide_start`), so h[0] = h0 whenever |h0| ≤ Σ f_i.  By default the branch is the one
+the record's first motion follows (a long move against it, then some way along it: a record
+that starts in motion).  A record that starts at a turning point may instead have arrived
+there moving the other way — its small elements slid against its first motion, its large
+ones still holding what came before — which is the other branch (``reversed``): the
+prediction of a record tries both and keeps the one its early part says
+(:func:`pmalab.identify.estimation.records.estimate_record`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+#: the theta key of an element law's start branch: 0 (default) the branch of the record's
+#: first motion, 1 the branch of a move against it (see the module doc)
+START_BRANCH = "h0_reversed"
 
 
 @njit(cache=True, fastmath=False)
@@ -43,8 +52,8 @@ def _branch(k, f, s, u, z):
 def slide_start(k, f, h0, s=1.0):
     """Element forces (N) on the major loop's branch with h = h0 (clipped to ±Σ f_i).
 
-    The record is taken to start on the branch its first motion follows: after a long move
-    in the other direction (every element slid), ``u`` mm along ``s`` (+1: contracting).
+    The state is that after a long move against ``s`` (every element slid), then ``u`` mm
+    along ``s`` (+1: contracting) — a record starts on the branch of sense ``s``.
     h(u) is monotone along a branch, so u is found by bisection; h[0] = h0 exactly when
     |h0| ≤ Σ f_i.  One number thus sets every element, as a scalar-state law's h0 does."""
     m = f.shape[0]
@@ -110,11 +119,15 @@ def slide_segment(z, dx, k, f):
 
 
 @njit(cache=True, fastmath=False)
-def slide_h(x, k, f, h0):
-    """h[n] (N) of the elements driven by the contraction path ``x`` (mm)."""
+def slide_h(x, k, f, h0, reversed=0.0):
+    """h[n] (N) of the elements driven by the contraction path ``x`` (mm), starting on the
+    branch of the first motion (``reversed`` 0) or of a move against it (1)."""
     n = x.shape[0]
     h = np.empty(n)
-    z = slide_start(k, f, h0, first_direction(x))
+    s = first_direction(x)
+    if reversed > 0.5:
+        s = -s
+    z = slide_start(k, f, h0, s)
     s = 0.0
     for i in range(z.shape[0]):
         s += z[i]
@@ -147,3 +160,8 @@ def play_basis(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
             np.ascontiguousarray(x, dtype=np.float64), one, np.array([float(r)]), 0.0
         )
     return cols
+
+
+def branch(theta) -> float:
+    """The start branch of ``theta`` (``START_BRANCH``: 0 the first motion's, 1 against it)."""
+    return float(theta.get(START_BRANCH, 0.0))

@@ -29,7 +29,7 @@ from collections.abc import Callable, Mapping
 import numpy as np
 from scipy.optimize import nnls
 
-from pmalab.identify.laws._slide import play_basis, slide_h, slide_start, slide_stepper
+from pmalab.identify.laws._slide import branch, play_basis, slide_h, slide_start, slide_stepper
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
 
 #: play-operator thresholds (mm)
@@ -88,7 +88,9 @@ class PrandtlIshlinskii(HysteresisLaw):
 
     def h(self, x, theta, extras=None):
         k, f = _kf(theta)
-        return slide_h(np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]))
+        return slide_h(
+            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
+        )
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = _kf(theta)

@@ -29,7 +29,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from pmalab.identify.laws._slide import slide_h, slide_start, slide_stepper
+from pmalab.identify.laws._slide import branch, slide_h, slide_start, slide_stepper
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
 
 #: every structure a law may offer, in order of decreasing parameter count
@@ -104,7 +104,9 @@ class ProfileElements(HysteresisLaw):
 
     def h(self, x, theta, extras=None):
         k, f = self._kf(theta)
-        return slide_h(np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]))
+        return slide_h(
+            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
+        )
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = self._kf(theta)

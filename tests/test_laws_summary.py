@@ -1,0 +1,47 @@
+"""The diagnosis summary on the laws when none is significant: the best one is named with its
+gain against the rule's threshold, never claimed; nothing is said when no law beats the base."""
+
+from __future__ import annotations
+
+from pmalab.identify.diagnosis.diagnose import closest_law_phrase
+from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
+
+
+def _row(law: str, after: float, gain: float, **kw) -> dict:
+    return {
+        "law": law,
+        "nrmse_before": 0.0230,
+        "nrmse_after": after,
+        "gain_x_floor": gain,
+        "significant": False,
+        **kw,
+    }
+
+
+def test_best_law_below_the_threshold_is_named_not_claimed():
+    laws = [
+        _row("maxwell-slip", 0.0226, 0.08),
+        _row("prandtl-ishlinskii", 0.0222, 0.16, structure="scaled"),
+        _row("duhem", 0.0240, -0.5),
+    ]
+    text = closest_law_phrase("bouc-wen", laws)
+    assert "prandtl-ishlinskii" in text and "maxwell-slip" not in text
+    assert "0.0230 → 0.0222" in text and "0.16 noise floors" in text
+    assert f"≥ {MIN_GAIN_X_FLOOR:g}" in text and "not claimed" in text
+    assert "within 4 %" in text  # 0.0230 / 0.0222 − 1 = 3.6 %
+
+
+def test_no_law_better_than_the_base_says_nothing():
+    laws = [
+        _row("duhem", 0.0240, -0.5),
+        _row("maxwell-slip", 0.0231, -0.05),
+        {
+            "law": "prandtl-ishlinskii",
+            "status": "failed",
+            "reason": "x",
+            "nrmse_before": 0.023,
+            "nrmse_after": 0.01,
+            "gain_x_floor": None,
+        },
+    ]
+    assert closest_law_phrase("bouc-wen", laws) == ""
