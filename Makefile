@@ -43,8 +43,8 @@ bench: $(STAMP)
 	$(BIN)/python -m bench
 
 # the documentation site, strictly built (a broken link or cross-reference fails); the
-# build runs the campaign tutorial, the notebook and docs/make_figures.py and shows their
-# output and figures (cached by source hash in ~/.cache/pmalab/docs; nothing is written
+# build runs every tutorial page's commands, the notebook and docs/make_figures.py and shows
+# their output and figures (cached by code hash in ~/.cache/pmalab/docs; nothing is written
 # into the tree); the result is in site/
 docs: $(STAMP)
 	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict

@@ -199,3 +199,45 @@ def test_every_effect_off_by_default():
     assert t.enabled_effects() == []
     for sec in t.effects.values():
         assert sec["enabled"] is False
+
+
+def _record_breakaway(tmp_path, enabled: bool) -> np.ndarray:
+    """Force of one 2 Hz run (the rate at which the turning points chatter) with the
+    break-away look-alike on or off, same sensor seed; the run file is read back through
+    the channel-health check."""
+    from pmalab.cli import main as pmalab_main
+    from pmalab.runfile import read_runs
+
+    src = (TRUTH_DIR / "lookalike" / "breakaway.toml").read_text()
+    truth = tmp_path / f"truth-{enabled}.toml"
+    truth.write_text(src if enabled else src.replace("enabled = true", "enabled = false"))
+    rig = tmp_path / f"rig-{enabled}.toml"
+    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = 300\n')
+    proto = tmp_path / "p.toml"
+    # the 0.3 MPa pair of the diagnosis-test campaign: its 2 Hz run's turning points chatter
+    runs = "".join(
+        f'[[run]]\nname = "p300kPa-{f}Hz"\nrole = "identification"\nmuscle_pressure_MPa = 0.3\n'
+        f'waveform = "sine"\nfrequency_Hz = {f}\namplitude_MPa = 0.12\noffset_MPa = 0.19\n'
+        "cycles = 2\nramp_s = 0.5\nsettle_s = 0.3\npreload_MPa = 0.03\n" for f in (0.5, 2.0))
+    proto.write_text(f'[protocol]\nname = "brk"\n{runs}')
+    out = tmp_path / f"brk-{enabled}.h5"
+    assert pmalab_main(["run", "--rig", str(rig), "--protocol", str(proto), "--out", str(out),
+                        "-q"]) == 0
+    runs = read_runs(out)  # refuses a one-sample spike as damaged data
+    return np.asarray(runs[-1].force, float)
+
+
+def test_breakaway_spikes_once_per_reversal_with_alternating_sign(tmp_path):
+    """Stick-slip chatter at a turning point is one break-away, not a spike that flips sign
+    from one sample to the next (the health check would rightly refuse that as damage)."""
+    d = _record_breakaway(tmp_path, True) - _record_breakaway(tmp_path, False)
+    spike = float(load_truth(TRUTH_DIR / "lookalike" / "breakaway.toml").effect("breakaway")["spike_N"])
+    big = np.abs(d) > 0.4 * spike
+    onsets = np.flatnonzero(big[1:] & ~big[:-1]) + 1
+    signs = np.sign(d[onsets])
+    # 2 cycles: two reversals per cycle (+ the ramp's and the settling's turning points),
+    # each a quarter-period (≈ 125 samples at 2 Hz) from the next, never a sample apart
+    assert 4 <= len(onsets) <= 8, onsets
+    assert np.min(np.diff(onsets)) > 50, onsets
+    assert np.all(signs[1:] == -signs[:-1]), signs
+    assert np.max(np.abs(d)) == pytest.approx(spike, rel=0.05)

@@ -22,6 +22,8 @@ from pmalab.rig.sim import kernel as K
 from pmalab.rig.sim.truth import Truth, default_truth, load_truth
 
 _NOISE_BLOCK = 4096
+#: path (mm) the seal must slide after a break-away before it can stick and break away again
+_BRK_SLIDE_MM = 0.5
 
 
 def build_params(truth: Truth) -> tuple[np.ndarray, np.ndarray]:
@@ -177,7 +179,9 @@ class RigPhysics:
         self._path = 0.0  # path the muscle has moved since switch-on (mm)
         self._x_last = 0.0
         self._v_sign = 0.0  # sign of the motion since the last reversal
-        self._t_rev = -math.inf  # time of the last reversal (s)
+        self._t_rev = -math.inf  # time of the last break-away (s)
+        self._brk_sign = 0.0  # the motion's sign when the seal last broke away
+        self._x_rev = 0.0  # position at the last break-away (mm)
         self._slow = bool(self._k_drift or self._cond or self._warm)
         self._sensor = bool(self._brk or self._hum)
         # the sled starts at rest at nominal length, every pressure at zero
@@ -222,12 +226,20 @@ class RigPhysics:
     def _track_motion(self) -> None:
         """Note a reversal of the true motion (for the break-away spikes)."""
         v = float(self._st[K.S_V])
-        # a reversal: the motion (beyond 0.5 mm/s, not noise or rest) changes sign
+        x = float(self._st[K.S_X])
+        # a reversal: the motion (beyond 0.5 mm/s, not noise or rest) changes sign.  The
+        # seal breaks away once per reversal: a stick-slip chatter at the turning point
+        # (several sign changes within a fraction of a millimetre) is one break-away, so a
+        # new one needs the seal to have slid _BRK_SLIDE_MM since the last (a spike that
+        # flips sign from one sample to the next is no force a seal makes)
         if abs(v) > 0.5:
             sg = 1.0 if v > 0 else -1.0
             if sg != self._v_sign:
-                if self._v_sign != 0.0:
+                slid = abs(x - self._x_rev) >= _BRK_SLIDE_MM or not math.isfinite(self._t_rev)
+                if self._v_sign != 0.0 and slid:
                     self._t_rev = float(self._st[K.S_T])
+                    self._brk_sign = sg
+                    self._x_rev = x
                 self._v_sign = sg
 
     def _sensor_terms(self, t: float) -> float:
@@ -236,7 +248,7 @@ class RigPhysics:
         f = 0.0
         if self._brk and math.isfinite(self._t_rev):
             a, tau = self._brk
-            f -= a * self._v_sign * math.exp(-(t - self._t_rev) / tau)
+            f -= a * self._brk_sign * math.exp(-(t - self._t_rev) / tau)
         if self._hum:
             a, fr = self._hum
             f += a * math.sin(2.0 * math.pi * fr * t + 0.3)
