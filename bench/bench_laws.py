@@ -10,8 +10,8 @@ seven odd pressures and two odd frequencies, 4 held-out runs between them, 4 N l
 noise); the project's own with ``diagnosis-test.toml`` (8 + 2 runs), as before.
 ``pmalab identify --model bouc-wen,duhem,maxwell-slip,prandtl-ishlinskii`` then ranks the
 laws; each cell is the mean over the held-out runs of nrmse ÷ that run's noise floor, with
-the pressure structure the matching law chose, and the matching law's figure with every
-parameter its own pressure law (``--structure free``, the behaviour before structures were
+the pressure structure the matching law chose (and its prior's strength λ when one was kept),
+and the matching law's figure with every parameter its own pressure law (``--structure free``, the behaviour before structures were
 chosen).  ``python -m bench laws``;
 ``PMALAB_BENCH_SEEDS=N`` sets the seeds per case (default 2).
 """
@@ -73,7 +73,10 @@ def laws_table(c: Path, out: Path, laws: tuple[str, ...] = LAWS,
         if f.exists():
             ps = json.loads(f.read_text()).get("pressure_structure") or {}
             if law in rows:
-                rows[law]["structure"] = ps.get("chosen", "-")
+                chosen = ps.get("chosen", "-")
+                lam = ((ps.get("priors") or {}).get(chosen) or {}).get("chosen_strength")
+                # the structure, and the strength of its prior when one was kept
+                rows[law]["structure"] = chosen + (f" λ{lam:g}" if lam else "")
     return rows, wall
 
 

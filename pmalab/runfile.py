@@ -162,7 +162,27 @@ def likely_unit(channel: str, raw: np.ndarray) -> str | None:
 
 @dataclass
 class Run:
-    """One run, in canonical units: time s, position mm (contraction), force N, pressure MPa."""
+    """One run, in canonical units.
+
+    Attributes
+    ----------
+    name
+        The run's name (its group ``/runs/<name>``).
+    time
+        Sample times, s, increasing (not necessarily from 0).
+    position
+        Contraction x, mm: positive = shorter than the nominal length.
+    force
+        Tension F, N: positive pulls.
+    muscle_pressure
+        Measured muscle pressure, MPa gauge.
+    cylinder_pressure, cylinder_pressure_command
+        The load cylinder's measured and commanded pressure, MPa gauge (recorded runs;
+        imports may lack them).
+    attrs
+        The run's attributes: ``muscle_pressure_MPa`` (nominal), ``waveform``,
+        ``frequency_Hz``, ``sample_rate_Hz``, ``role``, ``status``, ...
+    """
 
     name: str
     time: np.ndarray
@@ -228,7 +248,19 @@ class Run:
         return int(self.time.shape[0])
 
     def window(self, t_start: float, t_end: float) -> Run:
-        """A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (s)."""
+        """A time window of the run, as a new run.
+
+        Parameters
+        ----------
+        t_start, t_end
+            The window's bounds in s from the run's first sample (inclusive).
+
+        Returns
+        -------
+        Run
+            A copy holding the samples with ``t_start ≤ time − time[0] ≤ t_end`` (every
+            channel cut alike); its attrs record the window as ``window_s``.
+        """
         rel = self.time - self.time[0]
         keep = (rel >= t_start) & (rel <= t_end)
         cp, cpc, br = self.cylinder_pressure, self.cylinder_pressure_command, self.branch
@@ -252,8 +284,13 @@ class Run:
         A recorded run starts with a settle time and a ramp in: there the muscle may still be
         moving to its new pressure's equilibrium or hang slack (zero tension), which is not
         the isobaric cycling the models describe.  The runner stores the window as attrs
-        ``steady_start_s``/``steady_end_s`` (s from the run's first sample); imported runs
-        without them are returned whole.
+        ``steady_start_s``/``steady_end_s`` (s from the run's first sample).
+
+        Returns
+        -------
+        Run
+            The steady window (:meth:`window`); the run itself when the attrs are absent
+            (imported runs) or the window would hold fewer than 100 samples.
         """
         t0, t1 = self.attrs.get("steady_start_s"), self.attrs.get("steady_end_s")
         if t0 is None or t1 is None:
@@ -325,15 +362,38 @@ def validate_channels(
     *,
     exempt_last: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Check and convert raw channels ``{name: (values, units)}`` to canonical units.
+    """Check raw channels and convert them to canonical units.
 
     Besides the format (1-D, numeric, known unit, finite, equal lengths, time increasing),
     refuses values no PMA test can produce (:data:`PLAUSIBLE`), naming the unit they
-    probably are in; ``units_hint(channel, declared_unit, likely_unit_or_None)`` words the
-    advice (the CSV import names its ``--units`` option).  ``exempt_last``: the last sample
-    is not held to :data:`PLAUSIBLE` — an aborted run keeps the reading that tripped its
-    limit (a disconnected 4–20 mA gauge reads −0.25 MPa), and that evidence must not make
-    the file unreadable.
+    probably are in.
+
+    Parameters
+    ----------
+    path, run
+        The file and run the channels come from (named in any error).
+    raw
+        ``{channel: (values, declared unit)}``; channels the contract does not know are
+        ignored.
+    units_hint
+        ``units_hint(channel, declared_unit, likely_unit_or_None)`` words the advice after
+        a refused value (the CSV import names its ``--units`` option).
+    exempt_last
+        The last sample is not held to :data:`PLAUSIBLE`: an aborted run keeps the reading
+        that tripped its limit (a disconnected 4–20 mA gauge reads −0.25 MPa), and that
+        evidence must not make the file unreadable.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        Each known channel as float64 in canonical units: time s, position mm (contraction
+        positive), force N (tension positive), pressures MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming file, run and channel: a missing channel or ``units``, an unknown
+        unit, unequal lengths, time not increasing, NaNs, implausible values.
     """
     out: dict[str, np.ndarray] = {}
     for ch in REQUIRED_CHANNELS:
@@ -415,7 +475,6 @@ def read_runs(
 ) -> list[Run]:
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
-    Raises :class:`RunFileError` with one line naming file, run and channel on any problem.
     Runs recorded by :mod:`pmalab.acquisition` also carry ``attrs["status"]``
     ("completed", "aborted: <reason>", or "running" for a file whose writer was killed),
     ``attrs["timing"]`` (lateness statistics) and ``attrs["device_stats"]`` (the devices'
@@ -442,6 +501,32 @@ def read_runs(
     ``long_runs``: a run of at least ``long_runs.min_samples`` samples is not read whole;
     it goes, still on disk, to ``long_runs.read`` (:mod:`pmalab.runwindows`), which reads it
     a window at a time and returns the run to use (e.g. identification's decimation).
+
+    Parameters
+    ----------
+    path
+        The run file (HDF5, ``format = "pmalab.run"``, version 1 or 2).
+    runs
+        Names of the runs to read (default: every run that was started).
+    skip_incomplete
+        Leave out aborted and interrupted runs (see above).
+    muscle
+        The muscle whose view a multi-muscle file gives (see above).
+    long_runs
+        How to read long runs (see above); ``None``: every run whole.
+    health
+        Judge every measured channel (see above).
+
+    Returns
+    -------
+    list of Run
+        The runs in file order: time s, position mm (contraction positive), force N
+        (tension positive), pressures MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming file, run and channel on any problem.
     """
     import h5py
 
@@ -998,6 +1083,27 @@ def write_runs(path: str | Path, runs: Sequence[Run], force: bool = False) -> Pa
 
     Recording on a rig uses the incremental, crash-proof writer in
     :mod:`pmalab.acquisition`; this is for imports, tests and derived data.
+
+    Parameters
+    ----------
+    path
+        The run file to write (its folder is made when missing).
+    runs
+        The runs, in canonical units (time s, position mm, force N, pressures MPa); each
+        becomes ``/runs/<name>`` with its attrs and every channel with its ``units``.
+    force
+        Overwrite an existing file.
+
+    Returns
+    -------
+    Path
+        The file written.
+
+    Raises
+    ------
+    pmalab.errors.OutputError
+        The file exists (without ``force``) or cannot be written (full disk, no
+        permission); no half-written file is left behind.
     """
     import h5py
 

@@ -34,10 +34,11 @@ def _loop_direction(r) -> tuple[float, float]:
 def test_run_seed_bouc_wen_end_to_end(tmp_path, capsys):
     out = tmp_path / "x.h5"
     rc = main(["run", "--rig", "sim", "--protocol", str(PROTOCOLS_DIR / "seed-bouc-wen.toml"),
-               "--out", str(out), "--quiet"])
+               "--out", str(out)])
     assert rc == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert len(lines) == 11 and "ident-476kPa: completed" in lines[0] and "force" in lines[0]
+    assert lines[-2] == f"{out}: 9 runs, {sum(len(r) for r in read_runs(out))} samples"
     assert lines[-1] == ("regulators: cylinder regulator vented (confirmed: simulated regulator "
                          "commanded to 0 MPa); muscle regulator vented (confirmed: simulated "
                          "regulator commanded to 0 MPa)")
@@ -130,14 +131,33 @@ def test_only_selects_runs_by_role(tmp_path):
     assert [r.name for r in read_runs(out)] == ["valid-498kPa-0.1Hz", "valid-304kPa-0.3Hz"]
 
 
+def test_quiet_run_prints_only_the_line_naming_its_output(tmp_path, capsys):
+    """``run --quiet`` is what its help says: the one line naming the output file (no
+    per-run lines, no vent confirmation); nothing on stderr when nothing went wrong."""
+    out = tmp_path / "q.h5"
+    assert main(["run", "--rig", "sim", "--protocol", "quick", "--out", str(out), "-q"]) == 0
+    text = capsys.readouterr()
+    assert text.out.splitlines() == [f"{out}: 1 runs, {len(read_runs(out)[0])} samples"]
+    assert text.err == ""
+    from pmalab.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if a.__class__.__name__ == "_SubParsersAction")
+    quiet = next(a for a in sub.choices["run"]._actions if "--quiet" in a.option_strings)
+    assert "only the line naming the output" in quiet.help and "no per-run lines" in quiet.help
+
+
 def test_manual_muscle_regulator_prompts_operator(tmp_path, capsys):
     rig = tmp_path / "manual.toml"
     rig.write_text('[rig]\nkind = "sim"\nmanual_muscle_regulator = true\n')
     out = tmp_path / "m.h5"
     assert main(["run", "--rig", str(rig), "--protocol", "quick", "--out", str(out),
                  "--quiet"]) == 0
-    err = capsys.readouterr().err
+    text = capsys.readouterr()
+    err = text.err
     assert "run 'quick-400kPa': Set the muscle regulator to 0.4 MPa" in err
+    # --quiet never hides a regulator the software did not vent
+    assert "warning: regulators: " in err and "muscle regulator is manual and NOT vented" in err
+    assert text.out.splitlines() == [f"{out}: 1 runs, {len(read_runs(out)[0])} samples"]
     (r,) = read_runs(out)
     assert abs(r.muscle_pressure.mean() - 0.4) < 0.01  # recording waited for the operator
 

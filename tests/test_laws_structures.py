@@ -103,3 +103,54 @@ def test_free_structure_keeps_the_law_as_its_file_says():
     cf = fit_campaign(_campaign(0.0), "maxwell-slip", structure="free")
     assert cf.structure is None
     assert all(cf.pressure[f"d{i}"].degree == 0 for i in range(1, 5))
+
+
+def test_every_structure_reports_its_prior_chosen_by_the_same_evidence():
+    """Each candidate's prior (shrinkage of the Maxwell-slip corrections) is scored at every
+    strength by the leave-one-pressure-out influence approximation; the kept strength is
+    the lowest score, or 0 when nothing beats the unpenalised fit by SIMPLER_WITHIN (or the
+    kept step left the linear range: said in a note); the structure's score is the kept
+    strength's."""
+    from pmalab.identify.campaign.structure import PRIOR_GRID, SIMPLER_WITHIN
+
+    cf = fit_campaign(_campaign(0.0), "maxwell-slip")
+    st = cf.structure
+    assert st is not None and set(st.priors) >= {"scaled", "scaled-thresholds"}
+    for s, pr in st.priors.items():
+        assert pr.strengths == list(PRIOR_GRID) and len(pr.scores) == len(PRIOR_GRID)
+        assert all(np.isfinite(pr.scores)), (s, pr.scores)
+        best = int(np.argmin(pr.scores))
+        expected = (
+            PRIOR_GRID[best] if pr.scores[best] < pr.scores[0] * (1 - SIMPLER_WITHIN) else 0.0
+        )
+        assert pr.chosen == expected or (pr.chosen == 0.0 and pr.note), (s, pr)
+        assert st.scores[s] == pytest.approx(pr.scores[pr.strengths.index(pr.chosen)])
+    js = st.as_json()
+    assert js["priors"]["scaled"]["strengths"] == list(PRIOR_GRID)
+
+
+def test_a_strong_prior_pulls_the_corrections_to_the_pooled_profile():
+    """The penalised one-step solution: with λ large the shrunk corrections (c_i − 1,
+    r_i − 1; the penalty is linear in them) go to ≤ 10 % of their unpenalised size, and
+    every left-out level's runs get a finite held-out score with the prior in the fold."""
+    from pmalab.identify.campaign.structure import _joint_structured, penalised_step, prior_rows
+    from pmalab.identify.laws.structures import profile
+
+    runs = _campaign(1.0)
+    cf = fit_campaign(runs, "maxwell-slip", structure="free")
+    base = get_law("maxwell-slip")
+    thetas = [cf.theta(rf.p_nom) for rf in cf.runs]
+    kappa, delta = profile(base, thetas)
+    model = ForceModel(structured_law(base, "scaled-thresholds", kappa, delta))
+    j = _joint_structured(cf, runs, model, thetas)
+    rows = prior_rows(j, base, model.law, "scaled-thresholds")
+    assert rows is not None and rows[0].startswith("shrinkage")
+    _, g_of, _ = rows
+    g0 = g_of(j.z)
+    assert np.linalg.norm(g0) > 1e-3  # the corrections moved from the pooled profile
+    dz, _, lo = penalised_step(j, rows, 1e6)
+    assert np.linalg.norm(g_of(j.z + dz)) < 0.1 * np.linalg.norm(g0)
+    assert set(lo) == set(j.lopo) and all(np.isfinite(list(lo.values())))
+    # λ = 0 is no step and the fit's own evidence
+    dz0, _, lo0 = penalised_step(j, rows, 0.0)
+    assert not np.any(dz0) and lo0 == j.lopo

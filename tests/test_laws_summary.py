@@ -28,7 +28,7 @@ def test_best_law_below_the_threshold_is_named_not_claimed():
     assert "prandtl-ishlinskii" in text and "maxwell-slip" not in text
     assert "0.0230 → 0.0222" in text and "0.16 noise floors" in text
     assert f"≥ {MIN_GAIN_X_FLOOR:g}" in text and "not claimed" in text
-    assert "within 4 %" in text  # 0.0230 / 0.0222 − 1 = 3.6 %
+    assert "(−3 %," in text  # 1 − 0.0222 / 0.0230 = 3.5 %
 
 
 def test_no_law_better_than_the_base_says_nothing():

@@ -1,24 +1,27 @@
 """MkDocs hook: the pages show what the user will see, made by the build.
 
-* **Tutorial output.**  A tutorial page listed in :data:`RUN_PAGES` has its ``bash`` blocks
-  run, in order, in an empty directory (as the test suite runs them); each block is
-  followed on the page by what it printed (a ``text`` block), and a line
-  ``<!-- pmalab-figures: GLOB -->`` becomes the PNG figures the commands wrote that match
-  ``GLOB`` (relative to the directory the commands ran in).
+* **Tutorial output.**  A page listed in :data:`RUN_PAGES` has its ``bash`` blocks run, in
+  order, in an empty directory (as a user would type them); each block is followed on the
+  page by what it printed (a ``text`` block), and a line ``<!-- pmalab-figures: GLOB -->``
+  becomes the PNG figures the commands wrote that match ``GLOB`` (relative to the
+  directory the commands ran in).
 * **The notebook.**  ``<!-- pmalab-notebook: PATH -->`` becomes the notebook executed at
   build (nbclient): its markdown, its code and every output, figures inline.
-* **Figures.**  ``docs/make_figures.py``'s figures (``figures/loop.png``) and the report
-  pages of the campaign tutorial (the gallery page: ``<!-- pmalab-gallery -->``).
+* **Figures.**  ``docs/make_figures.py``'s figures (``generated/figures/loop.png``) and the
+  report pages of the campaign tutorial (the gallery page: ``<!-- pmalab-gallery -->``).
 
-Everything is generated into a cache directory keyed by the hash of pmalab's sources, the
-pages and the scripts (``$XDG_CACHE_HOME/pmalab/docs``), and added to the site as
+Each of these *units* (one per run page, one per notebook, the figure script) is made in
+its own cache directory, ``$XDG_CACHE_HOME/pmalab/docs/<unit>/<key>``, keyed by the hash of
+pmalab's code (docstrings and comments excluded: editing them reruns nothing) and the
+unit's own inputs (a page's commands, not its prose).  The outputs are added to the site as
 generated files: the build writes nothing into the tree (``make docs`` leaves it clean), a
-second build with unchanged sources costs nothing, and a change of the code makes them
-again.
+second build with unchanged code costs nothing, and a change of the code or of a page's
+commands makes that unit again.  Missing units are made two at a time.
 """
 
 from __future__ import annotations
 
+import ast
 import base64
 import hashlib
 import json
@@ -28,13 +31,22 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from mkdocs.structure.files import File, Files
 
 DOCS = Path(__file__).resolve().parents[1]
-#: tutorial pages whose commands the build runs (the rest show their commands only)
-RUN_PAGES = ("tutorials/campaign.md",)
+#: pages whose commands the build runs and shows with their output (the rest show their
+#: commands only); a page's commands run in ``generated/runs/<page stem>``
+RUN_PAGES = (
+    "tutorials/campaign.md",
+    "tutorials/import.md",
+    "tutorials/static-characterization.md",
+    "tutorials/control.md",
+    "tutorials/bouc-wen-benchmark.md",
+    "how-to/rig-file.md",
+)
 #: the tutorial whose report pages make the gallery, and where its commands write them
 GALLERY = ("tutorials/campaign.md", "report-pages")
 #: ``<!-- pmalab-figures: GLOB -->``: the PNGs the page's commands wrote matching GLOB
@@ -42,32 +54,61 @@ FIG = re.compile(r"^<!-- pmalab-figures: (\S+) -->$", re.M)
 NOTEBOOK = re.compile(r"^<!-- pmalab-notebook: (\S+) -->$", re.M)
 BASH = re.compile(r"```bash\n(.*?)```\n", re.S)
 OUTPUT_LINES = 60  # a block's output is cut to this many lines (with a note)
+FIGURE_SCRIPT = "make_figures"
 
-#: part of the cache key: raise it when what :func:`_make` makes changes (the rest of the
-#: key is the hash of pmalab's sources, the run pages' commands, the notebooks and
-#: make_figures.py)
-CACHE_VERSION = "1"
+#: part of every cache key: raise it when what a unit makes changes
+CACHE_VERSION = "2"
+KEEP = 3  # builds kept per unit (older code's outputs are removed)
 
-_state: dict[str, Path] = {}
+_state: dict[str, str] = {}
+_dirs: dict[str, Path] = {}  # the units made for this process's build
 
 
 # --------------------------------------------------------------------------- the cache
-def _key() -> str:
+def code_hash() -> str:
+    """The hash of pmalab's code as it runs: each module's syntax tree without its
+    docstrings (comments are not in it), and the package's data files byte for byte."""
+    if "code" in _state:
+        return _state["code"]
     import pmalab
 
     h = hashlib.sha256()
     src = Path(pmalab.__file__).parent
     for p in sorted(src.rglob("*")):
-        if p.suffix in (".py", ".toml", ".json") and "__pycache__" not in p.parts:
+        if "__pycache__" in p.parts or not p.is_file():
+            continue
+        if p.suffix == ".py":
+            h.update(str(p.relative_to(src)).encode())
+            h.update(_without_docstrings(p.read_text(encoding="utf-8")).encode())
+        else:  # data: rig and protocol files, measurements, the live page
             h.update(str(p.relative_to(src)).encode())
             h.update(p.read_bytes())
-    h.update(CACHE_VERSION.encode())
+    _state["code"] = h.hexdigest()[:16]
+    return _state["code"]
+
+
+def _without_docstrings(text: str) -> str:
+    tree = ast.parse(text)
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            body = node.body
+            if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+                if isinstance(body[0].value.value, str):
+                    del body[0]  # a docstring added, edited or removed is the same code
+                    body[:] = body or [ast.Pass()]
+    return ast.dump(tree)
+
+
+def _units() -> dict[str, tuple[str, bytes]]:
+    """unit name → (kind, the bytes of its own inputs)."""
+    units: dict[str, tuple[str, bytes]] = {}
     for page in RUN_PAGES:  # the commands, not the prose around them
-        h.update("\n".join(BASH.findall((DOCS / page).read_text(encoding="utf-8"))).encode())
-    h.update((DOCS / "make_figures.py").read_bytes())
+        cmds = "\n".join(BASH.findall((DOCS / page).read_text(encoding="utf-8")))
+        units[Path(page).stem] = ("page:" + page, cmds.encode())
     for nb in _notebooks():
-        h.update(nb.read_bytes())
-    return h.hexdigest()[:16]
+        units["notebook-" + nb.stem] = ("notebook:" + str(nb), nb.read_bytes())
+    units[FIGURE_SCRIPT] = ("script", (DOCS / "make_figures.py").read_bytes())
+    return units
 
 
 def _notebooks() -> list[Path]:
@@ -91,38 +132,44 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _make(out: Path) -> None:
-    """Run the tutorials, the notebooks and the figure script into ``out``."""
-    outputs: dict[str, list[str]] = {}
-    for page in RUN_PAGES:
-        work = out / "generated" / "runs" / Path(page).stem
-        work.mkdir(parents=True)
-        texts = []
-        for block in BASH.findall((DOCS / page).read_text(encoding="utf-8")):
-            p = subprocess.run(
-                ["bash", "-c", "set -euo pipefail\n" + block],
-                cwd=work,
-                capture_output=True,
-                text=True,
-                env=_env(),
-                timeout=1800,
-            )
-            if p.returncode != 0:
-                raise RuntimeError(f"{page}: a command failed:\n{block}\n{p.stderr[-2000:]}")
-            texts.append(p.stdout + p.stderr)
-        outputs[page] = texts
-    (out / "outputs.json").write_text(json.dumps(outputs, indent=1))
-    for nb in _notebooks():
-        (out / "notebooks").mkdir(exist_ok=True)
+def _run_page(page: str, out: Path) -> None:
+    """Run the page's bash blocks in order in ``generated/runs/<stem>``; their outputs go
+    to ``outputs.json`` (one text per block)."""
+    work = out / "generated" / "runs" / Path(page).stem
+    work.mkdir(parents=True)
+    texts = []
+    for block in BASH.findall((DOCS / page).read_text(encoding="utf-8")):
+        p = subprocess.run(
+            ["bash", "-c", "set -euo pipefail\n" + block],
+            cwd=work,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,  # interleaved as a terminal shows them
+            stdin=subprocess.DEVNULL,
+            text=True,
+            env=_env(),
+            timeout=1800,
+        )
+        if p.returncode != 0:
+            raise RuntimeError(f"{page}: a command failed:\n{block}\n{p.stdout[-3000:]}")
+        texts.append(p.stdout)
+    (out / "outputs.json").write_text(json.dumps(texts, indent=1))
+
+
+def _make(kind: str, out: Path) -> None:
+    if kind.startswith("page:"):
+        _run_page(kind[5:], out)
+    elif kind.startswith("notebook:"):
+        nb = Path(kind[9:])
         md = _notebook_markdown(nb, out / "generated" / "figures" / "notebooks", nb.stem)
-        (out / "notebooks" / f"{nb.stem}.md").write_text(md)
-    subprocess.run(
-        [sys.executable, str(DOCS / "make_figures.py"), str(out / "generated" / "figures")],
-        check=True,
-        capture_output=True,
-        env=_env(),
-        timeout=1800,
-    )
+        (out / "notebook.md").write_text(md)
+    else:
+        subprocess.run(
+            [sys.executable, str(DOCS / "make_figures.py"), str(out / "generated" / "figures")],
+            check=True,
+            capture_output=True,
+            env=_env(),
+            timeout=1800,
+        )
 
 
 def _notebook_markdown(path: Path, fig_dir: Path, stem: str) -> str:
@@ -167,32 +214,53 @@ def _cut(text: str) -> str:
     return "\n".join([*lines[:OUTPUT_LINES], f"… ({len(lines) - OUTPUT_LINES} more lines)"])
 
 
-def built() -> Path:
-    """The cache directory for the current sources, made when missing."""
-    if "dir" in _state:
-        return _state["dir"]
-    final = _cache_root() / _key()
-    if not (final / "done").exists():
-        final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix="making-", dir=final.parent))
-        try:
-            _make(tmp)
-            (tmp / "done").write_text("")
-            if final.exists():
-                shutil.rmtree(final, ignore_errors=True)
-            os.replace(tmp, final)
-        except FileExistsError:  # another build made it meanwhile
-            shutil.rmtree(tmp, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-    _state["dir"] = final
-    _prune(final.parent, keep=8)
-    return final
+def _unit_dir(name: str, inputs: bytes) -> Path:
+    h = hashlib.sha256()
+    for part in (CACHE_VERSION, code_hash(), name):
+        h.update(part.encode() + b"\0")
+    h.update(inputs)
+    return _cache_root() / name / h.hexdigest()[:16]
+
+
+def _make_unit(final: Path, kind: str) -> None:
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix="making-", dir=final.parent))
+    try:
+        _make(kind, tmp)
+        (tmp / "done").write_text("")
+        if final.exists():
+            shutil.rmtree(final, ignore_errors=True)
+        os.replace(tmp, final)
+    except FileExistsError:  # another build made it meanwhile
+        shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    _prune(final.parent, KEEP)
+
+
+def built() -> dict[str, Path]:
+    """Every unit's cache directory for the current code and inputs, made when missing
+    (two at a time; the notebook in this thread, as its kernel client wants)."""
+    if _dirs:
+        return dict(_dirs)
+    units = _units()
+    dirs = {name: _unit_dir(name, inputs) for name, (_, inputs) in units.items()}
+    todo = [n for n, d in dirs.items() if not (d / "done").exists()]
+    threaded = [n for n in todo if not units[n][0].startswith("notebook:")]
+    with ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1))) as pool:
+        futures = [pool.submit(_make_unit, dirs[n], units[n][0]) for n in threaded]
+        for n in todo:
+            if n not in threaded:
+                _make_unit(dirs[n], units[n][0])
+        for f in futures:
+            f.result()
+    _dirs.update(dirs)
+    return dict(dirs)
 
 
 def _prune(root: Path, keep: int) -> None:
-    """Remove all but the ``keep`` most recently made builds (older sources' outputs)."""
+    """Remove all but the ``keep`` most recently made builds of a unit."""
     done = sorted(
         (d for d in root.iterdir() if (d / "done").exists()),
         key=lambda d: (d / "done").stat().st_mtime,
@@ -203,26 +271,17 @@ def _prune(root: Path, keep: int) -> None:
 
 
 # --------------------------------------------------------------------------- the hooks
-def _figures(root: Path) -> list[Path]:
-    """Every PNG the build made (``generated/``: figures/… and the tutorials' folders)."""
-    return sorted((root / "generated").rglob("*.png"))
-
-
-def _site_path(root: Path, png: Path) -> str:
-    return png.relative_to(root).as_posix()  # generated/...
-
-
 def on_files(files: Files, config) -> Files:
-    root = built()
-    for png in _figures(root):
-        files.append(
-            File(
-                png.relative_to(root).as_posix(),
-                src_dir=str(root),
-                dest_dir=config["site_dir"],
-                use_directory_urls=config["use_directory_urls"],
+    for root in built().values():
+        for png in sorted((root / "generated").rglob("*.png")):
+            files.append(
+                File(
+                    png.relative_to(root).as_posix(),  # generated/...
+                    src_dir=str(root),
+                    dest_dir=config["site_dir"],
+                    use_directory_urls=config["use_directory_urls"],
+                )
             )
-        )
     return files
 
 
@@ -233,40 +292,44 @@ def _up(page_src: str) -> str:
 
 def on_page_markdown(markdown: str, page, config, files) -> str:
     src = page.file.src_uri
-    root = built()
+    units = built()
     up = _up(src)
     if src in RUN_PAGES:
-        outputs = json.loads((root / "outputs.json").read_text())[src]
-        it = iter(outputs)
+        root = units[Path(src).stem]
+        it = iter(json.loads((root / "outputs.json").read_text()))
 
         def with_output(m: re.Match[str]) -> str:
-            text = next(it, "").strip()
+            text = next(it, "").rstrip().lstrip("\n")  # keep the first line's indent
             shown = f"\n```text\n{_cut(text)}\n```\n" if text else ""
             return m.group(0) + shown
 
         markdown = BASH.sub(with_output, markdown)
+        work = root / "generated" / "runs" / Path(src).stem
 
         def figures(m: re.Match[str]) -> str:
-            pngs = sorted((root / "generated" / "runs" / Path(src).stem).glob(m.group(1)))
+            pngs = sorted(work.glob(m.group(1)))
+            if not pngs:
+                raise RuntimeError(f"{src}: no figure matches {m.group(1)}")
             return "\n\n".join(
-                f"![{p.stem}]({up}{_site_path(root, p)})" for p in pngs
-            ) or "*(no figures)*"
+                f"![{p.stem}]({up}{p.relative_to(root).as_posix()})" for p in pngs
+            )
 
         markdown = FIG.sub(figures, markdown)
 
     def notebook(m: re.Match[str]) -> str:
-        stem = Path(m.group(1)).stem
-        md = (root / "notebooks" / f"{stem}.md").read_text()
+        root = units["notebook-" + Path(m.group(1)).stem]
+        md = (root / "notebook.md").read_text()
         return md.replace("](FIGURES/", f"]({up}generated/figures/")
 
     markdown = NOTEBOOK.sub(notebook, markdown)
     if "<!-- pmalab-gallery -->" in markdown:
         page_src, folder = GALLERY
-        d = root / "generated" / "runs" / Path(page_src).stem / folder
+        stem = Path(page_src).stem
+        d = units[stem] / "generated" / "runs" / stem / folder
         items = []
         for p in sorted(d.glob("*.png")):
             title = re.sub(r"^\d+-", "", p.stem).replace("-", " ")
-            items.append(f"### {title}\n\n![{title}]({up}{_site_path(root, p)})")
+            items.append(f"### {title}\n\n![{title}]({up}{p.relative_to(units[stem]).as_posix()})")
         markdown = markdown.replace("<!-- pmalab-gallery -->", "\n\n".join(items))
     markdown = markdown.replace("](GENERATED/", f"]({up}generated/")
     return markdown

@@ -5,9 +5,10 @@ doctest examples (``>>>``).  Markdown knows neither: a role would show as raw te
 ``>>>`` line as a block quote.  Before mkdocstrings renders a docstring, this extension
 
 * turns each role whose target the API page renders into a cross-reference
-  (``[Run][pmalab.runfile.Run]``), which mkdocs-autorefs links and the strict build checks
-  (an unresolved one fails it); a role whose target is not on the page becomes code
-  (```Run```), as Sphinx shows an unresolved role;
+  (``[Run][pmalab.runfile.Run]``), which mkdocs-autorefs links and the strict build checks;
+  a role whose target exists but is not on the page becomes code (```Run```), as Sphinx
+  shows it; a role naming nothing in the package (a typo, a renamed object) stays a
+  cross-reference that cannot resolve, and fails the strict build;
 * fences every doctest example (a run of ``>>>``/``...`` lines and the output under them)
   as a Python code block.
 
@@ -67,6 +68,8 @@ class SphinxRoles(griffe.Extension):
         super().__init__()
         self.exact, self.prefixes = rendered_paths()
         self.pkg: griffe.Module | None = None
+        #: (object path, target) of every role that names nothing in the package
+        self.broken: list[tuple[str, str]] = []
 
     # ---------------------------------------------------------------- what is on the page
     def _on_page(self, path: str) -> bool:
@@ -88,6 +91,17 @@ class SphinxRoles(griffe.Extension):
         except Exception:  # griffe: no such member, or an alias it cannot follow
             return False
         return bool(obj.docstring and obj.docstring.value.strip())
+
+    def _exists(self, path: str) -> bool:
+        """Whether ``path`` names an object of the package (always true outside it)."""
+        pkg = self.pkg
+        if pkg is None or not path.startswith(pkg.path + "."):
+            return True
+        try:
+            pkg[path[len(pkg.path) + 1 :]]
+        except Exception:  # griffe: no such member
+            return False
+        return True
 
     def _resolve(self, obj: griffe.Object, target: str) -> str | None:
         target = target.lstrip(".")
@@ -114,7 +128,12 @@ class SphinxRoles(griffe.Extension):
             if m.group("role") in ("meth", "func") and not shown.endswith(")"):
                 shown += "()"
             full = self._resolve(obj, target)
-            if full is not None and self._on_page(full):
+            missing = full is not None and not self._exists(full)
+            if missing:
+                self.broken.append((obj.path, full))
+            if full is not None and (missing or self._on_page(full)):
+                # on the page: a link; naming nothing that exists: a reference autorefs
+                # cannot resolve, which fails the strict build (a typo or a renamed object)
                 return f"[`{shown}`][{full}]"
             return f"`{shown}`"
 

@@ -53,7 +53,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="simulated rig: run on the real clock instead of the virtual one",
     )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="print only the line naming the output file, warnings and errors: no progress "
+        "bar, no per-run lines, no vent confirmation (a regulator the software did not vent "
+        "is always reported, on stderr)",
+    )
     p.add_argument(
         "--host",
         default=None,
@@ -381,8 +388,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise _with_recover_hint(err, args.out) from None
     finally:
         signal.signal(signal.SIGTERM, old)
-    for r in results:
-        print(r.summary())
+    if not args.quiet:
+        for r in results:
+            print(r.summary())
     total = sum(r.n_samples for r in results)
     print(f"{args.out}: {len(results)} runs, {total} samples")
     for (
@@ -393,8 +401,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     vent = rig.last_vent
     if vent is not None and not vent.ok:  # the data are safe; the rig may not be
         raise abort_error(f"{args.out}: all {len(results)} runs recorded, but {VENT_SLOT}", vent)
-    if vent is not None:
+    if vent is not None and not args.quiet:
         print(f"regulators: {vent.line()}")
+    elif vent is not None and any(not r.ok for _, r in vent.items):  # a manual regulator
+        print(f"pmalab run: warning: regulators: {vent.line()}", file=sys.stderr)
     return 0
 
 

@@ -321,7 +321,29 @@ def _read_text(path: Path, opts: CsvImportOptions) -> str:
 
 
 def read_csv_run(path: str | Path, opts: CsvImportOptions) -> Run:
-    """Read one run from a CSV file, converted to canonical units."""
+    """Read one run from a CSV (or other delimited text) export.
+
+    Parameters
+    ----------
+    path
+        The export.
+    opts
+        Columns, units, delimiter, decimal mark, header rows (:class:`CsvImportOptions`);
+        ``opts.run`` names the run (default: the file's stem).
+
+    Returns
+    -------
+    Run
+        The run in canonical units: time s, position mm (contraction positive: give
+        ``--negate position`` for a sensor measuring extension), force N (tension
+        positive), pressure MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming the file and the row, column or channel: an unknown unit, a value
+        no PMA test can produce (with the unit it probably is in), a short or damaged file.
+    """
     import pandas as pd
 
     path = Path(path)
@@ -795,6 +817,23 @@ def pressure_from_name(path: str | Path, pattern: str) -> float:
     The pattern's first group is the number; its unit is the text the pattern matches after
     the group (``'(\\d+)bar'`` on ``NAPN_3bar.csv`` → 0.3 MPa).  Without a unit in the
     pattern the number is taken as MPa.
+
+    Parameters
+    ----------
+    path
+        The file whose name (not its folder) is read.
+    pattern
+        A regular expression with one group around the number (``re.search``).
+
+    Returns
+    -------
+    float
+        The nominal muscle pressure, MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        The name does not match, or the value is no muscle pressure.
     """
     try:
         rx = re.compile(pattern)
@@ -884,8 +923,21 @@ def position_from_name(
 
 
 def excitation_frequency(run: Run) -> float:
-    """The motion's fundamental frequency in Hz: the largest peak of the position's spectrum
-    (mean and linear trend removed, Hann window), refined by parabolic interpolation."""
+    """The motion's fundamental frequency: the largest peak of the position's spectrum.
+
+    The mean and a linear trend are removed, a Hann window applied, and the peak refined by
+    parabolic interpolation between bins.
+
+    Parameters
+    ----------
+    run
+        A run in canonical units (position mm, time s).
+
+    Returns
+    -------
+    float
+        The frequency, Hz.
+    """
     t, x = run.time, run.position
     n = len(t)
     if n < 16:
@@ -909,8 +961,19 @@ def excitation_frequency(run: Run) -> float:
 
 
 def split_halves(run: Run) -> list[Run]:
-    """A record → two runs at its middle sample: ``NAME-a`` (identification, first half) and
-    ``NAME-b`` (validation, second half); every sample is kept in exactly one of them."""
+    """Split a record into two runs at its middle sample.
+
+    Parameters
+    ----------
+    run
+        One record.
+
+    Returns
+    -------
+    list of Run
+        ``NAME-a`` (role identification, the first half) and ``NAME-b`` (role validation,
+        the second half); every sample is kept in exactly one of them.
+    """
     n = len(run.time)
     if n < 40:
         raise RunFileError(f"{run.file}: run '{run.name}': --split-halves: only {n} samples")
@@ -956,9 +1019,45 @@ def read_campaign(
     auto_frequency: bool = False,
     progress=None,
 ) -> list[Run]:
-    """Read one run per file (``opts.run`` must be unset for several files), name each by its
-    stem (unique), and apply the nominal pressure from the name, ``--frequency auto`` and
-    ``--split-halves``."""
+    """Read the runs of several exports and apply what the file names and the motion say.
+
+    Each run is named by its file's stem (unique; ``opts.run`` must be unset for several
+    files) and gets the nominal pressure or held contraction from its name, its frequency
+    (``auto_frequency``) and its halves (``halves``).  Nothing is written.
+
+    Parameters
+    ----------
+    paths
+        The exports, read by their suffix: a text file (CSV, TSV, ...) is one run, a TDMS
+        or MAT file one run per group or struct.
+    opts
+        How to read them: columns, units, delimiter, header rows (:class:`CsvImportOptions`).
+    pressure_pattern
+        A regular expression reading each file's nominal pressure off its name
+        (:func:`pressure_from_name`; ``--pressure-from-name``).
+    position_pattern
+        A regular expression reading each file's held contraction (mm, or % of
+        ``max_contraction_mm``) off its name: isometric records (``--position-from-name``).
+    max_contraction_mm
+        The muscle's maximum contraction, mm, for a pattern that reads a percentage.
+    halves
+        Split each record into an identification and a held-out half (:func:`split_halves`).
+    auto_frequency
+        Read each run's frequency off its position's spectrum (:func:`excitation_frequency`).
+    progress
+        Called as ``progress(path, run)`` after each file is read (``None``: silent).
+
+    Returns
+    -------
+    list of Run
+        The runs in canonical units, in the order of ``paths`` (halves: ``NAME-a``,
+        ``NAME-b``).
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming the file and field or channel of the first mistake.
+    """
     from dataclasses import replace
 
     if len(paths) > 1 and opts.run:
@@ -1018,10 +1117,49 @@ def import_files(
     auto_frequency: bool = False,
     progress=None,
 ) -> list[Run]:
-    """Import several exports (one run per file) into one new campaign file ``out``.
+    """Import several exports into one new campaign file.
 
     Every file is read and checked before anything is written: a mistake in the last file
     leaves no output behind.
+
+    Parameters
+    ----------
+    paths
+        The exports, read by their suffix: a text file (CSV, TSV, ...) is one run, a TDMS
+        or MAT file one run per group or struct.
+    out
+        The run file to write (HDF5).
+    opts
+        How to read them: columns, units, delimiter, header rows (:class:`CsvImportOptions`).
+    force
+        Overwrite an existing ``out``.
+    pressure_pattern
+        A regular expression reading each file's nominal pressure off its name
+        (:func:`pressure_from_name`; ``--pressure-from-name``).
+    position_pattern
+        A regular expression reading each file's held contraction (mm, or % of
+        ``max_contraction_mm``) off its name: isometric records (``--position-from-name``).
+    max_contraction_mm
+        The muscle's maximum contraction, mm, for a pattern that reads a percentage.
+    halves
+        Split each record into an identification and a held-out half (:func:`split_halves`).
+    auto_frequency
+        Read each run's frequency off its position's spectrum (:func:`excitation_frequency`).
+    progress
+        Called as ``progress(path, run)`` after each file is read (``None``: silent).
+
+    Returns
+    -------
+    list of Run
+        The runs written, in canonical units (time s, position mm contraction positive,
+        force N tension positive, pressure MPa gauge).
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming the file and field or channel of the first mistake.
+    pmalab.errors.OutputError
+        ``out`` exists (without ``force``), or is one of the inputs.
     """
     from pmalab.paths import check_output
 

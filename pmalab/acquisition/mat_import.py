@@ -144,7 +144,29 @@ def _run_from_matrix(path: Path, name: str, var: str, m: np.ndarray, opts: CsvIm
 
 
 def read_mat_runs(path: str | Path, opts: CsvImportOptions) -> list[Run]:
-    """The runs of a .mat file (module doc for the layouts)."""
+    """The runs of a MATLAB file (v5 or v7.3; the module doc gives the layouts).
+
+    Parameters
+    ----------
+    path
+        The .mat file.
+    opts
+        Which variable is which channel, units, ``negate``, and for one matrix the names
+        of its columns (:class:`~pmalab.acquisition.csv_import.CsvImportOptions`).
+
+    Returns
+    -------
+    list of Run
+        One run per struct holding position and force vectors, else one run of the file's
+        vectors or matrix (named ``opts.run`` or the file's stem), in canonical units:
+        time s, position mm (contraction positive), force N (tension positive), pressure
+        MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming the file, struct or variable.
+    """
     path = Path(path)
     doc = _load(path)
     if not doc:

@@ -314,11 +314,41 @@ def run_protocol(
     force: bool = False,
     options: RunnerOptions | None = None,
 ) -> list[RunResult]:
-    """Run every run of ``protocol`` on ``rig`` and record them into ``out``.
+    """Run every run of ``protocol`` on ``rig`` and record them into ``out`` at its rate.
 
-    Refuses unsafe protocols (``ProtocolRefused``) and existing outputs without ``force``
-    before anything moves.  Raises :class:`SafetyAbort` (after venting and closing the file
-    with the aborted run's samples) on a trip, Ctrl-C, exception or device fault.
+    Unsafe protocols and existing outputs are refused before anything moves.  The samples
+    are written as they come (crash-proof: a killed run keeps what it recorded) with their
+    real time stamps; missed deadlines are recorded as gaps, never filled in.  Every exit
+    vents the regulators.
+
+    Parameters
+    ----------
+    rig
+        An open rig (:func:`pmalab.rig.loader.load_rig`), the simulated one or hardware.
+    protocol
+        The runs to play (:func:`pmalab.acquisition.protocol.load_protocol`).
+    out
+        The run file to write (HDF5).
+    force
+        Overwrite an existing ``out``.
+    options
+        Progress bar, extra attrs and the like (:class:`RunnerOptions`); ``None``: defaults.
+
+    Returns
+    -------
+    list of RunResult
+        One per run: its name, samples, timing (late and missed samples) and status.
+
+    Raises
+    ------
+    pmalab.acquisition.safety.ProtocolRefused
+        The protocol exceeds the rig's limits (nothing moved).
+    pmalab.errors.OutputExistsError
+        ``out`` exists and ``force`` is false.
+    pmalab.errors.SafetyAbort
+        A limit trip, Ctrl-C, an exception or a device fault: raised after venting and
+        closing the file with the aborted run's samples; its message states each vent's
+        outcome.
     """
     opts = options or RunnerOptions()
     try:

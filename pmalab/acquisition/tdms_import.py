@@ -86,7 +86,28 @@ def _values(path: Path, group: str, name: str, channel) -> np.ndarray:
 
 
 def read_tdms_runs(path: str | Path, opts: CsvImportOptions) -> list[Run]:
-    """Every group of a TDMS file as a run in canonical units (module doc)."""
+    """Every group of a TDMS file (with channels) as a run (the module doc says how).
+
+    Parameters
+    ----------
+    path
+        The TDMS file (NI LabVIEW/DIAdem).
+    opts
+        Which channel is which (by name), units where the channels' ``unit_string`` lacks
+        them, ``negate`` (:class:`~pmalab.acquisition.csv_import.CsvImportOptions`).
+
+    Returns
+    -------
+    list of Run
+        One run per group, named after it, in canonical units: time s (from the waveform
+        timing when there is no time channel), position mm (contraction positive), force N
+        (tension positive), pressure MPa gauge.
+
+    Raises
+    ------
+    pmalab.errors.RunFileError
+        One line naming the file, group and channel.
+    """
     path = Path(path)
     f = _open(path)
     groups = [g for g in f.groups() if len(g.channels()) > 0]

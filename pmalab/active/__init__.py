@@ -47,10 +47,37 @@ def diagnose(
 ) -> ActiveResult:
     """``pmalab diagnose CAMPAIGN --rig RIG --run-suggested`` from Python.
 
-    ``rig``: ``"sim"`` or a rig TOML path (or a recorder callable, see
-    :func:`~pmalab.active.loop.diagnose_active`); ``confirm(experiment, protocol_toml) ->
-    bool``: a lab's own confirmation dialog (None: run without asking).  With
-    ``run_suggested=False`` no experiment is run (one diagnosis, no rounds).
+    Diagnose the campaign; while the ranking is ambiguous, record the experiment that tells
+    the look-alikes apart on the rig, add it and diagnose again, within a rig-time budget.
+
+    Parameters
+    ----------
+    campaign
+        The campaign's run file (HDF5).
+    rig
+        ``"sim"``, a shipped rig's name or a rig TOML path, or a recorder callable (see
+        :func:`~pmalab.active.loop.diagnose_active`).
+    run_suggested
+        Record the suggested experiments; ``False``: one diagnosis, no rounds.
+    model
+        The base law id.
+    budget_s
+        The rig time the suggested experiments may use in total, s.
+    confirm
+        ``confirm(experiment, protocol_toml) -> bool``: a lab's own confirmation before
+        anything moves (``None``: run without asking).
+    max_rounds
+        The most experiments recorded.
+    seed
+        The simulated rig's sensor-noise seed (``None``: the rig file's).
+    **kwargs
+        The options of :func:`pmalab.identify.diagnosis.diagnose`.
+
+    Returns
+    -------
+    ActiveResult
+        The final diagnosis, the rounds run (each with its experiment, expected separation
+        and verdict), the rig time used and why the loop stopped.
     """
     from pmalab.active.loop import diagnose_active, protocol_duration, rig_recorder
 

@@ -122,7 +122,19 @@ def load(
 
 
 def split_roles(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:
-    """(identification, validation) by each run's ``role`` attr (missing: identification)."""
+    """Split a campaign by each run's ``role`` attr.
+
+    Parameters
+    ----------
+    runs
+        The runs, e.g. from :func:`load`.
+
+    Returns
+    -------
+    tuple of (list of Run, list of Run)
+        (identification, validation): the runs whose ``role`` is ``"validation"`` are held
+        out, every other run (a missing ``role`` included) identifies; order is kept.
+    """
     ident = [r for r in runs if r.attrs.get("role") != "validation"]
     val = [r for r in runs if r.attrs.get("role") == "validation"]
     return ident, val
@@ -348,6 +360,17 @@ class DiagnosisResult:
 
     @property
     def ranking(self):
+        """The candidate effects, best first.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``effect``; ``nrmse_before`` and ``nrmse_after`` (mean held-out nrmse
+            without and with the effect, dimensionless: RMS error / SD of the measured
+            force), ``fall_percent`` (positive = the error falls), ``gain_x_floor``,
+            ``n_params``, ``significant`` (the tool would tell you to add it) and
+            ``ambiguous``.
+        """
         import pandas as pd
 
         rows = [
@@ -362,6 +385,15 @@ class DiagnosisResult:
 
     @property
     def ladder(self):
+        """The ladder: the error as the significant effects are added one at a time.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``step`` (0 = the base model); ``model`` (law and effects in force),
+            ``added`` (the effect or law added at that step), ``nrmse`` (mean held-out
+            nrmse) and ``fit_percent`` (100·(1 − nrmse)).
+        """
         import pandas as pd
 
         rows = [
@@ -379,7 +411,14 @@ class DiagnosisResult:
 
     @property
     def worst(self):
-        """DataFrame of the runs, worst first: base-model rmse (N), nrmse, worst region."""
+        """The runs where the base model fails worst.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``run``, worst first; ``rmse_N`` (the base model's RMS force error, N),
+            ``nrmse`` and ``worst_region`` (where in the loop the error is largest).
+        """
         import pandas as pd
 
         from pmalab.identify.headline import worst_runs
@@ -399,6 +438,8 @@ class DiagnosisResult:
 
     @property
     def summary(self) -> str:
+        """The verdict sentence ``pmalab diagnose`` prints (base error against the noise
+        floor, the ladder, where the rest of the residual lies)."""
         return self.raw.summary
 
     def ranking_table(self) -> str:
@@ -408,11 +449,42 @@ class DiagnosisResult:
         return self.raw.ladder_table()
 
     def plot(self, path: str | Path | None = None):
-        """Ranking (held-out nrmse without/with each effect) and the ladder; the Figure."""
+        """Draw the ranking (held-out nrmse without and with each effect) and the ladder.
+
+        Parameters
+        ----------
+        path
+            Also save the figure there (PNG, PDF or SVG by the suffix); ``None``: only
+            return it.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The figure: the ranking's bars on the left, the ladder on the right.
+        """
         return self.raw.plot(path)
 
     def save(self, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
-        """Write ``diagnosis.json`` and ``predictions.h5`` into ``out_dir``."""
+        """Write ``diagnosis.json`` and ``predictions.h5``, as ``pmalab diagnose`` does.
+
+        Parameters
+        ----------
+        out_dir
+            The directory to write (made when missing).
+        force
+            Overwrite existing outputs; without it an existing file is refused and nothing
+            is written.
+
+        Returns
+        -------
+        tuple of (Path, Path)
+            The paths of ``diagnosis.json`` and ``predictions.h5``.
+
+        Raises
+        ------
+        pmalab.errors.OutputExistsError
+            An output exists and ``force`` is false.
+        """
         from pmalab.identify.diagnosis import write_outputs
 
         return write_outputs(self.raw, out_dir, force=force)

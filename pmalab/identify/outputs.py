@@ -490,7 +490,16 @@ def write_outputs(
 # --------------------------------------------------------------------------- the result
 @dataclass
 class Identification:
-    """Result of :func:`identify`: per-run fits, pressure quadratics, validation."""
+    """Result of :func:`~pmalab.identify.api.identify`: per-run fits, pressure quadratics,
+    validation.
+
+    The model is F = k·x + c0 + h (+ the effects' terms), F the tension in N (positive
+    pulls), x the contraction in mm (positive = shorter than nominal), h the hysteresis
+    law's state in N; every parameter θ is fitted per run and then as a quadratic in the
+    nominal muscle pressure p (MPa gauge): θ(p) = q0 + q1·p + q2·p².
+    Tables: :attr:`parameters`, :attr:`pressure_table`, :attr:`validation_table`;
+    figures: :meth:`plot_loops`; files: :meth:`save`.
+    """
 
     campaign: CampaignFit
     runs: list[Run]
@@ -507,22 +516,60 @@ class Identification:
     # ---- model
     @property
     def model(self) -> ForceModel:
+        """The force model identified: the hysteresis law and the effects added to it."""
         return self.campaign.model
 
     @property
     def warnings(self) -> list[str]:
+        """Every warning of the identification and the validation, one line each."""
         return list(self.campaign.warnings) + list(self.validation_warnings)
 
     def theta(self, p_MPa: float) -> dict[str, float]:
-        """Parameters at nominal pressure ``p_MPa`` from the quadratics."""
+        """The parameters at a nominal muscle pressure, from the pressure quadratics.
+
+        Parameters
+        ----------
+        p_MPa
+            Nominal muscle pressure, MPa gauge (extrapolating outside the identified
+            pressures is unreliable).
+
+        Returns
+        -------
+        dict of str to float
+            θ(p) = q0 + q1·p + q2·p² per parameter name, in the parameter's own unit
+            (``k`` N/mm, ``c0`` N, a law's shape parameters as the law states them).
+        """
         return self.campaign.theta(p_MPa)
 
     def predict(self, run: Run, p_MPa: float | None = None) -> np.ndarray:
-        """Free-run force prediction (N) of any run from its position and pressure."""
+        """The model's free-run force on any run, driven by its position and pressure.
+
+        Parameters
+        ----------
+        run
+            A run (identification, held-out or new) in canonical units.
+        p_MPa
+            The nominal pressure whose parameters are used, MPa gauge; ``None``: the run's
+            own nominal pressure.
+
+        Returns
+        -------
+        numpy.ndarray
+            The predicted tension, N (positive pulls), one value per sample of ``run``; the
+            record's own states (initial h, an effect's nuisances) are estimated on it with
+            every muscle parameter held.
+        """
         return self.campaign.predict(run, p_MPa, initial=self.initial)
 
     def quadratic_predictions(self) -> list[tuple[np.ndarray, dict]]:
-        """(force N, metrics) of the pressure-quadratic model on each identification run."""
+        """The pressure-quadratic model's prediction of each identification run.
+
+        Returns
+        -------
+        list of (numpy.ndarray, dict)
+            Per identification run, in order: the predicted tension (N) and its metrics
+            (``rmse`` N, ``nrmse``, ``fit_percent``, ...), computed once and kept.
+        """
         cache = getattr(self, "_quad_cache", None)
         if cache is None:
             cache = []
@@ -534,7 +581,20 @@ class Identification:
         return cache
 
     def validate(self, runs: Iterable[Run]) -> list[Validation]:
-        """Predict held-out runs and add them to :attr:`validation`."""
+        """Predict held-out runs with the pressure-quadratic model.
+
+        Parameters
+        ----------
+        runs
+            The held-out runs (never used in the fit).
+
+        Returns
+        -------
+        list of Validation
+            One per run: its free-run prediction (N) and metrics (``nrmse`` = RMS error /
+            SD of the measured force); they are also appended to :attr:`validation`, and
+            any warning (extrapolation, divergence) to :attr:`warnings`.
+        """
         new, warns = validate_runs(self.campaign, runs, self.initial)
         self.validation.extend(new)
         self.validation_warnings.extend(warns)
@@ -543,7 +603,15 @@ class Identification:
     # ---- tables (pandas, imported lazily)
     @property
     def parameters(self):
-        """DataFrame: one row per identification run, parameters, fit % and stderr."""
+        """One row per identification run: its own fitted parameters.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``run``; ``p_MPa`` (nominal pressure, MPa gauge), ``f_Hz``,
+            ``fit_percent``, ``nrmse``, each parameter and its standard error
+            (``<name>_stderr``), in the parameter's unit.
+        """
         import pandas as pd
 
         rows = []
@@ -563,9 +631,16 @@ class Identification:
 
     @property
     def pressure_table(self):
-        """DataFrame: q0, q1, q2, order and R² per parameter (θ(p) = q0 + q1·p + q2·p², p in
-        MPa; ``method`` "joint" = refined on all runs at once, see
-        :mod:`pmalab.identify.estimation.joint`)."""
+        """The pressure quadratics θ(p) = q0 + q1·p + q2·p², p in MPa gauge.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``parameter``; ``q0``, ``q1``, ``q2`` (units: the parameter's, per MPa,
+            per MPa²), ``degree`` (0–2: reduced with fewer pressure levels), ``r2`` and
+            ``method`` ("joint" = refined on all runs at once,
+            :mod:`pmalab.identify.estimation.joint`).
+        """
         import pandas as pd
 
         return pd.DataFrame(
@@ -585,7 +660,16 @@ class Identification:
 
     @property
     def validation_table(self):
-        """DataFrame: validation metrics per held-out run."""
+        """The validation metrics of each held-out run.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Index ``run``; ``p_MPa``, ``f_Hz``, ``status``, ``fit_percent``, ``nrmse``,
+            ``rmse_N``, ``max_error_N``, ``energy_error_percent`` (loop area, model vs
+            measured), ``stretch_rmse_N`` and ``release_rmse_N`` (per loop branch); empty
+            without validation runs.
+        """
         import pandas as pd
 
         rows = []
@@ -610,10 +694,19 @@ class Identification:
 
     # ---- plots (matplotlib only)
     def plot_loops(self, which: str = "all", ncols: int = 3):
-        """Measured (wide grey band) vs model (thin blue line over it) force–position loops;
-        returns the Figure.
+        """Force–position loops: measured (wide grey band) and model (thin blue line).
 
-        ``which``: ``"identification"``, ``"validation"`` or ``"all"``.
+        Parameters
+        ----------
+        which
+            ``"identification"``, ``"validation"`` or ``"all"`` runs.
+        ncols
+            Panels per row.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            One panel per run: tension F (N) against contraction x (mm), with its fit %.
         """
         import matplotlib.pyplot as plt
 
@@ -685,7 +778,26 @@ class Identification:
 
     # ---- output
     def save(self, out_dir: str | Path, force: bool = False) -> tuple[Path, Path]:
-        """Write ``identification.json`` and ``predictions.h5`` into ``out_dir``."""
+        """Write ``identification.json`` and ``predictions.h5``, as ``pmalab identify`` does.
+
+        Parameters
+        ----------
+        out_dir
+            The directory to write (made when missing).
+        force
+            Overwrite existing outputs; without it an existing file is refused and nothing
+            is written.
+
+        Returns
+        -------
+        tuple of (Path, Path)
+            The paths of ``identification.json`` and ``predictions.h5``.
+
+        Raises
+        ------
+        pmalab.errors.OutputExistsError
+            An output exists and ``force`` is false.
+        """
         return write_outputs(self, out_dir, force=force)
 
     def __repr__(self) -> str:

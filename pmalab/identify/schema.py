@@ -3,8 +3,8 @@
 ``identification.json`` (:class:`IdentificationDoc`, written by
 :func:`pmalab.identify.outputs.identification_dict`), ``diagnosis.json``
 (:class:`DiagnosisDoc`, :meth:`pmalab.identify.diagnosis.diagnose.Diagnosis.to_json`),
-``predictions.h5`` (:class:`PredictionsDoc`, :func:`pmalab.identify.predictions.
-write_predictions_file`) and a control run's ``summary`` (:class:`ControlSummary`,
+``predictions.h5`` (:class:`PredictionsDoc`,
+:func:`pmalab.identify.predictions.write_predictions_file`) and a control run's ``summary`` (:class:`ControlSummary`,
 :func:`pmalab.control.record.run_summary`).  docs/reference/json.md describes the keys.
 
 The TypedDicts are the single source: :func:`check` derives every test from their
@@ -267,6 +267,23 @@ class StructureCandidate(TypedDict):
     reason: NotRequired[str]
 
 
+class StructurePrior(TypedDict):
+    """The prior an element law's structure was fitted with (smoothness over a threshold
+    grid, or shrinkage of the element corrections), its strength chosen by
+    leave-one-pressure-out evidence."""
+
+    #: what is penalised, in words
+    prior: str
+    criterion: str
+    #: strengths λ tried (dimensionless: the penalty's share of the data cost per unit mean
+    #: square of the penalised quantity) and the RMS held-out nrmse of each
+    strengths: list[float]
+    heldout_nrmse: list[float]
+    #: the strength kept (0: no prior)
+    chosen_strength: float
+    note: NotRequired[str]
+
+
 class PressureStructure(TypedDict):
     """``identification.json`` ``pressure_structure``: how an element law's elements change
     with pressure, chosen by held-out evidence across pressure."""
@@ -280,6 +297,8 @@ class PressureStructure(TypedDict):
     #: the interior pressure levels left out in turn, MPa
     levels_left_out_MPa: list[float]
     candidates: list[StructureCandidate]
+    #: structure → the prior its fit was given (when one was tried)
+    priors: NotRequired[dict[str, StructurePrior]]
 
 
 class IdentificationDoc(TypedDict):

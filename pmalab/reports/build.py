@@ -726,17 +726,40 @@ def build_report(
     jobs: int | None = None,
     start_method: str | None = None,
 ) -> Path:
-    """Render the report of a result directory (or of several merged: e.g. an identify
-    output and a diagnose output) into the PDF ``out`` and return its path.
+    """Render the report of result directories into one PDF (``pmalab report``).
 
-    ``png_dir``/``svg_dir`` also export every page as ``NN-<slug>.png``/``.svg``.
-    ``progress`` receives one line per page written (``pmalab report -v`` prints them);
-    ``bar`` draws a progress bar on stderr (the CLI's default on a terminal).
-    ``jobs`` worker processes render the pages (default: the CPUs this process may use;
-    1 renders in this process); ``start_method`` picks the multiprocessing start method
-    (default: the platform's).  The PDF's pages are the same either way.
-    Raises :class:`ReportError` (bad directory/contents) or
-    :class:`~pmalab.errors.OutputExistsError` (``out`` exists and not ``force``).
+    Parameters
+    ----------
+    directory
+        A result directory, or several merged (e.g. the base identification, the improved
+        one and the diagnosis: drawn side by side on one error scale).
+    out
+        The PDF to write.
+    force
+        Overwrite existing outputs.
+    png_dir, svg_dir
+        Also export every page as ``NN-<slug>.png`` / ``.svg`` there.
+    progress
+        Receives one line per page written (``pmalab report -v`` prints them).
+    bar
+        Draw a progress bar on stderr (the CLI's default on a terminal).
+    jobs
+        Worker processes rendering the pages (default: the CPUs this process may use; 1
+        renders in this process).  The PDF's pages are the same either way.
+    start_method
+        The multiprocessing start method (default: the platform's).
+
+    Returns
+    -------
+    Path
+        The PDF written.
+
+    Raises
+    ------
+    pmalab.reports.errors.ReportError
+        A directory that is not a result directory, or contents the report cannot read.
+    pmalab.errors.OutputExistsError
+        ``out`` exists and ``force`` is false.
     """
     out = Path(out)
     if out.suffix.lower() != ".pdf":

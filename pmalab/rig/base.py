@@ -142,14 +142,39 @@ class Block:
         return int(self.time.shape[0])
 
     def column(self, name: str) -> np.ndarray:
-        """The samples of channel ``name`` (a named field or an ``extra`` one)."""
+        """The samples of one channel.
+
+        Parameters
+        ----------
+        name
+            A named field (``position``, ``force``, ...) or a channel in ``extra``.
+
+        Returns
+        -------
+        numpy.ndarray
+            Its samples, in the channel's unit (position mm contraction positive, force N
+            tension positive, pressures MPa gauge, or as the rig declares it).
+        """
         col = self.extra.get(name)
         return col if col is not None else getattr(self, name)
 
     @classmethod
     def of(cls, time: np.ndarray, columns: dict[str, np.ndarray]) -> Block:
-        """A block of any declared channels: ``columns`` by name (missing single-muscle
-        fields are zeros, never read by a loop that iterates the declaration)."""
+        """A block of any declared channels.
+
+        Parameters
+        ----------
+        time
+            Each sample's timestamp on the rig's clock, s.
+        columns
+            The channels by name; the single-muscle fields it lacks are zeros (never read
+            by a loop that iterates the rig's declaration), the rest go to ``extra``.
+
+        Returns
+        -------
+        Block
+            The block.
+        """
         z = np.zeros_like(time)
         named = ("position", "force", "muscle_pressure", "cylinder_pressure")
         return cls(
@@ -186,7 +211,12 @@ PHYSICAL_LIMITS = {
 
 @dataclass
 class Limits:
-    """Safety limits enforced by the runner on every sample (from the rig file)."""
+    """Safety limits enforced by the runner on every sample (from the rig file).
+
+    A sample beyond any of them aborts the run: the runner vents the regulators and closes
+    the file with the samples so far.  Pressures are MPa gauge, force N (tension), position
+    mm (contraction positive; a negative minimum allows a little stretch past nominal).
+    """
 
     max_muscle_pressure_MPa: float = 0.6
     max_cylinder_pressure_MPa: float = 0.9
@@ -195,8 +225,26 @@ class Limits:
     max_position_mm: float = 35.0
 
     def updated(self, table: Any, where: str) -> Limits:
-        """A copy with the fields of a rig file's ``[limits]`` table; one-line
-        :class:`~pmalab.errors.ConfigError` naming ``where`` and the field."""
+        """A copy with the fields of a rig file's ``[limits]`` table.
+
+        Parameters
+        ----------
+        table
+            The ``[limits]`` table (field → number, in the fields' units).
+        where
+            The file, named in any error.
+
+        Returns
+        -------
+        Limits
+            The limits, each checked: a number, > 0 where it must be, min < max, and
+            within :data:`PHYSICAL_LIMITS` (beyond is a unit mistake).
+
+        Raises
+        ------
+        pmalab.errors.ConfigError
+            One line naming ``where`` and the field.
+        """
         if not isinstance(table, dict):
             raise ConfigError(f"{where}: limits: must be a table")
         names = {f.name for f in dataclasses.fields(Limits)}
@@ -304,7 +352,18 @@ class VentReport:
         return not self.failed
 
     def merged(self, later: VentReport) -> VentReport:
-        """Per regulator, the confirmed one of two attempts (else the later)."""
+        """Combine two vent attempts (e.g. the abort's and the closing one).
+
+        Parameters
+        ----------
+        later
+            The later attempt.
+
+        Returns
+        -------
+        VentReport
+            Per regulator, the confirmed one of the two outcomes, else the later.
+        """
 
         def pick(a: VentResult, b: VentResult) -> VentResult:
             return a if a.ok and not b.ok else b
@@ -314,7 +373,15 @@ class VentReport:
         )
 
     def line(self) -> str:
-        """Every regulator's outcome, ``; ``-separated (one line)."""
+        """Every regulator's outcome in words, ``; ``-separated.
+
+        Returns
+        -------
+        str
+            One line, e.g. ``cylinder regulator vented (confirmed: ...); muscle regulator
+            is manual and NOT vented by software: ...``; a failed vent names what the
+            operator must do.
+        """
         return "; ".join(vent_phrase(role, r) for role, r in self.items)
 
 
@@ -368,9 +435,17 @@ class Sampler(ABC):
     rate_range_Hz: tuple[float, float] | None = None
 
     def configure(self, rate_Hz: float) -> None:  # noqa: B027 - optional hook
-        """Set the rate (Hz) the next :meth:`start` samples at: the runner calls this with
-        the protocol's rate before starting (a hardware-timed sampler programs its sample
-        clock; a software-polled one is paced by the runner and may ignore it)."""
+        """Set the rate the next :meth:`start` samples at.
+
+        The runner calls this with the protocol's rate before starting: a hardware-timed
+        sampler programs its sample clock; a software-polled one is paced by the runner and
+        may ignore it.
+
+        Parameters
+        ----------
+        rate_Hz
+            The sample rate, Hz (500 for pmalab's protocols).
+        """
 
     def start(self) -> None:  # noqa: B027 - optional hook
         """Begin acquisition (hardware-timed samplers start their clock here)."""
@@ -384,7 +459,18 @@ class Sampler(ABC):
 
         Software-polled samplers take one sample now and return a block of one;
         hardware-timed samplers wait for and return what the device has buffered.
-        Raise :class:`pmalab.errors.RigError` on a device fault that retries did not fix.
+
+        Returns
+        -------
+        Block
+            The samples in engineering units (calibrated): time s on the rig's clock,
+            position mm (contraction positive), force N (tension positive), pressures MPa
+            gauge.
+
+        Raises
+        ------
+        pmalab.errors.RigError
+            A device fault that retries did not fix (the runner then vents and aborts).
         """
 
 
@@ -395,23 +481,40 @@ class PressureRegulator(ABC):
 
     @abstractmethod
     def set_pressure(self, mpa: float) -> None:
-        """Command a gauge pressure in MPa (0 ≤ mpa ≤ ``max_pressure_MPa``)."""
+        """Command a pressure.
+
+        Parameters
+        ----------
+        mpa
+            The gauge pressure, MPa, 0 ≤ ``mpa`` ≤ ``max_pressure_MPa`` (the runner checks
+            the rig's limits before commanding).
+        """
 
     @abstractmethod
     def vent(self) -> VentResult:
         """Command zero pressure and say whether the device confirmed it.
 
-        Must never raise (it is called on every exit path): a fault is a
-        :meth:`VentResult.failed` naming the reason.  Confirmed means the device
-        acknowledged the command, and read it back as zero where it can.
+        Must never raise (it is called on every exit path).
+
+        Returns
+        -------
+        VentResult
+            :meth:`VentResult.confirmed` when the device acknowledged the command (and
+            read it back as zero where it can), else :meth:`VentResult.failed` naming the
+            reason.
         """
 
     def start_vent(self) -> VentConfirm:
-        """Command zero now; return the confirmation, which may wait for a read-back.
+        """Command zero now; confirm later.
 
         :meth:`Rig.vent` commands every regulator before confirming any, so a slow
         confirmation (an ITV's output falling) never delays the other regulator's vent.
         Drivers whose confirmation waits override this; the default vents at once.
+
+        Returns
+        -------
+        VentConfirm
+            A callable returning the :class:`VentResult` (it may wait for a read-back).
         """
         res = self.vent()
         return lambda: res
@@ -426,17 +529,38 @@ class MusclePressureSupply(ABC):
 
     @abstractmethod
     def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
-        """Ask for ``mpa`` MPa: set it (automatic) or prompt the operator (manual)."""
+        """Ask for a muscle pressure: set it (automatic) or prompt the operator (manual).
+
+        Parameters
+        ----------
+        mpa
+            The gauge pressure, MPa.
+        prompt
+            Shows the operator's instruction for a manual regulator (``None``: the
+            supply's own way, if any); an automatic supply ignores it.
+        """
 
     def vent(self) -> VentResult:
-        """Vent the muscle (automatic supplies override this); a manual regulator cannot
-        be vented by software, which the result says (the operator must)."""
+        """Vent the muscle (automatic supplies override this).
+
+        Returns
+        -------
+        VentResult
+            For a manual regulator :meth:`VentResult.manual`: software cannot vent it and
+            the operator must (every message says so).
+        """
         if self.automatic:
             return VentResult.failed(f"{type(self).__name__} has no vent")
         return VentResult.manual()
 
     def start_vent(self) -> VentConfirm:
-        """Command zero now, confirm later (see :meth:`PressureRegulator.start_vent`)."""
+        """Command zero now, confirm later (see :meth:`PressureRegulator.start_vent`).
+
+        Returns
+        -------
+        VentConfirm
+            A callable returning the :class:`VentResult`.
+        """
         res = self.vent()
         return lambda: res
 
@@ -499,8 +623,13 @@ class Rig(RigDevices):
         """Vent the cylinder regulator first (it moves the load), then the muscle supply;
         only then wait for their confirmations.
 
-        Never raises; the muscle is vented even when the cylinder's vent failed.  The
-        report is also kept in :attr:`last_vent`.
+        Never raises; the muscle is vented even when the cylinder's vent failed.
+
+        Returns
+        -------
+        VentReport
+            Each regulator's outcome (confirmed, failed or manual), also kept in
+            :attr:`last_vent`.
         """
         cyl = start_vent_safely(self.cylinder_regulator, "cylinder regulator")
         mus = start_vent_safely(self.muscle_supply, "muscle supply")
@@ -508,8 +637,14 @@ class Rig(RigDevices):
         return self.last_vent
 
     def close(self) -> VentReport:
-        """Vent everything (outcome also in :attr:`last_vent`) and release the devices
-        (:meth:`RigDevices.close`)."""
+        """Vent everything and release the devices (:meth:`RigDevices.close`).
+
+        Returns
+        -------
+        VentReport
+            The vent's outcome (also in :attr:`last_vent`); a failed vent is reported,
+            never raised.
+        """
         return super().close()
 
     def __enter__(self) -> Rig:

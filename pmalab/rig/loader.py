@@ -222,13 +222,34 @@ def load_rig(
     host: str | None = None,
     port: int | None = None,
 ) -> Rig:
-    """A rig from ``"sim"`` (the default simulated rig) or a rig TOML path.
+    """A rig from ``"sim"``, a shipped rig's name or a rig TOML path.
 
-    ``seed`` (simulated rigs: the sensor-noise seed) overrides the rig file's ``seed``;
-    ``None`` keeps the file's (default 0).  ``host``/``port`` replace a network rig's
-    endpoint (``pmalab run --host/--port``, e.g. the port ``pmalab emulate --port`` uses).
+    Parameters
+    ----------
+    spec
+        ``"sim"`` (the default simulated rig), the name of a shipped rig file
+        (``"sim-viscous-friction"``, ``"labjack-t7"``, ...) or the path of a rig TOML file.
+    seed
+        Simulated rigs: the sensor-noise seed, an integer ≥ 0, overriding the rig file's
+        ``seed``; ``None`` keeps the file's (default 0).
+    clock
+        The clock the rig runs on; ``None``: a simulated rig's virtual clock (faster than
+        real time), the wall clock for hardware.
+    host, port
+        Replace a network rig's endpoint (``pmalab run --host/--port``, e.g. the port
+        ``pmalab emulate --port`` uses).
 
-    Unknown kinds and bad fields raise a one-line :class:`ConfigError` naming file and field.
+    Returns
+    -------
+    Rig
+        The rig; use it as a context manager (``with load_rig(...) as rig:``): leaving it
+        vents the regulators and closes the devices.
+
+    Raises
+    ------
+    pmalab.errors.ConfigError
+        One line naming file and field: an unknown name or kind (listing the shipped
+        choices), a bad field, an implausible calibration.
     """
     override = host is not None or port is not None
     if str(spec) == "sim":

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pmalab.identify.schema import PressureStructure, StructureCandidate
+from pmalab.identify.schema import PressureStructure, StructureCandidate, StructurePrior
 from pmalab.runfile import Run
 
 #: a structure with fewer parameters wins unless a richer one's LOPO score is lower by more
@@ -64,6 +64,8 @@ class StructureChoice:
     per_run: dict[str, list[float]] = field(default_factory=dict)
     #: structures whose fits failed → reason
     failed: dict[str, str] = field(default_factory=dict)
+    #: structure → the prior its fit was given (strength chosen by the same evidence)
+    priors: dict[str, Prior] = field(default_factory=dict)
 
     @property
     def margin_percent(self) -> float:
@@ -85,7 +87,7 @@ class StructureChoice:
             if s in self.failed:
                 c["status"], c["reason"] = "failed", self.failed[s]
             cands.append(c)
-        return PressureStructure(
+        out = PressureStructure(
             law=self.law,
             chosen=self.chosen,
             criterion=self.criterion,
@@ -93,6 +95,9 @@ class StructureChoice:
             levels_left_out_MPa=list(self.folds),
             candidates=cands,
         )
+        if self.priors:
+            out["priors"] = {k: v.as_json() for k, v in self.priors.items()}
+        return out
 
     def summary(self) -> str:
         """One line: the winner, its score and its margin."""
@@ -101,6 +106,8 @@ class StructureChoice:
             for s, v in sorted(self.scores.items(), key=lambda kv: kv[1])
         )
         tail = "" if self.chosen == "free" else "; its pressure laws replace the free ones"
+        if self.chosen in self.priors:
+            tail += f"; {self.priors[self.chosen].what}: {self.priors[self.chosen].summary()}"
         return (
             f"{self.law}: pressure structure '{self.chosen}' chosen by leave-one-pressure-out "
             f"held-out nrmse ({cands}; margin {self.margin_percent:.1f} %){tail}"
@@ -175,6 +182,8 @@ def choose_structure(
         return None
     thetas = [cf.theta(rf.p_nom) for rf in cf.runs]
     kappa, delta = profile(law, thetas)
+    if not d_names:  # a threshold grid: zero shares between used elements may grow back
+        kappa = revive(kappa)
     cands = ["free", *law.structures] if structure == "auto" else [structure]
     models = {
         s: ForceModel(structured_law(law, s, kappa, delta), cf.model.effects)
@@ -197,6 +206,13 @@ def choose_structure(
             joints[s] = _joint_structured(cf, runs, m, thetas)
         except (ValueError, np.linalg.LinAlgError) as exc:  # reported, never fatal
             choice.failed[s] = str(exc)
+    for s, j in list(joints.items()):
+        rows = prior_rows(j, law, models[s].law if s in models else law, s)
+        got = apply_prior(j, rows)
+        if got is not None:
+            choice.priors[s], joints[s] = got
+    for j in joints.values():  # the influence machinery's problem and Jacobian: done
+        j.problem = j.z = j.jac = None
     if structure == "auto":
         for s, j in joints.items():
             labels = [rf.label for rf in cf.runs if rf.label in j.lopo]
@@ -213,10 +229,16 @@ def choose_structure(
 
         raise PmalabError(f"--structure {structure}: the fit failed ({choice.failed[structure]})")
     cf.structure = choice
-    if choice.chosen != "free":
-        sm = models[choice.chosen]
+    prior = choice.priors.get(choice.chosen)
+    if choice.chosen != "free" or (prior is not None and prior.chosen > 0):
         js = joints[choice.chosen]
-        coefs = base_laws(law, sm.law, js.coef)  # type: ignore[arg-type]
+        coefs = (
+            base_laws(law, models[choice.chosen].law, js.coef)  # type: ignore[arg-type]
+            if choice.chosen != "free"
+            else {}
+        )
+        if choice.chosen == "free":
+            cf.joint = js  # the free laws with their prior
         new = dict(cf.pressure)
         for n, pf in cf.pressure.items():
             if n in coefs:
@@ -235,7 +257,8 @@ def choose_structure(
                 degree=int(d),
                 r2=r2,
                 residuals=resid,
-                method=f"structure:{choice.chosen}",
+                method=f"structure:{choice.chosen}"
+                + (f"+prior:{prior.chosen:g}" if prior is not None and prior.chosen > 0 else ""),
             )
         cf.pressure = new
     cf.warnings.append(
@@ -301,3 +324,230 @@ def _joint_structured(cf, runs: Sequence[Run], model, thetas: Sequence[Mapping[s
         max_nfev=CANDIDATE_NFEV,
     )
     return fit
+
+
+# --------------------------------------------------------------------------- priors
+#: strengths λ of an element law's prior (the penalty's share of the joint fit's data cost
+#: per unit mean square of the penalised quantity), tried in turn; 0 is the unpenalised fit
+PRIOR_GRID = (0.0, 0.03, 0.3, 3.0, 30.0)
+#: a revived element (a grid element the free fit left at zero between used ones) starts at
+#: this share of the largest, so the joint fit (and the prior) can grow it
+REVIVE_SHARE = 0.02
+#: a kept penalised step is checked by one evaluation: its data cost may exceed the linear
+#: prediction by at most this factor, else the prior is not applied
+STEP_COST_RATIO = 1.25
+
+
+@dataclass
+class Prior:
+    """An element law's prior on one structure's fit, its strength chosen by the same
+    leave-one-pressure-out evidence as the structure."""
+
+    #: what is penalised (words)
+    what: str
+    #: strengths tried, and the RMS held-out nrmse of each
+    strengths: list[float]
+    scores: list[float]
+    #: the strength kept (0: no prior)
+    chosen: float
+    #: why a chosen strength was not applied, or ""
+    note: str = ""
+
+    def as_json(self) -> StructurePrior:
+        out = StructurePrior(
+            prior=self.what,
+            criterion="leave-one-pressure-out held-out nrmse",
+            strengths=list(self.strengths),
+            heldout_nrmse=list(self.scores),
+            chosen_strength=self.chosen,
+        )
+        if self.note:
+            out["note"] = self.note
+        return out
+
+    def summary(self) -> str:
+        i = self.strengths.index(self.chosen) if self.chosen in self.strengths else 0
+        return f"prior λ = {self.chosen:g} ({self.scores[i]:.4f}; λ = 0: {self.scores[0]:.4f})" + (
+            f" — {self.note}" if self.note else ""
+        )
+
+
+def revive(kappa: np.ndarray) -> np.ndarray:
+    """The profile with every zero share between the first and last non-zero ones raised
+    to ``REVIVE_SHARE`` of the largest (a free fit's zero in the middle of a threshold grid
+    is a fit's choice among neighbours, not evidence that the element is absent)."""
+    k = np.array(kappa, dtype=np.float64)
+    nz = np.flatnonzero(k > 0)
+    if nz.size < 2:
+        return k
+    a, b = int(nz[0]), int(nz[-1])
+    mid = k[a : b + 1]
+    mid[mid <= 0] = REVIVE_SHARE * float(k.max())
+    return k
+
+
+def prior_rows(j, base, law, structure: str):
+    """(what, g(z), D) of ``structure``'s prior, or None: the penalty is ‖D·g(z)‖ (g linear
+    in the fit's coefficients z).
+
+    * a threshold grid (Prandtl-Ishlinskii), ``scaled``: the stiffness profile g_i = κ_i·c_i
+      ÷ its mean over the used span, D its second difference over the grid — smooth in
+      threshold;
+    * a threshold grid, ``free``: every pressure-law coefficient (Legendre order 0, 1, 2) of
+      the weights over the used span ÷ the order-0 mean, D the second difference — smooth
+      in threshold at every order of pressure;
+    * free elements (Maxwell-slip), a profile structure: the corrections c_i − 1 and
+      r_i − 1, D the identity — shrunk toward the pooled profile.
+    """
+    prob, z0 = j.problem, j.z
+    if prob is None or z0 is None:
+        return None
+    k_names, d_names = base.element_names()
+    if structure == "free":
+        if d_names:
+            return None
+        names = [n for n in k_names if n in prob.slices]
+        if len(names) < 4:
+            return None
+        order0 = np.array([z0[prob.slices[n].start] for n in names])
+        nz = np.flatnonzero(np.abs(order0) > 0)
+        if nz.size < 4:
+            return None
+        a, b = int(nz[0]), int(nz[-1]) + 1
+        names = names[a:b]
+        scale = float(np.mean(np.abs(order0[a:b]))) or 1.0
+        top = max(prob.degree[n] for n in names)
+
+        def g_free(z: np.ndarray) -> np.ndarray:
+            out = []
+            for o in range(top + 1):
+                out.extend(
+                    z[prob.slices[n].start + o] / scale if prob.degree[n] >= o else 0.0
+                    for n in names
+                )
+            return np.asarray(out, dtype=np.float64)
+
+        m = len(names)
+        D1 = np.diff(np.eye(m), n=2, axis=0)
+        D = np.kron(np.eye(top + 1), D1)
+        return "second difference over the threshold grid of every weight's pressure law", g_free, D
+    if d_names:  # free elements: shrink the corrections toward the pooled profile
+        pars = [f"c{i + 1}" for i in law.c_index] + [f"r{i + 1}" for i in law.r_index]
+        pars = [n for n in pars if n in prob.slices]
+        if not pars:
+            return None
+
+        def g_ms(z: np.ndarray) -> np.ndarray:
+            th = prob.thetas(z)[0]
+            return np.array([th[n] - 1.0 for n in pars])
+
+        return (
+            "shrinkage of the element corrections toward the pooled profile",
+            g_ms,
+            np.eye(len(pars)),
+        )
+    nz = np.flatnonzero(np.asarray(law.kappa) > 0)
+    if nz.size < 4 or not all(f"c{i + 1}" in prob.slices for i in law.c_index):
+        return None
+    a, b = int(nz[0]), int(nz[-1]) + 1
+    th0 = prob.thetas(z0)[0]
+    gbar = float(np.mean((np.asarray(law.kappa) * law.corrections(th0)[0])[a:b])) or 1.0
+
+    def g_scaled(z: np.ndarray) -> np.ndarray:
+        c, _ = law.corrections(prob.thetas(z)[0])
+        return (np.asarray(law.kappa) * c)[a:b] / gbar
+
+    return (
+        "second difference of the stiffness profile over the threshold grid",
+        g_scaled,
+        np.diff(np.eye(b - a), n=2, axis=0),
+    )
+
+
+def penalised_step(j, rows, lam: float) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+    """One Gauss–Newton step of ``j``'s problem with the prior ``rows`` at strength ``lam``
+    from its unpenalised solution: (Δz, the linearised residual there, the leave-one-
+    pressure-out nrmse per run with the prior kept in every fold).  λ = 0: no step, ``j``'s
+    own LOPO evidence."""
+    from pmalab.identify.estimation.joint import approx_lopo
+
+    prob, z0, J = j.problem, j.z, j.jac
+    r0 = prob.residual(z0)
+    if lam == 0.0:
+        return np.zeros_like(z0), r0, dict(j.lopo)
+    _, g_of, D = rows
+    g0 = g_of(z0)
+    G = np.zeros((g0.size, z0.size))
+    h = 1e-6
+    for col in range(prob.n_coef):  # g is linear in the coefficients
+        dz = np.zeros_like(z0)
+        dz[col] = h
+        G[:, col] = (g_of(z0 + dz) - g0) / h
+    w = np.sqrt(lam / max(D.shape[0], 1)) * float(np.linalg.norm(r0))
+    M = w * (D @ G)
+    p0 = w * (D @ g0)
+    A = J.T @ J + M.T @ M
+    bb = J.T @ r0 + M.T @ p0
+    d = np.sqrt(np.maximum(np.diag(A), 0.0))
+    d = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    dz = -d * np.linalg.lstsq(A * d[:, None] * d[None, :], bb * d, rcond=1e-12)[0]
+    r = r0 + J @ dz
+    return dz, r, approx_lopo(prob, z0 + dz, J, r=r, prior=(M, p0 + M @ dz))
+
+
+def apply_prior(j, rows) -> tuple[Prior, object] | None:
+    """Choose the strength of the prior ``rows`` (:func:`prior_rows`) on the joint fit ``j``
+    (refined with ``lopo``); returns (the choice, the joint fit to keep: ``j`` itself, or
+    ``j`` stepped to the penalised solution), or None.
+
+    The penalty rows are √(λ/n)·‖r‖·D·g(z): roughness costs λ times the data cost per unit
+    mean square of D·g.  Each λ is one Gauss–Newton step of the penalised problem from the
+    unpenalised solution (g is linear in the coefficients), scored by :func:`approx_lopo`
+    with the prior kept in every fold; the lowest score wins unless it is within
+    ``SIMPLER_WITHIN`` of λ = 0.  The kept step is checked by one evaluation (see
+    ``STEP_COST_RATIO``)."""
+    from dataclasses import replace
+
+    prob, z0, J = j.problem, j.z, j.jac
+    if prob is None or z0 is None or J is None or not j.lopo or rows is None:
+        return None
+    what = rows[0]
+    steps = [penalised_step(j, rows, lam) for lam in PRIOR_GRID]
+    labels = list(j.lopo)
+    scores: list[float] = []
+    for _, _, lo in steps:
+        vals = [lo[lb] for lb in labels if lb in lo]
+        scores.append(float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan"))
+    if not np.isfinite(scores[0]):
+        return None
+    ok = [i for i, v in enumerate(scores) if np.isfinite(v)]
+    best = min(ok, key=lambda i: scores[i])
+    if scores[best] > scores[0] * (1.0 - SIMPLER_WITHIN):
+        best = 0
+    pr = Prior(what, list(PRIOR_GRID), scores, PRIOR_GRID[best])
+    if best == 0:
+        return pr, j
+    dz, r_lin, lo = steps[best]
+    lo_b, hi_b = prob.z_bounds()
+    z = np.clip(z0 + dz, lo_b, hi_b)
+    with np.errstate(all="ignore"):
+        r = prob.residual(z)
+    if not np.all(np.isfinite(r)) or float(r @ r) > STEP_COST_RATIO * float(r_lin @ r_lin):
+        pr.note = (
+            f"λ = {PRIOR_GRID[best]:g} not applied: its one-step solution left the linear "
+            "range (data cost above the prediction)"
+        )
+        pr.chosen = 0.0
+        return pr, j
+    coef = {n: j.basis.to_monomial(z[prob.slices[n]]) for n in prob.free}
+    rv = prob.run_values(z)
+    stepped = replace(
+        j,
+        coef=coef,
+        h0=rv.get("h0", []),
+        nrmse=prob.per_run_nrmse(z),
+        lopo=lo,
+        z=z,
+        nuisance={n: rv[n] for n in j.nuisance},
+    )
+    return pr, stepped

@@ -349,7 +349,7 @@ def _structure_keys(js: Mapping[str, Any] | None) -> dict[str, Any]:
 def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
     """What the laws say when none is significant: the law that predicts best, if it beats
     the base model at all, with its gain against the rule's threshold — so a user whose loop
-    has that law's shape is told, and told the base model is within noise of it; ``""``
+    has that law's shape is told, and told the gain is within what noise gives; ``""``
     when no law predicts better than the base model."""
     ok = [
         lw
@@ -361,12 +361,13 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
     if not ok:
         return ""
     b = min(ok, key=lambda lw: lw["nrmse_after"])
-    within = 100.0 * (b["nrmse_before"] / b["nrmse_after"] - 1.0)
+    fall = 100.0 * (1.0 - b["nrmse_after"] / b["nrmse_before"])
     return (
         f"Of the hysteresis laws, {b['law']}{structure_phrase(b)} predicts best: "
-        f"{b['nrmse_before']:.4f} → {b['nrmse_after']:.4f} ({b['gain_x_floor']:.2f} noise "
-        f"floors; a claim needs ≥ {MIN_GAIN_X_FLOOR:g}): the loop may have its shape, but "
-        f"the {model} model is within {within:.0f} % of it, so it is not claimed."
+        f"{b['nrmse_before']:.4f} → {b['nrmse_after']:.4f} (−{fall:.0f} %, "
+        f"{b['gain_x_floor']:.2f} noise floors; a claim needs ≥ {MIN_GAIN_X_FLOOR:g}): the "
+        f"loop may have its shape, but the gain over the {model} model is within what noise "
+        "gives, so it is not claimed."
     )
 
 

@@ -19,8 +19,8 @@ those parameters in ``nuisance_params``: the campaign fit then gives them one va
 in the joint refinement of the pressure laws (like the start state h0, never a pressure law
 θ(p)), and a prediction of *another* run sets them to 0.  ``tare = True`` says the record's
 force zero is unknown: a validation prediction with ``initial="estimate"`` then also
-estimates the run's force offset from its first ~50 ms of measured force
-(:func:`pmalab.identify.estimation.single.predict_free`).
+estimates the run's force offset with its other record parameters, on the early part of
+the record (:mod:`pmalab.identify.estimation.records`).
 
 User effects: put subclasses in a Python file and pass ``--effects my_effects.py``; every
 ``Effect`` subclass with an ``id`` found there is registered.
@@ -50,7 +50,17 @@ EFFECTS: Registry[type[Effect]] = Registry("effect", EffectError)
 
 
 class Effect:
-    """A pluggable physical effect (subclass and set the class attributes)."""
+    """A pluggable physical effect (subclass and set the class attributes).
+
+    An effect acts on the model F = k·x + c0 + h in up to three ways: it changes the
+    signals the law and the force terms see (:meth:`transform`: a channel delay, a pressure
+    that moves), it gives the law extra inputs (:meth:`law_extras`), and it adds a force
+    term (:meth:`force`: viscous friction −c·ẋ, inertia, a drifting zero).  Signs follow the
+    model: F is the tension in N (positive pulls), x the contraction in mm (positive =
+    shorter), so a force term that raises the tension while the muscle is stretched
+    (ẋ < 0) is positive there.  The class attributes below say what the diagnosis and the
+    forward model need to know.
+    """
 
     def __init_subclass__(cls, **kwargs) -> None:
         super().__init_subclass__(**kwargs)
@@ -100,29 +110,103 @@ class Effect:
     plant: ClassVar[dict[str, str] | None] = None
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
-        """Parameters with start values and bounds sized from the data.
+        """The effect's parameters, with start values and bounds sized from the data.
 
-        ``force_scale`` is the standard deviation of the measured force (N), useful to size
-        bounds.  Names must be unique across effects: prefix them (``visc_c``...).
+        Parameters
+        ----------
+        sig
+            The run's inputs (:class:`~pmalab.identify.signals.Signals`: time s, filtered
+            contraction x mm, its rates mm/s and mm/s², pressure MPa).
+        force_scale
+            The standard deviation of the measured force, N, to size bounds with.
+
+        Returns
+        -------
+        list of Param
+            Name (unique across effects: prefix them, ``visc_c``), start, bounds and unit
+            of each parameter.
         """
         return []
 
     def transform(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
-        """Signals the hysteresis law and the force terms see (default: unchanged)."""
+        """The signals the hysteresis law and the force terms see.
+
+        Parameters
+        ----------
+        sig
+            The run's inputs (:class:`~pmalab.identify.signals.Signals`: time s, filtered
+            contraction x mm, its rates mm/s and mm/s², pressure MPa).
+        theta
+            Every parameter of the model by name (the law's, k, c0 and the effects'), in
+            its own unit.
+
+        Returns
+        -------
+        Signals
+            The signals as the effect changes them (a shifted channel, a varying
+            pressure); the default returns ``sig`` unchanged.
+        """
         return sig
 
     def law_extras(
         self, law_name: str, sig: Signals, theta: Mapping[str, float]
     ) -> dict[str, float]:
-        """Extra inputs for the hysteresis law (default: none)."""
+        """Extra inputs for the hysteresis law.
+
+        Parameters
+        ----------
+        law_name
+            The law in force (``bouc-wen``, ``duhem``, ...): an effect may feed laws
+            differently.
+        sig
+            The run's inputs (:class:`~pmalab.identify.signals.Signals`: time s, filtered
+            contraction x mm, its rates mm/s and mm/s², pressure MPa).
+        theta
+            Every parameter of the model by name (the law's, k, c0 and the effects'), in
+            its own unit.
+
+        Returns
+        -------
+        dict of str to float
+            Named inputs the law's step reads (e.g. an asymmetry factor); default none.
+        """
         return {}
 
     def force(self, sig: Signals, h: np.ndarray, theta: Mapping[str, float]) -> np.ndarray | float:
-        """Additive force term in N (default: 0)."""
+        """The effect's additive force term.
+
+        Parameters
+        ----------
+        sig
+            The run's inputs (:class:`~pmalab.identify.signals.Signals`: time s, filtered
+            contraction x mm, its rates mm/s and mm/s², pressure MPa).
+        h
+            The hysteresis law's state per sample, N.
+        theta
+            Every parameter of the model by name (the law's, k, c0 and the effects'), in
+            its own unit.
+
+        Returns
+        -------
+        numpy.ndarray or float
+            The term added to the tension, N, per sample (or one value); positive raises
+            the tension.  Default 0.
+        """
         return 0.0
 
     def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
-        """Names of this effect's parameters the given law does not use (held fixed)."""
+        """This effect's parameters that a law does not use.
+
+        Parameters
+        ----------
+        law_name
+            The law in force.
+
+        Returns
+        -------
+        tuple of str
+            Names held fixed at their start value when this law is fitted; default none.
+        """
         return ()
 
     def __repr__(self) -> str:

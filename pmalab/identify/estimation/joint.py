@@ -143,6 +143,12 @@ class JointFit:
     #: leave-one-pressure-out nrmse of every run at an interior level (record label →
     #: nrmse), by :func:`approx_lopo`; empty unless asked for (``refine(lopo=True)``)
     lopo: dict[str, float] = field(default_factory=dict)
+    #: the solved problem, its solution vector and Jacobian there (set with ``lopo``): what
+    #: a caller needs to score variants of the fit by the same influence approximation
+    #: (:func:`approx_lopo` with a ``prior``) without refitting
+    problem: Problem | None = field(default=None, repr=False)
+    z: np.ndarray | None = field(default=None, repr=False)
+    jac: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def mean_nrmse(self) -> float:
@@ -335,10 +341,17 @@ def refine(
     if lopo:
         J = sol.jac if getattr(sol, "jac", None) is not None else prob.jac(sol.x)
         fit.lopo = approx_lopo(prob, sol.x, np.asarray(J))
+        fit.problem, fit.z, fit.jac = prob, np.array(sol.x), np.asarray(J)
     return fit, notes
 
 
-def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]:
+def approx_lopo(
+    prob: Problem,
+    z: np.ndarray,
+    J: np.ndarray,
+    r: np.ndarray | None = None,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
+) -> dict[str, float]:
     """Leave-one-pressure-out nrmse of every run at an interior pressure level, estimated
     from the joint solution ``z`` and its Jacobian ``J`` (record label → nrmse).
 
@@ -350,8 +363,12 @@ def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]
     re-estimated on them (linearised, as a validation run's start state is estimated).  The
     pressure orders are the ones chosen on all runs.  nrmse is RMS error (N) ÷ std of the
     record's force, on the joint fit's subsampled records.
+
+    ``r``: the residual at ``z`` (default: evaluated); ``prior``: (M, p) extra residual rows
+    p + M·dz of a linear penalty on the solution (a smoothness prior), kept in every fold —
+    the held-out error of the penalised fit.
     """
-    r = prob.residual(z)
+    r = prob.residual(z) if r is None else np.asarray(r, dtype=np.float64)
     J = np.asarray(J, dtype=np.float64)
     keys = np.array([round(float(rec.p_nom), 3) for rec in prob.records])
     levels = sorted(set(keys.tolist()))
@@ -361,6 +378,10 @@ def approx_lopo(prob: Problem, z: np.ndarray, J: np.ndarray) -> dict[str, float]
     # normal equations once; a fold removes its runs' rows (J_G'J_G, J_G'r_G) and columns
     A = J.T @ J
     g = J.T @ r
+    if prior is not None:
+        M, pr = prior
+        A = A + M.T @ M
+        g = g + M.T @ pr
     out: dict[str, float] = {}
     for L in levels[1:-1]:
         G = [i for i in range(R) if keys[i] == L]
