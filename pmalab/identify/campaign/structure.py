@@ -20,6 +20,14 @@ pressure-law coefficients) is preferred unless the richer one's score is lower b
 for every candidate: the pressure orders and a structured candidate's start profile come
 from all runs.
 
+**Priors.**  Each candidate is also fitted with a prior whose strength is chosen by the same
+evidence (:func:`prior_rows`, :func:`apply_prior`): smoothness over a threshold grid
+(Prandtl-Ishlinskii), shrinkage of the element corrections toward the pooled profile
+(Maxwell-slip).  Every strength is one Gauss–Newton step of the penalised problem from the
+candidate's joint solution, its leave-one-pressure-out error computed with the prior kept
+in every fold; λ = 0 wins unless another strength is lower by more than ``SIMPLER_WITHIN``.
+The candidate's score is its kept strength's.
+
 The winner's pressure laws (refined jointly like any campaign's) replace the free ones,
 mapped onto the base law's parameters (:func:`pmalab.identify.laws.structures.base_laws`),
 so everything downstream (validation, reports, ``simulate``, controllers) reads the base
@@ -549,5 +557,6 @@ def apply_prior(j, rows) -> tuple[Prior, object] | None:
         lopo=lo,
         z=z,
         nuisance={n: rv[n] for n in j.nuisance},
+        legendre={n: np.array(z[prob.slices[n]]) for n in prob.free},
     )
     return pr, stepped

@@ -33,7 +33,13 @@ from pmalab.identify.diagnosis.diagnostics import (
     run_diagnostics,
 )
 from pmalab.identify.diagnosis.heldout import choose
-from pmalab.identify.diagnosis.ladder import LadderStep, Round, one_frequency, run_ladder
+from pmalab.identify.diagnosis.ladder import (
+    AT_FLOOR_RATIO,
+    LadderStep,
+    Round,
+    one_frequency,
+    run_ladder,
+)
 from pmalab.identify.diagnosis.ranking import (
     MIN_GAIN_X_FLOOR,
     heldout_floor,
@@ -53,7 +59,8 @@ from pmalab.runfile import Run
 #: significance rule requires of an effect (MIN_GAIN_X_FLOOR noise floors, mean held-out):
 #: a residual no significant effect could remove is not called structured.  A fixed ratio
 #: (1.5×) called a systematic 1.4 N misfit on four 20,000-sample runs "nothing to explain".
-UNEXPLAINED_RATIO = 1.0 + MIN_GAIN_X_FLOOR
+#: The ladder stops at the same ratio (:data:`~.ladder.AT_FLOOR_RATIO`).
+UNEXPLAINED_RATIO = AT_FLOOR_RATIO
 
 
 #: what separates two look-alike effects (pairs not listed: each effect's own experiment)
@@ -543,7 +550,7 @@ def diagnose(
     for lw in other_laws:
         if lw not in LAWS:
             raise DiagnoseError(f"unknown law '{lw}' (choose from {', '.join(LAWS)})")
-    steps, rounds = run_ladder(
+    climbed = run_ladder(
         split.train,
         split.held,
         model,
@@ -555,6 +562,7 @@ def diagnose(
         laws=other_laws,
         scheduler=scheduler,
     )
+    steps, rounds = climbed.steps, climbed.rounds
     amb = rounds[0].ambiguous if rounds else []
     suggestion = suggest_experiment(amb)
     final = steps[-1].effects
@@ -668,6 +676,9 @@ def diagnose(
         "identification_runs": [r.label for r in split.train],
         "identify_hint": split.identify_hint,
         "max_steps": max_steps,
+        # why the ladder stopped, and the identifications it made (each model once)
+        "ladder_stop": climbed.stop,
+        "identifications": climbed.identifications,
         "candidates": cand,
         "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
         "runs (one identification per candidate); each held-out run's record parameters "

@@ -3,8 +3,26 @@
 Step 0 is the base law.  At every step each effect not yet in the model is added to the
 current model and scored by the identification it gives on the held-out runs
 (:mod:`.ranking`); the best is added if it is significant.  The ladder stops when nothing
-significant is left, when every effect is in, or after ``max_steps`` additions.  The held-out
-nrmse of every step is ``pmalab identify --add ...``'s validation nrmse of that model.
+significant is left, when every effect is in, after ``max_steps`` additions, or when the
+model reached the noise floor (below).  The held-out nrmse of every step is
+``pmalab identify --add ...``'s validation nrmse of that model.
+
+At the floor, no round is scored.  A candidate is significant only if it cuts the mean
+held-out nrmse by ``MIN_GAIN_X_FLOOR`` (0.25) noise floors: mean(after) ≤ mean(before) −
+0.25·mean(floor).  No model predicts the measurement noise of a record it did not see (the
+noise on a run's scored part is independent of its prediction), so mean(after) ≥ mean(floor)
+up to the sampling error of the noise power (≈ √(2/N) relative on N scored samples, under
+1 % on these records).  A model whose held-out nrmse is below ``AT_FLOOR_RATIO`` = 1.25× the
+floor therefore leaves no candidate that could pass the rule, and the ladder stops there
+without scoring one (after step 0 the ranking round is always scored: it is the report).
+This is the same threshold at which the summary calls the model "at the noise floor".
+
+Work is not repeated: every identification is keyed by its model (law, effects), and a
+model scored in an earlier round (the other laws with the same effects, after a step that
+changed the law) is taken from there — the numbers are those of the same identification.
+The base model is identified together with the first round's candidates, and each round's
+identifications are started longest first (laws with pressure structures, then by number
+of effects), so two workers finish a round together.
 """
 
 from __future__ import annotations
@@ -12,16 +30,26 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from pmalab.identify.campaign import ModelSpec
 from pmalab.identify.diagnosis.ranking import (
+    MIN_GAIN_X_FLOOR,
     Candidate,
     Scored,
     heldout_floor,
     judge,
-    score,
     score_all,
 )
+from pmalab.identify.laws import LAWS
 from pmalab.runfile import Run
+
+#: a model whose mean held-out nrmse is below this many times the mean noise floor leaves no
+#: candidate that could cut it by ``MIN_GAIN_X_FLOOR`` floors (module docstring)
+AT_FLOOR_RATIO = 1.0 + MIN_GAIN_X_FLOOR
+
+#: why the ladder stopped (``Ladder.stop``)
+STOP_REASONS = ("nothing significant", "at the noise floor", "max steps", "every candidate in")
 
 
 @dataclass
@@ -72,6 +100,20 @@ class Round:
     laws: list[Candidate] = field(default_factory=list)
 
 
+@dataclass
+class Ladder:
+    """The climbed ladder: its steps (0 = the base law), the ranking round scored at each
+    step, why it stopped (one of ``STOP_REASONS``) and how many identifications it made."""
+
+    steps: list[LadderStep]
+    rounds: list[Round]
+    stop: str
+    identifications: int
+
+    def __iter__(self):  # ``steps, rounds = run_ladder(...)``
+        return iter((self.steps, self.rounds))
+
+
 def one_frequency(train: Sequence[Run]) -> float | None:
     """The one excitation frequency (Hz) all identification runs share, else None (several,
     or one run's frequency unknown: not known to be one)."""
@@ -80,6 +122,51 @@ def one_frequency(train: Sequence[Run]) -> float | None:
         return None
     distinct = {round(float(f), 6) for f in freqs if f is not None}
     return distinct.pop() if len(distinct) == 1 else None
+
+
+def cost_order(specs: Sequence[ModelSpec]) -> list[int]:
+    """Indices of ``specs``, the dearest identification first: a law with pressure
+    structures (which fits each structure) before one without, then more effects first."""
+
+    def cost(i: int) -> tuple[int, int]:
+        law = LAWS.get(specs[i].law)
+        return (1 if law is not None and law.structures else 0, len(specs[i].effects))
+
+    return sorted(range(len(specs)), key=cost, reverse=True)
+
+
+class Scorer:
+    """Scores model specs on one split, each identification once (keyed by its spec)."""
+
+    def __init__(
+        self,
+        train: Sequence[Run],
+        held: Sequence[Run],
+        jobs: int = 1,
+        progress: bool = False,
+        scheduler: str | None = None,
+    ) -> None:
+        self.train, self.held = list(train), list(held)
+        self.jobs, self.progress, self.scheduler = jobs, progress, scheduler
+        self.done: dict[ModelSpec, Scored] = {}
+        #: identifications made (a spec taken from an earlier round is not counted)
+        self.count = 0
+
+    def __call__(self, specs: Sequence[ModelSpec], desc: str) -> list[Scored]:
+        todo = list(dict.fromkeys(s for s in specs if s not in self.done))
+        order = [todo[i] for i in cost_order(todo)]
+        outs = score_all(
+            self.train,
+            self.held,
+            order,
+            self.jobs,
+            self.progress,
+            desc,
+            scheduler=self.scheduler,
+        )
+        self.done.update(zip(order, outs))
+        self.count += len(order)
+        return [self.done[s] for s in specs]
 
 
 def run_ladder(
@@ -93,8 +180,9 @@ def run_ladder(
     progress: bool = False,
     laws: Sequence[str] = (),
     scheduler: str | None = None,
-) -> tuple[list[LadderStep], list[Round]]:
-    """Climb the ladder; returns the steps (0 = base) and the ranking round of each step.
+) -> Ladder:
+    """Climb the ladder; returns its steps (0 = base), the ranking round of each step and
+    why it stopped (:class:`Ladder`).
 
     At every step each remaining effect is added to the current model and each law of
     ``laws`` replaces the current law (same effects); all are scored by the same
@@ -102,31 +190,44 @@ def run_ladder(
     significant candidate — an effect or a law — is taken."""
     files = tuple(str(f) for f in effects_files)
     floors = [heldout_floor(r) for r in held]
+    floor = float(np.mean(floors)) if floors else float("nan")
     # one excitation frequency in the identification runs: rate-dependent effects are then
     # not identifiable apart (ranking.judge)
     single = one_frequency(train) is not None
-    base = score(train, held, ModelSpec(law, (), files))
-    steps = [LadderStep(0, [], None, base, law)]
+    scorer = Scorer(train, held, jobs, progress, scheduler)
+    base_spec = ModelSpec(law, (), files)
+    steps: list[LadderStep] = []
     rounds: list[Round] = []
     current: tuple[str, ...] = ()
     cur_law = law
     tried = {law}
-    while len(steps) <= max_steps:
+    stop = "max steps"
+    while True:
         remaining = [e for e in effect_ids if e not in current]
         others = [lw for lw in laws if lw not in tried]
-        if not remaining and not others:
+        specs: list[ModelSpec] = []
+        if steps and len(steps) > max_steps:
             break
-        specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
-        specs += [ModelSpec(lw, current, files) for lw in others]
-        outs = score_all(
-            train,
-            held,
-            specs,
-            jobs,
-            progress,
-            f"step {len(steps)}: {len(remaining)} effects, {len(others)} laws",
-            scheduler=scheduler,
+        if steps and not remaining and not others:
+            stop = "every candidate in"
+            break
+        if len(steps) > 1 and steps[-1].nrmse < AT_FLOOR_RATIO * floor:
+            stop = "at the noise floor"
+            break
+        if max_steps >= 1:
+            specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
+            specs += [ModelSpec(lw, current, files) for lw in others]
+        # the base model is identified with the first round (one batch for the workers)
+        outs = scorer(
+            [*specs, *([] if steps else [base_spec])],
+            f"step {max(len(steps), 1)}: {len(remaining)} effects, {len(others)} laws",
         )
+        if not steps:
+            steps.append(LadderStep(0, [], None, outs.pop(), law))
+        if not specs:
+            if max_steps >= 1:
+                stop = "every candidate in"
+            break
         prev = steps[-1].scored
         cands, amb = judge(
             [Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)],
@@ -138,6 +239,7 @@ def run_ladder(
         rounds.append(Round(len(steps), cands, amb, law_cands))
         pool = [c for c in [*cands, *law_cands] if c.significant]
         if not pool:
+            stop = "nothing significant"
             break
         best = max(pool, key=lambda c: c.fall)
         if best in law_cands:
@@ -147,4 +249,4 @@ def run_ladder(
         else:
             current = (*current, best.effect)
             steps.append(LadderStep(len(steps), list(current), best.effect, best.after, cur_law))
-    return steps, rounds
+    return Ladder(steps, rounds, stop, scorer.count)

@@ -105,8 +105,14 @@ class Scored:
 
 
 def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
-    """Identify ``spec`` on ``train`` and validate on ``held`` — ``pmalab identify``'s path."""
-    cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
+    """Identify ``spec`` on ``train`` and validate on ``held`` — ``pmalab identify``'s path.
+
+    BLAS runs on one thread (candidates are parallel over processes; the covariance and
+    leave-one-pressure-out algebra of the joint fit is small and slower threaded)."""
+    from pmalab.identify.estimation.solver import one_blas_thread
+
+    with one_blas_thread():
+        cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
     nr, div = [], []
     for v in vals:
         x = float(v.metrics["nrmse"])

@@ -1,0 +1,92 @@
+"""The ladder's bookkeeping (no fitting: identifications replaced by a table of held-out
+errors): every model is identified once, the base with the first round, and no round is
+scored once the model is within the significance rule's reach of the noise floor."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import pytest
+
+from pmalab.identify.campaign import ModelSpec
+from pmalab.identify.diagnosis import ladder
+from pmalab.identify.diagnosis.ranking import Scored
+
+FLOOR = 0.004
+
+
+def _fake(table: dict[tuple[str, tuple[str, ...]], list[float]], calls: list):
+    """A stand-in for ``score_all``: each spec's held-out nrmse per run from ``table``
+    (default: a little worse than the base); records the batches it was asked for."""
+
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None):
+        calls.append(list(specs))
+        base = table[("bouc-wen", ())]
+        return [
+            Scored(s.effects, list(table.get((s.law, s.effects), [b * 1.01 for b in base])))
+            for s in specs
+        ]
+
+    return score_all
+
+
+@pytest.fixture
+def climb(monkeypatch):
+    def run(table, **kw):
+        calls: list = []
+        monkeypatch.setattr(ladder, "score_all", _fake(table, calls))
+        monkeypatch.setattr(ladder, "heldout_floor", lambda r: FLOOR)
+        out = ladder.run_ladder(
+            [SimpleNamespace(frequency=0.25)],  # pyright: ignore[reportArgumentType]
+            ["held-a", "held-b"],  # pyright: ignore[reportArgumentType]  (never read)
+            "bouc-wen",
+            ["viscous-friction", "sensor-drift"],
+            laws=["duhem", "maxwell-slip"],
+            **kw,
+        )
+        return out, calls
+
+    return run
+
+
+def test_each_model_is_identified_once_and_the_base_with_round_one(climb):
+    # step 1 switches the law: the next round's other laws (with the same, empty, effects)
+    # are the first round's models again and are not identified twice
+    table = {
+        ("bouc-wen", ()): [0.040, 0.047],
+        ("maxwell-slip", ()): [0.020, 0.024],
+        ("duhem", ()): [0.041, 0.046],
+    }
+    out, calls = climb(table)
+    assert [s.switched for s in out.steps] == [None, "maxwell-slip"]
+    assert out.stop == "nothing significant"
+    # round 1 holds the base; the dearest (a law with pressure structures) goes first
+    assert ModelSpec("bouc-wen") in calls[0] and calls[0][0] == ModelSpec("maxwell-slip")
+    assert ModelSpec("duhem") not in calls[1]  # scored in round 1, same model
+    made = [s for batch in calls for s in batch]
+    assert len(made) == len(set(made)) == out.identifications
+    # the round after the switch still lists duhem, with round 1's numbers
+    r2 = {c.effect: c for c in out.rounds[1].laws}
+    assert r2["duhem"].after.nrmse == table[("duhem", ())]
+
+
+def test_no_round_is_scored_at_the_noise_floor(climb):
+    # viscous friction takes the model to 1.2x the floor: no candidate could cut another
+    # 0.25 floors without predicting below the noise, so the ladder stops unscored
+    table = {
+        ("bouc-wen", ()): [0.040, 0.047],
+        ("bouc-wen", ("viscous-friction",)): [1.2 * FLOOR, 1.2 * FLOOR],
+    }
+    out, calls = climb(table)
+    assert [s.added for s in out.steps] == [None, "viscous-friction"]
+    assert out.stop == "at the noise floor" and len(calls) == len(out.rounds) == 1
+    # just above 1.25x the floor the next round is scored
+    table[("bouc-wen", ("viscous-friction",))] = [1.3 * FLOOR, 1.3 * FLOOR]
+    out, calls = climb(table)
+    assert len(out.rounds) == 2 and out.stop == "nothing significant"
+
+
+def test_max_steps_zero_identifies_the_base_only(climb):
+    out, calls = climb({("bouc-wen", ()): [0.040, 0.047]}, max_steps=0)
+    assert calls == [[ModelSpec("bouc-wen")]]
+    assert len(out.steps) == 1 and out.rounds == []
