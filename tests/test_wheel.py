@@ -159,3 +159,59 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
                 "--plant", "data/control/identification-bouc-wen.json", "--duration", "2",
                 "--out", "plant.h5"], cwd=work, env=env)
     assert "completed" in out, out
+
+
+def _read_only(site: Path, argv: list[str]) -> list[str]:
+    """``argv`` run with the installed ``pmalab`` package read-only (as a system-wide or
+    managed install is): a non-root user loses the write bits; root, who ignores them,
+    gets a read-only bind mount in a private mount namespace (``unshare``), if allowed."""
+    pkg = site / "pmalab"
+    if os.geteuid() != 0:
+        return argv  # the caller removed the write bits
+    if shutil.which("unshare") is None:
+        pytest.skip("root without unshare: cannot make the installed package read-only")
+    probe = subprocess.run(["unshare", "-m", "sh", "-c",
+                            f"mount --bind -o ro '{pkg}' '{pkg}' && ! touch '{pkg}/.w'"],
+                           capture_output=True)
+    if probe.returncode != 0:
+        pytest.skip("no private mount namespace here: cannot make the package read-only")
+    script = f"mount --bind -o ro '{pkg}' '{pkg}' && exec \"$0\" \"$@\""
+    return ["unshare", "-m", "sh", "-c", script, *argv]
+
+
+def test_numba_cache_of_a_read_only_install_is_warm_on_the_second_run(wheel, tmp_path):
+    """Installed where the user cannot write (site-packages read-only), the compiled laws
+    are cached in the user's cache directory: the second ``identify`` compiles nothing."""
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=False).create(env_dir)
+    py = env_dir / "bin" / "python"
+    site = Path(_run([str(py), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                     cwd=tmp_path).strip())
+    (site / "zz-deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
+    _run([str(py), "-m", "pip", "install", "--no-deps", "--ignore-installed", "--quiet",
+          str(wheel)], cwd=tmp_path)
+    work = tmp_path / "lab"
+    work.mkdir()
+    home = tmp_path / "home"
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME")}
+    env["HOME"] = str(home)
+    pmalab = str(env_dir / "bin" / "pmalab")
+    env["NUMBA_DEBUG_CACHE"] = "1"  # numba says what it saved and what it loaded
+    if os.geteuid() != 0:
+        subprocess.run(["chmod", "-R", "a-w", str(site / "pmalab")], check=True)
+    try:
+        _run(_read_only(site, [pmalab, "run", "--rig", "sim", "--protocol", "quick", "--out",
+                               "q.h5", "--quiet"]), cwd=work, env=env)
+        logs = [
+            _run(_read_only(site, [pmalab, "identify", "q.h5", "--model", "bouc-wen", "--out",
+                                   f"id{k}", "--quiet"]), cwd=work, env=env)
+            for k in (1, 2)
+        ]
+    finally:
+        subprocess.run(["chmod", "-R", "u+w", str(site / "pmalab")], check=True)
+    user_cache = home / ".cache" / "numba"
+    assert "saved" in logs[0] and user_cache.is_dir(), logs[0][-2000:]
+    assert any(user_cache.rglob("*.nbi")) and not any((site / "pmalab").rglob("*.nbi"))
+    assert "data loaded" in logs[1] and "saved" not in logs[1], logs[1][-2000:]
+    assert (work / "id2" / "identification.json").is_file()
