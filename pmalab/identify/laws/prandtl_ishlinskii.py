@@ -18,7 +18,13 @@ their weights are then poorly determined and reported so, and the joint fit hold
 constant in pressure).  Ratio 2 (8 operators) was too coarse: on simulated campaigns whose
 friction is a dense set of elements off the grid (data/truth/hysteresis-prandtl-ishlinskii.toml)
 or four Maxwell-slip elements (hysteresis-maxwell-slip.toml), validation stayed at 1.15× and
-1.37× the noise floor; with ratio √2 it is 1.10× and 1.09×.  Sign: w_i ≥ 0 gives a physical loop (tension higher
+1.37× the noise floor; with ratio √2 it is 1.10× and 1.09×.  A finer grid (ratio 2^⅓,
+22 operators) was measured and not adopted: it helped a six-operator muscle off the grid
+(data/truth/laws/pi-rising-profile.toml, 1.06–1.09× → 1.03–1.04×) but made the project's own
+Prandtl-Ishlinskii campaign worse (1.10× → 1.11×) and Prandtl-Ishlinskii's predictions of
+Maxwell-slip-shaped muscles worse (up to 1.13× → 1.60×), cost ≈ 1.3× the CPU time, and the
+leave-one-pressure-out held-out error could not tell the grids apart (so a campaign cannot
+choose it either).  Sign: w_i ≥ 0 gives a physical loop (tension higher
 while stretching).
 """
 
