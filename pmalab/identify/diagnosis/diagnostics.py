@@ -196,7 +196,26 @@ def describe_worst(regions: list[dict[str, Any]], total_rms: float) -> str:
 
 
 def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) -> dict[str, Any]:
-    """Every single-run diagnostic of the residual measured − model (full-rate signals)."""
+    """Every single-run diagnostic of the residual.
+
+    Parameters
+    ----------
+    sig
+        The run's signals at full rate (contraction x mm, its rates, pressure MPa, time s).
+    force
+        Measured tension, N (positive pulls).
+    model_force
+        The model's tension, N.
+
+    Returns
+    -------
+    dict
+        Of the residual r = measured − model (N): its mean binned by position, velocity,
+        its sign, acceleration, pressure deviation, time and loop branch (``binned``, each
+        with a confidence band); its autocorrelation (``acf``) and cross-correlation with
+        the position (``ccf_input``, lags in s, ±1.96/√n bounds); the loop regions and the
+        worst one; ``rmse`` (N) and ``nrmse``.
+    """
     r = np.asarray(force, dtype=np.float64) - np.asarray(model_force, dtype=np.float64)
     tau = _ci_scale(r)
     v = sig.v
@@ -329,6 +348,28 @@ def residual_shares(
     is: ``"model"`` when the prediction carries more power above the band than the
     measurement (a model term differentiating a noisy position injects it), else
     ``"measurement"`` (the rig).
+
+    Parameters
+    ----------
+    t
+        Sample times, s.
+    x
+        Contraction, mm (positive = shorter).
+    r
+        Residual, measured − model tension, N, of a free-run prediction.
+    noise_sigma_N
+        The record's own noise SD, N (:mod:`pmalab.identify.noise`).
+    frequency_Hz
+        The motion's fundamental f0, Hz (``None``: read off the position's spectrum).
+    model_force
+        The prediction, N, to say whose the fast part is.
+
+    Returns
+    -------
+    dict
+        ``structured_power_N2`` (P, N²), ``rms_N``, ``noise_sigma_N``, ``f0_Hz`` and the
+        shares ``offset``, ``loop``, ``above_band``, ``other`` (fractions of P), plus
+        ``above_band_source`` with ``model_force``.
     """
     t = np.asarray(t, float)
     r = np.asarray(r, float)
@@ -427,8 +468,21 @@ RESIDUAL_NEXT = {
 
 
 def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Campaign shares (weighted by each run's structured power) and the next thing to look
-    at: the largest share, when it holds at least a third of what is left."""
+    """The campaign's residual shares and the next thing to look at.
+
+    Parameters
+    ----------
+    per_run
+        Each held-out run's :func:`residual_shares`.
+
+    Returns
+    -------
+    dict
+        The shares ``loop``, ``above_band``, ``offset``, ``other`` averaged with each run's
+        structured power as weight; ``above_band_source``; ``next``: the largest share
+        when it holds at least a third of what is left (else ``None``); ``text``: the
+        sentence the summary prints.
+    """
     keys = ("loop", "above_band", "offset", "other")
     w = np.array([d["structured_power_N2"] for d in per_run], float)
     if not per_run or w.sum() <= 0:
