@@ -306,6 +306,16 @@ def _fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
     return float(k * (n - 1) / ((t[-1] - t[0]) * n))
 
 
+def _seamless(y: np.ndarray) -> np.ndarray:
+    """``y`` minus the straight line through its first and last samples (and its mean): its
+    periodic extension has no jump at the seam."""
+    y = np.asarray(y, float)
+    if y.size < 2:
+        return y - float(np.mean(y)) if y.size else y
+    z = y - np.linspace(float(y[0]), float(y[-1]), y.size)
+    return z - float(np.mean(z))
+
+
 def residual_shares(
     t: np.ndarray,
     x: np.ndarray,
@@ -407,14 +417,18 @@ def residual_shares(
     rest = rc - locked
     tu = np.linspace(t[0], t[-1], n)
     ru = np.interp(tu, t, rest)
-    spec = np.abs(np.fft.rfft(ru)) ** 2
+    # the FFT extends the record periodically: a record that ends elsewhere than it starts
+    # (a steady window of a few cycles, a slow drift) jumps at the seam, and the jump's
+    # broadband leakage would be read as fast content.  The straight line through the end
+    # points is taken out before the split (its power is slow: it stays in the band).
+    spec = np.abs(np.fft.rfft(_seamless(ru))) ** 2
     spec[1:] *= 2.0
     freqs = np.fft.rfftfreq(n, d=(tu[-1] - tu[0]) / (n - 1))
-    total = float(spec.sum())
     rest_var = float(np.mean(ru**2))
     above = freqs > (MOTION_HARMONICS + 0.5) * f0
     nyq = float(freqs[-1]) if freqs[-1] > 0 else 1.0
-    frac_above = float(spec[above].sum()) / total if total > 0 else 0.0
+    # Parseval: the power above the band, as a share of all the rest's power
+    frac_above = min(float(spec[above].sum()) / n**2 / rest_var, 1.0) if rest_var > 0 else 0.0
     width_above = max(nyq - (MOTION_HARMONICS + 0.5) * f0, 0.0) / nyq
     noise_rest = sigma2 * (1.0 - used / n)
     above_p = max(frac_above * rest_var - noise_rest * width_above, 0.0)
@@ -424,7 +438,7 @@ def residual_shares(
         pred = np.interp(tu, t, np.asarray(model_force, float))
 
         def fast(sig: np.ndarray) -> float:
-            sp = np.abs(np.fft.rfft(sig - sig.mean())) ** 2
+            sp = np.abs(np.fft.rfft(_seamless(sig))) ** 2
             return float(sp[above].sum())
 
         out["above_band_source"] = "model" if fast(pred) > fast(measured) else "measurement"
