@@ -209,3 +209,24 @@ def test_readme_python_example_runs_alone_in_an_empty_directory(tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     assert "viscous-friction" in p.stdout
     assert (tmp_path / "campaign.h5").is_file()
+
+
+def test_the_final_model_is_named_with_the_law_the_ladder_ended_on():
+    """A ladder that changes the law: the report's before/after page names the final model
+    by the law in force at its last step, not the base law."""
+    from pmalab.reports.build import _final_model_name
+
+    ladder = [{"step": 0, "added": None, "law": "bouc-wen", "effects": []},
+              {"step": 1, "added": "pressure-variation", "law": "bouc-wen",
+               "effects": ["pressure-variation"]},
+              {"step": 2, "added": None, "law": "maxwell-slip", "effects": ["pressure-variation"]},
+              {"step": 3, "added": "sensor-delay", "law": "maxwell-slip",
+               "effects": ["pressure-variation", "sensor-delay"]}]
+    diag = {"model": "bouc-wen", "ladder": ladder}
+    assert _final_model_name(diag) == "maxwell-slip + pressure-variation, sensor-delay"
+    assert _final_model_name({**diag, "ladder": ladder[:3]}) == "maxwell-slip + pressure-variation"
+    switched = [ladder[0], {"step": 1, "added": None, "law": "duhem", "effects": []}]
+    assert _final_model_name({**diag, "ladder": switched}) == "duhem"
+    old = [{"step": 0}, {"step": 1, "added": "viscous-friction"}]  # files without law/effects
+    assert _final_model_name({**diag, "ladder": old}) == "bouc-wen + viscous-friction"
+    assert _final_model_name({**diag, "ladder": ladder[:1]}) is None

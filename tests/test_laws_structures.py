@@ -55,7 +55,7 @@ def test_prandtl_ishlinskii_scaled_keeps_its_threshold_grid():
         structured_law(base, "scaled-thresholds", k, d)
 
 
-def _campaign(slip_exponent: float) -> list[Run]:
+def _campaign(slip_exponent: float, kappa: np.ndarray = KAPPA) -> list[Run]:
     """One 1 Hz run (two cycles) per level; element i: k_i = s(p)·κ_i, d_i = δ_i·(p/0.4)^a."""
     law = get_law("maxwell-slip")
     runs = []
@@ -68,7 +68,7 @@ def _campaign(slip_exponent: float) -> list[Run]:
         s = 30.0 + 150.0 * p
         th = {"k": -20 - 60 * p, "c0": 2500 * p - 100, "h0": 0.0}
         for i in range(4):
-            th[f"k{i + 1}"] = s * KAPPA[i]
+            th[f"k{i + 1}"] = s * kappa[i]
             th[f"d{i + 1}"] = DELTA[i] * (p / 0.4) ** slip_exponent
         F = ForceModel(law).predict(sig, th)
         runs.append(
@@ -154,3 +154,21 @@ def test_a_strong_prior_pulls_the_corrections_to_the_pooled_profile():
     # λ = 0 is no step and the fit's own evidence
     dz0, _, lo0 = penalised_step(j, rows, 0.0)
     assert not np.any(dz0) and lo0 == j.lopo
+
+
+def test_two_element_muscle_keeps_fewer_elements():
+    """Slip displacements 0.3 and 2.5 mm only (the other two elements absent): the fitted
+    elements that carry < 10 % of the friction are tried away by one joint fit per count,
+    and fewer than four are kept (within 1 % of the best held-out score: never worse)."""
+    from pmalab.identify.campaign.structure import SIMPLER_WITHIN
+
+    cf = fit_campaign(_campaign(0.0, np.array([0.6, 0.0, 0.4, 0.0])), "maxwell-slip")
+    st = cf.structure
+    assert st is not None and st.chosen in st.elements, (st and st.chosen, st and st.elements)
+    ec = st.elements[st.chosen]
+    assert ec.counts[-1] == 4 and ec.chosen < 4 and ec.removed
+    assert ec.scores[ec.counts.index(ec.chosen)] <= min(ec.scores) * (1 + SIMPLER_WITHIN)
+    # the reported laws: the removed elements carry no stiffness at any pressure
+    for i in ec.removed:
+        assert cf.pressure[f"k{i}"].coef == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+    assert st.as_json()["element_counts"][st.chosen]["chosen"] == ec.chosen

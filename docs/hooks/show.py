@@ -228,11 +228,16 @@ def _make_unit(final: Path, kind: str) -> None:
     try:
         _make(kind, tmp)
         (tmp / "done").write_text("")
-        if final.exists():
-            shutil.rmtree(final, ignore_errors=True)
-        os.replace(tmp, final)
-    except FileExistsError:  # another build made it meanwhile
+        if (final / "done").exists():  # another build made it meanwhile and may be using it
+            shutil.rmtree(tmp, ignore_errors=True)
+        else:
+            if final.exists():  # a leftover without "done"
+                shutil.rmtree(final, ignore_errors=True)
+            os.replace(tmp, final)
+    except OSError:
         shutil.rmtree(tmp, ignore_errors=True)
+        if not (final / "done").exists():  # not a race lost to another build
+            raise
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -271,6 +276,13 @@ def _prune(root: Path, keep: int) -> None:
 
 
 # --------------------------------------------------------------------------- the hooks
+def on_config(config):
+    """Each build (``mkdocs serve`` rebuilds too) looks at the code and the pages afresh."""
+    _state.clear()
+    _dirs.clear()
+    return config
+
+
 def on_files(files: Files, config) -> Files:
     for root in built().values():
         for png in sorted((root / "generated").rglob("*.png")):

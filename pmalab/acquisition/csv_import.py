@@ -114,7 +114,43 @@ _NAME_UNIT = re.compile(r"^(.*?)\s*([\[\(\{][^\[\]\(\)\{\}]*[\]\)\}])\s*$")
 
 @dataclass
 class CsvImportOptions:
-    """Column mapping, units, text layout and run metadata of an import."""
+    """Column mapping, units, text layout and run metadata of an import.
+
+    Attributes
+    ----------
+    columns
+        Channel → column name in the file (``--time-col`` ...), for files with a names row.
+    units
+        Channel → unit of the file's values (``--units time=ms,pressure=bar``): time
+        s|ms, position mm|m|um, force N|kN, pressure MPa|kPa|bar|Pa.
+    pressure_MPa
+        The nominal muscle pressure, MPa gauge, of a file without a pressure column
+        (``--pressure``).
+    position_mm
+        The contraction, mm, a file without a position column was held at (isometric).
+    load_N
+        The constant load, N, of an isotonic test (recorded as an attr).
+    test_type
+        ``isobaric``, ``isometric``, ``isotonic`` or ``free``; ``None``: recognised from
+        the channels.
+    run
+        The run's name (default: the file's stem).
+    delimiter, decimal, encoding
+        The text layout: one-character field delimiter, decimal mark ``.`` or ``,``,
+        text encoding.
+    negate
+        Channels whose sign is flipped: pmalab's position is the contraction (positive =
+        shorter) and its force the tension (positive pulls); a laser measuring extension
+        needs ``("position",)``.
+    waveform, frequency_Hz
+        The excitation's waveform and frequency, Hz (recorded as attrs).
+    header_rows, units_row, no_header, layout
+        Lines before the names row, a units row under it, no names row at all, and then
+        one channel (or ``None`` for a skipped field) per field (``--columns``).
+    drop_duplicate_times
+        Drop a sample whose time stamp equals the one before (counted), instead of
+        refusing the file.
+    """
 
     columns: dict[str, str] = field(default_factory=dict)
     units: dict[str, str] = field(default_factory=dict)

@@ -110,7 +110,22 @@ class RunObserver:
 
 @dataclass
 class RunResult:
-    """What one run recorded (force N, durations s, lateness s)."""
+    """What one run recorded.
+
+    Attributes
+    ----------
+    name, status
+        The run's name and how it ended (``completed`` or ``aborted: <reason>``).
+    n_samples, duration_s
+        Samples recorded and their time span, s.
+    force_min, force_max
+        The tension's range, N.
+    timing
+        Lateness statistics (s) and the counts of late and missed samples; missed
+        deadlines are gaps in the file, never filled in.
+    hardware_timed
+        The samples were stamped by the device's clock (a gap is the device's).
+    """
 
     name: str
     status: str
@@ -168,7 +183,30 @@ class RunResult:
 
 @dataclass
 class RunnerOptions:
-    """Tunables of the runner (defaults are the production values)."""
+    """Tunables of the runner (defaults are the production values).
+
+    Attributes
+    ----------
+    late_threshold_s
+        A sample later than this after its deadline counts as late, s.
+    timing_warn_fraction
+        A run that missed more than this share of its scheduled samples, or had more than
+        this share late, is flagged and warned about.
+    flush_interval_s
+        The longest wall time between two flushes of the file, s: it bounds what a
+        kill -9 or a power cut loses.
+    progress
+        Show a progress bar on stderr (off anyway when stderr is not a terminal).
+    prompt
+        The operator prompt for a manual muscle regulator (default: a line on stderr).
+    extra_attrs
+        Extra root attrs of the file (e.g. the command line, the seed).
+    realtime_priority, realtime_priority_level
+        On a real clock, ask Linux for SCHED_FIFO priority while recording (silently
+        skipped where not permitted, and recorded in the file's attrs).
+    observer
+        Told when each run starts and ends (e.g. the live view).
+    """
 
     #: a sample later than this after its deadline counts as late (s)
     late_threshold_s: float = LATE_THRESHOLD_S

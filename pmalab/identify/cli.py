@@ -751,8 +751,10 @@ def structure_line(st) -> str:
         for s, v in sorted(st.scores.items(), key=lambda kv: kv[1])
         if s != st.chosen
     )
+    ec = getattr(st, "elements", {}).get(st.chosen)
     pr = getattr(st, "priors", {}).get(st.chosen)
-    tail = f"; {pr.what}: {pr.summary()}" if pr is not None else ""
+    tail = f"; {ec.summary()}" if ec is not None else ""
+    tail += f"; {pr.what}: {pr.summary()}" if pr is not None else ""
     return (
         f"pressure structure: {st.chosen} — leave-one-pressure-out held-out nrmse {best:.4f} "
         f"({st.n_params[st.chosen]} coefficients); {others}{tail}"

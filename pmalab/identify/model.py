@@ -53,6 +53,12 @@ class ForceModel:
         return any(e.tare for e in self.effects)
 
     @property
+    def measured_pressure(self) -> bool:
+        """True when an effect takes each run's pressure from its measured mean instead of its
+        label (``Effect.pressure_source``)."""
+        return any(e.pressure_source == "measured" for e in self.effects)
+
+    @property
     def campaign_shared(self) -> tuple[str, ...]:
         """Parameters with one value for a whole campaign (a rig property)."""
         return tuple(n for e in self.effects for n in e.campaign_shared)

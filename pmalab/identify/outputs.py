@@ -499,6 +499,24 @@ class Identification:
     nominal muscle pressure p (MPa gauge): θ(p) = q0 + q1·p + q2·p².
     Tables: :attr:`parameters`, :attr:`pressure_table`, :attr:`validation_table`;
     figures: :meth:`plot_loops`; files: :meth:`save`.
+
+    Attributes
+    ----------
+    campaign
+        The campaign fit: per-run fits, the pressure laws, warnings.
+    runs
+        The identification runs, in canonical units.
+    validation
+        One :class:`Validation` per held-out run (its free-run prediction and metrics).
+    spec
+        The model's specification (law, effects, fixes).
+    initial
+        How a predicted record's own states are set (``"estimate"``: on its early part,
+        every muscle parameter held).
+    notes, validation_warnings
+        Notes and warnings for the user, one line each.
+    trajectory
+        Long records: the model refitted window by window along each long run.
     """
 
     campaign: CampaignFit

@@ -284,6 +284,20 @@ class StructurePrior(TypedDict):
     note: NotRequired[str]
 
 
+class StructureElements(TypedDict):
+    """How many of a free-element structure's elements the muscle needs (Maxwell-slip),
+    chosen by leave-one-pressure-out evidence; tried only when some element carries little
+    of the friction."""
+
+    criterion: str
+    #: element counts tried and the RMS held-out nrmse of each
+    counts: list[int]
+    heldout_nrmse: list[float]
+    chosen: int
+    #: elements removed (1-based) for the chosen count
+    removed: list[int]
+
+
 class PressureStructure(TypedDict):
     """``identification.json`` ``pressure_structure``: how an element law's elements change
     with pressure, chosen by held-out evidence across pressure."""
@@ -299,6 +313,8 @@ class PressureStructure(TypedDict):
     candidates: list[StructureCandidate]
     #: structure → the prior its fit was given (when one was tried)
     priors: NotRequired[dict[str, StructurePrior]]
+    #: structure → how many of its elements the muscle needs (free-element laws)
+    element_counts: NotRequired[dict[str, StructureElements]]
 
 
 class IdentificationDoc(TypedDict):

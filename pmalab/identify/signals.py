@@ -130,7 +130,9 @@ class Signals:
     ``v`` and ``a`` its derivatives from :func:`derivatives` (band ``derivative_Hz``).
     ``p`` is the filtered measured muscle pressure, ``p_nom`` the run's nominal pressure.
     ``t_ref`` (s): the record's reference time for slow terms (a drift d·(t − t_ref)); None:
-    the middle of ``t``'s span.  A part of a record (:meth:`head`) keeps its record's.
+    the middle of ``t``'s span.  ``p_mean`` (MPa): the record's mean measured pressure (the
+    part that varies within the run is p − p_mean); None: the mean of ``p``.  A part of a
+    record (:meth:`head`, :meth:`every`) keeps its record's.
     """
 
     t: np.ndarray
@@ -144,6 +146,7 @@ class Signals:
     cutoff_Hz: float = 10.0
     derivative_Hz: float = 5.0
     t_ref: float | None = None
+    p_mean: float | None = None
 
     @classmethod
     def from_arrays(
@@ -175,6 +178,7 @@ class Signals:
             frequency_Hz=frequency_Hz,
             cutoff_Hz=fc,
             derivative_Hz=fd,
+            p_mean=float(np.mean(p_arr)),
         )
 
     @classmethod
@@ -187,6 +191,11 @@ class Signals:
             frequency_Hz=filter_frequency_Hz(run),
             cutoff_Hz=cutoff_Hz,
         )
+
+    @property
+    def mean_pressure(self) -> float:
+        """``p_mean``, or the mean of ``p`` (MPa)."""
+        return float(self.p_mean) if self.p_mean is not None else float(np.mean(self.p))
 
     @property
     def reference_time(self) -> float:
@@ -214,6 +223,7 @@ class Signals:
             p=self.p[s],
             x_raw=self.x_raw[s],
             t_ref=self.reference_time,
+            p_mean=self.mean_pressure,
         )
 
     def head(self, n: int) -> Signals:

@@ -575,12 +575,17 @@ def _parameter_page(
 
 
 def _final_model_name(diag: dict) -> str | None:
-    """``bouc-wen + viscous-friction`` when the ladder added effects, else None."""
+    """``bouc-wen + viscous-friction`` when the ladder added effects, else None; the law is
+    the one in force at the ladder's last step (a step may change it: ``maxwell-slip +
+    pressure-variation``)."""
     ladder = diag.get("ladder") or []
     if len(ladder) < 2:
         return None
-    effects = ladder[-1].get("effects") or [s.get("added") for s in ladder[1:]]
-    return f"{diag['model']} + {', '.join(str(e) for e in effects if e)}"
+    law = ladder[-1].get("law") or diag["model"]
+    effects = [e for e in ladder[-1].get("effects") or [] if e]
+    if not effects and "law" not in ladder[-1]:
+        effects = [s.get("added") for s in ladder[1:] if s.get("added")]
+    return f"{law} + {', '.join(str(e) for e in effects)}" if effects else str(law)
 
 
 def _title_page(data: ReportData, contents: list[str]) -> Figure:

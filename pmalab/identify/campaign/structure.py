@@ -42,7 +42,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pmalab.identify.schema import PressureStructure, StructureCandidate, StructurePrior
+from pmalab.identify.schema import (
+    PressureStructure,
+    StructureCandidate,
+    StructureElements,
+    StructurePrior,
+)
 from pmalab.runfile import Run
 
 #: a structure with fewer parameters wins unless a richer one's LOPO score is lower by more
@@ -74,6 +79,9 @@ class StructureChoice:
     failed: dict[str, str] = field(default_factory=dict)
     #: structure → the prior its fit was given (strength chosen by the same evidence)
     priors: dict[str, Prior] = field(default_factory=dict)
+    #: structure → how many elements it keeps (chosen by the same evidence), when fewer
+    #: than the law's were tried
+    elements: dict[str, ElementCount] = field(default_factory=dict)
 
     @property
     def margin_percent(self) -> float:
@@ -105,6 +113,8 @@ class StructureChoice:
         )
         if self.priors:
             out["priors"] = {k: v.as_json() for k, v in self.priors.items()}
+        if self.elements:
+            out["element_counts"] = {k: v.as_json() for k, v in self.elements.items()}
         return out
 
     def summary(self) -> str:
@@ -114,6 +124,8 @@ class StructureChoice:
             for s, v in sorted(self.scores.items(), key=lambda kv: kv[1])
         )
         tail = "" if self.chosen == "free" else "; its pressure laws replace the free ones"
+        if self.chosen in self.elements:
+            tail += f"; {self.elements[self.chosen].summary()}"
         if self.chosen in self.priors:
             tail += f"; {self.priors[self.chosen].what}: {self.priors[self.chosen].summary()}"
         return (
@@ -214,6 +226,8 @@ def choose_structure(
             joints[s] = _joint_structured(cf, runs, m, thetas)
         except (ValueError, np.linalg.LinAlgError) as exc:  # reported, never fatal
             choice.failed[s] = str(exc)
+    if d_names and structure in ("auto", *law.structures):
+        _element_counts(cf, runs, law, models, joints, thetas, choice)
     for s, j in list(joints.items()):
         rows = prior_rows(j, law, models[s].law if s in models else law, s)
         got = apply_prior(j, rows)
@@ -560,3 +574,95 @@ def apply_prior(j, rows) -> tuple[Prior, object] | None:
         legendre={n: np.array(z[prob.slices[n]]) for n in prob.free},
     )
     return pr, stepped
+
+
+# --------------------------------------------------------------------------- element count
+#: an element carrying less of the friction (slip force at the campaign's middle pressure)
+#: than this share is a candidate for removal: fewer elements are tried only then (one more
+#: joint fit per count), so a muscle whose elements all matter costs nothing more
+REMOVE_SHARE = 0.1
+#: the fewest elements a free-element law is cut to
+MIN_ELEMENTS = 2
+
+
+@dataclass
+class ElementCount:
+    """How many elements a free-element structure keeps, chosen by the same evidence."""
+
+    #: counts tried (ascending; the last is the law's own) and the RMS held-out nrmse of each
+    counts: list[int]
+    scores: list[float]
+    chosen: int
+    #: elements removed (1-based, in the law's order) for the chosen count
+    removed: list[int]
+
+    def as_json(self) -> StructureElements:
+        return StructureElements(
+            criterion="leave-one-pressure-out held-out nrmse (one joint fit per count); the "
+            f"fewest elements within {100 * SIMPLER_WITHIN:g} % of the best",
+            counts=list(self.counts),
+            heldout_nrmse=list(self.scores),
+            chosen=self.chosen,
+            removed=list(self.removed),
+        )
+
+    def summary(self) -> str:
+        i = self.counts.index(self.chosen)
+        return (
+            f"{self.chosen} of {self.counts[-1]} elements ({self.scores[i]:.4f}; "
+            f"{self.counts[-1]}: {self.scores[-1]:.4f})"
+        )
+
+
+def _element_counts(cf, runs, base, models, joints, thetas, choice) -> None:
+    """Fewer elements for every free-element candidate structure whose fitted elements
+    include ones carrying < ``REMOVE_SHARE`` of the friction: the structure is refitted
+    jointly without the smallest one, then the two smallest (down to ``MIN_ELEMENTS``), each
+    from the free laws like any candidate, and the fewest elements whose leave-one-pressure-
+    out score is within ``SIMPLER_WITHIN`` of the best count's replace the candidate
+    (``models``, ``joints`` and ``choice.elements`` updated in place)."""
+    from pmalab.identify.laws.structures import structured_law
+    from pmalab.identify.model import ForceModel
+
+    lv = levels_of([rf.p_nom for rf in cf.runs])
+    p_mid = float(np.median(lv))
+
+    def score(j) -> float:
+        vals = list(j.lopo.values())
+        return float(np.sqrt(np.mean(np.square(vals)))) if vals else float("nan")
+
+    for s in [k for k in list(models) if k in joints]:
+        law = models[s].law
+        j = joints[s]
+        th = j.theta(p_mid)
+        k, d = law.elements(th)
+        f = np.abs(np.asarray(k) * np.asarray(d))
+        if f.sum() <= 0:
+            continue
+        share = f / f.sum()
+        small = [int(i) for i in np.argsort(share) if share[i] < REMOVE_SHARE]
+        m = int(np.count_nonzero(np.asarray(law.kappa) > 0))
+        small = small[: max(0, m - MIN_ELEMENTS)]
+        if not small:
+            continue
+        counts: dict[int, tuple[float, tuple[int, ...], object, object]] = {
+            m: (score(j), (), models[s], j)
+        }
+        for n_rm in range(1, len(small) + 1):
+            gone = tuple(sorted(small[:n_rm]))
+            kappa = np.array(law.kappa, dtype=np.float64)
+            kappa[list(gone)] = 0.0
+            mod = ForceModel(structured_law(base, s, kappa, law.delta), models[s].effects)
+            try:
+                jr = _joint_structured(cf, runs, mod, thetas)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            counts[m - n_rm] = (score(jr), gone, mod, jr)
+        ok = {c: v for c, v in counts.items() if np.isfinite(v[0])}
+        best = min(v[0] for v in ok.values())
+        chosen = min(c for c, v in ok.items() if v[0] <= best * (1.0 + SIMPLER_WITHIN))
+        order = sorted(ok)
+        choice.elements[s] = ElementCount(
+            order, [ok[c][0] for c in order], chosen, [i + 1 for i in ok[chosen][1]]
+        )
+        models[s], joints[s] = ok[chosen][2], ok[chosen][3]

@@ -171,8 +171,19 @@ def fit_and_validate(
 ) -> tuple[CampaignFit, list[Validation], list[str]]:
     """THE identification: :func:`~pmalab.identify.campaign.fit.fit_campaign` on ``train``,
     then :func:`validate_runs` on ``held_out``.  ``pmalab identify`` and every candidate
-    that ``pmalab diagnose`` scores go through this one function."""
-    from pmalab.identify.campaign.fit import fit_campaign
+    that ``pmalab diagnose`` scores go through this one function.
+
+    A model whose effects take the runs' pressure from the measurement
+    (``ForceModel.measured_pressure``: ``pressure-offset``) gets every run, identification
+    and held-out, at its measured mean pressure (the runs as given: their samples'
+    mean) — what ``--pressure measured`` does."""
+    from pmalab.identify.campaign.fit import _as_model, fit_campaign
+
+    if not isinstance(model, str) and _as_model(model).measured_pressure:
+        from pmalab.identify.labels import use_measured
+
+        train = use_measured(train, whole_run=True)
+        held_out = use_measured(list(held_out), whole_run=True)
 
     cf = fit_campaign(train, model, **fit_kwargs)
     if output == "position":

@@ -495,6 +495,56 @@ def _summary(
     return " ".join(parts), verdict
 
 
+def pressure_sentence(
+    checks: Sequence[Any],
+    steps: Sequence[LadderStep],
+    ranking: Sequence[Mapping[str, Any]],
+    stop: str = "",
+) -> str:
+    """What the summary says about the runs' pressure labels ("" when every label agrees
+    with its measured mean): the offsets, and which of the two pressure effects the ladder
+    added — the per-run offset (``pressure-offset``, the runs at their measured means) or
+    the within-run variation (``pressure-variation``)."""
+    line = label_warning(checks)
+    if not line:
+        return ""
+    added = [s.added for s in steps[1:]]
+    head = f" Pressure labels: {line.split(' — give')[0]}."
+    if "pressure-offset" in added:
+        k = added.index("pressure-offset") + 1
+        return head + (
+            f" The ladder took each run at its measured mean pressure (pressure-offset, step "
+            f"{k}): the labels are off, not the pressure within the runs"
+            + (
+                "; the within-run variation came on top of it (pressure-variation)."
+                if "pressure-variation" in added
+                else "; the model then sits at the noise floor, nothing is left for the "
+                "pressure within the runs."
+                if stop == "at the noise floor"
+                else "; the pressure within the runs explains nothing more (pressure-variation "
+                "not significant)."
+            )
+            + " To identify with the measured pressures: --pressure measured (or --add "
+            "pressure-offset)."
+        )
+    row = next((r for r in ranking if r.get("effect") == "pressure-offset"), None)
+    if row is None:
+        return head + (
+            " pressure-offset (each run at its measured mean) was not among the candidates: "
+            "compare with --pressure measured."
+        )
+    if row.get("status") == "failed":
+        return head + (
+            " The identification with each run at its measured mean (pressure-offset) "
+            "failed (above): compare with --pressure measured."
+        )
+    fall = f" ({row['nrmse_before']:.4f} → {row['nrmse_after']:.4f})"
+    return head + (
+        f" Taking each run at its measured mean (pressure-offset) does not cut the validation "
+        f"error significantly{fall}: the offsets do not matter to this model."
+    )
+
+
 def diagnose(
     runs: Sequence[Run],
     model: str = "bouc-wen",
@@ -538,6 +588,16 @@ def diagnose(
             raise DiagnoseError(f"{r.label}: too few samples to diagnose ({len(r)}; need ≥ 200)")
     # runs whose measured mean pressure is not their label: said with the pressure effects
     label_checks = check_runs([*runs, *validate], whole_run=True)
+    # pressure-offset (every run at its measured mean) is a candidate where a label is off:
+    # with every label within its tolerance of the measurement the relabelled identification
+    # differs by less than the gauge's noise and the regulator's resolution (not scored, said)
+    not_scored: dict[str, str] = {}
+    if effects is None and not any(c.offset for c in label_checks):
+        for e in [e for e in cand if EFFECTS[e].pressure_source == "measured"]:
+            cand.remove(e)
+            not_scored[e] = (
+                "every run's measured mean pressure is within its tolerance of the label"
+            )
     split = choose(runs, validate)
     if not split.train:
         raise DiagnoseError("no identification runs left: every run is held out")
@@ -648,19 +708,7 @@ def diagnose(
         rest,
         single_frequency=one_frequency(split.train),
     )
-    labels_line = label_warning(label_checks)
-    if labels_line:
-        # a label offset is a per-run pressure error, not within-run variation: every model
-        # estimates each held-out record's force zero (most of such an offset's force), and
-        # pressure-variation fits what is left along the stroke
-        pv = any(s.added == "pressure-variation" for s in steps[1:])
-        summary += f" Pressure labels: {labels_line.split(' — give')[0]}." + (
-            " pressure-variation was added with these labels: part of its fall may be "
-            "the runs' label offsets, not variation within the runs — compare with "
-            "--pressure measured."
-            if pv
-            else " Compare with --pressure measured."
-        )
+    summary += pressure_sentence(label_checks, steps, ranking, climbed.stop)
     campaign = campaign_diagnostics(camp_items)
     rounds_json = [
         {
@@ -680,6 +728,7 @@ def diagnose(
         "ladder_stop": climbed.stop,
         "identifications": climbed.identifications,
         "candidates": cand,
+        "not_scored": not_scored,
         "scoring": "validation nrmse of `pmalab identify --add EFFECT` on the held-out "
         "runs (one identification per candidate); each held-out run's record parameters "
         "(start state, force zero, effect nuisances) estimated on its early part, the "

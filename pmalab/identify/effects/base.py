@@ -100,6 +100,10 @@ class Effect:
     #: parameters that describe the rig, not the muscle (e.g. a channel skew): one value for
     #: every run of a campaign (pressure order 0 in the joint fit)
     campaign_shared: ClassVar[tuple[str, ...]] = ()
+    #: where a run's pressure for the pressure laws θ(p) comes from: ``"nominal"`` (its label)
+    #: or ``"measured"`` (its measured mean; an effect saying so makes every run of the
+    #: identification and of its validation use it, as ``--pressure measured`` does)
+    pressure_source: ClassVar[str] = "nominal"
 
     #: the effect in the forward (plant) model of :mod:`pmalab.identify.forward`: which term
     #: of its force law each parameter is — ``mass`` (kg: the load cell reads F − m·ẍ),

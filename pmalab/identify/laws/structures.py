@@ -138,10 +138,10 @@ def structured_law(
     _, d_names = base.element_names()
     if not d_names:  # slip displacements fixed by the law (Prandtl-Ishlinskii's grid)
         r_index: tuple[int, ...] = ()
-    elif structure == "scaled":
-        r_index = tuple(range(m))
+    elif structure == "scaled":  # an element of zero share has no slip displacement to fit
+        r_index = tuple(i for i in range(m) if float(kappa[i]) > 0.0)
     else:
-        r_index = tuple(i for i in range(m) if i != anchor)
+        r_index = tuple(i for i in range(m) if i != anchor and float(kappa[i]) > 0.0)
     shape = (
         *(
             LawParam(
