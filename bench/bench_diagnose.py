@@ -35,7 +35,8 @@ def main() -> None:
             t0 = time.perf_counter()
             d = diagnose(runs, model="bouc-wen", jobs=2)
             dt = time.perf_counter() - t0
-            n_fits = sum(len(r["candidates"]) for r in d.to_json()["rounds"]) + 1
+            # identifications made (each model once: effects, laws and the base)
+            n_fits = d.settings["identifications"]
             rows.append((effect, len(runs), f"7 + {len(d.laws)} laws", len(d.ladder) - 1, d.winner or "none",
                          d.ladder[0]["nrmse"], d.ladder[-1]["nrmse"], n_fits, dt,
                          "yes" if dt <= 15.0 else "NO"))

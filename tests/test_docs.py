@@ -138,3 +138,59 @@ def test_make_docs_is_the_strict_build_the_site_test_runs():
     lines = [ln.strip() for ln in recipe.group(1).splitlines()]
     assert len(lines) == 1 and re.fullmatch(r"(\S+=\S+ )*\$\(BIN\)/mkdocs build --strict",
                                             lines[0]), lines
+
+
+def test_every_function_on_the_api_page_has_numpy_parameters_and_returns():
+    """Every function and method the API page renders (docs/reference/api.md's ``:::``
+    directives) documents its parameters and, when it returns something, what (NumPy
+    sections the site renders as tables)."""
+    import griffe
+
+    spec = importlib.util.spec_from_file_location("sphinx_roles",
+                                                  ROOT / "docs" / "hooks" / "sphinx_roles.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    exact, prefixes = mod.rendered_paths()
+    pkg = griffe.load("pmalab", search_paths=[str(ROOT)], docstring_parser="numpy")
+    missing: list[str] = []
+    seen: set[int] = set()
+    checked = 0
+
+    def check(path: str, fn) -> None:
+        nonlocal checked
+        checked += 1
+        kinds = {s.kind.value for s in fn.docstring.parse("numpy")}
+        if [p for p in fn.parameters if p.name not in ("self", "cls")] and not kinds & {
+                "parameters", "other parameters"}:
+            missing.append(f"{path}: no Parameters")
+        if fn.returns is not None and str(fn.returns) != "None" and not kinds & {
+                "returns", "yields"}:
+            missing.append(f"{path}: no Returns")
+
+    def visit(path: str, obj, explicit: bool) -> None:
+        if id(obj) in seen:
+            return
+        seen.add(id(obj))
+        if obj.is_function:
+            check(path, obj)
+            return
+        if not (obj.is_class or (obj.is_module and explicit)):
+            return
+        for name, member in obj.members.items():
+            if name.startswith("_"):
+                continue
+            try:
+                member = member.final_target if member.is_alias else member
+            except Exception:  # griffe: an alias to outside the package
+                continue
+            if obj.is_module and (member.is_module or member.filepath != obj.filepath):
+                continue  # mkdocstrings shows what the module defines
+            if member.docstring and member.docstring.value.strip():
+                visit(f"{path}.{name}", member, False)
+
+    for path in sorted(exact):
+        obj = pkg[path.removeprefix("pmalab.")]
+        visit(path, obj.final_target if obj.is_alias else obj, path + "." in prefixes)
+    assert checked >= 60, checked
+    assert missing == [], "\n".join(missing)

@@ -75,3 +75,31 @@ def test_diverged_prediction_and_bound_hits_are_failures_with_their_reason():
     ok = Scored(effects=("sensor-delay",), nrmse=[0.052, 0.061], n_runs=4)
     c = Candidate("sensor-delay", base, ok, floors=FLOORS)
     assert c.failure() == "" and not judge([c])[0][0].significant
+
+
+def test_a_held_out_run_at_its_noise_floor_is_no_evidence_either_way():
+    # the tared drift of the subtle suite, seed 203: the 0.5 Hz held-out run falls from 3.8x
+    # to 1.0x its floor; the 1 s run at 2 Hz (its last 0.5 s scored) is at its floor with and
+    # without the drift (the zero moved less than the noise there): 1.13x -> 1.14x
+    floors = [0.0224, 0.0194]
+    base = Scored(effects=(), nrmse=[0.0845, 0.0219])
+    drift = Candidate(
+        "sensor-drift", base, Scored(("sensor-drift",), [0.0229, 0.0221]), floors=floors
+    )
+    assert drift.at_floor == [False, True] and drift.runs_improved == 0.5
+    assert drift.every_run and judge([drift])[0][0].significant
+    assert drift.as_json()["runs_at_floor"] == 1
+    # a run above its floor before must fall: 1.5x its floor, slightly worse after -> not
+    base = Scored(effects=(), nrmse=[0.0845, 1.5 * 0.0194])
+    worse = Scored(("sensor-drift",), [0.0229, 1.5 * 0.0194 + 0.0002])
+    c = Candidate("sensor-drift", base, worse, floors=floors)
+    assert c.at_floor == [False, False] and not c.every_run and not judge([c])[0][0].significant
+    # ... and so must one that the candidate pushes off the floor (1.1x -> 1.3x)
+    base = Scored(effects=(), nrmse=[0.0845, 1.1 * 0.0194])
+    off = Scored(("sensor-drift",), [0.0229, 1.3 * 0.0194])
+    assert not Candidate("sensor-drift", base, off, floors=floors).every_run
+    # every run at its floor: nothing fell beyond noise, nothing is claimed
+    base = Scored(effects=(), nrmse=[1.2 * 0.0224, 1.2 * 0.0194])
+    tiny = Scored(("sensor-drift",), [1.1 * 0.0224, 1.21 * 0.0194])
+    c = Candidate("sensor-drift", base, tiny, floors=floors)
+    assert c.every_run and not judge([c])[0][0].significant  # the gain is under 0.25 floors

@@ -276,6 +276,13 @@ def _prune(root: Path, keep: int) -> None:
 
 
 # --------------------------------------------------------------------------- the hooks
+def on_config(config):
+    """Each build (``mkdocs serve`` rebuilds too) looks at the code and the pages afresh."""
+    _state.clear()
+    _dirs.clear()
+    return config
+
+
 def on_files(files: Files, config) -> Files:
     for root in built().values():
         for png in sorted((root / "generated").rglob("*.png")):

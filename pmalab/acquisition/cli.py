@@ -661,17 +661,19 @@ def cmd_view(args: argparse.Namespace) -> int:
     server = LiveServer(hub, host, port, on_stop=None, option="--port")
     url = server.start()
     follower.start()
-    print(f"pmalab: viewing {path} on {url} (Ctrl-C to quit)", file=sys.stderr, flush=True)
-    if not args.no_browser and _has_desktop():
-        import webbrowser
-
-        webbrowser.open(url)
 
     def on_term(signum, frame):  # SIGTERM quits like Ctrl-C
         raise KeyboardInterrupt
 
+    # in place before the line that says the page is served: whoever reads that line may
+    # stop the viewer at once (on a busy machine this thread can lag the server's threads)
     old = signal.signal(signal.SIGTERM, on_term)
     try:
+        print(f"pmalab: viewing {path} on {url} (Ctrl-C to quit)", file=sys.stderr, flush=True)
+        if not args.no_browser and _has_desktop():
+            import webbrowser
+
+            webbrowser.open(url)
         while True:
             time.sleep(0.5)
     except KeyboardInterrupt:

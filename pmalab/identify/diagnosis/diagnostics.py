@@ -196,7 +196,26 @@ def describe_worst(regions: list[dict[str, Any]], total_rms: float) -> str:
 
 
 def run_diagnostics(sig: Signals, force: np.ndarray, model_force: np.ndarray) -> dict[str, Any]:
-    """Every single-run diagnostic of the residual measured − model (full-rate signals)."""
+    """Every single-run diagnostic of the residual.
+
+    Parameters
+    ----------
+    sig
+        The run's signals at full rate (contraction x mm, its rates, pressure MPa, time s).
+    force
+        Measured tension, N (positive pulls).
+    model_force
+        The model's tension, N.
+
+    Returns
+    -------
+    dict
+        Of the residual r = measured − model (N): its mean binned by position, velocity,
+        its sign, acceleration, pressure deviation, time and loop branch (``binned``, each
+        with a confidence band); its autocorrelation (``acf``) and cross-correlation with
+        the position (``ccf_input``, lags in s, ±1.96/√n bounds); the loop regions and the
+        worst one; ``rmse`` (N) and ``nrmse``.
+    """
     r = np.asarray(force, dtype=np.float64) - np.asarray(model_force, dtype=np.float64)
     tau = _ci_scale(r)
     v = sig.v
@@ -287,6 +306,16 @@ def _fundamental(t: np.ndarray, x: np.ndarray) -> float | None:
     return float(k * (n - 1) / ((t[-1] - t[0]) * n))
 
 
+def _seamless(y: np.ndarray) -> np.ndarray:
+    """``y`` minus the straight line through its first and last samples (and its mean): its
+    periodic extension has no jump at the seam."""
+    y = np.asarray(y, float)
+    if y.size < 2:
+        return y - float(np.mean(y)) if y.size else y
+    z = y - np.linspace(float(y[0]), float(y[-1]), y.size)
+    return z - float(np.mean(z))
+
+
 def residual_shares(
     t: np.ndarray,
     x: np.ndarray,
@@ -319,6 +348,28 @@ def residual_shares(
     is: ``"model"`` when the prediction carries more power above the band than the
     measurement (a model term differentiating a noisy position injects it), else
     ``"measurement"`` (the rig).
+
+    Parameters
+    ----------
+    t
+        Sample times, s.
+    x
+        Contraction, mm (positive = shorter).
+    r
+        Residual, measured − model tension, N, of a free-run prediction.
+    noise_sigma_N
+        The record's own noise SD, N (:mod:`pmalab.identify.noise`).
+    frequency_Hz
+        The motion's fundamental f0, Hz (``None``: read off the position's spectrum).
+    model_force
+        The prediction, N, to say whose the fast part is.
+
+    Returns
+    -------
+    dict
+        ``structured_power_N2`` (P, N²), ``rms_N``, ``noise_sigma_N``, ``f0_Hz`` and the
+        shares ``offset``, ``loop``, ``above_band``, ``other`` (fractions of P), plus
+        ``above_band_source`` with ``model_force``.
     """
     t = np.asarray(t, float)
     r = np.asarray(r, float)
@@ -366,14 +417,18 @@ def residual_shares(
     rest = rc - locked
     tu = np.linspace(t[0], t[-1], n)
     ru = np.interp(tu, t, rest)
-    spec = np.abs(np.fft.rfft(ru)) ** 2
+    # the FFT extends the record periodically: a record that ends elsewhere than it starts
+    # (a steady window of a few cycles, a slow drift) jumps at the seam, and the jump's
+    # broadband leakage would be read as fast content.  The straight line through the end
+    # points is taken out before the split (its power is slow: it stays in the band).
+    spec = np.abs(np.fft.rfft(_seamless(ru))) ** 2
     spec[1:] *= 2.0
     freqs = np.fft.rfftfreq(n, d=(tu[-1] - tu[0]) / (n - 1))
-    total = float(spec.sum())
     rest_var = float(np.mean(ru**2))
     above = freqs > (MOTION_HARMONICS + 0.5) * f0
     nyq = float(freqs[-1]) if freqs[-1] > 0 else 1.0
-    frac_above = float(spec[above].sum()) / total if total > 0 else 0.0
+    # Parseval: the power above the band, as a share of all the rest's power
+    frac_above = min(float(spec[above].sum()) / n**2 / rest_var, 1.0) if rest_var > 0 else 0.0
     width_above = max(nyq - (MOTION_HARMONICS + 0.5) * f0, 0.0) / nyq
     noise_rest = sigma2 * (1.0 - used / n)
     above_p = max(frac_above * rest_var - noise_rest * width_above, 0.0)
@@ -383,7 +438,7 @@ def residual_shares(
         pred = np.interp(tu, t, np.asarray(model_force, float))
 
         def fast(sig: np.ndarray) -> float:
-            sp = np.abs(np.fft.rfft(sig - sig.mean())) ** 2
+            sp = np.abs(np.fft.rfft(_seamless(sig))) ** 2
             return float(sp[above].sum())
 
         out["above_band_source"] = "model" if fast(pred) > fast(measured) else "measurement"
@@ -413,8 +468,21 @@ RESIDUAL_NEXT = {
 
 
 def residual_next_step(per_run: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Campaign shares (weighted by each run's structured power) and the next thing to look
-    at: the largest share, when it holds at least a third of what is left."""
+    """The campaign's residual shares and the next thing to look at.
+
+    Parameters
+    ----------
+    per_run
+        Each held-out run's :func:`residual_shares`.
+
+    Returns
+    -------
+    dict
+        The shares ``loop``, ``above_band``, ``offset``, ``other`` averaged with each run's
+        structured power as weight; ``above_band_source``; ``next``: the largest share
+        when it holds at least a third of what is left (else ``None``); ``text``: the
+        sentence the summary prints.
+    """
     keys = ("loop", "above_band", "offset", "other")
     w = np.array([d["structured_power_N2"] for d in per_run], float)
     if not per_run or w.sum() <= 0:

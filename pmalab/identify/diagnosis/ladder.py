@@ -34,7 +34,7 @@ import numpy as np
 
 from pmalab.identify.campaign import ModelSpec
 from pmalab.identify.diagnosis.ranking import (
-    MIN_GAIN_X_FLOOR,
+    AT_FLOOR_RATIO,
     Candidate,
     Scored,
     heldout_floor,
@@ -44,9 +44,7 @@ from pmalab.identify.diagnosis.ranking import (
 from pmalab.identify.laws import LAWS
 from pmalab.runfile import Run
 
-#: a model whose mean held-out nrmse is below this many times the mean noise floor leaves no
-#: candidate that could cut it by ``MIN_GAIN_X_FLOOR`` floors (module docstring)
-AT_FLOOR_RATIO = 1.0 + MIN_GAIN_X_FLOOR
+__all__ = ["AT_FLOOR_RATIO", "Ladder", "LadderStep", "Round", "run_ladder"]
 
 #: why the ladder stopped (``Ladder.stop``)
 STOP_REASONS = ("nothing significant", "at the noise floor", "max steps", "every candidate in")

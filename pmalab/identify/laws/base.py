@@ -62,7 +62,16 @@ LAWS: Registry[type[HysteresisLaw]] = Registry("model")
 
 
 class HysteresisLaw:
-    """Base class of a hysteresis law (subclass, set the class attributes, write the hooks)."""
+    """Base class of a hysteresis law (subclass, set the class attributes, write the hooks).
+
+    A law gives the hysteretic force h (N) of the model F = k·x + c0 + h along a path of the
+    contraction x (mm, positive = shorter than nominal); F is the tension (N, positive
+    pulls).  Friction makes the tension higher while the muscle is stretched (x falling)
+    than while it contracts, so along a loop h is larger on the stretching branch: a law
+    must reproduce the loop's direction, not only its width.  :meth:`h` integrates a whole
+    path, :meth:`step` one segment of it (the same integrator, for 500 Hz loops and the
+    forward model).
+    """
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -108,11 +117,34 @@ class HysteresisLaw:
 
     # ------------------------------------------------------------------ start values
     def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
-        """Shape parameters of the start grid, sized from the stroke (mm)."""
+        """The shape parameters of the fit's start grid, sized from the stroke.
+
+        Parameters
+        ----------
+        stroke_mm
+            The range of the contraction in the record, mm.
+
+        Returns
+        -------
+        list of dict
+            One start per entry (shape parameter → value); ``[{}]``: a single start.
+        """
         return [{}]
 
     def scale_valid(self, theta: Mapping[str, float]) -> bool:
-        """True when h is positively homogeneous in :attr:`scale_param` at these shape parameters."""
+        """Whether h scales with :attr:`scale_param` at these shape parameters.
+
+        Parameters
+        ----------
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+
+        Returns
+        -------
+        bool
+            True when h is positively homogeneous in :attr:`scale_param` (h(c·θs) =
+            c·h(θs)): the fit may then solve for it linearly.
+        """
         return self.scale_param is not None
 
     def guess(
@@ -122,61 +154,175 @@ class HysteresisLaw:
         v: np.ndarray,
         fixed: Mapping[str, float] | None = None,
     ) -> dict[str, float]:
-        """Start values of the law's parameters from a measured loop (x mm, force N, v mm/s).
+        """Start values of the law's parameters from a measured loop.
 
-        ``fixed``: parameters this fit holds (their values win over the guess; a law may
-        size the others around them).  Default: the parameters' ``init`` values.  Laws
-        override this with data-sized values (loop half-width from the branch offsets,
-        memory length from the stroke).
+        Default: the parameters' ``init`` values.  Laws override this with data-sized
+        values (loop half-width from the branch offsets, memory length from the stroke).
+
+        Parameters
+        ----------
+        x
+            Contraction, mm (positive = shorter).
+        force
+            Tension, N (positive pulls).
+        v
+            Contraction rate, mm/s.
+        fixed
+            Parameters this fit holds: their values win over the guess, and a law may size
+            the others around them.
+
+        Returns
+        -------
+        dict of str to float
+            A start value per parameter, in its unit.
         """
         return {p.name: p.init for p in self.params}
 
     def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-        """(stiffness k_i N/mm, slip displacement d_i mm) of the law's elasto-slide elements
-        at ``theta`` — for laws that offer :attr:`structures`."""
+        """The law's elasto-slide elements (laws that offer :attr:`structures`).
+
+        Parameters
+        ----------
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, numpy.ndarray)
+            Each element's stiffness k_i (N/mm) and slip displacement d_i (mm).
+
+        Raises
+        ------
+        NotImplementedError
+            The law has no such elements.
+        """
         raise NotImplementedError(f"{self.name} has no elasto-slide elements")
 
     def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """(stiffness parameter names, slip-displacement parameter names) of the elements;
-        the second is empty when the slip displacements are fixed by the law."""
+        """The names of the elements' parameters.
+
+        Returns
+        -------
+        tuple of (tuple of str, tuple of str)
+            The stiffness parameters and the slip-displacement parameters (empty when the
+            law fixes the slip displacements).
+
+        Raises
+        ------
+        NotImplementedError
+            The law has no elasto-slide elements.
+        """
         raise NotImplementedError(f"{self.name} has no elasto-slide elements")
 
     def canonical(self, theta: Mapping[str, float]) -> dict[str, float]:
-        """The same law with its exchangeable elements in a canonical order (identity for
-        a law without elements): a campaign compares one element with the same element."""
+        """The same parameters with exchangeable elements in a canonical order.
+
+        A campaign's pressure laws then compare one element with the same element.
+
+        Parameters
+        ----------
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+
+        Returns
+        -------
+        dict of str to float
+            The reordered parameters (a copy of ``theta`` for a law without elements).
+        """
         return dict(theta)
 
     # ------------------------------------------------------------------ evaluation
     def h(
         self, x: np.ndarray, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
     ) -> np.ndarray:
-        """h (N) at every sample of the position path ``x`` (mm); h[0] = theta['h0']."""
+        """The hysteretic force along a path of the contraction.
+
+        Parameters
+        ----------
+        x
+            The contraction at every sample, mm (positive = shorter); a filtered path, as
+            the model drives the law (raw 500 Hz noise would bias rate-independent laws).
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+            ``h0`` is the record's start state, N.
+        extras
+            Extra inputs effects supply (:attr:`extras`; ``None``: none).
+
+        Returns
+        -------
+        numpy.ndarray
+            h at every sample, N (adds to the tension); ``h[0] = theta["h0"]``.
+        """
         raise NotImplementedError
 
     def stepper(
         self, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
     ) -> Callable[[float, float, float], float]:
-        """A fast ``step(h, x_prev, x) -> h`` with the parameters bound (for 500 Hz loops)."""
+        """A fast one-segment step with the parameters bound (for 500 Hz loops).
+
+        Parameters
+        ----------
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+        extras
+            Extra inputs effects supply (:attr:`extras`; ``None``: none).
+
+        Returns
+        -------
+        callable
+            ``step(state, x_prev, x) -> state``: the state advanced along the segment
+            x_prev → x (mm); :meth:`output` gives its h (N).
+        """
         raise NotImplementedError
 
     def initial_state(
         self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0
     ) -> Any:
-        """The stepper's state at a record's start with hysteretic force ``h0`` (N) whose
-        first motion is toward contraction (``direction`` +1) or stretch (−1) — the state
-        :meth:`h` starts from."""
+        """The stepper's state at a record's start (the state :meth:`h` starts from).
+
+        Parameters
+        ----------
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+        h0
+            The hysteretic force at the start, N.
+        direction
+            The first motion: +1 toward contraction, −1 toward stretch.
+
+        Returns
+        -------
+        object
+            The state (a float h for a scalar-state law).
+        """
         return float(h0)
 
     def output(self, state: Any) -> float:
-        """h (N) of a stepper state (the state itself for a scalar-state law)."""
+        """The hysteretic force of a stepper state.
+
+        Parameters
+        ----------
+        state
+            A state of :meth:`stepper` or :meth:`initial_state`.
+
+        Returns
+        -------
+        float
+            h, N (the state itself for a scalar-state law).
+        """
         return float(state)
 
     def kernel(self) -> Callable[..., float] | None:
-        """A numba-compiled ``seg(state, x_prev, x, prm) -> state`` for scalar-state laws,
-        ``prm`` = the law's parameters in :attr:`params` order followed by :attr:`extras`
-        — the same segment :meth:`h` integrates, for compiled loops (the forward model of
-        :mod:`pmalab.identify.forward`).  None: the law has no compiled segment (its
-        :meth:`stepper` is used instead, at Python speed)."""
+        """The compiled segment, for compiled loops (the forward model of
+        :mod:`pmalab.identify.forward`).
+
+        Returns
+        -------
+        callable or None
+            A numba-compiled ``seg(state, x_prev, x, prm) -> state`` for a scalar-state
+            law (x in mm, state h in N), ``prm`` = the law's parameters in :attr:`params`
+            order followed by :attr:`extras`: the same segment :meth:`h` integrates.
+            ``None``: no compiled segment (:meth:`stepper` is used, at Python speed).
+        """
         return None
 
     def step(
@@ -187,10 +333,26 @@ class HysteresisLaw:
         theta: Mapping[str, float],
         extras: Mapping[str, float] | None = None,
     ) -> float:
-        """Advance the state h (N) along one position segment x_prev → x (mm).
+        """Advance the state along one segment of the contraction.
 
         Exactly one segment of the integrator :meth:`h` uses, so running the law forward
         sample by sample reproduces the batch trajectory to round-off.
+
+        Parameters
+        ----------
+        h
+            The state before the segment, N.
+        x_prev, x
+            The contraction at the segment's start and end, mm (positive = shorter).
+        theta
+            The law's parameters by name, in their units (:attr:`params`).
+        extras
+            Extra inputs effects supply (:attr:`extras`; ``None``: none).
+
+        Returns
+        -------
+        float
+            The state after the segment, N.
         """
         return self.stepper(theta, extras)(h, x_prev, x)
 
