@@ -21,7 +21,7 @@ from pmalab.identify.headline import error_fall, worst_runs
 from pmalab.identify.messages import is_detail, is_note, prefixed, read_messages
 from pmalab.reports import style
 from pmalab.reports.data import IMPROVED, ReportData, Trace, load_report_dir
-from pmalab.reports.errors import ReportError, report_output
+from pmalab.reports.errors import ReportError
 from pmalab.reports.figures_active import active_figure, has_active_rounds
 from pmalab.reports.figures_compare import (
     compare_figure,
@@ -63,7 +63,7 @@ from pmalab.reports.figures_text import (
     title_page_figure,
 )
 from pmalab.reports.figures_trajectory import trajectory_figure, trajectory_table_figure
-from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
 
 TIME_PER_PAGE = 3
 LOOPS_PER_PAGE = 6
@@ -833,28 +833,18 @@ def build_report(
             jobs=jobs,
             start_method=start_method,
         )
-    out = report_output(out, force)
-    args = ([str(p) for p in inputs],)
-    plan = report_plan(*args)
-    return write_pdf(
+    return write_plan(
+        report_plan,
+        ([str(p) for p in inputs],),
         out,
-        plan.pages,
-        title=plan.title,
+        force,
         subject="pneumatic muscle identification",
-        force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
-        parallel=parallel_renderer(
-            report_plan,
-            args,
-            len(plan.pages),
-            jobs=jobs,
-            start_method=start_method,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-        ),
+        jobs=jobs,
+        start_method=start_method,
     )
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 from matplotlib.figure import Figure
 
 from pmalab.errors import PmalabError
-from pmalab.reports.errors import ReportError, report_output
+from pmalab.reports.errors import ReportError
 from pmalab.reports.figures_control import (
     ControlFileData,
     ControlRunData,
@@ -24,7 +24,7 @@ from pmalab.reports.figures_control import (
     sim_to_real_figure,
     sim_to_real_pairs,
 )
-from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
+from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
 from pmalab.runfile import decode_attr, open_h5, read_run_datasets, read_runs
 
 
@@ -112,27 +112,15 @@ def build_control_report(
     ``jobs`` worker processes render the pages (default: the CPUs this process may use;
     1 renders in this process); the PDF's pages are the same either way.
     """
-    out = Path(out)
-    out = report_output(out, force)
-    args = ([str(p) for p in paths],)
-    plan = control_plan(*args)
-    return write_pdf(
+    return write_plan(
+        control_plan,
+        ([str(p) for p in paths],),
         out,
-        plan.pages,
-        title=plan.title,
-        force=force,
+        force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
-        footer=plan.footer,
-        parallel=parallel_renderer(
-            control_plan,
-            args,
-            len(plan.pages),
-            jobs=jobs,
-            start_method=start_method,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-        ),
+        jobs=jobs,
+        start_method=start_method,
     )

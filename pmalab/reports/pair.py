@@ -20,8 +20,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from pmalab.errors import PmalabError
-from pmalab.reports.errors import ReportError, report_output
-from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
+from pmalab.reports.errors import ReportError
+from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
 from pmalab.runfile import Run, muscles_of, open_h5, read_run_datasets, read_runs
 
 #: one colour per muscle, in declaration order (flexor, extensor, ...)
@@ -211,28 +211,17 @@ def build_pair_report(
     ``jobs`` worker processes render the pages (default: the CPUs this process may use;
     1 renders in this process); the PDF's pages are the same either way.
     """
-    out = Path(out)
-    out = report_output(out, force)
-    args = ([str(p) for p in paths],)
-    plan = pair_plan(*args)
-    return write_pdf(
+    return write_plan(
+        pair_plan,
+        ([str(p) for p in paths],),
         out,
-        plan.pages,
-        title=plan.title,
-        force=force,
+        force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
-        parallel=parallel_renderer(
-            pair_plan,
-            args,
-            len(plan.pages),
-            jobs=jobs,
-            start_method=start_method,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-        ),
+        jobs=jobs,
+        start_method=start_method,
     )
 
 

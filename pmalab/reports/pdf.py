@@ -22,7 +22,7 @@ from tqdm import tqdm
 from pmalab import __version__
 from pmalab.paths import check_output
 from pmalab.reports import style
-from pmalab.reports.errors import ReportError
+from pmalab.reports.errors import ReportError, report_output
 
 
 @dataclass
@@ -105,6 +105,81 @@ def parallel_renderer(
         )
 
     return render_all
+
+
+def write_plan(
+    plan: Callable[..., ReportPlan],
+    args: tuple,
+    out: str | Path,
+    force: bool = False,
+    *,
+    subject: str = "",
+    png_dir: str | Path | None = None,
+    svg_dir: str | Path | None = None,
+    progress: Callable[[str], None] | None = None,
+    bar: bool = False,
+    jobs: int | None = None,
+    start_method: str | None = None,
+) -> Path:
+    """Plan a report with ``plan(*args)`` and render it into the PDF ``out``.
+
+    The one path every report takes: ``out`` is checked (refused when it exists without
+    ``force``), the plan built here, and its pages drawn by ``jobs`` worker processes
+    (default: the CPUs this process may use; 1 draws them in this process), each worker
+    rebuilding the same plan from ``args`` (picklable: paths as text). The PDF's pages are
+    the same either way.
+
+    Parameters
+    ----------
+    plan
+        The report's module-level planning function.
+    args
+        Its arguments.
+    out
+        The PDF to write (a hidden temporary file until every page is in).
+    force
+        Overwrite ``out`` and page exports.
+    subject
+        The PDF's Subject metadata.
+    png_dir, svg_dir
+        Export every page as PNG/SVG there too.
+    progress
+        Called with one line per page.
+    bar
+        Show a progress bar.
+    jobs
+        Worker processes drawing the pages.
+    start_method
+        The workers' multiprocessing start method (default: the platform's).
+
+    Returns
+    -------
+    Path
+        ``out``.
+    """
+    out = report_output(Path(out), force)
+    built = plan(*args)
+    return write_pdf(
+        out,
+        built.pages,
+        title=built.title,
+        subject=subject,
+        force=force,
+        png_dir=png_dir,
+        svg_dir=svg_dir,
+        progress=progress,
+        bar=bar,
+        footer=built.footer,
+        parallel=parallel_renderer(
+            plan,
+            args,
+            len(built.pages),
+            jobs=jobs,
+            start_method=start_method,
+            png_dir=png_dir,
+            svg_dir=svg_dir,
+        ),
+    )
 
 
 def _page_bar(n: int, bar: bool) -> tqdm:

@@ -21,8 +21,8 @@ from matplotlib.figure import Figure
 from pmalab.identify.schema import PredictionRun, read_predictions
 from pmalab.identify.static.maps import Geometry, get_static_map
 from pmalab.reports import style
-from pmalab.reports.errors import ReportError, report_output
-from pmalab.reports.pdf import PageSpec, ReportPlan, parallel_renderer, write_pdf
+from pmalab.reports.errors import ReportError
+from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
 
 #: branch colours: inflating (pressure rising) and venting
 INFLATING = "#1f77b4"
@@ -324,28 +324,16 @@ def build_static_report(
     ``jobs`` worker processes render the pages (default: the CPUs this process may use;
     1 renders in this process); the PDF's pages are the same either way.
     """
-    path, out = Path(path), Path(out)
-    out = report_output(out, force)
-    args = (str(path),)
-    plan = static_plan(*args)
-    return write_pdf(
+    return write_plan(
+        static_plan,
+        (str(Path(path)),),
         out,
-        plan.pages,
-        title=plan.title,
+        force,
         subject="pneumatic muscle static characterization",
-        force=force,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
         bar=bar,
-        footer=plan.footer,
-        parallel=parallel_renderer(
-            static_plan,
-            args,
-            len(plan.pages),
-            jobs=jobs,
-            start_method=start_method,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-        ),
+        jobs=jobs,
+        start_method=start_method,
     )
