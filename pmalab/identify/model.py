@@ -136,8 +136,25 @@ class ForceModel:
         return out
 
     def predict(self, sig: Signals, theta: Mapping[str, float]) -> np.ndarray:
-        """Free-run force prediction (N) along the run."""
-        return np.sum(list(self.components(sig, theta).values()), axis=0)
+        """Free-run force prediction (N) along the run: the sum of :meth:`components`.
+
+        The fitters call this hundreds of thousands of times on short records, so the parts
+        are added in place of being collected: the same additions in the same order
+        (linear, hysteresis, each effect's term), hence the same numbers bit for bit, without
+        the dict, the broadcast views and the stacked array."""
+        s = self.drive(sig, theta)
+        extras: dict[str, float] = {}
+        for e in self.effects:
+            extras.update(e.law_extras(self.law.name, s, theta))
+        h = self.law.h(s.x, theta, extras)
+        out = np.asarray(theta["k"] * s.x + theta["c0"], dtype=np.float64) + np.asarray(
+            h, dtype=np.float64
+        )
+        for e in self.effects:
+            term = e.force(s, h, theta)
+            if np.ndim(term) or term != 0.0:
+                out = out + np.asarray(term, dtype=np.float64)
+        return np.broadcast_to(out, s.t.shape).copy() if out.shape != s.t.shape else out
 
     def __repr__(self) -> str:
         return f"ForceModel({self.name})"
