@@ -173,17 +173,27 @@ class Problem:
         return self.model.predict(self.records[i].sig, th)
 
     def run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
-        r = self.records[i]
+        """Run i's weighted residual (N × weight) at the parameters ``th``; a runaway
+        prediction is clipped (see ``cap``)."""
         with np.errstate(all="ignore"):
-            e = (self.output(i, th) - r.force) * r.weight
+            return self._run_residual(i, th)
+
+    def _run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
+        """:meth:`run_residual` for callers that already ignore floating-point warnings
+        (the Jacobian's hundreds of calls: one ``errstate`` for all of them)."""
+        r = self.records[i]
+        e = (self.output(i, th) - r.force) * r.weight
+        # one reduction: the largest |e| is NaN (a NaN anywhere) or inf (an inf anywhere),
+        # and `not (m <= cap)` is then True, as it is for a finite m above the cap
+        m = float(np.abs(e).max())
         if self.cap is not None:
-            if not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > self.cap:
+            if not m <= self.cap:
                 e = np.clip(
                     np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
                     -self.cap,
                     self.cap,
                 )
-        elif not np.all(np.isfinite(e)) or float(np.max(np.abs(e))) > RUNAWAY_N:
+        elif not m <= RUNAWAY_N:
             # a runaway state: large and finite (squares stay representable)
             e = np.clip(
                 np.nan_to_num(e, nan=RUNAWAY_N, posinf=RUNAWAY_N, neginf=-RUNAWAY_N),
@@ -196,7 +206,8 @@ class Problem:
         key = np.asarray(z, dtype=float).tobytes()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
-        e = np.concatenate([self.run_residual(i, th) for i, th in enumerate(self.thetas(z))])
+        with np.errstate(all="ignore"):
+            e = np.concatenate([self._run_residual(i, th) for i, th in enumerate(self.thetas(z))])
         self._cache = (key, e)
         return e
 
@@ -204,9 +215,15 @@ class Problem:
         """Jacobian of :meth:`residual` (``run_only``: only the per-run columns are filled)."""
         z = np.asarray(z, dtype=float)
         r0 = self.residual(z)
+        J = np.zeros((self.n_rows, self.n_var))
+        with np.errstate(all="ignore"):
+            self._fill_jac(J, z, r0, run_only)
+        return J
+
+    def _fill_jac(self, J: np.ndarray, z: np.ndarray, r0: np.ndarray, run_only: bool) -> None:
+        """:meth:`jac`'s columns, in place (under one ``errstate``)."""
         ths = self.thetas(z)
         raw = self.raw(z)
-        J = np.zeros((self.n_rows, self.n_var))
         for n in [] if run_only else self.free:
             lo, hi = self.bounds.get(n, (-np.inf, np.inf))
             sl = self.slices[n]
@@ -214,16 +231,16 @@ class Problem:
                 if not (lo <= raw[n][i] <= hi):
                     continue  # clipped: θ does not move with the coefficients here
                 d = self.dresid(i, th, n, r0)
-                J[self.rows[i], sl] = np.outer(d, self.B[n][i])
+                J[self.rows[i], sl] = d[:, None] * self.B[n][i][None, :]  # np.outer's product
         for j, rn in enumerate(self.run_params):
             col0 = self.block(j).start
             for i, th in enumerate(ths):
                 J[self.rows[i], col0 + i] = self.dresid(i, th, rn, r0)
-        return J
 
     def dresid(self, i: int, th: Mapping[str, float], name: str, r0: np.ndarray) -> np.ndarray:
         """∂(run i's residual)/∂θ_name: analytic for k and c0, else a forward difference
-        (stepping back at the upper bound)."""
+        (stepping back at the upper bound).  Floating-point warnings are the caller's
+        (:meth:`jac` ignores them once for all its columns)."""
         rec = self.records[i]
         if name == "c0" and self.analytic_linear:
             return np.full(rec.n, rec.weight)
@@ -238,7 +255,7 @@ class Problem:
             h = -h
         th2 = dict(th)
         th2[name] = v + h
-        return (self.run_residual(i, th2) - r0[self.rows[i]]) / h
+        return (self._run_residual(i, th2) - r0[self.rows[i]]) / h
 
     # ------------------------------------------------------------------ summaries
     def per_run_rmse(self, z: np.ndarray) -> list[float]:
