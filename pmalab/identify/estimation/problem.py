@@ -152,14 +152,18 @@ class Problem:
     def thetas(self, z: np.ndarray) -> list[dict[str, float]]:
         """The full parameter set of every run."""
         raw = self.raw(z)
+        # each law clipped to its bounds at every run at once (np.clip: the same min/max)
+        free = [
+            (n, np.clip(raw[n], *self.bounds.get(n, (-np.inf, np.inf))).tolist()) for n in self.free
+        ]
+        per_run = [(rn, z[self.block(j)].tolist()) for j, rn in enumerate(self.run_params)]
         out = []
         for i in range(len(self.records)):
             th = dict(self.constants)
-            for n in self.free:
-                lo, hi = self.bounds.get(n, (-np.inf, np.inf))
-                th[n] = float(min(max(raw[n][i], lo), hi))
-            for j, rn in enumerate(self.run_params):
-                th[rn] = float(z[self.block(j).start + i])
+            for n, v in free:
+                th[n] = v[i]
+            for rn, v in per_run:
+                th[rn] = v[i]
             out.append(th)
         return out
 
