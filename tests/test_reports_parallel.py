@@ -6,25 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reports_fixtures as rf
+from pdf_pages import pdf_pages
 
 from pmalab.reports import ReportError, build_report
 from pmalab.reports.parallel import join_pdfs
 
 pdfium = pytest.importorskip("pypdfium2")
-
-
-def _pages(pdf) -> list[tuple[str, np.ndarray]]:
-    doc = pdfium.PdfDocument(str(pdf))
-    try:
-        return [
-            (
-                doc[i].get_textpage().get_text_range(),
-                np.asarray(doc[i].render(scale=0.5).to_pil().convert("RGB")),
-            )
-            for i in range(len(doc))
-        ]
-    finally:
-        doc.close()
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +28,7 @@ def test_parallel_pages_equal_serial_pages(serial, tmp_path, method):
     two = build_report(
         d, tmp_path / "par.pdf", jobs=2, start_method=method, png_dir=png, progress=lines.append
     )
-    a, b = _pages(one), _pages(two)
+    a, b = pdf_pages(one), pdf_pages(two)
     assert len(a) == len(b) > 5
     for i, ((ta, ia), (tb, ib)) in enumerate(zip(a, b, strict=True), 1):
         assert ta == tb, f"page {i}: text differs"
