@@ -771,11 +771,31 @@ def build_report(
         raise ReportError(f"{out}: the report must be a .pdf file")
     if out.is_dir():
         raise ReportError(f"{out}: is a directory")
-    # `pmalab control` output files get their own pages (pmalab.reports.control)
-    from pmalab.reports.control import build_control_report, is_control_file
+    plan, args, subject = _plan_for(
+        [directory] if isinstance(directory, str | Path) else list(directory)
+    )
+    return write_plan(
+        plan,
+        args,
+        out,
+        force,
+        subject=subject,
+        png_dir=png_dir,
+        svg_dir=svg_dir,
+        progress=progress,
+        bar=bar,
+        jobs=jobs,
+        start_method=start_method,
+    )
 
-    inputs = [directory] if isinstance(directory, str | Path) else list(directory)
-    from pmalab.reports.static import build_static_report, is_static_dir
+
+def _plan_for(inputs: list[str | Path]) -> tuple[Callable[..., ReportPlan], tuple, str]:
+    """The planning function, its (picklable) arguments and the PDF's subject for
+    ``inputs``: a static characterization alone, antagonistic-pair run files, control run
+    files (``pmalab control``), else result directories; mixtures are refused."""
+    from pmalab.reports.control import control_plan, is_control_file
+    from pmalab.reports.pair import is_pair_file, pair_plan
+    from pmalab.reports.static import STATIC_SUBJECT, is_static_dir, static_plan
 
     statics = [p for p in inputs if is_static_dir(p)]
     if statics:
@@ -784,19 +804,7 @@ def build_report(
                 f"{statics[0]}: a static characterization (identify --static) is reported "
                 "on its own: give its directory alone"
             )
-        return build_static_report(
-            statics[0],
-            out,
-            force,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-            progress=progress,
-            bar=bar,
-            jobs=jobs,
-            start_method=start_method,
-        )
-    from pmalab.reports.pair import build_pair_report, is_pair_file
-
+        return static_plan, (str(Path(statics[0])),), STATIC_SUBJECT
     pairs = [p for p in inputs if is_pair_file(p)]
     if pairs:
         if len(pairs) != len(inputs):
@@ -804,17 +812,7 @@ def build_report(
                 f"{inputs[0] if inputs[0] not in pairs else inputs[-1]}: give antagonistic-"
                 "pair run files without other inputs"
             )
-        return build_pair_report(
-            pairs,
-            out,
-            force,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-            progress=progress,
-            bar=bar,
-            jobs=jobs,
-            start_method=start_method,
-        )
+        return pair_plan, ([str(p) for p in pairs],), ""
     controls = [p for p in inputs if is_control_file(p)]
     if controls:
         if len(controls) != len(inputs):
@@ -822,30 +820,8 @@ def build_report(
                 f"{inputs[0] if inputs[0] not in controls else inputs[-1]}: give "
                 "control run files (pmalab control) without result directories"
             )
-        return build_control_report(
-            controls,
-            out,
-            force,
-            png_dir=png_dir,
-            svg_dir=svg_dir,
-            progress=progress,
-            bar=bar,
-            jobs=jobs,
-            start_method=start_method,
-        )
-    return write_plan(
-        report_plan,
-        ([str(p) for p in inputs],),
-        out,
-        force,
-        subject="pneumatic muscle identification",
-        png_dir=png_dir,
-        svg_dir=svg_dir,
-        progress=progress,
-        bar=bar,
-        jobs=jobs,
-        start_method=start_method,
-    )
+        return control_plan, ([str(p) for p in controls],), ""
+    return report_plan, ([str(p) for p in inputs],), "pneumatic muscle identification"
 
 
 def report_plan(inputs: list[str]) -> ReportPlan:

@@ -24,6 +24,9 @@ from pmalab.reports import style
 from pmalab.reports.errors import ReportError
 from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
 
+#: the PDF Subject of a static characterization report
+STATIC_SUBJECT = "pneumatic muscle static characterization"
+
 #: branch colours: inflating (pressure rising) and venting
 INFLATING = "#1f77b4"
 VENTING = "#d62728"
@@ -329,7 +332,7 @@ def build_static_report(
         (str(Path(path)),),
         out,
         force,
-        subject="pneumatic muscle static characterization",
+        subject=STATIC_SUBJECT,
         png_dir=png_dir,
         svg_dir=svg_dir,
         progress=progress,
