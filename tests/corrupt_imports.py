@@ -20,6 +20,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 import scipy.io
+from corrupt_runs import in_child
 from nptdms import ChannelObject, GroupObject, TdmsWriter
 
 FORMATS = ("csv", "tdms", "mat5", "mat73")
@@ -122,29 +123,9 @@ def classify(src: Path, out: Path, clean: dict[str, np.ndarray]) -> tuple[str, s
     return "silent-change", "lengths differ"
 
 
-def _child(conn, src: Path, out: Path, clean) -> None:  # pragma: no cover - child process
-    conn.send(classify(src, out, clean))
-    conn.close()
-
-
 def classify_guarded(src: Path, out: Path, clean, timeout_s: float = 60.0) -> tuple[str, str]:
-    import multiprocessing
-
-    ctx = multiprocessing.get_context("fork")
-    recv, send = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(send, src, out, clean))
-    p.start()
-    send.close()
-    if recv.poll(timeout_s):
-        try:
-            res = recv.recv()
-        except EOFError:
-            res = ("traceback", f"importer process died (exit {p.exitcode})")
-        p.join()
-        return res
-    p.kill()
-    p.join()
-    return "hang", f"no answer in {timeout_s:g} s"
+    """:func:`classify` in a child process (a hang or a dying importer is an outcome)."""
+    return in_child(classify, (src, out, clean), "importer", timeout_s)
 
 
 def import_outcomes(d: Path, n: int, seed: int = 0) -> tuple[Counter, list[str]]:

@@ -121,29 +121,35 @@ def outcome(original: Sequence[Run], path: Path) -> tuple[str, str]:
     return "changed", "values differ"
 
 
-def _child(conn, original, path) -> None:  # pragma: no cover - runs in a child process
-    conn.send(outcome(original, path))
+def _child(conn, fn, args) -> None:  # pragma: no cover - runs in a child process
+    conn.send(fn(*args))
     conn.close()
 
 
-def outcome_guarded(original: Sequence[Run], path: Path, timeout_s: float = 60.0
-                    ) -> tuple[str, str]:
-    """:func:`outcome` in a child process: a read that never ends (damaged HDF5 metadata
-    can send the library round a loop) is the outcome ``hang``, not a stuck harness."""
+def in_child(fn, args: tuple, who: str, timeout_s: float = 60.0) -> tuple[str, str]:
+    """``fn(*args)`` (an outcome pair) in a forked child process: an answer that never comes
+    (damaged HDF5 metadata can send the library round a loop) is the outcome ``hang``, a
+    child that dies is ``traceback`` naming ``who`` — never a stuck or crashed harness."""
     import multiprocessing
 
     ctx = multiprocessing.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
-    p = ctx.Process(target=_child, args=(send, list(original), path))
+    p = ctx.Process(target=_child, args=(send, fn, args))
     p.start()
     send.close()
     if recv.poll(timeout_s):
         try:
             res = recv.recv()
         except EOFError:
-            res = ("traceback", f"reader process died (exit {p.exitcode})")
+            res = ("traceback", f"{who} process died (exit {p.exitcode})")
         p.join()
         return res
     p.kill()
     p.join()
     return "hang", f"no answer in {timeout_s:g} s"
+
+
+def outcome_guarded(original: Sequence[Run], path: Path, timeout_s: float = 60.0
+                    ) -> tuple[str, str]:
+    """:func:`outcome` in a child process (:func:`in_child`)."""
+    return in_child(outcome, (list(original), path), "reader", timeout_s)
