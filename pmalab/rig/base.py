@@ -565,6 +565,25 @@ class MusclePressureSupply(ABC):
         return lambda: res
 
 
+class RegulatedMuscleSupply(MusclePressureSupply):
+    """The muscle fed by a software-set proportional regulator (automatic): a request sets
+    it, a vent commands it to zero and confirms as the regulator does."""
+
+    automatic = True
+
+    def __init__(self, regulator: PressureRegulator) -> None:
+        self.regulator = regulator
+
+    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
+        self.regulator.set_pressure(mpa)
+
+    def vent(self) -> VentResult:
+        return self.regulator.vent()
+
+    def start_vent(self) -> VentConfirm:
+        return self.regulator.start_vent()
+
+
 class RigDevices:
     """What every rig shares, whatever it drives: a clock, a sampler, its channels declared
     as data (:mod:`pmalab.channels`), and one way to close — vent everything, then release

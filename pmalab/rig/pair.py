@@ -17,19 +17,17 @@ shorter), tension N, pressure MPa gauge, angle deg (positive = towards the flexo
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 from pmalab.channels import Channel, Channels, muscle_channels
 from pmalab.errors import ConfigError
 from pmalab.rig.base import (
-    MusclePressureSupply,
     PressureRegulator,
+    RegulatedMuscleSupply,
     Rig,
-    VentConfirm,
     VentReport,
-    VentResult,
     start_vent_safely,
 )
 
@@ -47,24 +45,6 @@ def pair_channels(muscles: Sequence[str], stop_deg: float) -> Channels:
             *commands,
         )
     )
-
-
-class RegulatorSupply(MusclePressureSupply):
-    """A muscle's proportional regulator used as the held muscle's (automatic) supply."""
-
-    automatic = True
-
-    def __init__(self, regulator: PressureRegulator) -> None:
-        self.regulator = regulator
-
-    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
-        self.regulator.set_pressure(mpa)
-
-    def vent(self) -> VentResult:
-        return self.regulator.vent()
-
-    def start_vent(self) -> VentConfirm:
-        return self.regulator.start_vent()
 
 
 @dataclass(frozen=True)
@@ -112,7 +92,7 @@ class PairRig(Rig):
             )
         (other,) = [m for m in self.regulators if m != muscle]
         self.held = muscle
-        self.muscle_supply = RegulatorSupply(self.regulators[muscle])
+        self.muscle_supply = RegulatedMuscleSupply(self.regulators[muscle])
         self.cylinder_regulator = self.regulators[other]
 
     @property

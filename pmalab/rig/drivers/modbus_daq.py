@@ -342,24 +342,6 @@ class ModbusAnalogOutput(PressureRegulator):
         )
 
 
-class RegulatedMuscleSupply(MusclePressureSupply):
-    """The muscle fed by a second software-set regulator."""
-
-    automatic = True
-
-    def __init__(self, regulator: PressureRegulator) -> None:
-        self.regulator = regulator
-
-    def request(self, mpa: float, prompt: Callable[[str], None] | None = None) -> None:
-        self.regulator.set_pressure(mpa)
-
-    def vent(self) -> VentResult:
-        return self.regulator.vent()
-
-    def start_vent(self) -> Callable[[], VentResult]:
-        return self.regulator.start_vent()
-
-
 class ManualMuscleSupply(MusclePressureSupply):
     """A hand-set regulator: the operator is asked to turn it; the runner waits for the reading."""
 

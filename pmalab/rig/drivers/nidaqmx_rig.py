@@ -50,12 +50,13 @@ from pmalab.rig.base import (
     Limits,
     PressureRegulator,
     RealClock,
+    RegulatedMuscleSupply,
     Rig,
     Sampler,
     VentResult,
 )
 from pmalab.rig.drivers.calibration import Calibration, parse_calibration
-from pmalab.rig.drivers.modbus_daq import ManualMuscleSupply, RegulatedMuscleSupply
+from pmalab.rig.drivers.modbus_daq import ManualMuscleSupply
 
 #: the channels a rig samples, in the order of the task's channel list
 INPUTS = ("position", "force", "muscle_pressure", "cylinder_pressure")

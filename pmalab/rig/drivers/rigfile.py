@@ -37,7 +37,14 @@ from typing import Any
 
 from pmalab.config import check_keys, load_toml
 from pmalab.errors import ConfigError, RigError
-from pmalab.rig.base import Clock, Limits, PressureRegulator, RealClock, Rig
+from pmalab.rig.base import (
+    Clock,
+    Limits,
+    PressureRegulator,
+    RealClock,
+    RegulatedMuscleSupply,
+    Rig,
+)
 from pmalab.rig.drivers.adapters import Adapter, DeviceExceptionReply, SerialAdapter, SocketAdapter
 from pmalab.rig.drivers.calibration import (
     Calibration,
@@ -53,7 +60,6 @@ from pmalab.rig.drivers.modbus_daq import (
     ManualMuscleSupply,
     ModbusAnalogOutput,
     ModbusSampler,
-    RegulatedMuscleSupply,
 )
 from pmalab.rig.drivers.modbus_link import FC_READ_HOLDING, FC_READ_INPUT, ModbusLink
 

@@ -537,9 +537,9 @@ def make_sim_pair(
 
 
 def _supply(reg: Any) -> Any:
-    from pmalab.rig.pair import RegulatorSupply
+    from pmalab.rig.base import RegulatedMuscleSupply
 
-    return RegulatorSupply(reg)
+    return RegulatedMuscleSupply(reg)
 
 
 __all__ = ["MUSCLES", "PairPhysics", "PairSpec", "make_sim_pair"]
