@@ -68,7 +68,9 @@ def test_tcp_single_fault_is_retried_and_counted(t7, fault, counter):
     assert getattr(after, counter) - getattr(before, counter) == 1
     assert after.retries - before.retries == 1
     assert after.failures == before.failures
-    assert 0.0 <= v["cylinder_pressure"] < 0.95
+    # a plausible reading of the (vented) cylinder gauge, not a garbled frame's value: its
+    # noise around zero may read a kPa or so below it (the emulator runs on the real clock)
+    assert -0.01 <= v["cylinder_pressure"] < 0.95
     if fault in ("drop", "garble", "disconnect"):
         assert after.reconnects - before.reconnects == 1  # fresh TCP stream
 
