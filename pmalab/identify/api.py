@@ -28,11 +28,12 @@ from pmalab.identify.campaign import (
 )
 from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.campaign.trajectory import run_trajectory
-from pmalab.identify.long_records import fit_part, long_runs
+from pmalab.identify.long_records import fit_part
 from pmalab.identify.messages import note
 from pmalab.identify.model import ForceModel
 from pmalab.identify.outputs import Identification
-from pmalab.runfile import Run, check_distinct, check_distinct_runs, read_runs
+from pmalab.identify.reading import read_files
+from pmalab.runfile import Run
 
 
 class RunList(list):
@@ -104,21 +105,7 @@ def load(
             flat.append(p)
         else:
             flat.extend(p)
-    check_distinct(flat)
-    wanted = None if runs is None else list(runs)
-    out = RunList()
-    for p in flat:
-        out.extend(
-            read_runs(
-                p,
-                wanted,
-                skip_incomplete=not include_aborted,
-                long_runs=long_runs(),
-                muscle=muscle,
-            )
-        )
-    check_distinct_runs(out)
-    return out
+    return RunList(read_files(flat, runs, include_aborted=include_aborted, muscle=muscle))
 
 
 def split_roles(runs: Sequence[Run]) -> tuple[list[Run], list[Run]]:

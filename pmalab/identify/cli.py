@@ -262,10 +262,7 @@ def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[l
 def run_identify(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pmalab.identify.api import identify, load
-    from pmalab.identify.messages import sort_messages
     from pmalab.paths import prepare_output_dir
-    from pmalab.runfile import check_distinct, check_distinct_runs
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
@@ -283,12 +280,32 @@ def run_identify(args: argparse.Namespace) -> int:
         return run_identify_many(args)
     # refuse early, before any work, if outputs exist or cannot be written
     out = prepare_output_dir(args.out, ("identification.json", "predictions.h5"), args.force)
-    check_distinct(args.files, args.validate)
     m = args.muscle
-    runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
-    val = (
-        load(args.validate, include_aborted=args.include_aborted, muscle=m) if args.validate else []
-    )
+    # with a second core, a child reads the files while this process imports the fitting
+    # code (SciPy, numba); --jobs 1 keeps everything in this one process
+    reading = None
+    if args.jobs > 1:
+        from pmalab.identify.reading import start_reading
+
+        reading = start_reading(
+            args.files, args.validate or (), include_aborted=args.include_aborted, muscle=m
+        )
+
+    from pmalab.identify.api import RunList, identify, load
+    from pmalab.identify.messages import sort_messages
+    from pmalab.runfile import check_distinct, check_distinct_runs
+
+    read = reading.result() if reading is not None else None
+    if read is not None:
+        runs, val = RunList(read[0]), (RunList(read[1]) if args.validate else [])
+    else:
+        check_distinct(args.files, args.validate)
+        runs = load(args.files, include_aborted=args.include_aborted, muscle=m)
+        val = (
+            load(args.validate, include_aborted=args.include_aborted, muscle=m)
+            if args.validate
+            else []
+        )
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     hold = [n for item in args.hold_out for n in item.split(",") if n]

@@ -34,7 +34,6 @@ from typing import Any
 
 import numpy as np
 
-from pmalab.identify.signals import default_cutoff_Hz, zero_phase_lowpass
 from pmalab.runfile import Run
 from pmalab.runwindows import LongRuns, RunWindows
 
@@ -57,6 +56,10 @@ def decimation_plan(sample_rate_Hz: float, frequency_Hz: float | None) -> tuple[
     :data:`SAMPLES_PER_CYCLE` samples per cycle; the cut-off is the fits' own (60× f) held
     below :data:`ANTI_ALIAS_FRACTION` of the decimated Nyquist frequency.  Stride 1 when
     the frequency is unknown."""
+    # the filter's module (numba) is imported when a long run is met: reading a
+    # campaign of ordinary runs needs NumPy and h5py only (pmalab.identify.reading)
+    from pmalab.identify.signals import default_cutoff_Hz
+
     if not frequency_Hz or frequency_Hz <= 0:
         return 1, default_cutoff_Hz(sample_rate_Hz, None)
     # measured stamps jitter: a rate 0.1 % under a whole multiple still counts as it
@@ -69,6 +72,8 @@ def decimation_plan(sample_rate_Hz: float, frequency_Hz: float | None) -> tuple[
 def decimate(w: RunWindows, block: int = BLOCK) -> Run:
     """The run of ``w`` decimated as the module docstring states, read ``block`` samples at
     a time; its attrs carry ``decimation`` (what was done, for the record)."""
+    from pmalab.identify.signals import zero_phase_lowpass
+
     f = w.frequency_Hz
     dt = w.sample_interval_s()
     fs = 1.0 / dt

@@ -1,0 +1,123 @@
+"""`pmalab identify` reads its files in a forked child while it imports the fitting code
+(pmalab.identify.reading): the runs arrive bit for bit, the warnings of reading are shown
+as reading in process shows them, and a child that fails hands the reading back, so the
+errors are those of reading in process."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from identify_synth import make_run
+
+from pmalab.errors import RunFileWarning
+from pmalab.identify.reading import read_files, start_reading
+from pmalab.runfile import write_runs
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.skipif(
+    not sys.platform.startswith("linux") or len(os.sched_getaffinity(0)) < 2,
+    reason="the reading child is forked on Linux with two cores or more",
+)
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp("reading")
+    runs = []
+    for i, p in enumerate((0.2, 0.4, 0.6)):
+        r, _ = make_run("duhem", p, seed=i, n=3000, f=0.3, name=f"p{i}")
+        runs.append(r)
+    cut, _ = make_run("duhem", 0.5, seed=5, n=1200, f=0.3, name="cut")
+    cut.attrs["status"] = "aborted: force limit"  # skipped with a warning when reading
+    ident = write_runs(d / "ident.h5", [*runs, cut])
+    v, _ = make_run("duhem", 0.3, seed=7, n=3000, f=0.2, waveform="triangle", name="v1")
+    val = write_runs(d / "val.h5", [v])
+    return ident, val
+
+
+def _python(code: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_the_child_reads_the_runs_bit_for_bit_with_the_warnings(campaign, tmp_path):
+    ident, val = campaign
+    # a fresh interpreter (NumPy not loaded yet, as `pmalab identify` from the shell)
+    p = _python(f"""
+        import sys, warnings
+        from pmalab.identify.reading import read_files, start_reading
+        shown = []
+        warnings.showwarning = lambda m, c, f, l, file=None, line=None: shown.append(str(m))
+        reading = start_reading([{str(ident)!r}], [{str(val)!r}])
+        assert reading is not None, "no child forked"
+        runs, val = reading.result()
+        child = list(shown)
+        shown.clear()
+        here = read_files([{str(ident)!r}]), read_files([{str(val)!r}])
+        assert child == shown and len(shown) == 1, (child, shown)
+        assert [len(runs), len(val)] == [3, 1]
+        for a, b in zip([*runs, *val], [*here[0], *here[1]]):
+            assert (a.name, a.file, a.attrs) == (b.name, b.file, b.attrs)
+            for ch in ("time", "position", "force", "muscle_pressure", "cylinder_pressure",
+                       "cylinder_pressure_command", "branch"):
+                x, y = getattr(a, ch), getattr(b, ch)
+                assert (x is None) == (y is None), ch
+                if x is not None:
+                    assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), (a.name, ch)
+                    assert x.flags.c_contiguous == y.flags.c_contiguous
+        print("ok", child[0])
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.startswith("ok") and "cut" in p.stdout
+
+
+def _identify(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    cli = "import sys; from pmalab.cli import main; sys.exit(main())"
+    return subprocess.run([sys.executable, "-c", cli, "identify", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_identify_with_the_reading_child_equals_one_process(campaign, tmp_path):
+    ident, val = campaign
+    args = [str(ident), "--validate", str(val), "--model", "duhem"]
+    two = _identify(tmp_path, *args, "--out", "two")
+    one = _identify(tmp_path, *args, "--out", "one", "--jobs", "1")
+    assert two.returncode == 0 == one.returncode, two.stderr + one.stderr
+    docs = [json.loads((tmp_path / d / "identification.json").read_text()) for d in ("two", "one")]
+    for d in docs:
+        d.pop("created")
+    assert docs[0] == docs[1]  # every number, to the last digit
+    assert two.stdout.replace("two/", "one/") == one.stdout
+    assert two.stderr == one.stderr and "'cut'" in two.stderr  # the skipped run, once
+
+
+def test_a_file_the_child_cannot_read_is_reported_as_reading_here_reports_it(campaign, tmp_path):
+    ident, _ = campaign
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"not an HDF5 file" * 100)
+    runs = [_identify(tmp_path, str(ident), str(bad), "--model", "duhem", "--out", f"o{j}",
+                      "--jobs", j) for j in ("2", "1")]
+    assert runs[0].returncode == runs[1].returncode != 0
+    assert runs[0].stderr == runs[1].stderr and "Traceback" not in runs[0].stderr
+    # the skipped run's warning, then the one-line error naming the file
+    warned, error = runs[0].stderr.strip().splitlines()
+    assert "'cut' skipped" in warned and "bad.h5" in error
+    assert not (tmp_path / "o2").exists() or not any((tmp_path / "o2").iterdir())
+
+
+def test_no_child_once_numpy_is_loaded(campaign):
+    # pytest has NumPy (and BLAS's threads) loaded: reading stays in this process
+    ident, val = campaign
+    assert "numpy" in sys.modules
+    assert start_reading([ident], [val]) is None
+    with pytest.warns(RunFileWarning, match="'cut' skipped"):
+        assert [r.name for r in read_files([ident])] == ["p0", "p1", "p2"]
