@@ -137,7 +137,7 @@ def test_h_many_rows_are_the_single_calls(law):
     model = ForceModel(_law(law), [EFFECTS["asymmetric-hysteresis"]()])
     sig = _records(1)[0].sig
     rng = np.random.default_rng(3)
-    ps = model.params(sig, 10.0)
+    ps = model.params(sig, np.full(sig.t.shape, 10.0))
     thetas = []
     for j in range(5):
         th = {p.name: p.value for p in ps}
