@@ -113,6 +113,36 @@ class ForceModel:
                 ps.add(p)
         return ps
 
+    def unchanged_parts(self, sig: Signals) -> dict[str, str]:
+        """Parameters whose change leaves parts of :meth:`parts` as they were.
+
+        ``"law"``: the drive, the law's extras and the linear term stay (a parameter of the
+        law: only h and the effect terms change); ``"terms"``: h stays too (a parameter of an
+        effect that neither transforms the signals nor feeds the law: only the effect terms
+        change).  A parameter not listed may change anything.  Only the built-in law and
+        effects are known to read nothing but their own parameters in
+        :meth:`Effect.transform` and :meth:`Effect.law_extras`, so a model with a user law or
+        effect lists nothing.
+
+        Parameters
+        ----------
+        sig
+            A run's inputs (only used to list the effects' parameter names).
+
+        Returns
+        -------
+        dict of str to str
+            Parameter name to ``"law"`` or ``"terms"``.
+        """
+        parts = (self.law, *self.effects)
+        if not all(type(o).__module__.startswith("pmalab.identify.") for o in parts):
+            return {}
+        out = {lp.name: "law" for lp in self.law.params}
+        for e in self.effects:
+            if type(e).transform is Effect.transform and type(e).law_extras is Effect.law_extras:
+                out.update({p.name: "terms" for p in e.params(sig, 1.0)})
+        return out
+
     def drive(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
         """The signals the law and the force terms see (after the effects' transforms,
         e.g. a channel delay); ∂F/∂k is this drive's position."""
@@ -135,6 +165,61 @@ class ForceModel:
                 out[e.id] = np.broadcast_to(np.asarray(term, dtype=np.float64), s.t.shape)
         return out
 
+    def parts(
+        self, sig: Signals, theta: Mapping[str, float]
+    ) -> tuple[Signals, dict[str, float], np.ndarray, np.ndarray]:
+        """The pieces :meth:`predict` adds up: the drive signals, the law's extras, the
+        linear term k·x + c0 (N) and the hysteretic force h (N).
+
+        Parameters
+        ----------
+        sig
+            The run's inputs (time s, filtered contraction x mm, its rates, pressure MPa).
+        theta
+            Every parameter of the model by name, in its own unit.
+
+        Returns
+        -------
+        tuple
+            ``(drive, extras, linear, h)``; :meth:`assemble` turns them into the force.
+        """
+        s = self.drive(sig, theta)
+        extras: dict[str, float] = {}
+        for e in self.effects:
+            extras.update(e.law_extras(self.law.name, s, theta))
+        h = np.asarray(self.law.h(s.x, theta, extras), dtype=np.float64)
+        lin = np.asarray(theta["k"] * s.x + theta["c0"], dtype=np.float64)
+        return s, extras, lin, h
+
+    def assemble(
+        self, s: Signals, lin: np.ndarray, h: np.ndarray, theta: Mapping[str, float]
+    ) -> np.ndarray:
+        """The force (N) from :meth:`parts`: linear + hysteresis, then each effect's term
+        at ``theta`` (added in that order; ``lin`` and ``h`` are not modified).
+
+        Parameters
+        ----------
+        s
+            The drive signals (:meth:`drive` at ``theta``).
+        lin
+            k·x + c0 along ``s`` (N).
+        h
+            The law's hysteretic force along ``s`` (N).
+        theta
+            Every parameter of the model by name.
+
+        Returns
+        -------
+        numpy.ndarray
+            The predicted tension per sample, N.
+        """
+        out = lin + h
+        for e in self.effects:
+            term = e.force(s, h, theta)
+            if np.ndim(term) or term != 0.0:
+                out = out + np.asarray(term, dtype=np.float64)
+        return np.broadcast_to(out, s.t.shape).copy() if out.shape != s.t.shape else out
+
     def predict(self, sig: Signals, theta: Mapping[str, float]) -> np.ndarray:
         """Free-run force prediction (N) along the run: the sum of :meth:`components`.
 
@@ -142,19 +227,8 @@ class ForceModel:
         are added in place of being collected: the same additions in the same order
         (linear, hysteresis, each effect's term), hence the same numbers bit for bit, without
         the dict, the broadcast views and the stacked array."""
-        s = self.drive(sig, theta)
-        extras: dict[str, float] = {}
-        for e in self.effects:
-            extras.update(e.law_extras(self.law.name, s, theta))
-        h = self.law.h(s.x, theta, extras)
-        out = np.asarray(theta["k"] * s.x + theta["c0"], dtype=np.float64) + np.asarray(
-            h, dtype=np.float64
-        )
-        for e in self.effects:
-            term = e.force(s, h, theta)
-            if np.ndim(term) or term != 0.0:
-                out = out + np.asarray(term, dtype=np.float64)
-        return np.broadcast_to(out, s.t.shape).copy() if out.shape != s.t.shape else out
+        s, _, lin, h = self.parts(sig, theta)
+        return self.assemble(s, lin, h, theta)
 
     def __repr__(self) -> str:
         return f"ForceModel({self.name})"

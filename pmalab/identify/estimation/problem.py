@@ -38,6 +38,8 @@ from pmalab.identify.signals import Signals
 RUNAWAY_N = 1e9
 #: parameters whose residual derivative is known in closed form (F = k·x + c0 + ...)
 LINEAR = ("k", "c0")
+#: one run's model parts at a parameter set: drive signals, law extras, k·x + c0, h
+_Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
 
 
 @dataclass
@@ -101,7 +103,15 @@ class Problem:
         offs = np.cumsum([0] + [r.n for r in self.records])
         self.rows = [slice(int(a), int(b)) for a, b in itertools.pairwise(offs)]
         self.n_rows = int(offs[-1])
-        self._cache: tuple[bytes, np.ndarray] | None = None
+        #: the last residual: (z's bytes, residual, each run's model parts or None)
+        self._cache: tuple[bytes, np.ndarray, list[_Parts] | None] | None = None
+        #: parameters whose finite-difference column reuses parts of the model at z
+        #: (:meth:`ForceModel.unchanged_parts`); only for the force output
+        self._reuse: dict[str, str] = (
+            model.unchanged_parts(self.records[0].sig)
+            if type(self).output is Problem.output and self.records
+            else {}
+        )
 
     # ------------------------------------------------------------------ layout
     def block(self, j: int) -> slice:
@@ -185,8 +195,12 @@ class Problem:
     def _run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
         """:meth:`run_residual` for callers that already ignore floating-point warnings
         (the Jacobian's hundreds of calls: one ``errstate`` for all of them)."""
+        return self._weigh(i, self.output(i, th))
+
+    def _weigh(self, i: int, out: np.ndarray) -> np.ndarray:
+        """Run i's weighted residual of the output ``out``, a runaway clipped (see ``cap``)."""
         r = self.records[i]
-        e = (self.output(i, th) - r.force) * r.weight
+        e = (out - r.force) * r.weight
         # one reduction: the largest |e| is NaN (a NaN anywhere) or inf (an inf anywhere),
         # and `not (m <= cap)` is then True, as it is for a finite m above the cap
         m = float(np.abs(e).max())
@@ -210,9 +224,25 @@ class Problem:
         key = np.asarray(z, dtype=float).tobytes()
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
+        parts: list[_Parts] | None = None
         with np.errstate(all="ignore"):
-            e = np.concatenate([self._run_residual(i, th) for i, th in enumerate(self.thetas(z))])
-        self._cache = (key, e)
+            if self._reuse:
+                # the model's parts kept for the Jacobian's columns at this z (the same
+                # numbers as output(): predict is parts + assemble)
+                m = self.model
+                ths = self.thetas(z)
+                parts = [m.parts(r.sig, th) for r, th in zip(self.records, ths)]
+                e = np.concatenate(
+                    [
+                        self._weigh(i, m.assemble(s, lin, h, th))
+                        for i, ((s, _, lin, h), th) in enumerate(zip(parts, ths))
+                    ]
+                )
+            else:
+                e = np.concatenate(
+                    [self._run_residual(i, th) for i, th in enumerate(self.thetas(z))]
+                )
+        self._cache = (key, e, parts)
         return e
 
     def jac(self, z: np.ndarray, run_only: bool = False) -> np.ndarray:
@@ -228,23 +258,37 @@ class Problem:
         """:meth:`jac`'s columns, in place (under one ``errstate``)."""
         ths = self.thetas(z)
         raw = self.raw(z)
+        c = self._cache
+        parts = c[2] if c is not None and c[0] == z.tobytes() else None
         for n in [] if run_only else self.free:
             lo, hi = self.bounds.get(n, (-np.inf, np.inf))
             sl = self.slices[n]
             for i, th in enumerate(ths):
                 if not (lo <= raw[n][i] <= hi):
                     continue  # clipped: θ does not move with the coefficients here
-                d = self.dresid(i, th, n, r0)
+                d = self.dresid(i, th, n, r0, parts[i] if parts else None)
                 J[self.rows[i], sl] = d[:, None] * self.B[n][i][None, :]  # np.outer's product
         for j, rn in enumerate(self.run_params):
             col0 = self.block(j).start
             for i, th in enumerate(ths):
-                J[self.rows[i], col0 + i] = self.dresid(i, th, rn, r0)
+                J[self.rows[i], col0 + i] = self.dresid(i, th, rn, r0, parts[i] if parts else None)
 
-    def dresid(self, i: int, th: Mapping[str, float], name: str, r0: np.ndarray) -> np.ndarray:
+    def dresid(
+        self,
+        i: int,
+        th: Mapping[str, float],
+        name: str,
+        r0: np.ndarray,
+        parts: _Parts | None = None,
+    ) -> np.ndarray:
         """∂(run i's residual)/∂θ_name: analytic for k and c0, else a forward difference
         (stepping back at the upper bound).  Floating-point warnings are the caller's
-        (:meth:`jac` ignores them once for all its columns)."""
+        (:meth:`jac` ignores them once for all its columns).
+
+        ``parts``: the model's parts of run i at ``th`` (:meth:`ForceModel.parts`); the
+        perturbed prediction then recomputes only what the parameter can change (h and the
+        effect terms for a law parameter, the terms alone for a force-only effect
+        parameter), with the same operations in the same order as a whole prediction."""
         rec = self.records[i]
         if name == "c0" and self.analytic_linear:
             return np.full(rec.n, rec.weight)
@@ -259,7 +303,15 @@ class Problem:
             h = -h
         th2 = dict(th)
         th2[name] = v + h
-        return (self._run_residual(i, th2) - r0[self.rows[i]]) / h
+        kind = self._reuse.get(name) if parts is not None else None
+        if kind is None or parts is None:
+            e = self._run_residual(i, th2)
+        else:
+            s, extras, lin, hy = parts
+            if kind == "law":
+                hy = np.asarray(self.model.law.h(s.x, th2, extras), dtype=np.float64)
+            e = self._weigh(i, self.model.assemble(s, lin, hy, th2))
+        return (e - r0[self.rows[i]]) / h
 
     # ------------------------------------------------------------------ summaries
     def per_run_rmse(self, z: np.ndarray) -> list[float]:

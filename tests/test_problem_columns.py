@@ -1,0 +1,115 @@
+"""The estimation problem's finite-difference columns that reuse the model's parts at z.
+
+A column of a law parameter recomputes only h and the effect terms, a column of a force-only
+effect parameter only the terms: the Jacobian must equal, bit for bit, the one built from
+whole predictions (the generic path a user law or effect takes), on multi-run problems with
+pressure laws, per-run start states and per-run record nuisances.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from identify_synth import make_run
+
+from pmalab.identify.effects import EFFECTS
+from pmalab.identify.estimation.basis import PressureBasis
+from pmalab.identify.estimation.problem import Problem, Record
+from pmalab.identify.model import ForceModel
+from pmalab.identify.signals import Signals
+
+
+def _records(n_runs: int = 3) -> list[Record]:
+    out = []
+    for j, p in enumerate((0.2, 0.35, 0.5)[:n_runs]):
+        run, _ = make_run("bouc-wen", p, n=1500, seed=j, f=0.8)
+        sig = Signals.from_run(run).every(2)
+        out.append(Record(run.label, p, sig, np.asarray(run.force[::2], float), 1.0 / (j + 1)))
+    return out
+
+
+def _problem(model: ForceModel, records: list[Record]) -> Problem:
+    ps = model.params(records[0].sig, records[0].force)
+    run_params = [n for n in model.record_params if n in ps]
+    free = [p.name for p in ps if p.vary and p.name not in run_params]
+    return Problem(
+        model,
+        records,
+        free=free,
+        degree={n: (2 if i % 3 == 0 else i % 2) for i, n in enumerate(free)},
+        constants={p.name: p.value for p in ps if not p.vary},
+        bounds={p.name: (p.lo, p.hi) for p in ps},
+        run_params=run_params,
+        cap=1e6,
+        basis=PressureBasis.over([r.p_nom for r in records]),
+    )
+
+
+def _z(prob: Problem, model: ForceModel, rng: np.random.Generator) -> np.ndarray:
+    ps = model.params(prob.records[0].sig, prob.records[0].force)
+    start = {p.name: p.value for p in ps}
+    for p in ps:  # away from the defaults, inside the bounds
+        if p.vary and np.isfinite(p.hi - p.lo):
+            start[p.name] = p.value + 0.1 * (p.hi - p.value) * rng.uniform(0.05, 0.5)
+    z = prob.z_from(
+        {n: [start[n], 0.05 * rng.standard_normal()] for n in prob.free},
+        {n: [start[n] + 0.5 * i for i in range(len(prob.records))] for n in prob.run_params},
+    )
+    lo, hi = prob.z_bounds()
+    return np.clip(z, lo, hi)
+
+
+MODELS = [
+    ("bouc-wen", ("viscous-friction",)),
+    ("bouc-wen", ("sensor-delay", "inertia")),
+    ("bouc-wen", ("asymmetric-hysteresis", "sensor-drift")),
+    ("prandtl-ishlinskii", ("viscous-friction", "nonlinear-stiffness")),
+    ("maxwell-slip", ("sensor-drift",)),
+    ("duhem", ("asymmetric-hysteresis",)),
+]
+
+
+@pytest.mark.parametrize(("law", "effects"), MODELS)
+def test_reused_parts_give_the_whole_prediction_jacobian_bit_for_bit(law, effects):
+    model = ForceModel(law, [EFFECTS[e]() for e in effects])
+    records = _records()
+    fast = _problem(model, records)
+    assert fast._reuse, "built-in law and effects: the columns reuse the model's parts"
+    kinds = set(fast._reuse.values())
+    assert "law" in kinds
+    slow = _problem(model, records)
+    slow._reuse = {}  # the generic path: every column a whole prediction
+    rng = np.random.default_rng(7)
+    for _ in range(2):
+        z = _z(fast, model, rng)
+        Jf, Js = fast.jac(z), slow.jac(z)
+        assert np.array_equal(fast.residual(z), slow.residual(z))
+        assert Jf.shape == (fast.n_rows, fast.n_var)
+        # the law's columns are filled (a parameter a law ignores may give a zero one)
+        law_cols = [fast.slices[n].start for n in fast.free if fast._reuse.get(n) == "law"]
+        assert law_cols and np.all(np.any(Jf[:, law_cols] != 0.0, axis=0))
+        assert np.array_equal(Jf, Js), np.argwhere(Jf != Js)[:5]
+        Rf, Rs = fast.jac(z, run_only=True), slow.jac(z, run_only=True)
+        assert np.array_equal(Rf, Rs)
+
+
+def test_force_only_effects_keep_h_and_transforming_ones_do_not():
+    sig = _records(1)[0].sig
+    m = ForceModel("bouc-wen", [EFFECTS[e]() for e in ("viscous-friction", "sensor-delay")])
+    kinds = m.unchanged_parts(sig)
+    assert kinds["visc_c"] == "terms"
+    assert kinds["A"] == "law" and kinds["h0"] == "law"
+    assert "delay_tau" not in kinds  # shifts the drive: a whole prediction
+    assert "k" not in kinds and "c0" not in kinds
+
+
+@pytest.mark.parametrize("effect", sorted(EFFECTS))
+def test_builtin_effects_read_only_their_own_parameters(effect):
+    """What the reuse relies on: a built-in effect's transform and law extras read nothing
+    but its own parameters (a theta holding only those must do)."""
+    sig = _records(1)[0].sig
+    e = EFFECTS[effect]()
+    own = {p.name: p.value for p in e.params(sig, 10.0)}
+    for law in ("bouc-wen", "duhem", "prandtl-ishlinskii", "maxwell-slip"):
+        e.law_extras(law, sig, own)
+    e.transform(sig, own)
