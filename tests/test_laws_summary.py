@@ -45,3 +45,24 @@ def test_no_law_better_than_the_base_says_nothing():
         },
     ]
     assert closest_law_phrase("bouc-wen", laws) == ""
+
+
+def test_structure_margin_in_words_says_behind_when_the_simpler_was_kept():
+    """A structure kept as the simpler one within 1 % of a better-scoring candidate has a
+    negative margin: the summary says it is behind (it used to print "-0 % ahead")."""
+    from pmalab.identify.campaign.structure import SIMPLER_WITHIN, margin_words
+    from pmalab.identify.diagnosis.diagnose import structure_phrase
+
+    behind = structure_phrase(
+        {"structure": "scaled-thresholds", "structure_margin_percent": -0.026}
+    )
+    assert "ahead" not in behind and "-0" not in behind
+    assert "kept as the simpler, 0.026 % behind the best" in behind
+    assert f"{100 * SIMPLER_WITHIN:g} % allowed" in behind
+    ahead = structure_phrase({"structure": "scaled", "structure_margin_percent": 2.6055})
+    assert "2.6 % ahead" in ahead and "behind" not in ahead
+    assert margin_words(12.3) == "12 % ahead" and margin_words(0.4) == "0.4 % ahead"
+    assert margin_words(float("nan")) == "" and margin_words(None) == ""
+    assert "held-out error)" in structure_phrase(
+        {"structure": "scaled", "structure_margin_percent": None}
+    )

@@ -307,6 +307,7 @@ class PressureStructure(TypedDict):
     #: ``leave-one-pressure-out (...)`` or ``user``
     criterion: str
     #: how much higher (%) the best other candidate's held-out nrmse is than the winner's
+    #: (negative: the winner was kept as the simpler one within 1 % of a better score)
     margin_percent: float | None
     #: the interior pressure levels left out in turn, MPa
     levels_left_out_MPa: list[float]

@@ -122,6 +122,68 @@ def map_tasks(
         bar.close()
 
 
+def fork_is_safe() -> bool:
+    """Whether :func:`map_split` may fork here: Linux, two cores or more, no other Python
+    thread running (a forked child gets only the calling thread; BLAS's own threads are
+    re-created by the library's fork handlers)."""
+    import threading
+
+    return (
+        sys.platform.startswith("linux")
+        and hasattr(os, "fork")
+        and len(os.sched_getaffinity(0)) >= 2
+        and threading.active_count() == 1
+    )
+
+
+def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> list[R]:
+    """``[fn(t) for t in tasks]`` on two cores, for tasks too short for a process pool.
+
+    The first ``first_here`` tasks run here (they load what every task needs: numba's
+    compiled code, once); then a forked child runs the second half of the rest while this
+    process runs the first half, and sends its results back pickled, so they arrive bit
+    for bit.  Where forking is not safe (:func:`fork_is_safe`), or the child fails in any
+    way, every task runs here (a task's own error is raised here, as in a plain loop).
+    ``fn`` and the results must be picklable."""
+    import pickle
+
+    tasks = list(tasks)
+    out = [fn(t) for t in tasks[:first_here]]
+    rest = tasks[first_here:]
+    if len(rest) < 2 or not fork_is_safe():
+        return out + [fn(t) for t in rest]
+    mine, theirs = rest[: len(rest) // 2], rest[len(rest) // 2 :]
+    sys.stdout.flush()
+    sys.stderr.flush()
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its half, sent back; never the parent's exit handlers
+        code = 1
+        try:
+            os.close(r)
+            data = pickle.dumps([fn(t) for t in theirs], protocol=pickle.HIGHEST_PROTOCOL)
+            with os.fdopen(w, "wb") as f:
+                f.write(data)
+            code = 0
+        except BaseException:
+            pass
+        finally:
+            os._exit(code)
+    os.close(w)
+    try:
+        out += [fn(t) for t in mine]
+        with os.fdopen(r, "rb") as f:
+            data = f.read()
+    finally:
+        _, status = os.waitpid(pid, 0)
+    if data and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
+        try:
+            return out + pickle.loads(data)
+        except Exception:
+            pass
+    return out + [fn(t) for t in theirs]  # the child failed: its half here
+
+
 def map_with_context(
     fn: Callable[[C, T], R],
     context: C,

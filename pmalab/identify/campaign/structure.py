@@ -130,13 +130,48 @@ class StructureChoice:
             tail += f"; {self.priors[self.chosen].what}: {self.priors[self.chosen].summary()}"
         return (
             f"{self.law}: pressure structure '{self.chosen}' chosen by leave-one-pressure-out "
-            f"held-out nrmse ({cands}; margin {self.margin_percent:.1f} %){tail}"
+            f"held-out nrmse ({cands}; {margin_words(self.margin_percent) or 'one candidate'})"
+            f"{tail}"
         )
 
 
 def levels_of(pressures: Sequence[float] | np.ndarray) -> list[float]:
     """Distinct nominal pressure levels (MPa, rounded to 1 kPa), ascending."""
     return sorted({round(float(p), 3) for p in pressures})
+
+
+def margin_words(margin_percent: float | None) -> str:
+    """A structure choice's margin in words, or ``""`` when there is none (one candidate).
+
+    ``margin_percent`` (:attr:`StructureChoice.margin_percent`): how much higher (%) the
+    best other candidate's held-out nrmse is than the winner's — negative when the winner
+    was kept as the simpler one within ``SIMPLER_WITHIN`` of a better-scoring candidate,
+    which is then said ("kept as the simpler, 0.026 % behind the best, ..."), never
+    "-0 % ahead".
+
+    Parameters
+    ----------
+    margin_percent
+        The margin (%), None or NaN when the winner had no rival.
+
+    Returns
+    -------
+    str
+        E.g. ``"2.6 % ahead"``.
+    """
+    m = margin_percent
+    if m is None or not np.isfinite(m):
+        return ""
+
+    def pct(a: float) -> str:
+        return f"{a:.2g}" if a < 1.0 else f"{a:.1f}" if a < 10.0 else f"{a:.0f}"
+
+    if m < 0.0:
+        return (
+            f"kept as the simpler, {pct(-m)} % behind the best, within the "
+            f"{100 * SIMPLER_WITHIN:g} % allowed"
+        )
+    return f"{pct(m)} % ahead"
 
 
 def pick(scores: Mapping[str, float], n_params: Mapping[str, int]) -> str:

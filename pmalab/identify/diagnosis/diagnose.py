@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
+from pmalab.identify.campaign.structure import margin_words
 from pmalab.identify.diagnosis.diagnostics import (
     campaign_diagnostics,
     residual_next_step,
@@ -377,7 +378,8 @@ def structure_phrase(row: Mapping[str, Any]) -> str:
     if not st:
         return ""
     m = row.get("structure_margin_percent")
-    by = f", {m:.0f} % ahead" if isinstance(m, float) and m == m else ""
+    words = margin_words(m) if isinstance(m, (int, float)) else ""
+    by = f", {words}" if words else ""
     return (
         f" with {STRUCTURE_WORDS.get(st, st)} ('{st}', chosen by leave-one-pressure-out "
         f"held-out error{by})"
