@@ -26,7 +26,7 @@ test: $(STAMP) chromium
 	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~6.5 min on 2 cores (longer under load); the 10 slowest tests are listed at the end"
 	@$(BIN)/basedpyright > $(VENV)/basedpyright.log 2>&1 & typing=$$!; \
 	trap 'kill $$typing 2>/dev/null' INT TERM; \
-	$(BIN)/python -m pytest -n auto --dist loadfile -q --durations=10; tests=$$?; \
+	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder -q --durations=10; tests=$$?; \
 	wait $$typing; typed=$$?; \
 	echo "basedpyright:"; cat $(VENV)/basedpyright.log; \
 	if [ $$tests -ne 0 ]; then exit $$tests; fi; exit $$typed

@@ -12,6 +12,7 @@ experiment and an aborted round.
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import io
 import json
@@ -56,6 +57,54 @@ def delay_campaign(tmp_path_factory) -> tuple[Path, Path]:
                        "-q"])
     assert rc == 0, err
     return rig, camp
+
+
+def _key(value):
+    """A hashable key of a call's arguments: runs by their samples and attrs, functions by
+    name, containers by their items."""
+    import numpy as np
+
+    from pmalab.runfile import Run
+
+    if isinstance(value, Run):
+        h = hashlib.sha256(repr(sorted(value.attrs.items())).encode())
+        for ch in ("time", "position", "force", "muscle_pressure", "cylinder_pressure"):
+            a = getattr(value, ch)
+            h.update(b"-" if a is None else np.ascontiguousarray(a).tobytes())
+        return ("run", value.name, h.hexdigest())
+    if isinstance(value, dict):
+        return tuple(sorted((k, _key(v)) for k, v in value.items()))
+    if isinstance(value, list | tuple):
+        return tuple(_key(v) for v in value)
+    if callable(value):
+        return ("fn", getattr(value, "__qualname__", repr(value)))
+    return value
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _computed_once():
+    """The delay campaign's initial diagnosis and its first round's experiment design are
+    one computation in the three tests that start from them (the run on the rig, the
+    declined experiment, the trip): each is computed once here, keyed on the runs' samples
+    and every argument, and every test makes all its assertions on it (a copy).  Any other
+    call (a later round's, another campaign's) is computed."""
+    from pmalab.active import loop
+
+    memo: dict = {}
+
+    def once(fn):
+        def call(*args, **kwargs):
+            key = (fn.__name__, _key(args), _key(kwargs))
+            if key not in memo:
+                memo[key] = fn(*args, **kwargs)
+            return copy.deepcopy(memo[key])
+
+        return call
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(loop, "diagnose", once(loop.diagnose))
+        mp.setattr(loop, "design", once(loop.design))
+        yield
 
 
 def _sha(p: Path) -> str:
@@ -117,7 +166,7 @@ def test_declined_experiment_runs_nothing_and_leaves_the_campaign(delay_campaign
         asked.append((exp, toml))
         return False
 
-    res = active_diagnose(camp, rig=str(rig), confirm=no)
+    res = active_diagnose(camp, rig=str(rig), confirm=no, jobs=2)  # the CLI's default jobs
     assert len(asked) == 1  # asked once, with the protocol it would run
     exp, toml = asked[0]
     assert "[[run]]" in toml and f"frequency_Hz = {exp.frequency_Hz!r}" in toml

@@ -122,6 +122,68 @@ def map_tasks(
         bar.close()
 
 
+def fork_is_safe() -> bool:
+    """Whether :func:`map_split` may fork here: Linux, two cores or more, no other Python
+    thread running (a forked child gets only the calling thread; BLAS's own threads are
+    re-created by the library's fork handlers)."""
+    import threading
+
+    return (
+        sys.platform.startswith("linux")
+        and hasattr(os, "fork")
+        and len(os.sched_getaffinity(0)) >= 2
+        and threading.active_count() == 1
+    )
+
+
+def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> list[R]:
+    """``[fn(t) for t in tasks]`` on two cores, for tasks too short for a process pool.
+
+    The first ``first_here`` tasks run here (they load what every task needs: numba's
+    compiled code, once); then a forked child runs the second half of the rest while this
+    process runs the first half, and sends its results back pickled, so they arrive bit
+    for bit.  Where forking is not safe (:func:`fork_is_safe`), or the child fails in any
+    way, every task runs here (a task's own error is raised here, as in a plain loop).
+    ``fn`` and the results must be picklable."""
+    import pickle
+
+    tasks = list(tasks)
+    out = [fn(t) for t in tasks[:first_here]]
+    rest = tasks[first_here:]
+    if len(rest) < 2 or not fork_is_safe():
+        return out + [fn(t) for t in rest]
+    mine, theirs = rest[: len(rest) // 2], rest[len(rest) // 2 :]
+    sys.stdout.flush()
+    sys.stderr.flush()
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # the child: its half, sent back; never the parent's exit handlers
+        code = 1
+        try:
+            os.close(r)
+            data = pickle.dumps([fn(t) for t in theirs], protocol=pickle.HIGHEST_PROTOCOL)
+            with os.fdopen(w, "wb") as f:
+                f.write(data)
+            code = 0
+        except BaseException:
+            pass
+        finally:
+            os._exit(code)
+    os.close(w)
+    try:
+        out += [fn(t) for t in mine]
+        with os.fdopen(r, "rb") as f:
+            data = f.read()
+    finally:
+        _, status = os.waitpid(pid, 0)
+    if data and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
+        try:
+            return out + pickle.loads(data)
+        except Exception:
+            pass
+    return out + [fn(t) for t in theirs]  # the child failed: its half here
+
+
 def map_with_context(
     fn: Callable[[C, T], R],
     context: C,
@@ -157,25 +219,90 @@ def map_with_context(
         bar.close()
 
 
+class ContextPool:
+    """Local worker processes holding one shared ``context``, kept across several maps.
+
+    :func:`map_with_context` starts its workers for one map; a caller that maps several
+    batches over the same context (the diagnosis ladder's rounds) keeps them here instead:
+    the context is shipped once per worker, and what a worker has computed and cached in
+    its process (compiled laws, base-law fits of the same records) serves the next batch.
+    Results are those of :func:`map_with_context` (each task is the same computation in any
+    process); ``jobs`` ≤ 1 or a single task runs in this process.  Use as a context manager
+    (the workers are shut down on exit)."""
+
+    def __init__(self, context: Any, jobs: int = DEFAULT_JOBS) -> None:
+        self.context, self.jobs = context, jobs
+        self._ex: Any = None
+
+    def map(
+        self,
+        fn: Callable[[Any, T], R],
+        tasks: Sequence[T],
+        *,
+        progress: bool = False,
+        desc: str = "",
+    ) -> list[R]:
+        """``[fn(context, t) for t in tasks]`` on the pool's workers, in task order."""
+        tasks = list(tasks)
+        if self.jobs <= 1 or len(tasks) <= 1:
+            return map_with_context(fn, self.context, tasks, jobs=1, progress=progress, desc=desc)
+        if self._ex is None:
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._ex = ProcessPoolExecutor(
+                max_workers=self.jobs,
+                mp_context=_mp_context(),
+                initializer=_init_worker,
+                initargs=(self.context,),
+            )
+        from functools import partial
+
+        bar = _bar(len(tasks), desc, progress)
+        try:
+            return _collect(self._ex, partial(_call_in_context, fn), tasks, bar)
+        finally:
+            bar.close()
+
+    def close(self) -> None:
+        """Shut the workers down (queued tasks cancelled)."""
+        if self._ex is not None:
+            self._ex.shutdown(wait=True, cancel_futures=True)
+            self._ex = None
+
+    def __enter__(self) -> ContextPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def _map_pool(
     fn: Callable[[T], R], tasks: list[T], jobs: int, bar: Any, initargs: tuple[Any, ...] = ()
 ) -> list[R]:
     # imported here: a command that fits in process (most campaigns) never loads them
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
 
-    out: list[Any] = [None] * len(tasks)
     with ProcessPoolExecutor(
         max_workers=jobs, mp_context=_mp_context(), initializer=_init_worker, initargs=initargs
     ) as ex:
-        futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
-        try:
-            for f in as_completed(futs):
-                out[futs[f]] = f.result()
-                bar.update(1)
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+        return _collect(ex, fn, tasks, bar)
+
+
+def _collect(ex: Any, fn: Callable[[T], R], tasks: list[T], bar: Any) -> list[R]:
+    """Submit every task to the executor ``ex``; results in task order (a failure cancels
+    the tasks not started and is re-raised)."""
+    from concurrent.futures import as_completed
+
+    out: list[Any] = [None] * len(tasks)
+    futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
+    try:
+        for f in as_completed(futs):
+            out[futs[f]] = f.result()
+            bar.update(1)
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        raise
     return out
 
 

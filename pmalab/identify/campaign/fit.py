@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.campaign.batch import map_tasks
+from pmalab.identify.campaign.batch import map_split, map_tasks
 from pmalab.identify.campaign.pressure import PressureFit, fit_quadratic, weighted_r2
 from pmalab.identify.estimation.joint import JointFit, evaluate, prepare, refine, start_laws
 from pmalab.identify.estimation.output_error import (
@@ -280,6 +280,25 @@ def _fit_task(args: tuple) -> FitResult:
     return res
 
 
+def _fit_task_remembering(args: tuple) -> tuple[FitResult, dict]:
+    """:func:`_fit_task`, and the base fits it remembered (:func:`map_split`'s child hands
+    them back, so the parent holds what fitting in process would hold)."""
+    from pmalab.identify.estimation import single
+
+    before = set(single._BASE_FITS)
+    res = _fit_task(args)
+    return res, {k: v for k, v in single._BASE_FITS.items() if k not in before}
+
+
+def _remember_all(entries: dict) -> None:
+    """Keep base fits a forked child remembered, in its order (those already kept stay)."""
+    from pmalab.identify.estimation import single
+
+    for k, v in entries.items():
+        if k not in single._BASE_FITS:
+            single._remember(k, v)
+
+
 def _run_meta(run: Run) -> tuple[float, float | None, str]:
     return run.nominal_pressure, run.frequency, str(run.attrs.get("waveform", ""))
 
@@ -303,14 +322,21 @@ def fit_runs(
         except Exception:
             jobs, scheduler = 1, None  # a user model that cannot be shipped: run here
     kw = per_run_kwargs or [{} for _ in runs]
-    if not scheduler and sum(len(r) for r in runs) < PARALLEL_MIN_SAMPLES and not fm.effects:
-        # the base law fits a decimated record in tens of ms: starting worker processes
-        # (and shipping the runs to them) costs more than it saves
-        jobs = 1
     tasks = [(r, ship, {**kwargs, **k}) for r, k in zip(runs, kw)]
-    out = map_tasks(
-        _fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress, desc="identify"
-    )
+    if not scheduler and sum(len(r) for r in runs) < PARALLEL_MIN_SAMPLES and not fm.effects:
+        # the base law fits a decimated record in ~10 ms: a pool's start and shipping the
+        # runs cost more than that; a fork after the first fit (numba loaded) does not
+        if jobs > 1 and not progress:
+            out = []
+            for res, remembered in map_split(_fit_task_remembering, tasks):
+                _remember_all(remembered)
+                out.append(res)
+        else:
+            out = map_tasks(_fit_task, tasks, jobs=1, progress=progress, desc="identify")
+    else:
+        out = map_tasks(
+            _fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress, desc="identify"
+        )
     for r, res in zip(runs, out):
         res.model = fm
         res.label = r.label

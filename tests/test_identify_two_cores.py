@@ -1,7 +1,8 @@
-"""`pmalab identify` reads its files in a forked child while it imports the fitting code
-(pmalab.identify.reading): the runs arrive bit for bit, the warnings of reading are shown
-as reading in process shows them, and a child that fails hands the reading back, so the
-errors are those of reading in process."""
+"""`pmalab identify` on two cores: a forked child reads the files while the command imports
+the fitting code (pmalab.identify.reading), and a forked child fits half the runs once the
+first fit has loaded numba (pmalab.identify.campaign.batch.map_split).  The runs and the
+fits arrive bit for bit, the warnings of reading are shown as reading in process shows
+them, and a child that fails hands its work back, so the errors are those of one process."""
 
 from __future__ import annotations
 
@@ -121,3 +122,65 @@ def test_no_child_once_numpy_is_loaded(campaign):
     assert start_reading([ident], [val]) is None
     with pytest.warns(RunFileWarning, match="'cut' skipped"):
         assert [r.name for r in read_files([ident])] == ["p0", "p1", "p2"]
+
+
+def test_map_split_equals_a_loop_and_a_failing_child_hands_its_half_back(tmp_path):
+    p = _python("""
+        import os
+        from pmalab.identify.campaign.batch import fork_is_safe, map_split
+        assert fork_is_safe()
+        parent = os.getpid()
+        pids = map_split(lambda t: (t * t, os.getpid()), range(9))
+        assert [v for v, _ in pids] == [t * t for t in range(9)]
+        assert {pid for _, pid in pids[:5]} == {parent} and pids[-1][1] != parent
+        def picky(t):  # fails in the child only: its half is done here again
+            if os.getpid() != parent:
+                raise RuntimeError("child")
+            return -t
+        assert map_split(picky, range(7)) == [-t for t in range(7)]
+        def bad(t):
+            if t == 2:
+                raise ValueError("task 2")
+            return t
+        try:
+            map_split(bad, range(7))
+        except ValueError as e:
+            print("raised", e)
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "raised task 2"
+
+
+def test_fits_split_over_two_processes_equal_the_fits_in_one(campaign, tmp_path):
+    ident, _ = campaign
+    p = _python(f"""
+        import warnings
+        warnings.simplefilter("ignore")
+        from pmalab.identify.api import load
+        from pmalab.identify.campaign.fit import fit_runs
+        from pmalab.identify.estimation import single
+        runs = load({str(ident)!r}) * 4  # 12 fits: the child takes 6
+        two = fit_runs(runs, "bouc-wen", jobs=2)
+        kept = list(single._BASE_FITS.items())
+        single._BASE_FITS.clear()
+        one = fit_runs(runs, "bouc-wen", jobs=1)
+        import numpy as np
+        def same(a, b):  # every number to the last bit (NaN equals NaN)
+            if isinstance(a, np.ndarray):
+                return a.dtype == b.dtype and a.tobytes() == b.tobytes()
+            if isinstance(a, dict):
+                return a.keys() == b.keys() and all(same(a[k], b[k]) for k in a)
+            if isinstance(a, (list, tuple)):
+                return len(a) == len(b) and all(same(x, y) for x, y in zip(a, b))
+            if hasattr(a, "__dict__"):
+                return type(a) is type(b) and same(vars(a), vars(b))
+            return a == b or (a != a and b != b)
+        for a, b in zip(two, one):
+            assert same(a, b), a.label
+        # the base fits the child remembered are kept here, in the order one process keeps
+        assert [k for k, _ in kept] == list(single._BASE_FITS)
+        assert kept == list(single._BASE_FITS.items())
+        print("ok", len(two))
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "ok 12"
