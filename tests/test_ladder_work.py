@@ -19,7 +19,7 @@ def _fake(table: dict[tuple[str, tuple[str, ...]], list[float]], calls: list):
     """A stand-in for ``score_all``: each spec's held-out nrmse per run from ``table``
     (default: a little worse than the base); records the batches it was asked for."""
 
-    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None):
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None):
         calls.append(list(specs))
         base = table[("bouc-wen", ())]
         return [

@@ -69,3 +69,50 @@ def test_unknown_start_method_is_one_line(monkeypatch):
     monkeypatch.setenv(START_METHOD_ENV, "teleport")
     with pytest.raises(PmalabError, match="teleport"):
         map_with_context(_scale, (1.0, 0.0), [1.0, 2.0], jobs=2)
+
+
+#: what a worker process has seen (a stand-in for the caches a worker keeps between maps)
+_SEEN: list[float] = []
+
+
+def _remember(context: tuple[float, float], x: float) -> tuple[int, float, tuple[float, ...]]:
+    import os
+
+    _SEEN.append(x)
+    return os.getpid(), _scale(context, x), tuple(_SEEN)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_context_pool_keeps_its_workers_across_maps(method, monkeypatch):
+    """The ladder's pool: the same results as map_with_context, in task order, and the same
+    worker processes (with what they hold) serve every map until it is closed."""
+    from pmalab.identify.campaign.batch import ContextPool
+
+    monkeypatch.setenv(START_METHOD_ENV, method)
+    with ContextPool((2.0, 1.0), jobs=2) as pool:
+        first = pool.map(_remember, [1.0, 2.0, 3.0, 4.0])
+        second = pool.map(_remember, [5.0, 6.0, 7.0])
+        assert pool.map(_remember, [8.0])[0][1] == 17.0  # one task: in this process
+    assert [v for _, v, _ in first] == [3.0, 5.0, 7.0, 9.0]
+    assert [v for _, v, _ in second] == [11.0, 13.0, 15.0]
+    assert [v for _, v, _ in second] == map_with_context(_scale, (2.0, 1.0), [5.0, 6.0, 7.0], jobs=2)
+    pids = {p for p, _, _ in first}
+    assert {p for p, _, _ in second} <= pids and len(pids) <= 2
+    # a worker of the second map had already run tasks of the first: the same process
+    assert any(set(seen) & {1.0, 2.0, 3.0, 4.0} for _, _, seen in second)
+    assert pool._ex is None  # shut down on exit
+
+
+@pytest.mark.parametrize("method", METHODS[:1])
+def test_score_all_through_a_kept_pool(method, monkeypatch, serial):
+    from pmalab.identify.campaign.batch import ContextPool
+
+    monkeypatch.setenv(START_METHOD_ENV, method)
+    train, held = _runs()
+    with ContextPool((train, held), jobs=2) as pool:
+        par = score_all(train, held, SPECS, jobs=2, pool=pool)
+        again = score_all(train, held, SPECS[::-1], jobs=2, pool=pool)
+    for a, b in zip(par, serial):
+        np.testing.assert_allclose(a.nrmse, b.nrmse, rtol=1e-9)
+    for a, b in zip(again[::-1], serial):
+        np.testing.assert_allclose(a.nrmse, b.nrmse, rtol=1e-9)

@@ -220,6 +220,36 @@ class ForceModel:
                 out = out + np.asarray(term, dtype=np.float64)
         return np.broadcast_to(out, s.t.shape).copy() if out.shape != s.t.shape else out
 
+    def assemble_many(
+        self, s: Signals, lin: np.ndarray, H: np.ndarray, theta: Mapping[str, float]
+    ) -> np.ndarray:
+        """:meth:`assemble` for several hysteretic forces at once (rows of ``H``), every
+        effect's term at ``theta`` evaluated once for all rows (the built-in terms broadcast
+        over them): row j is ``assemble(s, lin, H[j], theta)``, the same numbers.
+
+        Parameters
+        ----------
+        s
+            The drive signals.
+        lin
+            k·x + c0 along ``s`` (N).
+        H
+            Hysteretic forces, shape (rows, samples), N.
+        theta
+            Every parameter of the model by name.
+
+        Returns
+        -------
+        numpy.ndarray
+            The predicted tension, shape (rows, samples), N.
+        """
+        out = lin + H
+        for e in self.effects:
+            term = e.force(s, H, theta)
+            if np.ndim(term) or term != 0.0:
+                out = out + np.asarray(term, dtype=np.float64)
+        return out
+
     def predict(self, sig: Signals, theta: Mapping[str, float]) -> np.ndarray:
         """Free-run force prediction (N) along the run: the sum of :meth:`components`.
 

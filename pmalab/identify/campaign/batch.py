@@ -220,25 +220,90 @@ def map_with_context(
         bar.close()
 
 
+class ContextPool:
+    """Local worker processes holding one shared ``context``, kept across several maps.
+
+    :func:`map_with_context` starts its workers for one map; a caller that maps several
+    batches over the same context (the diagnosis ladder's rounds) keeps them here instead:
+    the context is shipped once per worker, and what a worker has computed and cached in
+    its process (compiled laws, base-law fits of the same records) serves the next batch.
+    Results are those of :func:`map_with_context` (each task is the same computation in any
+    process); ``jobs`` ≤ 1 or a single task runs in this process.  Use as a context manager
+    (the workers are shut down on exit)."""
+
+    def __init__(self, context: Any, jobs: int = DEFAULT_JOBS) -> None:
+        self.context, self.jobs = context, jobs
+        self._ex: Any = None
+
+    def map(
+        self,
+        fn: Callable[[Any, T], R],
+        tasks: Sequence[T],
+        *,
+        progress: bool = False,
+        desc: str = "",
+    ) -> list[R]:
+        """``[fn(context, t) for t in tasks]`` on the pool's workers, in task order."""
+        tasks = list(tasks)
+        if self.jobs <= 1 or len(tasks) <= 1:
+            return map_with_context(fn, self.context, tasks, jobs=1, progress=progress, desc=desc)
+        if self._ex is None:
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._ex = ProcessPoolExecutor(
+                max_workers=self.jobs,
+                mp_context=_mp_context(),
+                initializer=_init_worker,
+                initargs=(self.context,),
+            )
+        from functools import partial
+
+        bar = _bar(len(tasks), desc, progress)
+        try:
+            return _collect(self._ex, partial(_call_in_context, fn), tasks, bar)
+        finally:
+            bar.close()
+
+    def close(self) -> None:
+        """Shut the workers down (queued tasks cancelled)."""
+        if self._ex is not None:
+            self._ex.shutdown(wait=True, cancel_futures=True)
+            self._ex = None
+
+    def __enter__(self) -> ContextPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def _map_pool(
     fn: Callable[[T], R], tasks: list[T], jobs: int, bar: Any, initargs: tuple[Any, ...] = ()
 ) -> list[R]:
     # imported here: a command that fits in process (most campaigns) never loads them
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import ProcessPoolExecutor
 
-    out: list[Any] = [None] * len(tasks)
     with ProcessPoolExecutor(
         max_workers=jobs, mp_context=_mp_context(), initializer=_init_worker, initargs=initargs
     ) as ex:
-        futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
-        try:
-            for f in as_completed(futs):
-                out[futs[f]] = f.result()
-                bar.update(1)
-        except BaseException:
-            for f in futs:
-                f.cancel()
-            raise
+        return _collect(ex, fn, tasks, bar)
+
+
+def _collect(ex: Any, fn: Callable[[T], R], tasks: list[T], bar: Any) -> list[R]:
+    """Submit every task to the executor ``ex``; results in task order (a failure cancels
+    the tasks not started and is re-raised)."""
+    from concurrent.futures import as_completed
+
+    out: list[Any] = [None] * len(tasks)
+    futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
+    try:
+        for f in as_completed(futs):
+            out[futs[f]] = f.result()
+            bar.update(1)
+    except BaseException:
+        for f in futs:
+            f.cancel()
+        raise
     return out
 
 

@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from pmalab.identify.campaign import ModelSpec
+from pmalab.identify.campaign.batch import ContextPool
 from pmalab.identify.diagnosis.ranking import (
     AT_FLOOR_RATIO,
     Candidate,
@@ -149,6 +150,13 @@ class Scorer:
         self.done: dict[ModelSpec, Scored] = {}
         #: identifications made (a spec taken from an earlier round is not counted)
         self.count = 0
+        #: local workers kept across the rounds (see :meth:`close`)
+        self.pool = None if scheduler else ContextPool((self.train, self.held), jobs)
+
+    def close(self) -> None:
+        """Shut the workers kept across the rounds down."""
+        if self.pool is not None:
+            self.pool.close()
 
     def __call__(self, specs: Sequence[ModelSpec], desc: str) -> list[Scored]:
         todo = list(dict.fromkeys(s for s in specs if s not in self.done))
@@ -161,6 +169,7 @@ class Scorer:
             self.progress,
             desc,
             scheduler=self.scheduler,
+            pool=self.pool,
         )
         self.done.update(zip(order, outs))
         self.count += len(order)
@@ -193,58 +202,68 @@ def run_ladder(
     # not identifiable apart (ranking.judge)
     single = one_frequency(train) is not None
     scorer = Scorer(train, held, jobs, progress, scheduler)
-    base_spec = ModelSpec(law, (), files)
-    steps: list[LadderStep] = []
-    rounds: list[Round] = []
-    current: tuple[str, ...] = ()
-    cur_law = law
-    tried = {law}
-    stop = "max steps"
-    while True:
-        remaining = [e for e in effect_ids if e not in current]
-        others = [lw for lw in laws if lw not in tried]
-        specs: list[ModelSpec] = []
-        if steps and len(steps) > max_steps:
-            break
-        if steps and not remaining and not others:
-            stop = "every candidate in"
-            break
-        if len(steps) > 1 and steps[-1].nrmse < AT_FLOOR_RATIO * floor:
-            stop = "at the noise floor"
-            break
-        if max_steps >= 1:
-            specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
-            specs += [ModelSpec(lw, current, files) for lw in others]
-        # the base model is identified with the first round (one batch for the workers)
-        outs = scorer(
-            [*specs, *([] if steps else [base_spec])],
-            f"step {max(len(steps), 1)}: {len(remaining)} effects, {len(others)} laws",
-        )
-        if not steps:
-            steps.append(LadderStep(0, [], None, outs.pop(), law))
-        if not specs:
-            if max_steps >= 1:
+    try:
+        base_spec = ModelSpec(law, (), files)
+        steps: list[LadderStep] = []
+        rounds: list[Round] = []
+        current: tuple[str, ...] = ()
+        cur_law = law
+        tried = {law}
+        stop = "max steps"
+        while True:
+            remaining = [e for e in effect_ids if e not in current]
+            others = [lw for lw in laws if lw not in tried]
+            specs: list[ModelSpec] = []
+            if steps and len(steps) > max_steps:
+                break
+            if steps and not remaining and not others:
                 stop = "every candidate in"
-            break
-        prev = steps[-1].scored
-        cands, amb = judge(
-            [Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)],
-            single_frequency=single,
-        )
-        law_cands, _ = judge(
-            [Candidate(lw, prev, o, floors=floors) for lw, o in zip(others, outs[len(remaining) :])]
-        )
-        rounds.append(Round(len(steps), cands, amb, law_cands))
-        pool = [c for c in [*cands, *law_cands] if c.significant]
-        if not pool:
-            stop = "nothing significant"
-            break
-        best = max(pool, key=lambda c: c.fall)
-        if best in law_cands:
-            cur_law = best.effect
-            tried.add(cur_law)
-            steps.append(LadderStep(len(steps), list(current), None, best.after, cur_law, cur_law))
-        else:
-            current = (*current, best.effect)
-            steps.append(LadderStep(len(steps), list(current), best.effect, best.after, cur_law))
-    return Ladder(steps, rounds, stop, scorer.count)
+                break
+            if len(steps) > 1 and steps[-1].nrmse < AT_FLOOR_RATIO * floor:
+                stop = "at the noise floor"
+                break
+            if max_steps >= 1:
+                specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
+                specs += [ModelSpec(lw, current, files) for lw in others]
+            # the base model is identified with the first round (one batch for the workers)
+            outs = scorer(
+                [*specs, *([] if steps else [base_spec])],
+                f"step {max(len(steps), 1)}: {len(remaining)} effects, {len(others)} laws",
+            )
+            if not steps:
+                steps.append(LadderStep(0, [], None, outs.pop(), law))
+            if not specs:
+                if max_steps >= 1:
+                    stop = "every candidate in"
+                break
+            prev = steps[-1].scored
+            cands, amb = judge(
+                [Candidate(e, prev, o, floors=floors) for e, o in zip(remaining, outs)],
+                single_frequency=single,
+            )
+            law_cands, _ = judge(
+                [
+                    Candidate(lw, prev, o, floors=floors)
+                    for lw, o in zip(others, outs[len(remaining) :])
+                ]
+            )
+            rounds.append(Round(len(steps), cands, amb, law_cands))
+            pool = [c for c in [*cands, *law_cands] if c.significant]
+            if not pool:
+                stop = "nothing significant"
+                break
+            best = max(pool, key=lambda c: c.fall)
+            if best in law_cands:
+                cur_law = best.effect
+                tried.add(cur_law)
+                steps.append(
+                    LadderStep(len(steps), list(current), None, best.after, cur_law, cur_law)
+                )
+            else:
+                current = (*current, best.effect)
+                steps.append(
+                    LadderStep(len(steps), list(current), best.effect, best.after, cur_law)
+                )
+        return Ladder(steps, rounds, stop, scorer.count)
+    finally:
+        scorer.close()  # the workers kept across the rounds

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.identify.campaign import ModelSpec, fit_and_validate
-from pmalab.identify.campaign.batch import map_with_context
+from pmalab.identify.campaign.batch import ContextPool, map_with_context
 from pmalab.identify.effects import EFFECTS
 from pmalab.runfile import Run
 
@@ -224,11 +224,16 @@ def score_all(
     progress: bool = False,
     desc: str = "candidates",
     scheduler: str | None = None,
+    pool: ContextPool | None = None,
 ) -> list[Scored]:
     """Score every model spec (in parallel over candidates: one identification each).
 
     Local worker processes receive the runs once each (as the pool's initializer argument,
-    whatever the start method); on a Dask cluster (``scheduler``) each task carries them."""
+    whatever the start method); on a Dask cluster (``scheduler``) each task carries them.
+    ``pool``: workers already holding ``(train, held)`` as their context, kept across calls
+    (:class:`~pmalab.identify.campaign.batch.ContextPool`; the same scores)."""
+    if pool is not None and not scheduler:
+        return pool.map(_task, list(specs), progress=progress, desc=desc)
     return map_with_context(
         _task,
         (list(train), list(held)),

@@ -38,6 +38,8 @@ from pmalab.identify.signals import Signals
 RUNAWAY_N = 1e9
 #: parameters whose residual derivative is known in closed form (F = k·x + c0 + ...)
 LINEAR = ("k", "c0")
+#: the relative forward-difference step
+_SQRT_EPS = math.sqrt(np.finfo(float).eps)
 #: one run's model parts at a parameter set: drive signals, law extras, k·x + c0, h
 _Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
 
@@ -162,18 +164,21 @@ class Problem:
     def thetas(self, z: np.ndarray) -> list[dict[str, float]]:
         """The full parameter set of every run."""
         raw = self.raw(z)
+        R = len(self.records)
+        b = np.array([self.bounds.get(n, (-np.inf, np.inf)) for n in self.free], dtype=float)
+        lo, hi = b.reshape(len(self.free), 2).T
         # each law clipped to its bounds at every run at once (np.clip: the same min/max)
-        free = [
-            (n, np.clip(raw[n], *self.bounds.get(n, (-np.inf, np.inf))).tolist()) for n in self.free
-        ]
-        per_run = [(rn, z[self.block(j)].tolist()) for j, rn in enumerate(self.run_params)]
+        free = np.clip(
+            np.array([raw[n] for n in self.free], dtype=float).reshape(len(self.free), R),
+            lo[:, None],
+            hi[:, None],
+        ).T.tolist()
+        per_run = np.asarray(z, dtype=float)[self.n_coef :].reshape(-1, R).T.tolist()
         out = []
-        for i in range(len(self.records)):
+        for i in range(R):
             th = dict(self.constants)
-            for n, v in free:
-                th[n] = v[i]
-            for rn, v in per_run:
-                th[rn] = v[i]
+            th.update(zip(self.free, free[i]))
+            th.update(zip(self.run_params, per_run[i]))
             out.append(th)
         return out
 
@@ -255,23 +260,80 @@ class Problem:
         return J
 
     def _fill_jac(self, J: np.ndarray, z: np.ndarray, r0: np.ndarray, run_only: bool) -> None:
-        """:meth:`jac`'s columns, in place (under one ``errstate``)."""
+        """:meth:`jac`'s columns, in place (under one ``errstate``).
+
+        With the model's parts at z kept by :meth:`residual`, the columns of the law's
+        parameters on one run are evaluated together (:meth:`_law_columns`); every other
+        column one by one (:meth:`dresid`).  Each column is the same forward difference
+        either way."""
         ths = self.thetas(z)
         raw = self.raw(z)
         c = self._cache
         parts = c[2] if c is not None and c[0] == z.tobytes() else None
-        for n in [] if run_only else self.free:
-            lo, hi = self.bounds.get(n, (-np.inf, np.inf))
-            sl = self.slices[n]
-            for i, th in enumerate(ths):
-                if not (lo <= raw[n][i] <= hi):
-                    continue  # clipped: θ does not move with the coefficients here
-                d = self.dresid(i, th, n, r0, parts[i] if parts else None)
-                J[self.rows[i], sl] = d[:, None] * self.B[n][i][None, :]  # np.outer's product
-        for j, rn in enumerate(self.run_params):
-            col0 = self.block(j).start
-            for i, th in enumerate(ths):
-                J[self.rows[i], col0 + i] = self.dresid(i, th, rn, r0, parts[i] if parts else None)
+        for i, th in enumerate(ths):
+            rows = self.rows[i]
+            # (parameter, its column for a per-run parameter; None: through the basis)
+            cols: list[tuple[str, int | None]] = []
+            for n in [] if run_only else self.free:
+                lo, hi = self.bounds.get(n, (-np.inf, np.inf))
+                if lo <= raw[n][i] <= hi:  # else clipped: θ does not move with z here
+                    cols.append((n, None))
+            for j, rn in enumerate(self.run_params):
+                cols.append((rn, self.block(j).start + i))
+            batch = [nc for nc in cols if parts and self._reuse.get(nc[0]) == "law"]
+            if len(batch) > 1 and parts:
+                D = self._law_columns(i, th, [n for n, _ in batch], r0, parts[i])
+                done = {n for n, _ in batch}
+                pairs = [(nc, D[k]) for k, nc in enumerate(batch)]
+            else:
+                done = set()
+                pairs = []
+            pairs += [
+                ((n, col), self.dresid(i, th, n, r0, parts[i] if parts else None))
+                for n, col in cols
+                if n not in done
+            ]
+            for (n, col), d in pairs:
+                if col is None:
+                    J[rows, self.slices[n]] = d[:, None] * self.B[n][i][None, :]  # np.outer's
+                else:
+                    J[rows, col] = d
+
+    def _step(self, name: str, v: float) -> float:
+        """The forward-difference step of θ_name at v: √eps·max(1, |v|), backward where the
+        forward point would leave the bounds."""
+        lo, hi = self.bounds.get(name, (-np.inf, np.inf))
+        h = _SQRT_EPS * max(1.0, abs(v))
+        if v + h > hi:
+            h = -h
+        if not (lo <= v + h <= hi):
+            h = -h
+        return h
+
+    def _law_columns(
+        self, i: int, th: Mapping[str, float], names: Sequence[str], r0: np.ndarray, parts: _Parts
+    ) -> np.ndarray:
+        """The forward differences of run i's residual in each of the law's parameters
+        ``names`` (rows), from one :meth:`HysteresisLaw.h_many` call: the drive, extras and
+        linear term are those at ``th``; each effect's term is evaluated for every row's h
+        at once (a built-in effect's term reads only its own parameters, which a law column
+        leaves as they are).  Elementwise the same operations as :meth:`dresid`."""
+        s, extras, lin, _ = parts
+        steps = np.empty(len(names))
+        th2s = []
+        for k, n in enumerate(names):
+            v = th[n]
+            steps[k] = h = self._step(n, v)
+            th2 = dict(th)
+            th2[n] = v + h
+            th2s.append(th2)
+        H = self.model.law.h_many(s.x, th2s, extras)
+        r = self.records[i]
+        E = (self.model.assemble_many(s, lin, H, th) - r.force) * r.weight
+        cap = RUNAWAY_N if self.cap is None else self.cap
+        for k in np.flatnonzero(~(np.abs(E).max(axis=1) <= cap)):
+            E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+        return (E - r0[self.rows[i]]) / steps[:, None]
 
     def dresid(
         self,
@@ -295,12 +357,7 @@ class Problem:
         if name == "k" and self.analytic_linear:
             return self.model.drive(rec.sig, th).x * rec.weight
         v = th[name]
-        lo, hi = self.bounds.get(name, (-np.inf, np.inf))
-        h = math.sqrt(np.finfo(float).eps) * max(1.0, abs(v))
-        if v + h > hi:
-            h = -h
-        if not (lo <= v + h <= hi):
-            h = -h
+        h = self._step(name, v)
         th2 = dict(th)
         th2[name] = v + h
         kind = self._reuse.get(name) if parts is not None else None

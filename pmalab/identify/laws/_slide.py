@@ -137,6 +137,27 @@ def slide_h(x, k, f, h0, reversed=0.0):
     return h
 
 
+@njit(cache=True, fastmath=False)
+def slide_h_many(x, K, F, h0, reversed):
+    """:func:`slide_h` for several element sets at once: row j has stiffnesses ``K[j]``,
+    slip forces ``F[j]``, start ``h0[j]`` and branch ``reversed[j]`` (one compiled call for
+    a Jacobian's columns; each row the same numbers as its own :func:`slide_h`)."""
+    out = np.empty((K.shape[0], x.shape[0]))
+    for j in range(K.shape[0]):
+        out[j, :] = slide_h(x, K[j], F[j], h0[j], reversed[j])
+    return out
+
+
+def slide_h_rows(x, kfs, thetas) -> np.ndarray:
+    """Rows of :func:`slide_h` along ``x`` for the (stiffness, slip force) pairs ``kfs`` and
+    the start state and branch of each parameter set of ``thetas``."""
+    K = np.array([k for k, _ in kfs], dtype=np.float64).reshape(len(kfs), -1)
+    F = np.array([f for _, f in kfs], dtype=np.float64).reshape(len(kfs), -1)
+    h0 = np.array([float(th["h0"]) for th in thetas], dtype=np.float64)
+    rev = np.array([branch(th) for th in thetas], dtype=np.float64)
+    return slide_h_many(np.ascontiguousarray(x, dtype=np.float64), K, F, h0, rev)
+
+
 def slide_stepper(k: np.ndarray, f: np.ndarray):
     """``step(z, x_prev, x) -> z'`` (a new array; ``z`` is left as it was)."""
     k = np.ascontiguousarray(k, dtype=np.float64)

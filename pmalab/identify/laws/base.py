@@ -35,7 +35,7 @@ while the muscle is stretched, x falling) needs h > 0 while dx < 0.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -254,6 +254,37 @@ class HysteresisLaw:
             h at every sample, N (adds to the tension); ``h[0] = theta["h0"]``.
         """
         raise NotImplementedError
+
+    def h_many(
+        self,
+        x: np.ndarray,
+        thetas: Sequence[Mapping[str, float]],
+        extras: Mapping[str, float] | None = None,
+    ) -> np.ndarray:
+        """:meth:`h` along one path for several parameter sets (the estimator's
+        finite-difference columns); row j is ``h(x, thetas[j], extras)``, the same numbers.
+
+        A law whose :meth:`h` is a compiled loop overrides this with one compiled call for
+        every row (the per-call overhead is most of the cost on short records).
+
+        Parameters
+        ----------
+        x
+            The contraction at every sample, mm.
+        thetas
+            Parameter sets, each as :meth:`h` takes it.
+        extras
+            Extra inputs effects supply (the same for every row).
+
+        Returns
+        -------
+        numpy.ndarray
+            Shape (len(thetas), len(x)), N.
+        """
+        out = np.empty((len(thetas), np.shape(x)[0]))
+        for j, th in enumerate(thetas):
+            out[j] = self.h(x, th, extras)
+        return out
 
     def stepper(
         self, theta: Mapping[str, float], extras: Mapping[str, float] | None = None

@@ -148,6 +148,21 @@ def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0,
 
 
 @njit(cache=True, fastmath=False)
+def bouc_wen_h_many(x, P):
+    """h along ``x`` for each row of P = (A, beta, gamma, n, h0, psi_v, psi_h, psi_x, x_c,
+    psi_a): :func:`bouc_wen_h1` where n = 1, else :func:`bouc_wen_h` (one compiled call for
+    a Jacobian's columns; each row the same numbers as its own call)."""
+    out = np.empty((P.shape[0], x.shape[0]))
+    for j in range(P.shape[0]):
+        q = P[j]
+        if q[3] == 1.0:
+            out[j, :] = bouc_wen_h1(x, q[0], q[1], q[2], q[4], q[5], q[6], q[7], q[8], q[9])
+        else:
+            out[j, :] = bouc_wen_h(x, q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q[8], q[9])
+    return out
+
+
+@njit(cache=True, fastmath=False)
 def bw_kernel(hk, x0, x1, prm):
     """One segment with prm = (A, beta, gamma, n, h0, psi_v, psi_h, psi_x, x_c, psi_a)."""
     if prm[3] == 1.0:
@@ -222,6 +237,14 @@ class BoucWen(HysteresisLaw):
         return bouc_wen_h(
             x, A, beta, gamma, float(theta["n"]), float(theta["h0"]), pv, ph, px, xc, pa
         )
+
+    def h_many(self, x, thetas, extras=None):
+        rows = []
+        for th in thetas:
+            A, beta, gamma, pv, ph, px, xc, pa = _args(th, extras)
+            rows.append((A, beta, gamma, float(th["n"]), float(th["h0"]), pv, ph, px, xc, pa))
+        P = np.array(rows, dtype=np.float64).reshape(len(rows), 10)
+        return bouc_wen_h_many(np.ascontiguousarray(x, dtype=np.float64), P)
 
     def kernel(self):
         return bw_kernel

@@ -60,6 +60,17 @@ def duhem_h(x, alpha, a, b, h0, psi_alpha=0.0, psi_b=0.0):
     return h
 
 
+@njit(cache=True, fastmath=False)
+def duhem_h_many(x, P):
+    """:func:`duhem_h` along ``x`` for each row of P = (alpha, a, b, h0, psi_alpha, psi_b)
+    (one compiled call for a Jacobian's columns; each row the same numbers as its own)."""
+    out = np.empty((P.shape[0], x.shape[0]))
+    for j in range(P.shape[0]):
+        q = P[j]
+        out[j, :] = duhem_h(x, q[0], q[1], q[2], q[3], q[4], q[5])
+    return out
+
+
 def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
     e = extras or {}
     return (
@@ -110,6 +121,14 @@ class Duhem(HysteresisLaw):
         return duhem_h(
             np.ascontiguousarray(x, dtype=np.float64), alpha, a, b, float(theta["h0"]), pa, pb
         )
+
+    def h_many(self, x, thetas, extras=None):
+        rows = []
+        for th in thetas:
+            alpha, a, b, pa, pb = _args(th, extras)
+            rows.append((alpha, a, b, float(th["h0"]), pa, pb))
+        P = np.array(rows, dtype=np.float64).reshape(len(rows), 6)
+        return duhem_h_many(np.ascontiguousarray(x, dtype=np.float64), P)
 
     def kernel(self):
         return duhem_kernel

@@ -26,7 +26,14 @@ from collections.abc import Callable, Mapping
 import numpy as np
 from scipy.optimize import nnls
 
-from pmalab.identify.laws._slide import branch, play_basis, slide_h, slide_start, slide_stepper
+from pmalab.identify.laws._slide import (
+    branch,
+    play_basis,
+    slide_h,
+    slide_h_rows,
+    slide_start,
+    slide_stepper,
+)
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
 
 ELEMENTS = 4
@@ -108,6 +115,9 @@ class MaxwellSlip(HysteresisLaw):
         return slide_h(
             np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
         )
+
+    def h_many(self, x, thetas, extras=None):
+        return slide_h_rows(x, [_kf(th) for th in thetas], thetas)
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = _kf(theta)

@@ -29,7 +29,13 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from pmalab.identify.laws._slide import branch, slide_h, slide_start, slide_stepper
+from pmalab.identify.laws._slide import (
+    branch,
+    slide_h,
+    slide_h_rows,
+    slide_start,
+    slide_stepper,
+)
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
 
 #: every structure a law may offer, in order of decreasing parameter count
@@ -107,6 +113,9 @@ class ProfileElements(HysteresisLaw):
         return slide_h(
             np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
         )
+
+    def h_many(self, x, thetas, extras=None):
+        return slide_h_rows(x, [self._kf(th) for th in thetas], thetas)
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = self._kf(theta)
