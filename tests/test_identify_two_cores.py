@@ -159,7 +159,7 @@ def test_fits_split_over_two_processes_equal_the_fits_in_one(campaign, tmp_path)
         from pmalab.identify.api import load
         from pmalab.identify.campaign.fit import fit_runs
         from pmalab.identify.estimation import single
-        runs = load({str(ident)!r}) * 4  # 12 fits: the child takes 6
+        runs = load({str(ident)!r}) * 4  # 12 fits: the child takes 5
         two = fit_runs(runs, "bouc-wen", jobs=2)
         kept = list(single._BASE_FITS.items())
         single._BASE_FITS.clear()
@@ -184,3 +184,46 @@ def test_fits_split_over_two_processes_equal_the_fits_in_one(campaign, tmp_path)
     """, tmp_path)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "ok 12"
+
+
+def test_the_warm_up_loads_the_filter_a_run_uses_never_another(campaign, tmp_path):
+    ident, _ = campaign
+    p = _python(f"""
+        import warnings
+        warnings.simplefilter("ignore")
+        from pmalab.identify import zero_phase
+        from pmalab.identify.reading import read_files
+        from pmalab.identify.signals import Signals
+        zero_phase.load_compiled()
+        assert len(zero_phase._biquad.signatures) == 1
+        for run in read_files([{str(ident)!r}]):
+            Signals.from_run(run)
+        # the runs' filtering used the warmed-up machine code: no second specialisation
+        print(len(zero_phase._biquad.signatures))
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.strip() == "1"
+
+
+def test_collection_paused_while_importing_resumes_as_it_was():
+    import gc
+
+    from pmalab.lazy import gc_paused
+
+    assert gc.isenabled()
+    with gc_paused(freeze=False):
+        assert not gc.isenabled()
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+    gc.disable()
+    try:
+        with gc_paused(freeze=True):
+            pass
+        assert not gc.isenabled() and gc.get_freeze_count() == 0  # the caller's pause kept
+    finally:
+        gc.enable()
+    try:
+        with gc_paused(freeze=True):
+            kept = [object() for _ in range(10)]
+        assert gc.isenabled() and gc.get_freeze_count() >= len(kept)
+    finally:
+        gc.unfreeze()

@@ -21,6 +21,7 @@ from pmalab.console import (
     warning,
 )
 from pmalab.errors import PmalabError
+from pmalab.lazy import gc_paused
 
 
 def _add_parallel(p: argparse.ArgumentParser, what: str, more: str = "") -> None:
@@ -291,10 +292,15 @@ def run_identify(args: argparse.Namespace) -> int:
             args.files, args.validate or (), include_aborted=args.include_aborted, muscle=m
         )
 
-    from pmalab.identify.api import RunList, identify, load
-    from pmalab.identify.messages import sort_messages
-    from pmalab.runfile import check_distinct, check_distinct_runs
+    # the fitting code's imports and numba's first load without the garbage collector
+    # walking their objects again and again (frozen after: a command's first import)
+    with gc_paused(freeze="scipy" not in sys.modules):
+        from pmalab.identify.api import RunList, identify, load
+        from pmalab.identify.messages import sort_messages
+        from pmalab.identify.zero_phase import load_compiled
+        from pmalab.runfile import check_distinct, check_distinct_runs
 
+        load_compiled()
     read = reading.result() if reading is not None else None
     if read is not None:
         runs, val = RunList(read[0]), (RunList(read[1]) if args.validate else [])

@@ -57,3 +57,12 @@ def filtfilt2(b: np.ndarray, a: np.ndarray, y: np.ndarray, padlen: int) -> np.nd
     rev = fwd[::-1].copy()
     back = _biquad(b, a, rev, zi[0] * rev[0], zi[1] * rev[0])[::-1]
     return back[padlen : back.shape[0] - padlen] if padlen > 0 else back
+
+
+def load_compiled() -> None:
+    """Load the compiled filter now (numba's CPU target with it: its first load of
+    compiled code costs ~0.1 s), by filtering a few samples of the types a run's samples
+    have (float64, contiguous), so the cached machine code is loaded, never another
+    compiled."""
+    b, a = butter2(0.2)
+    filtfilt2(b, a, np.zeros(32), 6)

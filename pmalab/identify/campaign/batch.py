@@ -152,7 +152,8 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
     rest = tasks[first_here:]
     if len(rest) < 2 or not fork_is_safe():
         return out + [fn(t) for t in rest]
-    mine, theirs = rest[: len(rest) // 2], rest[len(rest) // 2 :]
+    half = (len(rest) + 1) // 2  # the child, paying its copy-on-write faults, takes fewer
+    mine, theirs = rest[:half], rest[half:]
     sys.stdout.flush()
     sys.stderr.flush()
     r, w = os.pipe()
