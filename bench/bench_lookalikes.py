@@ -12,7 +12,8 @@ claimed (significant), and which.  Goal: no catalogue effect claimed in ≥ 95 %
 of every look-alike; the controls' effect found in every seed.
 
 ``python -m bench lookalikes``; ``PMALAB_BENCH_SEEDS=N`` seeds per look-alike (default 20),
-``PMALAB_BENCH_CONTROL_SEEDS=N`` per control (default 5).
+``PMALAB_BENCH_CONTROL_SEEDS=N`` per control (default 5), ``PMALAB_BENCH_SEED0=S`` the first
+seed (default 300), ``PMALAB_BENCH_KINDS=breakaway,...`` only those truths (default all).
 """
 
 from __future__ import annotations
@@ -61,17 +62,25 @@ def main() -> None:
 
     n_look = int(os.environ.get("PMALAB_BENCH_SEEDS", "20"))
     n_ctrl = int(os.environ.get("PMALAB_BENCH_CONTROL_SEEDS", "5"))
+    seed0 = int(os.environ.get("PMALAB_BENCH_SEED0", "300"))
+    only = [k for k in os.environ.get("PMALAB_BENCH_KINDS", "").split(",") if k]
+    unknown = [k for k in only if k not in KINDS]
+    if unknown:
+        raise SystemExit(f"PMALAB_BENCH_KINDS: unknown {', '.join(unknown)} (choose from "
+                         f"{', '.join(KINDS)})")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for kind, expected in KINDS.items():
+            if only and kind not in only:
+                continue
             n = n_ctrl if expected else n_look
             claims: Counter[str] = Counter()
             law_claims: Counter[str] = Counter()
             bad = found = 0
             ratios, gains = [], []
             t0 = time.perf_counter()
-            for seed in range(300, 300 + n):
+            for seed in range(seed0, seed0 + n):
                 d = diagnose(_campaign(LOOKALIKE / f"{kind}.toml", seed, work), "bouc-wen",
                              max_steps=1, jobs=2)
                 ratios.append(d.ladder[0]["nrmse"] / d.noise_floor["mean_nrmse"])
@@ -79,6 +88,8 @@ def main() -> None:
                 claims.update(sig)
                 law_claims.update(lw["law"] for lw in d.laws if lw["significant"])
                 gains.append(max((r["gain_x_floor"] or 0.0) for r in d.ranking))
+                if sig:
+                    print(f"   {kind} seed {seed}: claimed {', '.join(sig)}", flush=True)
                 if expected is None:
                     bad += bool(sig)
                 else:

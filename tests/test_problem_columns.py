@@ -155,3 +155,11 @@ def test_h_many_rows_are_the_single_calls(law):
     for j, th in enumerate(thetas):
         assert np.array_equal(H[j], model.law.h(s.x, th, extras))
     assert not np.array_equal(H[0], H[1])
+
+
+def test_nonneg_is_pythons_max_with_zero_bit_for_bit():
+    from pmalab.identify.laws._slide import nonneg
+
+    v = np.array([-3.0, -0.0, 0.0, np.nan, 2.5, -np.inf, np.inf, 1e-320])
+    want = np.array([max(float(a), 0.0) for a in v])
+    assert want.tobytes() == nonneg(v).tobytes()  # -0.0 and NaN kept as max keeps them

@@ -4,6 +4,8 @@ share one frequency and both effects grow with the rate of motion."""
 
 from __future__ import annotations
 
+import pytest
+
 from pmalab.identify.diagnosis.ranking import Candidate, Scored, judge
 
 FLOORS = [0.0035, 0.0035]
@@ -103,3 +105,29 @@ def test_a_held_out_run_at_its_noise_floor_is_no_evidence_either_way():
     tiny = Scored(("sensor-drift",), [1.1 * 0.0224, 1.21 * 0.0194])
     c = Candidate("sensor-drift", base, tiny, floors=floors)
     assert c.every_run and not judge([c])[0][0].significant  # the gain is under 0.25 floors
+
+
+def test_a_fall_the_effects_own_force_does_not_carry_is_no_evidence():
+    # break-away spikes (look-alike), seed 301: inertia cuts both held-out runs (0.30 floors)
+    # but without its m·ẍ the identified model predicts the 0.5 Hz run as well (0.0341)
+    floors = [0.0217, 0.0227]
+    base = Scored(effects=(), nrmse=[0.0430, 0.0518])
+    spikes = Scored(("inertia",), [0.0342, 0.0475], without_last=[0.0341, 0.0491])
+    c = Candidate("inertia", base, spikes, floors=floors)
+    assert c.every_run and c.gain_x_floor >= 0.25  # the fall alone passed the rule
+    assert c.carried is not None and c.carried[0] < 0 < c.carried[1]
+    assert c.gain_carried_x_floor < 0.1
+    assert not judge([c])[0][0].significant
+    j = c.as_json()
+    assert j["gain_carried_x_floor"] < 0.1 and j["per_run_without_effect"] == [0.0341, 0.0491]
+    # a true 25 kg mass (subtle suite, seed 201): without its force the 2 Hz run is 4x worse
+    base = Scored(effects=(), nrmse=[0.0355, 0.0941])
+    mass = Scored(("inertia",), [0.0241, 0.0281], without_last=[0.0257, 0.1218])
+    c = Candidate("inertia", base, mass, floors=floors)
+    assert c.gain_carried_x_floor == pytest.approx((0.0016 + 0.0660) / 2 / 0.0222, rel=1e-6)
+    assert judge([c])[0][0].significant
+    # the removal is of the candidate's own (last) effect only; none measured: the fall alone
+    other = Scored(("viscous-friction", "inertia"), [0.0342, 0.0475], without_last=[0.0341, 0.0491])
+    c = Candidate("viscous-friction", base, other, floors=floors)
+    assert c.carried is None and c.gain_carried_x_floor == c.gain_x_floor
+    assert c.as_json()["gain_carried_x_floor"] is None

@@ -388,6 +388,12 @@ class RankingEntry(TypedDict):
     runs_improved: NotRequired[float]
     #: the fall in nrmse in units of the noise floor
     gain_x_floor: NotRequired[float | None]
+    #: the part of that fall the effect's own force carries (per run the smaller of the
+    #: fall and the rise when the effect's force is removed from the identified model),
+    #: noise floors; null when not measured (the effect declares no ``absent`` values)
+    gain_carried_x_floor: NotRequired[float | None]
+    #: per held-out run: nrmse of the identified model with the effect's force removed
+    per_run_without_effect: NotRequired[list[float] | None]
     block_t: NotRequired[float | None]
     per_run_before: NotRequired[list[float | None]]
     per_run_after: NotRequired[list[float | None]]

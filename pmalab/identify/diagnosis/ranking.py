@@ -29,7 +29,13 @@ held-out run (a run at its noise floor both without and with the effect — belo
 least ``MIN_GAIN_X_FLOOR`` = 0.25 noise floors on average (absolute nrmse over the runs' own noise floor, not a percentage: a real device sits 10–20× above
 its floor, and a modest real effect cuts a small share of that), and — where the runs hold
 at least ``MIN_BLOCKS`` whole cycles — block by block beyond ``MIN_BLOCK_T`` standard
-errors.  fall = 1 − mean(nrmse_after) / mean(nrmse_before) is what the user reads; its
+errors.  The fall must be the effect's own: for an effect with a physical "absent" value
+(``Effect.absent``: a mass, a viscous coefficient, a delay of 0) the identified model is
+predicted again without the effect's force, every other parameter as identified; per run
+the fall credited to the effect is the smaller of its fall and the rise that removal causes,
+and the credited falls must also average ``MIN_GAIN_X_FLOOR`` floors
+(:attr:`Candidate.gain_carried_x_floor`) — a run where the physics makes the effect's force
+negligible (inertia on a slow run) carries no evidence for it.  fall = 1 − mean(nrmse_after) / mean(nrmse_before) is what the user reads; its
 standard error comes from the per-run ratios.  Two significant effects are *ambiguous*
 when the runner-up achieves ≥ ``AMBIGUITY_RATIO`` = 85 % of the winner's fall and the
 winner's held-out errors are not clearly lower, run by run (:func:`clearly_better`), or
@@ -103,6 +109,11 @@ class Scored:
     #: the pressure structure the law's elements took in this identification
     #: (``identification.json`` ``pressure_structure``; None: the law offers none)
     structure: dict[str, Any] | None = field(default=None, repr=False)
+    #: per held-out run: the nrmse of this identified model with the force of its *last*
+    #: effect removed (that effect's ``Effect.absent`` values, every other parameter as
+    #: identified; None when the last effect declares none) — how much of a fall the
+    #: effect's own force carries (:attr:`Candidate.gain_carried_x_floor`)
+    without_last: list[float] | None = None
 
     @property
     def mean(self) -> float:
@@ -118,6 +129,7 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
 
     with one_blas_thread():
         cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
+        without = _without_last(cf, spec, held)
     nr, div = [], []
     for v in vals:
         x = float(v.metrics["nrmse"])
@@ -150,7 +162,44 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         hits,
         len(cf.runs),
         None if getattr(cf, "structure", None) is None else dict(cf.structure.as_json()),
+        without,
     )
+
+
+def _nrmse_of(vals: Sequence[Any]) -> list[float]:
+    """Held-out nrmse per validation, a diverged or non-finite one as ``DIVERGED_NRMSE``."""
+    out = []
+    for v in vals:
+        x = float(v.metrics["nrmse"])
+        out.append(DIVERGED_NRMSE if v.diverged or not math.isfinite(x) else min(x, DIVERGED_NRMSE))
+    return out
+
+
+def _without_last(cf: Any, spec: ModelSpec, held: Sequence[Run]) -> list[float] | None:
+    """The held-out nrmse of the identified model ``cf`` with the force of ``spec``'s last
+    effect removed: that effect's parameters set to its ``Effect.absent`` values (a
+    constant pressure law), every other parameter as identified, each held-out run's
+    record parameters estimated on its early part as in any validation.  None when the
+    last effect declares no absent values (or the model has no such parameter)."""
+    from dataclasses import replace
+
+    from pmalab.identify.campaign.validation import validate_runs
+
+    if not spec.effects:
+        return None
+    cls = EFFECTS.get(spec.effects[-1])
+    absent = getattr(cls, "absent", None) if cls is not None else None
+    if not absent or any(n not in cf.pressure for n in absent):
+        return None
+    if cf.model.measured_pressure:  # the runs as fit_and_validate took them
+        from pmalab.identify.labels import use_measured
+
+        held = use_measured(list(held), whole_run=True)
+    laws = dict(cf.pressure)
+    for name, value in absent.items():
+        laws[name] = replace(laws[name], coef=(float(value), 0.0, 0.0), degree=0)
+    vals, _ = validate_runs(replace(cf, pressure=laws), held)
+    return _nrmse_of(vals)
 
 
 def _on_bound(value: float, lo: float, hi: float) -> bool:
@@ -288,6 +337,39 @@ class Candidate:
         return float(np.mean(b - a) / fl) if b.size and fl > 0 else 0.0
 
     @property
+    def carried(self) -> list[float] | None:
+        """Per held-out run: how much of the nrmse the effect's own force carries — the
+        identified model's nrmse with the effect's force removed (its ``Effect.absent``
+        values, every other parameter as identified) minus its nrmse with it.  None when
+        the effect declares no absent values (or ``after`` is not ``before`` + this effect)."""
+        w = self.after.without_last
+        if w is None or not self.after.effects or self.after.effects[-1] != self.effect:
+            return None
+        a = np.asarray(self.after.nrmse, float)
+        wo = np.asarray(w, float)
+        return [float(v) for v in wo - a] if wo.shape == a.shape else None
+
+    @property
+    def gain_carried_x_floor(self) -> float:
+        """The mean fall the effect's own force carries, in noise floors: per held-out run
+        the smaller of its fall (before − after) and what the effect's force carries there
+        (:attr:`carried`), averaged over the runs, over the mean floor.  Equal to
+        :attr:`gain_x_floor` when the effect declares no absent values.
+
+        A fall on a run where the effect's force is negligible (an inertial force on a slow
+        run) came from the other parameters moving, not from the effect: it is no evidence
+        for it (docs/explanation/significance.md)."""
+        c = self.carried
+        if c is None:
+            return self.gain_x_floor
+        b = np.asarray(self.before.nrmse, float)
+        a = np.asarray(self.after.nrmse, float)
+        fl = float(np.mean(self.floors)) if len(self.floors) else float("nan")
+        if not b.size or a.shape != b.shape or not fl > 0:
+            return 0.0
+        return float(np.mean(np.minimum(b - a, np.asarray(c, float))) / fl)
+
+    @property
     def block_t(self) -> float:
         """The paired block-by-block improvement over its standard error.
 
@@ -401,6 +483,14 @@ class Candidate:
             "runs_improved": float(self.runs_improved),
             "runs_at_floor": int(sum(self.at_floor)),
             "gain_x_floor": None if why else float(self.gain_x_floor),
+            # the part of the fall the effect's own force carries (its force removed from
+            # the identified model, every other parameter kept); null: not measured
+            "gain_carried_x_floor": None
+            if why or self.carried is None
+            else float(self.gain_carried_x_floor),
+            "per_run_without_effect": None
+            if self.after.without_last is None or self.carried is None
+            else [float(v) for v in self.after.without_last],
             "block_t": None if math.isnan(self.block_t) else float(min(self.block_t, 1e6)),
             "per_run_before": [float(v) for v in self.before.nrmse],
             "per_run_after": [float(v) for v in self.after.nrmse],
@@ -452,13 +542,16 @@ def rate_dependent(effect: str) -> bool:
 def is_significant(c: Candidate) -> bool:
     """The rule (module docstring): the held-out error falls on every held-out run (but
     those at their noise floor without and with it, :attr:`Candidate.every_run`), by at
-    least ``MIN_GAIN_X_FLOOR`` noise floors on average, and — where the runs hold at least
-    ``MIN_BLOCKS`` whole cycles — cycle by cycle beyond ``MIN_BLOCK_T`` standard errors."""
+    least ``MIN_GAIN_X_FLOOR`` noise floors on average — also counting only the part the
+    effect's own force carries (:attr:`Candidate.gain_carried_x_floor`) — and, where the
+    runs hold at least ``MIN_BLOCKS`` whole cycles, cycle by cycle beyond ``MIN_BLOCK_T``
+    standard errors."""
     t = c.block_t
     return bool(
         not c.failed
         and c.every_run
         and c.gain_x_floor >= MIN_GAIN_X_FLOOR
+        and c.gain_carried_x_floor >= MIN_GAIN_X_FLOOR
         and (math.isnan(t) or t >= MIN_BLOCK_T)
     )
 

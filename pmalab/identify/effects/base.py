@@ -85,6 +85,12 @@ class Effect:
     #: from each other (nor from the loop's width), so diagnosis calls two of them that are
     #: both significant ambiguous there, whatever their falls
     rate_dependent: ClassVar[bool] = False
+    #: the parameter values at which the effect's force vanishes (the model without the
+    #: effect), or None.  Diagnosis removes the effect's term from an identified model with
+    #: them — every other parameter as identified — to see how much of a held-out fall the
+    #: effect's own force carries (docs/explanation/significance.md, "The fall must be the
+    #: effect's own"); an effect without them is judged by its fall alone
+    absent: ClassVar[dict[str, float] | None] = None
 
     #: parameters of this effect that belong to one record (one value per run in the joint
     #: pressure-law fit; 0 when another run is predicted) — see the module docstring

@@ -45,6 +45,7 @@ class SensorDelay(Effect):
 
     experiment = "repeat at two or more frequencies: a delay's phase error grows with frequency (ωτ) while viscous force grows with velocity amplitude; or time-stamp a sharp force step on both channels"
     rate_dependent = True
+    absent: ClassVar[dict[str, float] | None] = {"delay_tau": 0.0}
 
     #: multi-start grid for τ (s) used by the diagnosis fitter: the least-squares cost of a
     #: time-shifted loop is multi-modal in τ (a local minimum wherever a shift lines up one

@@ -42,6 +42,7 @@ class Inertia(Effect):
 
     experiment = "repeat at a higher frequency (≥ 1 Hz): an inertial force grows with the square of the frequency, friction and delay effects only linearly"
     rate_dependent = True
+    absent: ClassVar[dict[str, float] | None] = {"inertia_m": 0.0}
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # bound: a mass whose inertial force alone is 3× the force's spread at the rms

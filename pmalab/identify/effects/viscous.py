@@ -35,6 +35,7 @@ class ViscousFriction(Effect):
 
     experiment = "repeat at two or more frequencies and amplitudes with a triangle wave: viscous force is constant along each constant-speed branch and jumps at reversals, while a channel delay only shifts the loop in time"
     rate_dependent = True
+    absent: ClassVar[dict[str, float] | None] = {"visc_c": 0.0}
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         vmax = float(np.max(np.abs(sig.v))) or 1.0

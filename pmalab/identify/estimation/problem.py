@@ -42,6 +42,8 @@ LINEAR = ("k", "c0")
 _SQRT_EPS = math.sqrt(np.finfo(float).eps)
 #: one run's model parts at a parameter set: drive signals, law extras, k·x + c0, h
 _Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
+#: Problem's last residual: z's bytes, the residual, the parts, raw θ, every run's θ
+_Cache = tuple[bytes, np.ndarray, "list[_Parts] | None", np.ndarray, list[dict[str, float]]]
 
 
 @dataclass
@@ -105,8 +107,12 @@ class Problem:
         offs = np.cumsum([0] + [r.n for r in self.records])
         self.rows = [slice(int(a), int(b)) for a, b in itertools.pairwise(offs)]
         self.n_rows = int(offs[-1])
-        #: the last residual: (z's bytes, residual, each run's model parts or None)
-        self._cache: tuple[bytes, np.ndarray, list[_Parts] | None] | None = None
+        #: each free parameter's bounds (θ is clipped into them)
+        b = np.array([self.bounds.get(n, (-np.inf, np.inf)) for n in self.free], dtype=float)
+        self._lo, self._hi = b.reshape(len(self.free), 2).T
+        #: the last residual: (z's bytes, residual, each run's model parts or None, and
+        #: :meth:`_at` at z) — the Jacobian at the same z starts from them
+        self._cache: _Cache | None = None
         #: parameters whose finite-difference column reuses parts of the model at z
         #: (:meth:`ForceModel.unchanged_parts`); only for the force output
         self._reuse: dict[str, str] = (
@@ -163,16 +169,16 @@ class Problem:
 
     def thetas(self, z: np.ndarray) -> list[dict[str, float]]:
         """The full parameter set of every run."""
+        return self._at(z)[1]
+
+    def _at(self, z: np.ndarray) -> tuple[np.ndarray, list[dict[str, float]]]:
+        """(the unclipped θ of every free parameter at every run, shape (free, runs); the
+        full parameter set of every run)."""
         raw = self.raw(z)
         R = len(self.records)
-        b = np.array([self.bounds.get(n, (-np.inf, np.inf)) for n in self.free], dtype=float)
-        lo, hi = b.reshape(len(self.free), 2).T
+        RAW = np.array([raw[n] for n in self.free], dtype=float).reshape(len(self.free), R)
         # each law clipped to its bounds at every run at once (np.clip: the same min/max)
-        free = np.clip(
-            np.array([raw[n] for n in self.free], dtype=float).reshape(len(self.free), R),
-            lo[:, None],
-            hi[:, None],
-        ).T.tolist()
+        free = np.clip(RAW, self._lo[:, None], self._hi[:, None]).T.tolist()
         per_run = np.asarray(z, dtype=float)[self.n_coef :].reshape(-1, R).T.tolist()
         out = []
         for i in range(R):
@@ -180,7 +186,7 @@ class Problem:
             th.update(zip(self.free, free[i]))
             th.update(zip(self.run_params, per_run[i]))
             out.append(th)
-        return out
+        return RAW, out
 
     # ------------------------------------------------------------------ residuals
     #: k and c0 enter the output linearly (True for the force output; a simulated position
@@ -230,12 +236,12 @@ class Problem:
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         parts: list[_Parts] | None = None
+        RAW, ths = self._at(z)
         with np.errstate(all="ignore"):
             if self._reuse:
                 # the model's parts kept for the Jacobian's columns at this z (the same
                 # numbers as output(): predict is parts + assemble)
                 m = self.model
-                ths = self.thetas(z)
                 parts = [m.parts(r.sig, th) for r, th in zip(self.records, ths)]
                 e = np.concatenate(
                     [
@@ -244,10 +250,8 @@ class Problem:
                     ]
                 )
             else:
-                e = np.concatenate(
-                    [self._run_residual(i, th) for i, th in enumerate(self.thetas(z))]
-                )
-        self._cache = (key, e, parts)
+                e = np.concatenate([self._run_residual(i, th) for i, th in enumerate(ths)])
+        self._cache = (key, e, parts, RAW, ths)
         return e
 
     def jac(self, z: np.ndarray, run_only: bool = False) -> np.ndarray:
@@ -266,21 +270,23 @@ class Problem:
         parameters on one run are evaluated together (:meth:`_law_columns`); every other
         column one by one (:meth:`dresid`).  Each column is the same forward difference
         either way."""
-        ths = self.thetas(z)
-        raw = self.raw(z)
         c = self._cache
-        parts = c[2] if c is not None and c[0] == z.tobytes() else None
+        if c is not None and c[0] == z.tobytes():
+            _, _, parts, RAW, ths = c
+        else:
+            parts, (RAW, ths) = None, self._at(z)
+        # a clipped θ does not move with z at that run: no column there
+        inside = ((self._lo[:, None] <= RAW) & (RAW <= self._hi[:, None])).T.tolist()
+        law = {n for n, k in self._reuse.items() if k == "law"} if parts else set()
         for i, th in enumerate(ths):
             rows = self.rows[i]
             # (parameter, its column for a per-run parameter; None: through the basis)
             cols: list[tuple[str, int | None]] = []
-            for n in [] if run_only else self.free:
-                lo, hi = self.bounds.get(n, (-np.inf, np.inf))
-                if lo <= raw[n][i] <= hi:  # else clipped: θ does not move with z here
-                    cols.append((n, None))
+            if not run_only:
+                cols += [(n, None) for n, ok in zip(self.free, inside[i]) if ok]
             for j, rn in enumerate(self.run_params):
                 cols.append((rn, self.block(j).start + i))
-            batch = [nc for nc in cols if parts and self._reuse.get(nc[0]) == "law"]
+            batch = [nc for nc in cols if nc[0] in law]
             if len(batch) > 1 and parts:
                 D = self._law_columns(i, th, [n for n, _ in batch], r0, parts[i])
                 done = {n for n, _ in batch}

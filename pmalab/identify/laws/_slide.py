@@ -148,14 +148,27 @@ def slide_h_many(x, K, F, h0, reversed):
     return out
 
 
-def slide_h_rows(x, kfs, thetas) -> np.ndarray:
-    """Rows of :func:`slide_h` along ``x`` for the (stiffness, slip force) pairs ``kfs`` and
-    the start state and branch of each parameter set of ``thetas``."""
-    K = np.array([k for k, _ in kfs], dtype=np.float64).reshape(len(kfs), -1)
-    F = np.array([f for _, f in kfs], dtype=np.float64).reshape(len(kfs), -1)
+def slide_h_rows(x, K, F, thetas) -> np.ndarray:
+    """Rows of :func:`slide_h` along ``x``: row j with the stiffnesses ``K[j]`` and slip
+    forces ``F[j]`` (N/mm, N) and the start state and branch of ``thetas[j]``."""
     h0 = np.array([float(th["h0"]) for th in thetas], dtype=np.float64)
     rev = np.array([branch(th) for th in thetas], dtype=np.float64)
+    K = np.ascontiguousarray(K, dtype=np.float64).reshape(len(thetas), -1)
+    F = np.ascontiguousarray(F, dtype=np.float64).reshape(len(thetas), -1)
     return slide_h_many(np.ascontiguousarray(x, dtype=np.float64), K, F, h0, rev)
+
+
+def nonneg(a: np.ndarray) -> np.ndarray:
+    """``max(v, 0.0)`` of every element, as Python's ``max`` gives it (NaN and −0.0 kept:
+    0.0 is taken only where 0.0 > v)."""
+    return np.where(0.0 > a, 0.0, a)
+
+
+def column(thetas, names) -> np.ndarray:
+    """The values of ``names`` in every parameter set, shape (len(thetas), len(names))."""
+    return np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64).reshape(
+        len(thetas), len(names)
+    )
 
 
 def slide_stepper(k: np.ndarray, f: np.ndarray):

@@ -28,6 +28,8 @@ from scipy.optimize import nnls
 
 from pmalab.identify.laws._slide import (
     branch,
+    column,
+    nonneg,
     play_basis,
     slide_h,
     slide_h_rows,
@@ -117,7 +119,9 @@ class MaxwellSlip(HysteresisLaw):
         )
 
     def h_many(self, x, thetas, extras=None):
-        return slide_h_rows(x, [_kf(th) for th in thetas], thetas)
+        # every row's _kf at once: the same max(k, 0)·max(d, 0), elementwise
+        K = nonneg(column(thetas, _K))
+        return slide_h_rows(x, K, K * nonneg(column(thetas, _D)), thetas)
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = _kf(theta)

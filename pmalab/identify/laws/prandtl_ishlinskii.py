@@ -37,6 +37,8 @@ from scipy.optimize import nnls
 
 from pmalab.identify.laws._slide import (
     branch,
+    column,
+    nonneg,
     play_basis,
     slide_h,
     slide_h_rows,
@@ -106,7 +108,9 @@ class PrandtlIshlinskii(HysteresisLaw):
         )
 
     def h_many(self, x, thetas, extras=None):
-        return slide_h_rows(x, [_kf(th) for th in thetas], thetas)
+        # every row's _kf at once: the same max(w, 0) and w·r, elementwise
+        K = nonneg(column(thetas, _W))
+        return slide_h_rows(x, K, K * np.asarray(THRESHOLDS_MM), thetas)
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = _kf(theta)

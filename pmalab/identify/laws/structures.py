@@ -31,6 +31,8 @@ import numpy as np
 
 from pmalab.identify.laws._slide import (
     branch,
+    column,
+    nonneg,
     slide_h,
     slide_h_rows,
     slide_start,
@@ -115,7 +117,19 @@ class ProfileElements(HysteresisLaw):
         )
 
     def h_many(self, x, thetas, extras=None):
-        return slide_h_rows(x, [self._kf(th) for th in thetas], thetas)
+        # every row's _kd at once: k = (max(s, 0)·κ)·c, d = (δ·r)·max(t, 0), f = k·d,
+        # the same operations as _kd's, elementwise
+        m, n = int(np.size(self.kappa)), len(thetas)
+        C = np.ones((n, m))
+        Rr = np.ones((n, m))
+        if self.c_index:
+            C[:, list(self.c_index)] = nonneg(column(thetas, [f"c{i + 1}" for i in self.c_index]))
+        if self.r_index:
+            Rr[:, list(self.r_index)] = nonneg(column(thetas, [f"r{i + 1}" for i in self.r_index]))
+        S = nonneg(column(thetas, ["s"]))
+        T = nonneg(np.array([[float(th.get("t", 1.0))] for th in thetas]).reshape(n, 1))
+        K = S * self.kappa[None, :] * C
+        return slide_h_rows(x, K, K * (self.delta[None, :] * Rr * T), thetas)
 
     def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
         k, f = self._kf(theta)
