@@ -151,6 +151,42 @@ def test_map_split_equals_a_loop_and_a_failing_child_hands_its_half_back(tmp_pat
     assert p.stdout.strip() == "raised task 2"
 
 
+def test_map_split_shows_the_childs_warnings_as_one_process_would_and_never_hangs(tmp_path):
+    (tmp_path / "noisy.py").write_text(textwrap.dedent("""
+        import os
+        import warnings
+
+        def warn(t):
+            warnings.warn("same" if t % 2 else f"task {t}", UserWarning)
+            return t
+
+        def big(t, parent):
+            if os.getpid() == parent and t == 2:
+                raise ValueError("task 2")
+            return bytes(10**6)  # the child's half fills the pipe many times over
+    """))
+    p = _python("""
+        import os, warnings
+        from noisy import big, warn
+        from pmalab.identify.campaign.batch import map_split
+        with warnings.catch_warnings(record=True) as split:
+            warnings.simplefilter("default")
+            assert map_split(warn, range(9)) == list(range(9))
+        with warnings.catch_warnings(record=True) as here:
+            warnings.simplefilter("default")
+            [warn(t) for t in range(9)]
+        print([str(w.message) for w in split] == [str(w.message) for w in here])
+        print(sorted({w.filename.endswith("noisy.py") for w in split}))
+        parent = os.getpid()
+        try:
+            map_split(lambda t: big(t, parent), range(9))
+        except ValueError as e:
+            print(e)
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split("\n")[:3] == ["True", "[True]", "task 2"]
+
+
 def test_fits_split_over_two_processes_equal_the_fits_in_one(campaign, tmp_path):
     ident, _ = campaign
     p = _python(f"""

@@ -146,6 +146,7 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
     way, every task runs here (a task's own error is raised here, as in a plain loop).
     ``fn`` and the results must be picklable."""
     import pickle
+    import warnings
 
     tasks = list(tasks)
     out = [fn(t) for t in tasks[:first_here]]
@@ -162,7 +163,9 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
         code = 1
         try:
             os.close(r)
-            data = pickle.dumps([fn(t) for t in theirs], protocol=pickle.HIGHEST_PROTOCOL)
+            with warnings.catch_warnings(record=True) as caught:
+                got = [fn(t) for t in theirs]
+            data = pickle.dumps((got, caught), protocol=pickle.HIGHEST_PROTOCOL)
             with os.fdopen(w, "wb") as f:
                 f.write(data)
             code = 0
@@ -171,18 +174,37 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
         finally:
             os._exit(code)
     os.close(w)
+    reader = os.fdopen(r, "rb")
+    data = b""
     try:
         out += [fn(t) for t in mine]
-        with os.fdopen(r, "rb") as f:
-            data = f.read()
+        data = reader.read()
     finally:
+        reader.close()  # a child still writing gets a broken pipe, and exits
         _, status = os.waitpid(pid, 0)
     if data and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
         try:
-            return out + pickle.loads(data)
+            got, caught = pickle.loads(data)
         except Exception:
-            pass
+            got = None
+        if got is not None:
+            for m in caught:  # the child's warnings, after this half's (the tasks' order)
+                _warn_again(m)
+            return out + got
     return out + [fn(t) for t in theirs]  # the child failed: its half here
+
+
+def _warn_again(m: Any) -> None:
+    """Issue a warning a forked child recorded as if raised here: through the filters and
+    the raising module's registry, so one shown here already is not shown twice."""
+    import warnings
+
+    mod = next(
+        (v for v in list(sys.modules.values()) if getattr(v, "__file__", None) == m.filename),
+        None,
+    )
+    registry = vars(mod).setdefault("__warningregistry__", {}) if mod is not None else None
+    warnings.warn_explicit(m.message, m.category, m.filename, m.lineno, registry=registry)
 
 
 def map_with_context(
