@@ -361,7 +361,9 @@ class Problem:
         if name == "c0" and self.analytic_linear:
             return np.full(rec.n, rec.weight)
         if name == "k" and self.analytic_linear:
-            return self.model.drive(rec.sig, th).x * rec.weight
+            # the drive at th: kept with the parts, else the effects' transforms again
+            s = parts[0] if parts is not None else self.model.drive(rec.sig, th)
+            return s.x * rec.weight
         v = th[name]
         h = self._step(name, v)
         th2 = dict(th)
