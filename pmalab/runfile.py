@@ -539,6 +539,7 @@ def read_runs(
     killed = bool(getattr(f, "swmr_mode", False))  # opened only in SWMR-read mode
     skipped: list[tuple[str, str]] = []
     never: list[str] = []  # runs of a recorder's file that hold no samples (never started)
+    losses: list[str] = []  # a killed writer's torn last chunks: the samples cut
     try:
         fmt = decode_attr(f.attrs.get("format"))
         if fmt != FORMAT:
@@ -580,6 +581,7 @@ def read_runs(
             view = declared.single_muscle_view(picked)
             raw = {}
             lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
+            cut = _is_running(g)  # a killed writer's last chunk may be torn
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 src = view.get(ch, ch)
                 if src in g:
@@ -589,10 +591,9 @@ def read_runs(
                     if lazy:  # read later, a window at a time
                         raw[ch] = (ds, decode_attr(ds.attrs.get("units")))
                         continue
-                    try:
-                        values = ds[()]
-                    except OSError as exc:
-                        raise _fail(path, name, src, damage_words(exc)) from None
+                    values, lost = read_samples(path, name, src, ds, killed=cut)
+                    if lost:
+                        losses.append(lost)
                     raw[ch] = (values, decode_attr(ds.attrs.get("units")))
             check_attrs_digest(path, name, g)
             extra = _recording_state(g, path, name)
@@ -670,6 +671,8 @@ def read_runs(
         raise _fail(path, None, None, f"damaged file ({_short(exc)}); {CHECK_HINT}") from None
     finally:
         f.close()
+    for words in losses:
+        warnings.warn(RunFileWarning(words), stacklevel=2)
     for name, status in skipped:
         warnings.warn(
             RunFileWarning(
@@ -746,6 +749,16 @@ def muscles_of(path: str | Path) -> tuple[str, ...]:
         return run_channels(path, name, runs_g[name]).muscles or (SINGLE_MUSCLE,)
     finally:
         f.close()
+
+
+def _is_running(g: Any) -> bool:
+    """The run's recorded status is ``running`` (its writer was killed mid-recording)."""
+    import h5py
+
+    st = g.get("status")
+    if not isinstance(st, h5py.Dataset) or st.shape != ():
+        return False
+    return str(decode_attr(st[()])).rstrip("\x00 ") == "running"
 
 
 def _run_length(g: Any) -> int:
@@ -843,6 +856,118 @@ def damage_words(exc: BaseException) -> str:
     if "filter returned failure" in text or "checksum" in text.lower():
         return f"stored samples damaged (checksum failed: {text}); {CHECK_HINT}"
     return f"unreadable ({text}); {CHECK_HINT}"
+
+
+def fletcher32(data: bytes) -> int:
+    """HDF5's Fletcher32 checksum of ``data`` (what its filter stores, little-endian, after
+    a chunk's bytes): 16-bit big-endian words summed modulo 65535, and their running sums.
+
+    Parameters
+    ----------
+    data : bytes
+        The chunk's bytes as stored, before the 4 checksum bytes.
+
+    Returns
+    -------
+    int
+        ``(sum2 << 16) | sum1``, each half reduced modulo 65535.
+    """
+    words = np.frombuffer(data[: len(data) // 2 * 2], dtype=">u2").astype(np.int64)
+    if len(data) % 2:
+        words = np.append(words, np.int64(data[-1]) << 8)
+    s1 = int(words.sum()) % 65535
+    s2 = int((words * np.arange(words.size, 0, -1, dtype=np.int64)).sum()) % 65535
+    return (s2 << 16) | s1
+
+
+def _same_fletcher(a: int, b: int) -> bool:
+    """Equal Fletcher32 sums (HDF5 reduces ones'-complement style: 0xffff is 0)."""
+    return all(((x >> s) & 0xFFFF) % 65535 == ((y >> s) & 0xFFFF) % 65535
+               for x, y in ((a, b),) for s in (0, 16))
+
+
+def _torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
+    """The samples ``start..n`` of a killed writer's last chunk whose checksum fails, when
+    the chunk is exactly what the last completed flush wrote; else None.
+
+    A recorder appends into a partly filled chunk, so every flush rewrites that chunk in
+    place (same address and size: Fletcher32 adds 4 bytes).  HDF5 writes a flush's raw
+    data before its metadata, so a kill during the chunk's ``pwrite`` (Linux copies a write
+    page by page and stops at a pending SIGKILL) leaves the first pages new, the rest —
+    the checksum, stored last — old, while the dataset's extent on disk is still the old
+    one.  Then the samples inside the extent are the old flush's bytes, and the old
+    checksum must verify them followed by the fill value (zeros) of the chunk's unwritten
+    rest.  Anything else (a flipped bit inside the extent) does not verify: None.
+    """
+    if ds.compression is not None or ds.shuffle or ds.scaleoffset is not None:
+        return None
+    if ds.fillvalue != 0 or ds.dtype.kind not in "fiu":
+        return None
+    size = ds.chunks[0] * ds.dtype.itemsize
+    try:
+        mask, raw = ds.id.read_direct_chunk((start,))
+    except (OSError, ValueError, RuntimeError):
+        return None
+    if mask != 0 or len(raw) != size + 4:
+        return None
+    k = (n - start) * ds.dtype.itemsize
+    stored = int.from_bytes(raw[-4:], "little")
+    sums = fletcher32(bytes(raw[:k]) + bytes(size - k))
+    if not (_same_fletcher(sums, stored) or _same_fletcher(sums, int.from_bytes(raw[-4:], "big"))):
+        return None
+    return np.frombuffer(raw[:k], dtype=ds.dtype).copy()
+
+
+def read_samples(
+    path: Path | str, run: str, name: str, ds: Any, *, killed: bool
+) -> tuple[np.ndarray, str | None]:
+    """A sample dataset's values, and the words of a loss when its last chunk was torn.
+
+    Parameters
+    ----------
+    path, run, name : str
+        The file, run and dataset named by any error.
+    ds : h5py.Dataset
+        The dataset (read whole).
+    killed : bool
+        The run's recorded status is ``running``: its writer died mid-recording, so a
+        failed checksum of its *last* chunk is the chunk a flush was rewriting when the
+        kill came (:func:`_torn_tail`).  Its samples are kept when the old checksum
+        verifies them; otherwise the run is cut at that chunk's first sample and the
+        words of the lost span are returned (a recorded loss, never invented samples).
+
+    Returns
+    -------
+    (ndarray, str or None)
+        The values, and None or the loss's words (a warning's text).
+
+    Raises
+    ------
+    RunFileError
+        Any other failed read (a chunk before the last one, or a run that ended normally):
+        stored samples damaged, one line naming file, run and dataset.
+    """
+    try:
+        return np.asarray(ds[()]), None
+    except OSError as exc:
+        first = exc
+    chunks = ds.chunks
+    if not killed or ds.ndim != 1 or chunks is None or not ds.fletcher32 or ds.shape[0] == 0:
+        raise _fail(path, run, name, damage_words(first))
+    n = int(ds.shape[0])
+    start = (n - 1) // chunks[0] * chunks[0]
+    try:
+        head = np.asarray(ds[:start])
+    except OSError:  # an earlier, long-finished chunk: damage, not a tear
+        raise _fail(path, run, name, damage_words(first)) from None
+    tail = _torn_tail(ds, start, n)
+    if tail is not None:
+        return np.concatenate([head, tail]), None
+    return head, (
+        f"{path}: run '{run}': the last chunk of '{name}' (samples {start}..{n - 1}) fails "
+        f"its checksum: torn by the kill that stopped the recording; the run is cut to "
+        f"its first {start} samples ({n - start} lost)"
+    )
 
 
 def attrs_digest(obj: Any) -> str:
@@ -1048,6 +1173,7 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
     path = Path(path)
     f = open_h5(path)
     out: dict[str, tuple[np.ndarray, str]] = {}
+    losses: list[str] = []
     try:
         if "runs" not in f:
             raise _fail(path, run, None, "no such run")
@@ -1057,14 +1183,18 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
 
         def visit(name: str, obj: Any) -> None:
             if getattr(obj, "ndim", None) == 1 and "units" in obj.attrs:
+                values, lost = read_samples(path, run, name, obj, killed=cut)
+                if lost:
+                    losses.append(lost)
                 out[name] = (
-                    np.asarray(obj[()], dtype=np.float64),
+                    np.asarray(values, dtype=np.float64),
                     str(decode_attr(obj.attrs["units"])),
                 )
 
         g = runs_g[run]
         if not isinstance(g, h5py.Group):
             raise _fail(path, run, None, "not a group")
+        cut = _is_running(g)
         g.visititems(visit)
         if out and _recording_state(g).get("status") == "running":
             # a writer killed mid-append: every channel up to what all of them hold
@@ -1074,6 +1204,8 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
         raise _fail(path, run, None, f"damaged file ({_short(exc)})") from None
     finally:
         f.close()
+    for words in losses:
+        warnings.warn(RunFileWarning(words), stacklevel=2)
     return out
 
 

@@ -15,14 +15,15 @@ rewrites it anyway.
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import cast
 
 import numpy as np
 
-from pmalab.errors import RunFileError
+from pmalab.errors import RunFileError, RunFileWarning
 from pmalab.paths import output_failure
-from pmalab.runfile import CHECKSUM, FORMAT, create_run_group, open_h5
+from pmalab.runfile import CHECKSUM, FORMAT, create_run_group, open_h5, read_samples
 
 
 def is_healthy(path: Path) -> bool:
@@ -68,16 +69,40 @@ def _is_channel(obj) -> bool:
     )
 
 
-def _samples(g) -> int:
-    """The samples every channel of run group ``g`` holds (a killed writer may have cut one
-    channel's last append)."""
-    lengths: list[int] = []
-    g.visititems(lambda _n, o: lengths.append(o.shape[0]) if _is_channel(o) else None)
-    return min(lengths, default=0)
+def _channel_values(path: Path, run: str, g) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Every channel of run group ``g`` read whole (by its path in the group), and the words
+    of any loss: a killed writer's torn last chunk keeps the samples its old checksum
+    verifies, else the run is cut at that chunk (:func:`pmalab.runfile.read_samples`)."""
+    killed = _is_running(g)
+    values: dict[str, np.ndarray] = {}
+    losses: list[str] = []
+
+    def visit(name: str, obj) -> None:
+        if _is_channel(obj):
+            v, lost = read_samples(path, run, name, obj, killed=killed)
+            values[name] = v
+            if lost:
+                losses.append(lost)
+
+    g.visititems(visit)
+    return values, losses
 
 
-def _copy_group(src, dst, n: int) -> None:
-    """Copy ``src``'s datasets and subgroups into ``dst``; channels cut to ``n`` samples."""
+def _is_running(g) -> bool:
+    import h5py
+
+    st = g.get("status")
+    return (
+        isinstance(st, h5py.Dataset)
+        and st.shape == ()
+        and isinstance(st[()], bytes)
+        and st[()].rstrip(b"\x00 ") == b"running"
+    )
+
+
+def _copy_group(src, dst, n: int, values: dict[str, np.ndarray], prefix: str = "") -> None:
+    """Copy ``src``'s datasets and subgroups into ``dst``; channels (``values``, read by
+    :func:`_channel_values`, keyed by path in the run group) cut to ``n`` samples."""
     import h5py
 
     for c in src:
@@ -86,10 +111,10 @@ def _copy_group(src, dst, n: int) -> None:
             sub = dst.create_group(c)
             for k, v in obj.attrs.items():
                 sub.attrs[k] = v
-            _copy_group(obj, sub, n)
+            _copy_group(obj, sub, n, values, f"{prefix}{c}/")
             continue
         if obj.chunks is not None:  # samples: chunked as recorded, each chunk checksummed
-            data = obj[:n] if _is_channel(obj) else obj[()]
+            data = values[prefix + c][:n] if _is_channel(obj) else obj[()]
             new = dst.create_dataset(
                 c,
                 data=data,
@@ -133,6 +158,7 @@ def recover(
         src.close()
         raise output_failure(dst_path, exc, f"be written from {src_path}") from None
     fixed: list[str] = []
+    losses: list[str] = []
     try:
         if src.attrs.get("format") not in (FORMAT, FORMAT.encode()):
             raise RunFileError(f"{src_path}: not a pmalab run file")
@@ -152,7 +178,9 @@ def recover(
                 d = create_run_group(runs, name)
                 for k, v in g.attrs.items():
                     d.attrs[k] = v
-                _copy_group(g, d, _samples(g))
+                values, lost = _channel_values(src_path, name, g)
+                losses.extend(lost)
+                _copy_group(g, d, min((v.size for v in values.values()), default=0), values)
                 if "status" in g:
                     status_ds = g["status"]
                     if not isinstance(status_ds, h5py.Dataset):
@@ -178,4 +206,6 @@ def recover(
             what = "be recovered" if out is None else f"be written from {src_path}"
             raise output_failure(dst_path, exc, what) from None
         raise
+    for words in losses:  # a torn last chunk's cut samples: never silently
+        warnings.warn(RunFileWarning(words), stacklevel=2)
     return fixed
