@@ -882,8 +882,11 @@ def fletcher32(data: bytes) -> int:
 
 def _same_fletcher(a: int, b: int) -> bool:
     """Equal Fletcher32 sums (HDF5 reduces ones'-complement style: 0xffff is 0)."""
-    return all(((x >> s) & 0xFFFF) % 65535 == ((y >> s) & 0xFFFF) % 65535
-               for x, y in ((a, b),) for s in (0, 16))
+    return all(
+        ((x >> s) & 0xFFFF) % 65535 == ((y >> s) & 0xFFFF) % 65535
+        for x, y in ((a, b),)
+        for s in (0, 16)
+    )
 
 
 def _torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
