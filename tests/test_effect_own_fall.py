@@ -56,7 +56,7 @@ def test_break_away_spikes_are_not_claimed_as_inertia(tmp_path):
     assert abs(without[0] - after[0]) < 0.1 * (before[0] - after[0])
     assert row["gain_carried_x_floor"] < 0.5 * MIN_GAIN_X_FLOOR
     assert not row["significant"] and not row["significant_alone"]
-    assert "its own force carries only" in summary
+    assert "effect itself carries only" in summary
 
 
 def test_a_true_moving_mass_is_still_claimed(tmp_path):
@@ -65,4 +65,4 @@ def test_a_true_moving_mass_is_still_claimed(tmp_path):
     assert row["per_run_without_effect"][1] > 2.0 * row["per_run_after"][1]
     assert row["gain_carried_x_floor"] >= 0.75 * row["gain_x_floor"] >= 4 * MIN_GAIN_X_FLOOR
     assert row["significant"] and row["ladder_step"] == 1
-    assert "its own force carries only" not in summary
+    assert "effect itself carries only" not in summary

@@ -165,3 +165,20 @@ def test_user_effect_file_registers_and_broken_file_is_one_line(tmp_path: Path) 
     empty.write_text("x = 1\n")
     with pytest.raises(PmalabError, match="defines no Effect subclass"):
         load_user_effects(empty)
+
+
+@pytest.mark.parametrize("eid", [e for e in DESIGN_IDS if EFFECTS[e].absent])
+def test_absent_values_remove_the_effect(eid: str) -> None:
+    # diagnosis removes an effect from an identified model with its absent values (the
+    # significance rule's "the fall must be the effect's own"): they must cover every
+    # parameter of the effect and give the base law's force, whatever the effect's fit was
+    sig = _sig(f=2.0)
+    e = get_effect(eid)
+    absent = type(e).absent or {}
+    assert set(absent) == {p.name for p in e.params(sig, 200.0)}
+    base = ForceModel("bouc-wen")
+    with_e = ForceModel("bouc-wen", [e])
+    fitted = _theta(with_e, sig, **{p.name: p.lo + 0.3 * (p.hi - p.lo) for p in e.params(sig, 200.0)})
+    assert not np.allclose(with_e.predict(sig, fitted), base.predict(sig, fitted), atol=1e-6)
+    removed = {**fitted, **absent}
+    np.testing.assert_allclose(with_e.predict(sig, removed), base.predict(sig, removed), atol=1e-9)

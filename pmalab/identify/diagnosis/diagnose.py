@@ -387,8 +387,8 @@ def structure_phrase(row: Mapping[str, Any]) -> str:
 
 
 def _not_carried(ranking: Sequence[dict]) -> list[str]:
-    """A sentence for each effect whose fall would pass the rule but whose own force carries
-    too little of it (``gain_carried_x_floor``): why it is not claimed."""
+    """A sentence for each effect whose fall would pass the rule but which itself carries too
+    little of it (``gain_carried_x_floor``): why it is not claimed."""
     out = []
     for r in ranking:
         g, c = r.get("gain_x_floor"), r.get("gain_carried_x_floor")
@@ -396,9 +396,9 @@ def _not_carried(ranking: Sequence[dict]) -> list[str]:
             continue
         if g >= MIN_GAIN_X_FLOOR > c:
             out.append(
-                f"{r['effect']} cut the validation error by {g:.2f} noise floors, but its own "
-                f"force carries only {max(c, 0.0):.2f} of them (the identified model without "
-                "that force predicts the held-out runs about as well): the fall came from the "
+                f"{r['effect']} cut the validation error by {g:.2f} noise floors, but the "
+                f"effect itself carries only {max(c, 0.0):.2f} of them (the identified model "
+                "without it predicts the held-out runs about as well): the fall came from the "
                 "other parameters moving, so it is no evidence for the effect and is not claimed."
             )
     return out

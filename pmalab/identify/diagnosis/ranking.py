@@ -29,9 +29,10 @@ held-out run (a run at its noise floor both without and with the effect — belo
 least ``MIN_GAIN_X_FLOOR`` = 0.25 noise floors on average (absolute nrmse over the runs' own noise floor, not a percentage: a real device sits 10–20× above
 its floor, and a modest real effect cuts a small share of that), and — where the runs hold
 at least ``MIN_BLOCKS`` whole cycles — block by block beyond ``MIN_BLOCK_T`` standard
-errors.  The fall must be the effect's own: for an effect with a physical "absent" value
-(``Effect.absent``: a mass, a viscous coefficient, a delay of 0) the identified model is
-predicted again without the effect's force, every other parameter as identified; per run
+errors.  The fall must be the effect's own: for an effect whose absence is a parameter value
+(``Effect.absent``: a mass, a viscous coefficient, a delay of 0; symmetric branches; no
+nonlinear spring or pressure term) the identified model is predicted again without the
+effect, every other parameter as identified; per run
 the fall credited to the effect is the smaller of its fall and the rise that removal causes,
 and the credited falls must also average ``MIN_GAIN_X_FLOOR`` floors
 (:attr:`Candidate.gain_carried_x_floor`) — a run where the physics makes the effect's force
@@ -180,7 +181,7 @@ def _without_last(cf: Any, spec: ModelSpec, held: Sequence[Run]) -> list[float] 
     effect removed: that effect's parameters set to its ``Effect.absent`` values (a
     constant pressure law), every other parameter as identified, each held-out run's
     record parameters estimated on its early part as in any validation.  None when the
-    last effect declares no absent values (or the model has no such parameter)."""
+    last effect declares no absent values (or the model has none of its parameters)."""
     from dataclasses import replace
 
     from pmalab.identify.campaign.validation import validate_runs
@@ -189,7 +190,10 @@ def _without_last(cf: Any, spec: ModelSpec, held: Sequence[Run]) -> list[float] 
         return None
     cls = EFFECTS.get(spec.effects[-1])
     absent = getattr(cls, "absent", None) if cls is not None else None
-    if not absent or any(n not in cf.pressure for n in absent):
+    # a parameter the law holds fixed (Duhem has no direction-dependent slope) has no
+    # pressure law and keeps its fixed value
+    absent = {n: v for n, v in (absent or {}).items() if n in cf.pressure}
+    if not absent:
         return None
     if cf.model.measured_pressure:  # the runs as fit_and_validate took them
         from pmalab.identify.labels import use_measured

@@ -53,6 +53,14 @@ class AsymmetricHysteresis(Effect):
         "frequency: branch asymmetry changes the shape after every reversal in the same way"
     )
 
+    #: symmetric branches: no direction-dependent slope or decay, a loop of constant width
+    absent: ClassVar[dict[str, float] | None] = {
+        "asym_psi_a": 0.0,
+        "asym_psi_v": 0.0,
+        "asym_psi_h": 0.0,
+        "asym_g": 0.0,
+    }
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         return [
             Param(

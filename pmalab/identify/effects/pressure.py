@@ -49,6 +49,9 @@ class PressureVariation(Effect):
 
     experiment = "repeat with a fast regulator or a large reservoir on the muscle line: the effect must vanish when the pressure stays constant"
 
+    #: the tension does not follow the pressure within a run
+    absent: ClassVar[dict[str, float] | None] = {"pv_g0": 0.0, "pv_g1": 0.0}
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         # dF/dp of a DMSP-20 is of the order of F/p ≈ 2500 N/MPa; allow a wide margin
         lim = max(10.0 * force_scale / max(sig.p_nom, 0.05), 1e4)

@@ -37,6 +37,9 @@ class NonlinearStiffness(Effect):
 
     experiment = "run a slow loop over the full stroke: a curved static characteristic bends the loop's centre line the same way on both branches"
 
+    #: a linear spring (the law's own k·x): no quadratic or cubic term
+    absent: ClassVar[dict[str, float] | None] = {"stiff_k2": 0.0, "stiff_k3": 0.0}
+
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
         xm = max(float(np.max(np.abs(sig.x))), 1e-3)
         # bounds: each term at most 10 force standard deviations at the largest contraction
