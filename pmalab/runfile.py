@@ -581,7 +581,7 @@ def read_runs(
             view = declared.single_muscle_view(picked)
             raw = {}
             lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
-            cut = _is_running(g)  # a killed writer's last chunk may be torn
+            cut = is_running(g)  # a killed writer's last chunk may be torn
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 src = view.get(ch, ch)
                 if src in g:
@@ -751,7 +751,7 @@ def muscles_of(path: str | Path) -> tuple[str, ...]:
         f.close()
 
 
-def _is_running(g: Any) -> bool:
+def is_running(g: Any) -> bool:
     """The run's recorded status is ``running`` (its writer was killed mid-recording)."""
     import h5py
 
@@ -889,7 +889,7 @@ def _same_fletcher(a: int, b: int) -> bool:
     )
 
 
-def _torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
+def torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
     """The samples ``start..n`` of a killed writer's last chunk whose checksum fails, when
     the chunk is exactly what the last completed flush wrote; else None.
 
@@ -935,7 +935,7 @@ def read_samples(
     killed : bool
         The run's recorded status is ``running``: its writer died mid-recording, so a
         failed checksum of its *last* chunk is the chunk a flush was rewriting when the
-        kill came (:func:`_torn_tail`).  Its samples are kept when the old checksum
+        kill came (:func:`torn_tail`).  Its samples are kept when the old checksum
         verifies them; otherwise the run is cut at that chunk's first sample and the
         words of the lost span are returned (a recorded loss, never invented samples).
 
@@ -963,7 +963,7 @@ def read_samples(
         head = np.asarray(ds[:start])
     except OSError:  # an earlier, long-finished chunk: damage, not a tear
         raise _fail(path, run, name, damage_words(first)) from None
-    tail = _torn_tail(ds, start, n)
+    tail = torn_tail(ds, start, n)
     if tail is not None:
         return np.concatenate([head, tail]), None
     return head, (
@@ -1197,7 +1197,7 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
         g = runs_g[run]
         if not isinstance(g, h5py.Group):
             raise _fail(path, run, None, "not a group")
-        cut = _is_running(g)
+        cut = is_running(g)
         g.visititems(visit)
         if out and _recording_state(g).get("status") == "running":
             # a writer killed mid-append: every channel up to what all of them hold

@@ -16,6 +16,7 @@ import h5py
 import numpy as np
 import pytest
 
+from pmalab.acquisition.check import report
 from pmalab.acquisition.recover import recover
 from pmalab.errors import RunFileError, RunFileWarning
 from pmalab.runfile import fletcher32, read_run_datasets, read_runs
@@ -105,6 +106,11 @@ def test_a_killed_files_torn_last_chunk_keeps_every_flushed_sample(tmp_path):
     np.testing.assert_array_equal(run.force, _force(N))  # the very samples written
     data = read_run_datasets(out, "a")
     assert {len(v) for v, _ in data.values()} == {N}
+    lines, ok = report(out)  # `pmalab check` says what happened, not "damaged"
+    assert ok, lines
+    assert (f"    torn by the kill: force: its last chunk (samples 4096–{N - 1}) was being "
+            "rewritten when the writer was killed; its previous checksum verifies every "
+            "flushed sample") in lines
     assert recover(out) == ["a"]  # closed, the chunk rewritten with a fresh checksum
     with h5py.File(out, "r") as h:
         np.testing.assert_array_equal(h["runs/a/force"][()], _force(N))
@@ -123,6 +129,8 @@ def test_a_killed_files_unverifiable_last_chunk_is_cut_and_reported(tmp_path):
                     f"its checksum: torn by the kill that stopped the recording; the run is "
                     f"cut to its first 4096 samples ({N - 4096} lost)"]
     assert len(run) == 4096  # every channel cut to the samples all of them hold
+    lines, ok = report(out)
+    assert not ok and any(f"DAMAGED: force: samples 4096–{N - 1} fail" in x for x in lines)
     np.testing.assert_array_equal(run.force, _force(4096))
     with pytest.warns(RunFileWarning, match=r"\(904 lost\)"):
         assert recover(out) == ["a"]

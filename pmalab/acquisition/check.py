@@ -17,7 +17,15 @@ from pathlib import Path
 from typing import Any
 
 from pmalab.errors import PmalabError, RunFileError
-from pmalab.runfile import DIGEST_ATTR, attrs_digest, decode_attr, open_h5, read_runs
+from pmalab.runfile import (
+    DIGEST_ATTR,
+    attrs_digest,
+    decode_attr,
+    is_running,
+    open_h5,
+    read_runs,
+    torn_tail,
+)
 
 
 @dataclass
@@ -32,10 +40,16 @@ class RunCheck:
     unverified: list[str] = field(default_factory=list)
     #: one phrase per damaged dataset or attribute set
     damaged: list[str] = field(default_factory=list)
+    #: one phrase per dataset whose last chunk a kill tore mid-rewrite (its flushed
+    #: samples verified by the chunk's previous checksum)
+    torn: list[str] = field(default_factory=list)
 
 
-def _check_dataset(ds: Any) -> tuple[str, str]:
-    """("intact" | "unverified" | "damaged", detail) of one dataset, chunk by chunk."""
+def _check_dataset(ds: Any, killed: bool = False) -> tuple[str, str]:
+    """("intact" | "torn" | "unverified" | "damaged", detail) of one dataset, chunk by
+    chunk; ``killed``: the run's writer died mid-recording (status ``running``), so a
+    failed last chunk whose previous checksum verifies its samples is "torn", not damaged
+    (:func:`pmalab.runfile.torn_tail`)."""
     if ds.chunks is None or not ds.fletcher32:
         try:
             ds[()]
@@ -57,6 +71,18 @@ def _check_dataset(ds: Any) -> tuple[str, str]:
                 bad.append((start, stop))
     if not bad:
         return "intact", ""
+    n_all = int(ds.shape[0])
+    last = (n_all - 1) // step * step
+    if (
+        killed
+        and bad == [(last, n_all)]
+        and ds.ndim == 1
+        and torn_tail(ds, last, n_all) is not None
+    ):
+        return "torn", (
+            f"its last chunk (samples {last}–{n_all - 1}) was being rewritten when the "
+            "writer was killed; its previous checksum verifies every flushed sample"
+        )
     spans = ", ".join(f"{a}–{b - 1}" for a, b in bad)
     n = sum(b - a for a, b in bad)
     return "damaged", f"samples {spans} fail their checksum ({n} of {ds.shape[0]})"
@@ -111,13 +137,16 @@ def check_file(path: str | Path) -> tuple[list[str], list[RunCheck], str | None]
                     rc.unverified.append("attributes")
                 elif decode_attr(want) != attrs_digest(g):
                     rc.damaged.append("attributes (checksum does not match)")
+                killed = is_running(g)
                 for key in map(str, g.keys()):
                     ds = g[key]
                     if not isinstance(ds, h5py.Dataset):
                         continue
-                    state, detail = _check_dataset(ds)
+                    state, detail = _check_dataset(ds, killed)
                     if state == "damaged":
                         rc.damaged.append(f"{key}: {detail}")
+                    elif state == "torn":
+                        rc.torn.append(f"{key}: {detail}")
                     elif state == "intact":
                         rc.intact.append(key)
                     else:
@@ -149,12 +178,13 @@ def report(path: str | Path) -> tuple[list[str], bool]:
             lines.append(f"  run '{rc.name}': DAMAGED: " + "; ".join(rc.damaged))
             if rc.intact:
                 lines.append(f"    intact (checksums pass): {', '.join(rc.intact)}")
-        elif rc.intact:
+        elif rc.intact or rc.torn:
             extra = " (no checksum: " + ", ".join(rc.unverified) + ")" if rc.unverified else ""
             lines.append(
                 f"  run '{rc.name}': intact, {rc.samples} samples; checksums pass on "
                 f"{len(rc.intact)} datasets{extra}"
             )
+            lines.extend(f"    torn by the kill: {t}" for t in rc.torn)
         else:
             lines.append(
                 f"  run '{rc.name}': readable, {rc.samples} samples; written without checksums, "
