@@ -490,11 +490,17 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from pmalab.identify.diagnosis import diagnose, write_outputs
-    from pmalab.identify.headline import WORST_BY, worst_runs
-    from pmalab.identify.long_records import fit_part, long_runs
-    from pmalab.paths import check_output, prepare_output_dir
-    from pmalab.runfile import check_distinct, check_distinct_runs, read_many
+    # the fitting code's imports and numba's first load without the garbage collector
+    # walking their objects again and again (frozen after: a command's first import)
+    with gc_paused(freeze="scipy" not in sys.modules):
+        from pmalab.identify.diagnosis import diagnose, write_outputs
+        from pmalab.identify.headline import WORST_BY, worst_runs
+        from pmalab.identify.long_records import fit_part, long_runs
+        from pmalab.identify.zero_phase import load_compiled
+        from pmalab.paths import check_output, prepare_output_dir
+        from pmalab.runfile import check_distinct, check_distinct_runs, read_many
+
+        load_compiled()
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
