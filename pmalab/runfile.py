@@ -589,7 +589,8 @@ def read_runs(
                     if not isinstance(ds, h5py.Dataset):
                         raise _fail(path, name, src, "not a dataset")
                     if lazy:  # read later, a window at a time
-                        raw[ch] = (ds, decode_attr(ds.attrs.get("units")))
+                        held = lazy_samples(path, name, src, ds, losses) if cut else ds
+                        raw[ch] = (held, decode_attr(ds.attrs.get("units")))
                         continue
                     values, lost = read_samples(path, name, src, ds, killed=cut)
                     if lost:
@@ -966,11 +967,54 @@ def read_samples(
     tail = torn_tail(ds, start, n)
     if tail is not None:
         return np.concatenate([head, tail]), None
-    return head, (
+    return head, _loss_words(path, run, name, start, n)
+
+
+def _loss_words(path: Path | str, run: str, name: str, start: int, n: int) -> str:
+    return (
         f"{path}: run '{run}': the last chunk of '{name}' (samples {start}..{n - 1}) fails "
         f"its checksum: torn by the kill that stopped the recording; the run is cut to "
         f"its first {start} samples ({n - start} lost)"
     )
+
+
+class _Spliced:
+    """A long run's dataset read a window at a time whose torn last chunk (from sample
+    ``start``) is replaced by the samples its previous checksum verified (``tail``; empty
+    when none verified: the dataset is cut there)."""
+
+    def __init__(self, ds: Any, start: int, tail: np.ndarray) -> None:
+        self.ds, self.start, self.tail = ds, start, tail
+
+    def __len__(self) -> int:
+        return self.start + self.tail.size
+
+    def __getitem__(self, key: slice) -> np.ndarray:
+        a, b, _ = key.indices(len(self))
+        b = max(a, b)
+        head = self.ds[a : min(b, self.start)] if a < self.start else self.tail[:0]
+        return np.concatenate([head, self.tail[max(a - self.start, 0) : max(b - self.start, 0)]])
+
+
+def lazy_samples(path: Path | str, run: str, name: str, ds: Any, losses: list[str]) -> Any:
+    """A killed run's dataset for windowed reads (:mod:`pmalab.runwindows`): ``ds`` itself
+    when its last chunk reads, else that chunk's verified samples spliced in, or the
+    dataset cut before it with the loss's words appended to ``losses``
+    (:func:`read_samples` does the same for a dataset read whole)."""
+    n = int(ds.shape[0]) if ds.ndim == 1 else 0
+    if n == 0 or ds.chunks is None or not ds.fletcher32:
+        return ds
+    start = (n - 1) // ds.chunks[0] * ds.chunks[0]
+    try:
+        ds[start:n]
+        return ds
+    except OSError:
+        pass
+    tail = torn_tail(ds, start, n)
+    if tail is None:
+        losses.append(_loss_words(path, run, name, start, n))
+        tail = np.zeros(0, dtype=ds.dtype)
+    return _Spliced(ds, start, tail)
 
 
 def attrs_digest(obj: Any) -> str:

@@ -19,10 +19,22 @@ import pytest
 from pmalab.acquisition.check import report
 from pmalab.acquisition.recover import recover
 from pmalab.errors import RunFileError, RunFileWarning
-from pmalab.runfile import fletcher32, read_run_datasets, read_runs
+from pmalab.runfile import Run, fletcher32, read_run_datasets, read_runs
+from pmalab.runwindows import LongRuns
 
 REPO = Path(__file__).resolve().parents[1]
 N = 5000  # two chunks of 4096: the last holds 904 samples
+#: read as a long run, a window at a time (three windows, one across the chunk boundary)
+
+
+def _joined(w) -> Run:
+    """The run read a window at a time and joined (what a windowed reader sees)."""
+    parts = [w.read(a, min(a + 1700, len(w))) for a in range(0, len(w), 1700)]
+    chans = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    return Run(name=w.name, attrs=dict(w.attrs), file=str(w.path), **chans)
+
+
+WINDOWED = LongRuns(min_samples=1000, read=_joined)
 
 WRITE = """
 import os, sys
@@ -106,6 +118,9 @@ def test_a_killed_files_torn_last_chunk_keeps_every_flushed_sample(tmp_path):
     np.testing.assert_array_equal(run.force, _force(N))  # the very samples written
     data = read_run_datasets(out, "a")
     assert {len(v) for v, _ in data.values()} == {N}
+    with pytest.warns(RunFileWarning, match="did not close the file"):
+        (windowed,) = read_runs(out, long_runs=WINDOWED)
+    np.testing.assert_array_equal(windowed.force, _force(N))
     lines, ok = report(out)  # `pmalab check` says what happened, not "damaged"
     assert ok, lines
     assert (f"    torn by the kill: force: its last chunk (samples 4096–{N - 1}) was being "
@@ -129,6 +144,9 @@ def test_a_killed_files_unverifiable_last_chunk_is_cut_and_reported(tmp_path):
                     f"its checksum: torn by the kill that stopped the recording; the run is "
                     f"cut to its first 4096 samples ({N - 4096} lost)"]
     assert len(run) == 4096  # every channel cut to the samples all of them hold
+    with pytest.warns(RunFileWarning, match=r"\(904 lost\)"):
+        (windowed,) = read_runs(out, long_runs=WINDOWED)
+    np.testing.assert_array_equal(windowed.force, _force(4096))
     lines, ok = report(out)
     assert not ok and any(f"DAMAGED: force: samples 4096–{N - 1} fail" in x for x in lines)
     np.testing.assert_array_equal(run.force, _force(4096))
