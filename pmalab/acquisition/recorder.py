@@ -22,6 +22,9 @@ Design (why it survives ``kill -9`` at any moment):
 3. Samples are buffered in memory and appended (resize + write + ``flush``) at least
    every ``flush_interval_s`` = 0.25 s of wall time, so a kill loses at most the last
    0.25 s (+ one flush) of samples; a flush of ~125 samples × 7 channels costs ~0.1 ms.
+   Each flush rewrites the partly filled last chunk of every channel in place; a kill
+   inside that write can tear it (new first pages, old checksum), and the readers keep
+   the samples the chunk's previous checksum verifies (:func:`pmalab.runfile.read_samples`).
 4. A killed file still carries the SWMR "open for write" flag: a plain read-only open
    refuses it, so :func:`pmalab.runfile.read_runs` retries with ``swmr=True``, which
    HDF5 allows exactly for this case; runs never started (``status == "pending"``) are
