@@ -27,6 +27,7 @@ from typing import ClassVar
 import numpy as np
 
 from pmalab.identify.effects.base import Effect
+from pmalab.identify.laws import LAWS
 from pmalab.identify.params import Param
 from pmalab.identify.signals import Signals
 
@@ -69,7 +70,7 @@ class AsymmetricHysteresis(Effect):
                 -0.95,
                 0.95,
                 "-",
-                doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; unused for Duhem",
+                doc="Bouc-Wen: direction-dependent slope, dx' = (1 + ψ_a·σ)dx; held for the other laws",
             ),
             Param(
                 "asym_psi_v",
@@ -77,7 +78,7 @@ class AsymmetricHysteresis(Effect):
                 -5.0,
                 5.0,
                 "1/mm",
-                doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α",
+                doc="Bouc-Wen: decay-rate term for the direction of motion (ψ_v); Duhem: ψ_α; held for element laws",
             ),
             Param(
                 "asym_psi_h",
@@ -85,7 +86,7 @@ class AsymmetricHysteresis(Effect):
                 -5.0,
                 5.0,
                 "1/mm",
-                doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b",
+                doc="Bouc-Wen: decay-rate term for the sign of h (ψ_h); Duhem: ψ_b; held for element laws",
             ),
             # the width factor 1 + g·x stays positive over the stroke (x ≤ 30 mm)
             Param(
@@ -99,7 +100,20 @@ class AsymmetricHysteresis(Effect):
         ]
 
     def fixed_for_law(self, law_name: str) -> tuple[str, ...]:
-        return ("asym_psi_a",) if law_name == "duhem" else ()
+        # a shape term enters only through the law's extras: a law that does not accept it
+        # (Duhem has no path-length term; the element laws, whose loops are set by their
+        # elements, accept none) leaves it without any effect on the force, so it is held,
+        # not estimated (a column of zeros would only slow the fit down)
+        law = LAWS.get(law_name)
+        if law is None:  # a law not registered: nothing known, everything estimated
+            return ()
+        accepted = set(law.extras)
+        uses = {
+            "asym_psi_a": {"psi_a"},
+            "asym_psi_v": {"psi_v", "psi_alpha"},
+            "asym_psi_h": {"psi_h", "psi_b"},
+        }
+        return tuple(n for n, extras in uses.items() if not extras & accepted)
 
     def law_extras(
         self, law_name: str, sig: Signals, theta: Mapping[str, float]
