@@ -23,7 +23,7 @@ test: $(STAMP) chromium
 	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/ruff format --check pmalab
 	$(BIN)/lint-imports
-	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~6.5 min on 2 cores (longer under load); the 10 slowest tests are listed at the end"
+	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~6 min on 2 cores (longer under load); the 10 slowest tests are listed at the end"
 	@$(BIN)/basedpyright > $(VENV)/basedpyright.log 2>&1 & typing=$$!; \
 	trap 'kill $$typing 2>/dev/null' INT TERM; \
 	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder -q --durations=10; tests=$$?; \
