@@ -955,6 +955,10 @@ def read_samples(
     if not killed or ds.ndim != 1 or chunks is None or not ds.fletcher32 or ds.shape[0] == 0:
         raise _fail(path, run, name, damage_words(first))
     n = int(ds.shape[0])
+    if n % chunks[0] == 0:
+        # the extent ends on a chunk boundary: the last chunk was full at the last flush and
+        # no later flush rewrites a full chunk, so a failing one is damage, not a tear
+        raise _fail(path, run, name, damage_words(first))
     start = (n - 1) // chunks[0] * chunks[0]
     try:
         head = np.asarray(ds[:start])
@@ -998,8 +1002,8 @@ def lazy_samples(path: Path | str, run: str, name: str, ds: Any, losses: list[st
     dataset cut before it with the loss's words appended to ``losses``
     (:func:`read_samples` does the same for a dataset read whole)."""
     n = int(ds.shape[0]) if ds.ndim == 1 else 0
-    if n == 0 or ds.chunks is None or not ds.fletcher32:
-        return ds
+    if n == 0 or ds.chunks is None or not ds.fletcher32 or n % ds.chunks[0] == 0:
+        return ds  # (a full last chunk is never rewritten: a failure there is damage)
     start = (n - 1) // ds.chunks[0] * ds.chunks[0]
     try:
         ds[start:n]

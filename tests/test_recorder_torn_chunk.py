@@ -62,9 +62,9 @@ def _force(n: int) -> np.ndarray:
     return np.array([(10.0 + rng.normal(), 400.0 + 50 * rng.normal())[1] for _ in range(n)])
 
 
-def _record(tmp_path: Path, end: str) -> Path:
+def _record(tmp_path: Path, end: str, n: int = N) -> Path:
     out = tmp_path / f"{end}.h5"
-    subprocess.run([sys.executable, "-c", WRITE, str(out), str(N), end], check=True,
+    subprocess.run([sys.executable, "-c", WRITE, str(out), str(n), end], check=True,
                    cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=120)
     return out
 
@@ -169,3 +169,15 @@ def test_a_torn_chunk_in_a_file_that_ended_normally_stays_damaged(tmp_path):
     _tear(out)
     with pytest.raises(RunFileError, match=r"run 'a'.*'force'.*stored samples damaged"):
         read_runs(out)
+
+
+def test_a_killed_files_full_last_chunk_that_fails_is_damage_not_a_tear(tmp_path):
+    # 8192 samples: the last chunk was full at the last flush, and no flush rewrites a full
+    # chunk, so a failing one cannot be a kill's tear: refused as damaged, never cut
+    out = _record(tmp_path, "killed", n=8192)
+    off, _ = _chunk(out, 4096)
+    _write(out, off + 8 * 100 + 3, b"\x5a")
+    with pytest.raises(RunFileError, match=r"run 'a'.*'force'.*stored samples damaged"):
+        read_runs(out)
+    with pytest.raises(RunFileError, match=r"run 'a'.*'force'.*stored samples damaged"):
+        read_runs(out, long_runs=WINDOWED)
