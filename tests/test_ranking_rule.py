@@ -131,3 +131,16 @@ def test_a_fall_the_effects_own_force_does_not_carry_is_no_evidence():
     c = Candidate("viscous-friction", base, other, floors=floors)
     assert c.carried is None and c.gain_carried_x_floor == c.gain_x_floor
     assert c.as_json()["gain_carried_x_floor"] is None
+
+
+def test_an_effect_the_ladder_added_is_never_called_not_claimed():
+    # the "carries too little" sentence is for effects left out; an effect the ladder added
+    # at a later step (its round-1 row may carry little) is claimed, not explained away
+    from pmalab.identify.diagnosis.diagnose import _not_carried
+
+    row = {"effect": "viscous-friction", "significant_alone": False, "significant": True,
+           "ladder_step": 2, "gain_x_floor": 0.6, "gain_carried_x_floor": 0.1}
+    assert _not_carried([row]) == []
+    left_out = {**row, "significant": False, "ladder_step": None}
+    (words,) = _not_carried([left_out])
+    assert words.startswith("viscous-friction cut the validation error by 0.60 noise floors")

@@ -392,7 +392,8 @@ def _not_carried(ranking: Sequence[dict]) -> list[str]:
     out = []
     for r in ranking:
         g, c = r.get("gain_x_floor"), r.get("gain_carried_x_floor")
-        if r.get("significant_alone") or g is None or c is None:
+        # an effect claimed alone or added by the ladder is not "not claimed"
+        if r.get("significant_alone") or r.get("significant") or g is None or c is None:
             continue
         if g >= MIN_GAIN_X_FLOOR > c:
             out.append(
