@@ -113,8 +113,19 @@ class Reading:
         except Exception:
             return None
         for w in caught:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno, None, w.line)
+            replay_warning(w)
         return runs, val
+
+
+def replay_warning(m: warnings.WarningMessage) -> None:
+    """Issue a warning a forked child recorded as if raised here: through the filters and
+    the raising module's registry, so one shown here already is not shown twice."""
+    mod = next(
+        (v for v in list(sys.modules.values()) if getattr(v, "__file__", None) == m.filename),
+        None,
+    )
+    registry = vars(mod).setdefault("__warningregistry__", {}) if mod is not None else None
+    warnings.warn_explicit(m.message, m.category, m.filename, m.lineno, registry=registry)
 
 
 def _worth_a_child(files: Sequence[str | Path]) -> bool:

@@ -148,6 +148,8 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
     import pickle
     import warnings
 
+    from pmalab.identify.reading import replay_warning
+
     tasks = list(tasks)
     out = [fn(t) for t in tasks[:first_here]]
     rest = tasks[first_here:]
@@ -189,22 +191,9 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
             got = None
         if got is not None:
             for m in caught:  # the child's warnings, after this half's (the tasks' order)
-                _warn_again(m)
+                replay_warning(m)
             return out + got
     return out + [fn(t) for t in theirs]  # the child failed: its half here
-
-
-def _warn_again(m: Any) -> None:
-    """Issue a warning a forked child recorded as if raised here: through the filters and
-    the raising module's registry, so one shown here already is not shown twice."""
-    import warnings
-
-    mod = next(
-        (v for v in list(sys.modules.values()) if getattr(v, "__file__", None) == m.filename),
-        None,
-    )
-    registry = vars(mod).setdefault("__warningregistry__", {}) if mod is not None else None
-    warnings.warn_explicit(m.message, m.category, m.filename, m.lineno, registry=registry)
 
 
 def map_with_context(
