@@ -9,6 +9,8 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 from pmalab.arguments import fixes
 from pmalab.console import (
@@ -22,6 +24,19 @@ from pmalab.console import (
 )
 from pmalab.errors import PmalabError
 from pmalab.lazy import gc_paused
+
+
+@contextmanager
+def _fitting_code() -> Iterator[None]:
+    """The fitting code's imports (the block's) and numba's first load of compiled code,
+    with the garbage collector paused: it would walk their objects again and again.  They
+    are frozen after when this is the process's first import of them (a command run from
+    the shell), so no later collection walks them either."""
+    with gc_paused(freeze="scipy" not in sys.modules):
+        yield
+        from pmalab.identify.zero_phase import load_compiled
+
+        load_compiled()
 
 
 def _add_parallel(p: argparse.ArgumentParser, what: str, more: str = "") -> None:
@@ -292,15 +307,10 @@ def run_identify(args: argparse.Namespace) -> int:
             args.files, args.validate or (), include_aborted=args.include_aborted, muscle=m
         )
 
-    # the fitting code's imports and numba's first load without the garbage collector
-    # walking their objects again and again (frozen after: a command's first import)
-    with gc_paused(freeze="scipy" not in sys.modules):
+    with _fitting_code():
         from pmalab.identify.api import RunList, identify, load
         from pmalab.identify.messages import sort_messages
-        from pmalab.identify.zero_phase import load_compiled
         from pmalab.runfile import check_distinct, check_distinct_runs
-
-        load_compiled()
     read = reading.result() if reading is not None else None
     if read is not None:
         runs, val = RunList(read[0]), (RunList(read[1]) if args.validate else [])
@@ -490,17 +500,12 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 def run_diagnose(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    # the fitting code's imports and numba's first load without the garbage collector
-    # walking their objects again and again (frozen after: a command's first import)
-    with gc_paused(freeze="scipy" not in sys.modules):
+    with _fitting_code():
         from pmalab.identify.diagnosis import diagnose, write_outputs
         from pmalab.identify.headline import WORST_BY, worst_runs
         from pmalab.identify.long_records import fit_part, long_runs
-        from pmalab.identify.zero_phase import load_compiled
         from pmalab.paths import check_output, prepare_output_dir
         from pmalab.runfile import check_distinct, check_distinct_runs, read_many
-
-        load_compiled()
 
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
