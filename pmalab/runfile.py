@@ -886,6 +886,19 @@ def _same_fletcher(a: int, b: int) -> bool:
     return all(((a >> s) & 0xFFFF) % 65535 == ((b >> s) & 0xFFFF) % 65535 for s in (0, 16))
 
 
+def rewritten_chunk(ds: Any) -> int | None:
+    """The first sample of the chunk a recorder's next flush would have rewritten in place
+    (the last one, partly filled), or None when no chunk of ``ds`` can be torn by a kill:
+    not a 1-D checksummed chunked dataset, empty, or its last chunk full (no flush rewrites
+    a full chunk, so a failure there is damage)."""
+    if ds.ndim != 1 or ds.chunks is None or not ds.fletcher32:
+        return None
+    n, step = int(ds.shape[0]), int(ds.chunks[0])
+    if n == 0 or n % step == 0:
+        return None
+    return (n - 1) // step * step
+
+
 def torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
     """The samples ``start..n`` of a killed writer's last chunk whose checksum fails, when
     the chunk is exactly what the last completed flush wrote; else None.
@@ -951,15 +964,10 @@ def read_samples(
         return np.asarray(ds[()]), None
     except OSError as exc:
         first = exc
-    chunks = ds.chunks
-    if not killed or ds.ndim != 1 or chunks is None or not ds.fletcher32 or ds.shape[0] == 0:
+    start = rewritten_chunk(ds) if killed else None
+    if start is None:
         raise _fail(path, run, name, damage_words(first))
     n = int(ds.shape[0])
-    if n % chunks[0] == 0:
-        # the extent ends on a chunk boundary: the last chunk was full at the last flush and
-        # no later flush rewrites a full chunk, so a failing one is damage, not a tear
-        raise _fail(path, run, name, damage_words(first))
-    start = (n - 1) // chunks[0] * chunks[0]
     try:
         head = np.asarray(ds[:start])
     except OSError:  # an earlier, long-finished chunk: damage, not a tear
@@ -1001,10 +1009,10 @@ def lazy_samples(path: Path | str, run: str, name: str, ds: Any, losses: list[st
     when its last chunk reads, else that chunk's verified samples spliced in, or the
     dataset cut before it with the loss's words appended to ``losses``
     (:func:`read_samples` does the same for a dataset read whole)."""
-    n = int(ds.shape[0]) if ds.ndim == 1 else 0
-    if n == 0 or ds.chunks is None or not ds.fletcher32 or n % ds.chunks[0] == 0:
-        return ds  # (a full last chunk is never rewritten: a failure there is damage)
-    start = (n - 1) // ds.chunks[0] * ds.chunks[0]
+    start = rewritten_chunk(ds)
+    if start is None:
+        return ds
+    n = int(ds.shape[0])
     try:
         ds[start:n]
         return ds

@@ -24,6 +24,7 @@ from pmalab.runfile import (
     is_running,
     open_h5,
     read_runs,
+    rewritten_chunk,
     torn_tail,
 )
 
@@ -72,13 +73,8 @@ def _check_dataset(ds: Any, killed: bool = False) -> tuple[str, str]:
     if not bad:
         return "intact", ""
     n_all = int(ds.shape[0])
-    last = (n_all - 1) // step * step
-    if (
-        killed
-        and bad == [(last, n_all)]
-        and ds.ndim == 1
-        and torn_tail(ds, last, n_all) is not None
-    ):
+    last = rewritten_chunk(ds) if killed else None
+    if last is not None and bad == [(last, n_all)] and torn_tail(ds, last, n_all) is not None:
         return "torn", (
             f"its last chunk (samples {last}–{n_all - 1}) was being rewritten when the "
             "writer was killed; its previous checksum verifies every flushed sample"
