@@ -152,14 +152,15 @@ class Diagnosis:
         rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
         for r in self.ranking:
             if r.get("status") == "failed":
+                after, k = r["nrmse_after"], r["n_params"]  # null: the identification raised
                 rows.append(
                     (
                         r["effect"],
                         f"{r['nrmse_before']:.4f}",
-                        f"{r['nrmse_after']:.4f}",
+                        "—" if after is None else f"{after:.4f}",
                         "—",
                         "—",
-                        str(r["n_params"]),
+                        "—" if k is None else str(k),
                         "fit failed",
                     )
                 )
@@ -204,7 +205,7 @@ class Diagnosis:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
         names = [r["effect"] for r in self.ranking][::-1]
         before = [r["nrmse_before"] for r in self.ranking][::-1]
-        after = [r["nrmse_after"] for r in self.ranking][::-1]
+        after = [r["nrmse_after"] or 0.0 for r in self.ranking][::-1]  # null: it raised
         y = np.arange(len(names))
         a1.barh(y + 0.2, before, 0.4, color="0.7", label="without")
         a1.barh(
@@ -696,13 +697,14 @@ def diagnose(
             "status": "failed" if c.failed else "ok",
             **({"reason": c.failure()} if c.failed else {}),
             "nrmse_before": float(c.nrmse_before),
-            "nrmse_after": float(c.nrmse_after),
+            # an identification that raised has no error after it
+            "nrmse_after": None if c.after.error else float(c.nrmse_after),
             "fall_percent": None if c.failed else float(100.0 * c.fall),
             "gain_x_floor": None if c.failed else float(c.gain_x_floor),
             "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
-            "runs_improved": float(c.runs_improved),
+            "runs_improved": None if c.after.error else float(c.runs_improved),
             "significant": bool(c.significant),
-            "per_run_after": [float(v) for v in c.after.nrmse],
+            "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
             # how the law's elements change with pressure, chosen by the identification's
             # own leave-one-pressure-out evidence (None: the law offers no structures)
             **_structure_keys(c.after.structure),
