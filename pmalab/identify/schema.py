@@ -403,8 +403,15 @@ class RankingEntry(TypedDict):
     title: NotRequired[str]
     explanation: NotRequired[str]
     signature: NotRequired[str]
+    #: round 1's verdict: significant against the base model alone
     significant_alone: NotRequired[bool]
+    #: the ladder step that added the effect (null: not added)
     ladder_step: NotRequired[int | None]
+    #: the round every number of this row comes from: the ladder step that added the
+    #: effect, else 1 (against the base model); ``rounds[round - 1]`` holds its full row
+    round: NotRequired[int]
+    #: the model it was scored against: "base", or the effects (and changed law) of the
+    #: step before ``ladder_step``
     scored_against: NotRequired[str]
 
 
