@@ -265,6 +265,38 @@ def test_collection_paused_while_importing_resumes_as_it_was():
         gc.unfreeze()
 
 
+def test_no_fork_once_a_gnu_openmp_runtime_has_started_threads(tmp_path):
+    # libgomp (a BLAS's OpenMP layer, numba's omp layer) keeps its team's threads after a
+    # parallel region and has no fork handler: a forked child's next region would wait for
+    # threads it does not have.  map_split then runs every task here, the pool's workers
+    # start from a fork server; OpenBLAS's pthreads alone (NumPy's wheel) still fork.
+    import ctypes.util
+
+    lib = ctypes.util.find_library("gomp")
+    if lib is None:
+        pytest.skip("no GNU OpenMP runtime (libgomp) on this machine")
+    p = _python(f"""
+        import ctypes, os
+        import numpy
+        from pmalab.identify.campaign import batch
+        assert batch.fork_is_safe() and batch._mp_context() is None
+        gomp, libc = ctypes.CDLL({lib!r}), ctypes.CDLL(None)
+        before = len(os.listdir("/proc/self/task"))
+        gomp.GOMP_parallel.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint,
+                                       ctypes.c_uint]
+        gomp.GOMP_parallel(ctypes.cast(libc.getpid, ctypes.c_void_p), None, 2, 0)
+        assert len(os.listdir("/proc/self/task")) == before + 1  # the team's thread stays
+        assert not batch.fork_is_safe() and batch.gnu_openmp_started()
+        parent = os.getpid()
+        assert batch.map_split(lambda t: (t * t, os.getpid()), range(9)) == [
+            (t * t, parent) for t in range(9)]
+        assert batch._mp_context().get_start_method() == "forkserver"
+        print("ok")
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split()[-1:] == ["ok"]
+
+
 def _blas_after_identify(cwd: Path, ident: Path, env_extra: dict[str, str]) -> list[str]:
     """Run `pmalab identify` in a fresh interpreter (as from the shell); print the threads
     BLAS reports and the threads the process holds once the command has returned."""
