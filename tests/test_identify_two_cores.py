@@ -263,3 +263,67 @@ def test_collection_paused_while_importing_resumes_as_it_was():
         assert gc.isenabled() and gc.get_freeze_count() >= len(kept)
     finally:
         gc.unfreeze()
+
+
+def test_no_fork_once_a_gnu_openmp_runtime_has_started_threads(tmp_path):
+    # libgomp (a BLAS's OpenMP layer, numba's omp layer) keeps its team's threads after a
+    # parallel region and has no fork handler: a forked child's next region would wait for
+    # threads it does not have.  map_split then runs every task here, the pool's workers
+    # start from a fork server; OpenBLAS's pthreads alone (NumPy's wheel) still fork.
+    import ctypes.util
+
+    lib = ctypes.util.find_library("gomp")
+    if lib is None:
+        pytest.skip("no GNU OpenMP runtime (libgomp) on this machine")
+    p = _python(f"""
+        import ctypes, os
+        import numpy
+        from pmalab.identify.campaign import batch
+        assert batch.fork_is_safe() and batch._mp_context() is None
+        gomp, libc = ctypes.CDLL({lib!r}), ctypes.CDLL(None)
+        before = len(os.listdir("/proc/self/task"))
+        gomp.GOMP_parallel.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint,
+                                       ctypes.c_uint]
+        gomp.GOMP_parallel(ctypes.cast(libc.getpid, ctypes.c_void_p), None, 2, 0)
+        assert len(os.listdir("/proc/self/task")) == before + 1  # the team's thread stays
+        assert not batch.fork_is_safe() and batch.gnu_openmp_started()
+        parent = os.getpid()
+        assert batch.map_split(lambda t: (t * t, os.getpid()), range(9)) == [
+            (t * t, parent) for t in range(9)]
+        assert batch._mp_context().get_start_method() == "forkserver"
+        print("ok")
+    """, tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.split()[-1:] == ["ok"]
+
+
+def _blas_after_identify(cwd: Path, ident: Path, env_extra: dict[str, str]) -> list[str]:
+    """Run `pmalab identify` in a fresh interpreter (as from the shell); print the threads
+    BLAS reports and the threads the process holds once the command has returned."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "OPENBLAS_NUM_THREADS")}
+    code = textwrap.dedent(f"""
+        import os
+        from pmalab.cli import main
+        rc = main(["identify", {str(ident)!r}, "--model", "duhem", "--out", "o", "-q"])
+        from threadpoolctl import threadpool_info
+        blas = sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}})
+        print(rc, blas, len(os.listdir("/proc/self/task")))
+    """)
+    p = subprocess.run([sys.executable, "-c", code], cwd=cwd, env={**env, **env_extra},
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    return p.stdout.splitlines()[-1].split()
+
+
+def test_identify_loads_blas_with_one_thread_and_starts_no_thread(campaign, tmp_path):
+    # OpenBLAS would start a busy-waiting thread per library (NumPy's, SciPy's) on a
+    # machine with 2 cores: one thread, and the process holds no other thread
+    ident, _ = campaign
+    out = _blas_after_identify(tmp_path, ident, {})
+    assert out == ["0", "[1]", "1"], out
+
+
+def test_identify_keeps_the_users_blas_thread_count(campaign, tmp_path):
+    ident, _ = campaign
+    out = _blas_after_identify(tmp_path, ident, {"OPENBLAS_NUM_THREADS": "2"})
+    assert out[:2] == ["0", "[2]"], out

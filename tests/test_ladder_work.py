@@ -90,3 +90,48 @@ def test_max_steps_zero_identifies_the_base_only(climb):
     out, calls = climb({("bouc-wen", ()): [0.040, 0.047]}, max_steps=0)
     assert calls == [[ModelSpec("bouc-wen")]]
     assert len(out.steps) == 1 and out.rounds == []
+
+
+def test_a_row_added_at_a_later_step_is_all_from_that_round(monkeypatch):
+    # sensor-drift fails alone (round 1: the error rises 130 %) but, once viscous friction
+    # is in, cuts the error by 2.75 floors (round 2) and is added: its ranking row must not
+    # say "failed" (round 1) beside round 2's fall, nor round 1's floors beside round 2's
+    from pmalab.identify.diagnosis.diagnose import _ranking_json
+
+    nrmse = {
+        (): [0.040, 0.047],
+        ("viscous-friction",): [0.020, 0.024],
+        ("sensor-drift",): [0.090, 0.110],
+        ("viscous-friction", "sensor-drift"): [0.010, 0.012],
+    }
+    without = {("viscous-friction", "sensor-drift"): [0.015, 0.020]}
+
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None):
+        return [Scored(s.effects, nrmse[s.effects], without_last=without.get(s.effects))
+                for s in specs]
+
+    monkeypatch.setattr(ladder, "score_all", score_all)
+    monkeypatch.setattr(ladder, "heldout_floor", lambda r: FLOOR)
+    climbed = ladder.run_ladder(
+        [SimpleNamespace(frequency=None)],  # pyright: ignore[reportArgumentType]
+        ["held-a", "held-b"],  # pyright: ignore[reportArgumentType]  (never read)
+        "bouc-wen",
+        ["viscous-friction", "sensor-drift"],
+    )
+    steps, rounds = climbed.steps, climbed.rounds
+    assert [s.added for s in steps] == [None, "viscous-friction", "sensor-drift"]
+    rows = {r["effect"]: r for r in _ranking_json(rounds, steps, [])}
+    drift = rows["sensor-drift"]
+    at = next(c for c in rounds[1].candidates if c.effect == "sensor-drift").as_json()
+    # (the old row: status "failed" from round 1 beside round 2's fall)
+    assert drift["status"] == "ok" and "reason" not in drift
+    assert drift["round"] == 2 and drift["ladder_step"] == 2 and drift["significant"]
+    assert drift["scored_against"] == "viscous-friction"
+    assert not drift["significant_alone"]  # round 1's verdict, named as such
+    for key in ("nrmse_before", "nrmse_after", "fall_percent", "gain_x_floor",
+                "gain_carried_x_floor", "per_run_without_effect", "block_t", "runs_at_floor"):
+        assert drift[key] == at[key], key
+    assert drift["gain_x_floor"] == pytest.approx(2.75)
+    assert drift["gain_carried_x_floor"] == pytest.approx((0.005 + 0.008) / 2 / FLOOR)
+    first = rows["viscous-friction"]
+    assert first["round"] == 1 and first["scored_against"] == "base"

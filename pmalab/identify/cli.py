@@ -39,6 +39,24 @@ def _fitting_code() -> Iterator[None]:
         load_compiled()
 
 
+def _one_blas_thread_from_the_start() -> None:
+    """Load BLAS with one thread (``OPENBLAS_NUM_THREADS=1``) when this process has not
+    loaded NumPy yet (a command run from the shell) and the user has not chosen a count.
+
+    Every fit runs its linear algebra with one BLAS thread already
+    (:func:`pmalab.identify.estimation.solver.one_blas_thread`: tall-skinny problems are
+    slower threaded); the runs go to several processes instead.  But OpenBLAS starts its
+    threads when NumPy and SciPy load it (each its own library) and again after a fork,
+    and a new thread busy-waits for work for about 0.1 s: 0.4-0.5 s of CPU in one
+    identification of a small campaign, on the core the forked children (reading, half the
+    fits) need.  Asking for one thread before the library loads starts
+    none.  The setting is inherited by the forked children and by any process this one
+    starts; a count the user set (``OPENBLAS_NUM_THREADS``) is kept.
+    """
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def _add_parallel(p: argparse.ArgumentParser, what: str, more: str = "") -> None:
     """``--jobs N`` (worker processes) and ``--scheduler ADDRESS`` (a Dask cluster)."""
     p.add_argument(
@@ -280,6 +298,7 @@ def run_identify(args: argparse.Namespace) -> int:
 
     from pmalab.paths import prepare_output_dir
 
+    _one_blas_thread_from_the_start()
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
     for f in args.effects:

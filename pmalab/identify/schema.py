@@ -375,17 +375,19 @@ class RankingEntry(TypedDict):
 
     effect: str
     nrmse_before: float
-    nrmse_after: float
+    #: null when the identification with the effect raised (``status`` "failed")
+    nrmse_after: float | None
     #: the ladder added it (significant at its step)
     significant: bool
-    #: "ok", or "failed" (the identification with it diverged or did not converge:
-    #: ``reason`` says why, and the entry carries no fall)
+    #: "ok", or "failed" (the identification with it diverged, did not converge or raised,
+    #: or the check that its fall is its own raised: ``reason`` says why, and the entry
+    #: carries no fall)
     status: NotRequired[str]
     reason: NotRequired[str]
     fall_percent: NotRequired[float | None]
     fall_se_percent: NotRequired[float | None]
-    n_params: NotRequired[int]
-    runs_improved: NotRequired[float]
+    n_params: NotRequired[int | None]
+    runs_improved: NotRequired[float | None]
     #: the fall in nrmse in units of the noise floor
     gain_x_floor: NotRequired[float | None]
     #: the part of that fall the effect's own force carries (per run the smaller of the
@@ -396,13 +398,20 @@ class RankingEntry(TypedDict):
     per_run_without_effect: NotRequired[list[float] | None]
     block_t: NotRequired[float | None]
     per_run_before: NotRequired[list[float | None]]
-    per_run_after: NotRequired[list[float | None]]
+    per_run_after: NotRequired[list[float | None] | None]
     diverged: NotRequired[list[Any]]
     title: NotRequired[str]
     explanation: NotRequired[str]
     signature: NotRequired[str]
+    #: round 1's verdict: significant against the base model alone
     significant_alone: NotRequired[bool]
+    #: the ladder step that added the effect (null: not added)
     ladder_step: NotRequired[int | None]
+    #: the round every number of this row comes from: the ladder step that added the
+    #: effect, else 1 (against the base model); ``rounds[round - 1]`` holds its full row
+    round: NotRequired[int]
+    #: the model it was scored against: "base", or the effects (and changed law) of the
+    #: step before ``ladder_step``
     scored_against: NotRequired[str]
 
 
@@ -427,7 +436,8 @@ class LawEntry(TypedDict):
 
     law: str
     nrmse_before: float
-    nrmse_after: float
+    #: null when the law's identification raised
+    nrmse_after: float | None
     #: null when the law's fit failed (``status`` "failed", ``reason``)
     fall_percent: float | None
     significant: bool
@@ -436,7 +446,7 @@ class LawEntry(TypedDict):
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
-    per_run_after: NotRequired[list[float | None]]
+    per_run_after: NotRequired[list[float | None] | None]
     #: the pressure structure the law's elements took (``free`` | ``scaled`` |
     #: ``scaled-thresholds``), chosen by leave-one-pressure-out held-out error; absent for
     #: a law without structures

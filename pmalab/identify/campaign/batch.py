@@ -38,11 +38,21 @@ _WORKER_CONTEXT: list[Any] = []
 
 
 def _mp_context() -> Any:
-    """The start method's context (:data:`START_METHOD_ENV`), or None for the default."""
+    """The start method's context (:data:`START_METHOD_ENV`), or None for the default.
+
+    Unset, where the default is ``fork`` but a GNU OpenMP runtime may have started threads
+    here (:func:`gnu_openmp_started`), ``forkserver``: the workers then start from a clean
+    process (the same results: a worker receives its context as the initializer's
+    arguments under every start method)."""
+    import multiprocessing
+
     name = os.environ.get(START_METHOD_ENV, "").strip()
     if not name:
+        # the method in force, without fixing it (the platform's default is listed first)
+        now = multiprocessing.get_start_method(allow_none=True)
+        if (now or multiprocessing.get_all_start_methods()[0]) == "fork" and gnu_openmp_started():
+            return multiprocessing.get_context("forkserver")
         return None
-    import multiprocessing
 
     if name not in multiprocessing.get_all_start_methods():
         raise PmalabError(
@@ -124,8 +134,9 @@ def map_tasks(
 
 def fork_is_safe() -> bool:
     """Whether :func:`map_split` may fork here: Linux, two cores or more, no other Python
-    thread running (a forked child gets only the calling thread; BLAS's own threads are
-    re-created by the library's fork handlers)."""
+    thread running (a forked child gets only the calling thread) and no GNU OpenMP runtime
+    that may have started threads (:func:`gnu_openmp_started`).  OpenBLAS's own pthreads
+    (NumPy's and SciPy's wheels) are re-created by its fork handler."""
     import threading
 
     return (
@@ -133,6 +144,35 @@ def fork_is_safe() -> bool:
         and hasattr(os, "fork")
         and len(os.sched_getaffinity(0)) >= 2
         and threading.active_count() == 1
+        and not gnu_openmp_started()
+    )
+
+
+def gnu_openmp_started() -> bool:
+    """Whether a GNU OpenMP runtime (libgomp) may have started threads in this process.
+
+    True when libgomp is loaded — on its own (numba's ``omp`` layer, an extension module) or
+    as a BLAS's threading layer (OpenBLAS built with OpenMP, MKL's ``gnu`` layer), as
+    ``threadpoolctl`` finds the loaded libraries — and the process runs threads Python did
+    not start (whose they are cannot be told, so any counts).  libgomp keeps a team's
+    threads after its parallel region and has no fork handler: a forked child's next
+    parallel region waits forever for threads that do not exist in it.  Where the libraries
+    cannot be listed, True (the caller then does not fork)."""
+    import threading
+
+    try:
+        if len(os.listdir("/proc/self/task")) <= threading.active_count():
+            return False  # no thread but Python's: no runtime has started any
+    except OSError:
+        pass  # cannot count them: look at the libraries
+    try:
+        from threadpoolctl import threadpool_info
+
+        libs = threadpool_info()
+    except Exception:  # an unreadable library list: assume the worst
+        return True
+    return any(
+        lib.get("user_api") == "openmp" and str(lib.get("prefix", "")) == "libgomp" for lib in libs
     )
 
 

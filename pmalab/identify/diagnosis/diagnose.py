@@ -152,14 +152,15 @@ class Diagnosis:
         rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
         for r in self.ranking:
             if r.get("status") == "failed":
+                after, k = r["nrmse_after"], r["n_params"]  # null: the identification raised
                 rows.append(
                     (
                         r["effect"],
                         f"{r['nrmse_before']:.4f}",
-                        f"{r['nrmse_after']:.4f}",
+                        "—" if after is None else f"{after:.4f}",
                         "—",
                         "—",
-                        str(r["n_params"]),
+                        "—" if k is None else str(k),
                         "fit failed",
                     )
                 )
@@ -204,7 +205,7 @@ class Diagnosis:
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
         names = [r["effect"] for r in self.ranking][::-1]
         before = [r["nrmse_before"] for r in self.ranking][::-1]
-        after = [r["nrmse_after"] for r in self.ranking][::-1]
+        after = [r["nrmse_after"] or 0.0 for r in self.ranking][::-1]  # null: it raised
         y = np.arange(len(names))
         a1.barh(y + 0.2, before, 0.4, color="0.7", label="without")
         a1.barh(
@@ -277,40 +278,25 @@ def _ranking_json(
 ) -> list[dict[str, Any]]:
     """The ranking, best first, with *significant* only where the ladder added the effect.
 
-    An effect the ladder added at step k is scored at that step (nrmse without = the model
-    of step k − 1, with = step k); every other effect against the base model (round 1).
+    Every field of a row comes from one round's scoring, named by its ``round``: an effect
+    the ladder added at step k from round k (nrmse without = the model of step k − 1, with
+    = step k; its fall, credited fall, block test and status there), every other effect from
+    round 1 (against the base model).  ``significant_alone`` is round 1's verdict (the
+    effect against the base model alone); ``rounds[k - 1]`` holds each round's full rows.
     """
     if not rounds:
         return []
     added = [s.added for s in steps[1:]]
     out = []
     for c in rounds[0].candidates:
-        d = c.as_json()
-        d["significant_alone"] = d["significant"]
-        d["significant"] = c.effect in added
-        d["ladder_step"] = added.index(c.effect) + 1 if c.effect in added else None
-        if d["ladder_step"] and d["ladder_step"] > 1:
-            at = next(x for x in rounds[d["ladder_step"] - 1].candidates if x.effect == c.effect)
-            d.update(
-                {
-                    k: v
-                    for k, v in at.as_json().items()
-                    if k
-                    in (
-                        "nrmse_before",
-                        "nrmse_after",
-                        "fall_percent",
-                        "fall_se_percent",
-                        "n_params",
-                        "runs_improved",
-                        "per_run_before",
-                        "per_run_after",
-                    )
-                }
-            )
-            d["scored_against"] = "+".join(steps[d["ladder_step"] - 1].effects)
-        else:
-            d["scored_against"] = "base"
+        k = added.index(c.effect) + 1 if c.effect in added else None
+        at = c if k is None else next(x for x in rounds[k - 1].candidates if x.effect == c.effect)
+        d = at.as_json()
+        d["significant_alone"] = bool(c.significant)
+        d["significant"] = k is not None
+        d["ladder_step"] = k
+        d["round"] = k or 1
+        d["scored_against"] = "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1])
         out.append(d)
     # best first: ladder order, then the rest by their held-out fall (ranking.Candidate.fall)
     # failed fits last (they carry no fall)
@@ -323,6 +309,12 @@ def _ranking_json(
         )
     )
     return out
+
+
+def _model_words(base: LadderStep, step: LadderStep) -> str:
+    """The model of a ladder ``step`` as its effects joined by "+", led by its law when a
+    step changed the law from the ``base`` step's."""
+    return "+".join([*([step.law] if step.law != base.law else []), *step.effects])
 
 
 #: what each pressure structure of an element law says about the muscle
@@ -696,13 +688,14 @@ def diagnose(
             "status": "failed" if c.failed else "ok",
             **({"reason": c.failure()} if c.failed else {}),
             "nrmse_before": float(c.nrmse_before),
-            "nrmse_after": float(c.nrmse_after),
+            # an identification that raised has no error after it
+            "nrmse_after": None if c.after.error else float(c.nrmse_after),
             "fall_percent": None if c.failed else float(100.0 * c.fall),
             "gain_x_floor": None if c.failed else float(c.gain_x_floor),
             "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
-            "runs_improved": float(c.runs_improved),
+            "runs_improved": None if c.after.error else float(c.runs_improved),
             "significant": bool(c.significant),
-            "per_run_after": [float(v) for v in c.after.nrmse],
+            "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
             # how the law's elements change with pressure, chosen by the identification's
             # own leave-one-pressure-out evidence (None: the law offers no structures)
             **_structure_keys(c.after.structure),

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pmalab.errors import PmalabError
 from pmalab.identify.campaign import ModelSpec
 from pmalab.identify.campaign.batch import ContextPool
 from pmalab.identify.diagnosis.ranking import (
@@ -45,7 +46,12 @@ from pmalab.identify.diagnosis.ranking import (
 from pmalab.identify.laws import LAWS
 from pmalab.runfile import Run
 
-__all__ = ["AT_FLOOR_RATIO", "Ladder", "LadderStep", "Round", "run_ladder"]
+__all__ = ["AT_FLOOR_RATIO", "Ladder", "LadderError", "LadderStep", "Round", "run_ladder"]
+
+
+class LadderError(PmalabError):
+    """The ladder cannot climb: the base model's identification failed."""
+
 
 #: why the ladder stopped (``Ladder.stop``)
 STOP_REASONS = ("nothing significant", "at the noise floor", "max steps", "every candidate in")
@@ -232,6 +238,11 @@ def run_ladder(
             )
             if not steps:
                 steps.append(LadderStep(0, [], None, outs.pop(), law))
+                if steps[0].scored.error:  # nothing to score the candidates against
+                    raise LadderError(
+                        f"the base {law} model's identification raised "
+                        f"{steps[0].scored.error}: nothing to diagnose against"
+                    )
             if not specs:
                 if max_steps >= 1:
                     stop = "every candidate in"

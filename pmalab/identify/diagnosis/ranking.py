@@ -115,6 +115,12 @@ class Scored:
     #: identified; None when the last effect declares none) — how much of a fall the
     #: effect's own force carries (:attr:`Candidate.gain_carried_x_floor`)
     without_last: list[float] | None = None
+    #: the identification raised: what and where (:func:`raised`; "" when it did not).  Its
+    #: held-out nrmse are then NaN: there is no prediction to score
+    error: str = ""
+    #: predicting the identified model without its last effect (:attr:`without_last`)
+    #: raised: what and where ("" when it did not); the fall cannot then be credited
+    without_error: str = ""
 
     @property
     def mean(self) -> float:
@@ -129,8 +135,18 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     from pmalab.identify.estimation.solver import one_blas_thread
 
     with one_blas_thread():
-        cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
-        without = _without_last(cf, spec, held)
+        try:
+            cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
+        except MemoryError:
+            raise
+        except Exception as exc:  # a candidate that fails is that candidate's failure
+            return Scored(tuple(spec.effects), [math.nan] * len(held), error=raised(exc))
+        try:
+            without, without_error = _without_last(cf, spec, held), ""
+        except MemoryError:
+            raise
+        except Exception as exc:  # ... and so is its own-fall check
+            without, without_error = None, raised(exc)
     nr, div = [], []
     for v in vals:
         x = float(v.metrics["nrmse"])
@@ -164,7 +180,40 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         len(cf.runs),
         None if getattr(cf, "structure", None) is None else dict(cf.structure.as_json()),
         without,
+        without_error=without_error,
     )
+
+
+#: packages whose frames :func:`raised` looks past (the place to name is the caller's)
+_LIBRARIES = frozenset({"numpy", "scipy", "numba", "pandas", "h5py"})
+
+
+def raised(exc: BaseException) -> str:
+    """One line saying what ``exc`` is and where it was raised: ``"ValueError: message
+    (file.py, line N)"``, the place being the innermost frame outside NumPy, SciPy, numba
+    and the standard library — a user's effect or law file, or pmalab's own code."""
+    import sysconfig
+    from pathlib import Path
+
+    import pmalab
+    from pmalab.errors import printable
+
+    std = sysconfig.get_paths()["stdlib"]
+    home = Path(pmalab.__file__).parent.parent  # pmalab's own files are named from here
+    where = ""
+    tb = exc.__traceback__
+    while tb is not None:
+        code, mod = tb.tb_frame.f_code, str(tb.tb_frame.f_globals.get("__name__", ""))
+        if mod.split(".")[0] not in _LIBRARIES and not code.co_filename.startswith(std):
+            name = code.co_filename
+            if mod.split(".")[0] == "pmalab":
+                name = Path(name).relative_to(home).as_posix()
+            where = f" ({name}, line {tb.tb_lineno})"
+        tb = tb.tb_next
+    text = printable(" ".join(str(exc).split()))
+    if len(text) > 200:
+        text = text[:199] + "…"
+    return f"{type(exc).__name__}{': ' + text if text else ''}{where}"
 
 
 def _nrmse_of(vals: Sequence[Any]) -> list[float]:
@@ -405,7 +454,16 @@ class Candidate:
         ``FAILED_FALL``; it rose by more than ``SCATTER_MIN_RISE`` with a standard error
         larger than the rise (per-run ratios all over the place); or it rose while a new
         parameter sits on a bound (not a sign bound at 0) on at least ``BOUND_SHARE`` of
-        the identification runs."""
+        the identification runs; or the identification raised (:attr:`Scored.error`), or
+        predicting it without the effect did (:attr:`Scored.without_error`: the fall cannot
+        be credited to the effect, so it is not claimed)."""
+        if self.after.error:
+            return f"the identification raised {self.after.error}"
+        if self.after.without_error and self.after.effects[-1:] == (self.effect,):
+            return (
+                "predicting the identified model without the effect (the check that the "
+                f"fall is the effect's own) raised {self.after.without_error}"
+            )
         if self.after.diverged:
             return f"the held-out prediction diverged on {', '.join(self.after.diverged)}"
         f, se = self.fall, self.fall_se
@@ -471,10 +529,12 @@ class Candidate:
 
     def as_json(self) -> dict[str, Any]:
         """The ``diagnosis.json`` entry; a failed fit carries ``"status": "failed"``, its
-        ``"reason"`` and no fall (``fall_percent``, ``fall_se_percent``, ``gain_x_floor`` null)."""
+        ``"reason"`` and no fall (``fall_percent``, ``fall_se_percent``, ``gain_x_floor`` null;
+        an identification that raised has no ``nrmse_after``, ``per_run_after`` nor
+        ``n_params`` either)."""
         cls = EFFECTS.get(self.effect)
         why = self.failure()
-        return {
+        out = {
             "effect": self.effect,
             "status": "failed" if why else "ok",
             **({"reason": why} if why else {}),
@@ -503,6 +563,11 @@ class Candidate:
             "explanation": cls.explanation if cls else "",
             "signature": cls.signature if cls else "",
         }
+        if self.after.error:  # no identified model: nothing after to report
+            out |= dict.fromkeys(
+                ("nrmse_after", "n_params", "runs_improved", "runs_at_floor", "per_run_after")
+            )
+        return out
 
 
 def judge(
