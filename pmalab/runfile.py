@@ -44,6 +44,8 @@ import numpy as np
 from pmalab.channels import BRANCH_CHANNEL, SINGLE_MUSCLE, STANDARD_CHANNELS, Channels
 from pmalab.errors import ConfigError, RunFileError, RunFileWarning
 from pmalab.health import check_health
+from pmalab.writer_process import WRITER_ATTR
+from pmalab.writer_process import alive as writer_alive
 
 if TYPE_CHECKING:  # the windowed reader sits above this module
     from pmalab.runwindows import LongRuns
@@ -537,6 +539,10 @@ def read_runs(
         raise _fail(path, None, None, "is a directory, not a run file")
     f = open_h5(path)
     killed = bool(getattr(f, "swmr_mode", False))  # opened only in SWMR-read mode
+    # ... because its writer still records it (then nothing was killed), or was killed
+    recording = recording_by(f)
+    killed = killed and recording is None
+    in_progress: list[str] = []  # runs the live writer is recording: read as flushed so far
     skipped: list[tuple[str, str]] = []
     never: list[str] = []  # runs of a recorder's file that hold no samples (never started)
     losses: list[str] = []  # a killed writer's torn last chunks: the samples cut
@@ -581,7 +587,11 @@ def read_runs(
             view = declared.single_muscle_view(picked)
             raw = {}
             lazy = long_runs is not None and _run_length(g) >= long_runs.min_samples
-            cut = is_running(g)  # a killed writer's last chunk may be torn
+            # a killed writer's last chunk may be torn; a live one's is rewritten at every
+            # flush: the run is being recorded, its flushed samples read so far
+            cut = is_running(g)
+            if cut and recording is not None:
+                in_progress.append(name)
             for ch in (*REQUIRED_CHANNELS, *OPTIONAL_CHANNELS):
                 src = view.get(ch, ch)
                 if src in g:
@@ -589,10 +599,14 @@ def read_runs(
                     if not isinstance(ds, h5py.Dataset):
                         raise _fail(path, name, src, "not a dataset")
                     if lazy:  # read later, a window at a time
-                        held = lazy_samples(path, name, src, ds, losses) if cut else ds
+                        held = (
+                            lazy_samples(path, name, src, ds, losses, writer=recording)
+                            if cut
+                            else ds
+                        )
                         raw[ch] = (held, decode_attr(ds.attrs.get("units")))
                         continue
-                    values, lost = read_samples(path, name, src, ds, killed=cut)
+                    values, lost = read_samples(path, name, src, ds, killed=cut, writer=recording)
                     if lost:
                         losses.append(lost)
                     raw[ch] = (values, decode_attr(ds.attrs.get("units")))
@@ -648,7 +662,7 @@ def read_runs(
             _check_window(path, name, attrs, chans["time"])
             out.append(Run(name=name, attrs=attrs, file=str(path), **chans))
         if not out and skipped:
-            states = "; ".join(f"run '{n}' {_state_words(s)}" for n, s in skipped)
+            states = "; ".join(f"run '{n}' {_state_words(s, recording)}" for n, s in skipped)
             raise _fail(
                 path,
                 None,
@@ -677,8 +691,20 @@ def read_runs(
     for name, status in skipped:
         warnings.warn(
             RunFileWarning(
-                f"{path}: run '{name}' skipped: {_state_words(status)} ({INCLUDE_HINT})"
+                f"{path}: run '{name}' skipped: {_state_words(status, recording)} ({INCLUDE_HINT})"
                 + (f"; {recover_hint(path)}" if killed and status == "running" else "")
+            ),
+            stacklevel=2,
+        )
+    if recording is not None:  # said once: the file is not finished
+        later = f"; {len(never)} run(s) not recorded yet: {', '.join(never)}" if never else ""
+        read = {r.name: len(r) for r in out}
+        now = [f"run '{n}' ({read[n]} samples flushed so far)" for n in in_progress if n in read]
+        warnings.warn(
+            RunFileWarning(
+                f"{path}: still being recorded by {recording}"
+                + (f": read {', '.join(now)}" if now else "")
+                + later
             ),
             stacklevel=2,
         )
@@ -752,6 +778,19 @@ def muscles_of(path: str | Path) -> tuple[str, ...]:
         f.close()
 
 
+def recording_by(f: Any) -> str | None:
+    """The writer still recording the open run file ``f`` in words (``"process 1234 on
+    lab-pc"``), or None: the file was closed, or its writer has ended or cannot be told
+    alive (:func:`pmalab.writer_process.alive`; a file of a writer that does not name itself
+    is read as killed)."""
+    if not getattr(f, "swmr_mode", False):
+        return None  # a closed file: its writer is done with it
+    try:
+        return writer_alive(f.attrs.get(WRITER_ATTR))
+    except (OSError, RuntimeError, KeyError):
+        return None
+
+
 def is_running(g: Any) -> bool:
     """The run's recorded status is ``running`` (its writer was killed mid-recording)."""
     import h5py
@@ -769,9 +808,12 @@ def _run_length(g: Any) -> int:
     return int(shape[0]) if shape else 0
 
 
-def _state_words(status: str) -> str:
-    """A recorded status as words: ``running`` is a writer that was killed."""
+def _state_words(status: str, writer: str | None = None) -> str:
+    """A recorded status as words: ``running`` is a writer that was killed, or, with the
+    live ``writer`` (:func:`recording_by`), a run still being recorded."""
     if run_state(status) == "interrupted":
+        if writer is not None:
+            return f"still being recorded by {writer}"
         return "interrupted (its recording was killed mid-run)"
     return status
 
@@ -932,7 +974,7 @@ def torn_tail(ds: Any, start: int, n: int) -> np.ndarray | None:
 
 
 def read_samples(
-    path: Path | str, run: str, name: str, ds: Any, *, killed: bool
+    path: Path | str, run: str, name: str, ds: Any, *, killed: bool, writer: str | None = None
 ) -> tuple[np.ndarray, str | None]:
     """A sample dataset's values, and the words of a loss when its last chunk was torn.
 
@@ -948,6 +990,10 @@ def read_samples(
         kill came (:func:`torn_tail`).  Its samples are kept when the old checksum
         verifies them; otherwise the run is cut at that chunk's first sample and the
         words of the lost span are returned (a recorded loss, never invented samples).
+    writer : str, optional
+        The live writer still recording the run (:func:`recording_by`): a failed last
+        chunk is one that writer is rewriting at this moment, read the same way, and the
+        words say the samples past the cut are not yet readable, not lost.
 
     Returns
     -------
@@ -975,10 +1021,18 @@ def read_samples(
     tail = torn_tail(ds, start, n)
     if tail is not None:
         return np.concatenate([head, tail]), None
-    return head, _loss_words(path, run, name, start, n)
+    return head, _loss_words(path, run, name, start, n, writer)
 
 
-def _loss_words(path: Path | str, run: str, name: str, start: int, n: int) -> str:
+def _loss_words(
+    path: Path | str, run: str, name: str, start: int, n: int, writer: str | None = None
+) -> str:
+    if writer is not None:  # a flush in progress: nothing is lost
+        return (
+            f"{path}: run '{run}': the last chunk of '{name}' (samples {start}..{n - 1}) is "
+            f"being rewritten by {writer}, which still records the run: read to its first "
+            f"{start} samples; the rest are not lost (read again once the flush is done)"
+        )
     return (
         f"{path}: run '{run}': the last chunk of '{name}' (samples {start}..{n - 1}) fails "
         f"its checksum: torn by the kill that stopped the recording; the run is cut to "
@@ -1004,7 +1058,9 @@ class _Spliced:
         return np.concatenate([head, self.tail[max(a - self.start, 0) : max(b - self.start, 0)]])
 
 
-def lazy_samples(path: Path | str, run: str, name: str, ds: Any, losses: list[str]) -> Any:
+def lazy_samples(
+    path: Path | str, run: str, name: str, ds: Any, losses: list[str], writer: str | None = None
+) -> Any:
     """A killed run's dataset for windowed reads (:mod:`pmalab.runwindows`): ``ds`` itself
     when its last chunk reads, else that chunk's verified samples spliced in, or the
     dataset cut before it with the loss's words appended to ``losses``
@@ -1020,7 +1076,7 @@ def lazy_samples(path: Path | str, run: str, name: str, ds: Any, losses: list[st
         pass
     tail = torn_tail(ds, start, n)
     if tail is None:
-        losses.append(_loss_words(path, run, name, start, n))
+        losses.append(_loss_words(path, run, name, start, n, writer))
         tail = np.zeros(0, dtype=ds.dtype)
     return _Spliced(ds, start, tail)
 
@@ -1222,7 +1278,7 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
     (``"gains/outer_kp"``), as ``{name: (values, units)}`` in the units stored — the
     channels :func:`read_runs` does not know (references, commands, a controller's gains).
     A run whose writer was killed (status ``running``) is cut to the samples every dataset
-    holds.  One-line :class:`RunFileError` naming file and run on any problem."""
+    holds, one its writer still records to the samples flushed so far.  One-line :class:`RunFileError` naming file and run on any problem."""
     import h5py
 
     path = Path(path)
@@ -1238,7 +1294,7 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
 
         def visit(name: str, obj: Any) -> None:
             if getattr(obj, "ndim", None) == 1 and "units" in obj.attrs:
-                values, lost = read_samples(path, run, name, obj, killed=cut)
+                values, lost = read_samples(path, run, name, obj, killed=cut, writer=writer)
                 if lost:
                     losses.append(lost)
                 out[name] = (
@@ -1250,6 +1306,7 @@ def read_run_datasets(path: str | Path, run: str) -> dict[str, tuple[np.ndarray,
         if not isinstance(g, h5py.Group):
             raise _fail(path, run, None, "not a group")
         cut = is_running(g)
+        writer = recording_by(f) if cut else None
         g.visititems(visit)
         if out and _recording_state(g).get("status") == "running":
             # a writer killed mid-append: every channel up to what all of them hold

@@ -24,6 +24,7 @@ from pmalab.runfile import (
     is_running,
     open_h5,
     read_runs,
+    recording_by,
     rewritten_chunk,
     torn_tail,
 )
@@ -44,6 +45,9 @@ class RunCheck:
     #: one phrase per dataset whose last chunk a kill tore mid-rewrite (its flushed
     #: samples verified by the chunk's previous checksum)
     torn: list[str] = field(default_factory=list)
+    #: the live writer still recording this run (its words), or "" — such a run is not
+    #: checked: its last chunks are rewritten at every flush
+    recording: str = ""
 
 
 def _check_dataset(ds: Any, killed: bool = False) -> tuple[str, str]:
@@ -103,6 +107,7 @@ def check_file(path: str | Path) -> tuple[list[str], list[RunCheck], str | None]
     notes: list[str] = []
     runs: list[RunCheck] = []
     f = open_h5(path)
+    writer = recording_by(f)
     try:
         try:
             want = f.attrs.get(DIGEST_ATTR)
@@ -134,6 +139,11 @@ def check_file(path: str | Path) -> tuple[list[str], list[RunCheck], str | None]
                 elif decode_attr(want) != attrs_digest(g):
                     rc.damaged.append("attributes (checksum does not match)")
                 killed = is_running(g)
+                if killed and writer is not None:
+                    # its live writer rewrites the last chunks at every flush: not checked
+                    rc.recording = writer
+                    rc.samples = int(getattr(g.get("time"), "shape", (0,))[0])
+                    continue
                 for key in map(str, g.keys()):
                     ds = g[key]
                     if not isinstance(ds, h5py.Dataset):
@@ -169,7 +179,12 @@ def report(path: str | Path) -> tuple[list[str], bool]:
     lines = [f"{path}: {n}" for n in notes]
     ok = not notes
     for rc in runs:
-        if rc.damaged:
+        if rc.recording:
+            lines.append(
+                f"  run '{rc.name}': still being recorded by {rc.recording}, {rc.samples} "
+                "samples so far: not checked until it ends"
+            )
+        elif rc.damaged:
             ok = False
             lines.append(f"  run '{rc.name}': DAMAGED: " + "; ".join(rc.damaged))
             if rc.intact:
@@ -186,9 +201,11 @@ def report(path: str | Path) -> tuple[list[str], bool]:
                 f"  run '{rc.name}': readable, {rc.samples} samples; written without checksums, "
                 "so damage cannot be detected"
             )
-    good = sum(not rc.damaged for rc in runs)
+    good = sum(not rc.damaged and not rc.recording for rc in runs)
+    live = sum(bool(rc.recording) for rc in runs)
     lines.append(
         f"{path}: {good} of {len(runs)} runs intact"
+        + (f", {live} still being recorded" if live else "")
         + ("" if read_error is None else f"; the analysis reader refuses it: {read_error}")
     )
     return lines, ok and read_error is None

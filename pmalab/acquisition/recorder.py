@@ -65,6 +65,7 @@ from pmalab.runfile import (
     declare_channels,
     seal_attrs,
 )
+from pmalab.writer_process import WRITER_ATTR, identity
 
 if TYPE_CHECKING:
     import h5py
@@ -468,6 +469,8 @@ class Recorder:
             f.attrs["format_version"] = FORMAT_VERSION
             for k, v in root_attrs.items():
                 f.attrs[k] = _attr(v)
+            # who writes it: a reader tells a live recording from a killed one
+            f.attrs[WRITER_ATTR] = identity()
             seal_attrs(f)
             grp = f.create_group("runs", track_order=True)  # runs read in protocol order
             for name, attrs in runs:

@@ -23,7 +23,14 @@ import numpy as np
 
 from pmalab.errors import RunFileError, RunFileWarning
 from pmalab.paths import output_failure
-from pmalab.runfile import CHECKSUM, FORMAT, create_run_group, open_h5, read_samples
+from pmalab.runfile import (
+    CHECKSUM,
+    FORMAT,
+    create_run_group,
+    open_h5,
+    read_samples,
+    recording_by,
+)
 
 
 def is_healthy(path: Path) -> bool:
@@ -151,6 +158,13 @@ def recover(
     # plain read first; SWMR-read only for the "already open for write" flag a killed
     # writer leaves (a damaged file opened in SWMR mode makes HDF5 retry its reads forever)
     src = open_h5(src_path)
+    writer = recording_by(src)
+    if writer is not None:  # its writer is alive: there is nothing to recover
+        src.close()
+        raise RunFileError(
+            f"{src_path}: still being recorded by {writer}: nothing to recover (recover a "
+            "file whose writer was killed; this one is closed when its recording ends)"
+        )
     tmp = dst_path.with_name(dst_path.name + ".recovering")
     try:  # --out may name a new directory, as every other verb's output may
         dst_path.parent.mkdir(parents=True, exist_ok=True)

@@ -113,6 +113,19 @@ class ForceModel:
                 ps.add(p)
         return ps
 
+    @property
+    def predicts_by_parts(self) -> bool:
+        """Whether :meth:`predict` is this class's parts and assembly (:meth:`drive`,
+        :meth:`parts`, :meth:`assemble`, :meth:`assemble_many` as written here): a subclass
+        that overrides any of them (a user's own force law) is predicted only through its
+        :meth:`predict`, and the fitters neither reuse parts nor assume the linear term's
+        derivatives for it (correct, if slower)."""
+        cls = type(self)
+        return all(
+            getattr(cls, m) is getattr(ForceModel, m)
+            for m in ("predict", "parts", "assemble", "assemble_many", "drive")
+        )
+
     def unchanged_parts(self, sig: Signals) -> dict[str, str]:
         """Parameters whose change leaves parts of :meth:`parts` as they were.
 
@@ -122,7 +135,8 @@ class ForceModel:
         change).  A parameter not listed may change anything.  Only the built-in law and
         effects are known to read nothing but their own parameters in
         :meth:`Effect.transform` and :meth:`Effect.law_extras`, so a model with a user law or
-        effect lists nothing.
+        effect lists nothing; nor does a subclass with its own prediction
+        (:attr:`predicts_by_parts`).
 
         Parameters
         ----------
@@ -135,6 +149,8 @@ class ForceModel:
             Parameter name to ``"law"`` or ``"terms"``.
         """
         parts = (self.law, *self.effects)
+        if not self.predicts_by_parts:
+            return {}
         if not all(type(o).__module__.startswith("pmalab.identify.") for o in parts):
             return {}
         out = {lp.name: "law" for lp in self.law.params}

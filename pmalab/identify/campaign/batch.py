@@ -48,7 +48,9 @@ def _mp_context() -> Any:
 
     name = os.environ.get(START_METHOD_ENV, "").strip()
     if not name:
-        if multiprocessing.get_start_method() == "fork" and gnu_openmp_started():
+        # the method in force, without fixing it (the platform's default is listed first)
+        now = multiprocessing.get_start_method(allow_none=True)
+        if (now or multiprocessing.get_all_start_methods()[0]) == "fork" and gnu_openmp_started():
             return multiprocessing.get_context("forkserver")
         return None
 

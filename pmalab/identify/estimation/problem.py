@@ -120,6 +120,9 @@ class Problem:
             if type(self).output is Problem.output and self.records
             else {}
         )
+        if not model.predicts_by_parts:
+            # a model with its own prediction: its force need not be k·x + c0 + the rest
+            self.analytic_linear = False
 
     # ------------------------------------------------------------------ layout
     def block(self, j: int) -> slice:

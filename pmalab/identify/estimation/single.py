@@ -411,8 +411,9 @@ def _fit_once(
     xv, res = _refine_starts(prob, starts)
     for name, v in _theta(prob, xv).items():
         ps[name].value = v
-    if not model.effects and not init:
-        # the same base fit a model with effects on this record would start from
+    if not model.effects and not init and model.predicts_by_parts:
+        # the same base fit a model with effects on this record would start from (not a
+        # subclass's own prediction: keyed by the law, it would be another model's start)
         _remember(_base_key(model, sig, force, fixed), _theta(prob, xv))
     return ps, prob, res
 
