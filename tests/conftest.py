@@ -25,7 +25,6 @@ LONGEST_FIRST = (
     "test_active_emulated.py",
     "test_reports_parallel.py",
     "test_forward.py",
-    "test_real_data.py",
     "test_static_identify.py",
     "test_reports_laws.py",
     "test_laws_elements.py",

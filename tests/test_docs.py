@@ -64,6 +64,33 @@ def test_the_build_cache_ignores_docstrings_and_comments_not_code(tmp_path):
     assert show._without_docstrings(src.replace("x + 1", "x + 2")) != base
 
 
+def test_a_unit_wanted_by_two_at_once_is_made_once(tmp_path):
+    """A test reading what a page's commands made (``show.unit``) and a build making the
+    same unit at the same time: one makes it, the other waits for its lock and finds it
+    made (made twice without the lock)."""
+    import threading
+    import time
+
+    show = _show_hook()
+    made: list[str] = []
+
+    def make(kind, out):
+        made.append(kind)
+        time.sleep(0.3)  # long enough for the other to arrive while it is being made
+        (out / "outputs.json").write_text("[]")
+
+    show._make = make
+    final = tmp_path / "page" / "0123456789abcdef"
+    threads = [threading.Thread(target=show._make_unit, args=(final, "page:x.md"))
+               for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert made == ["page:x.md"] and (final / "done").is_file()
+    assert sorted(p.name for p in final.parent.iterdir()) == [final.name, f"{final.name}.lock"]
+
+
 def test_readme_is_a_landing_page():
     text = (ROOT / "README.md").read_text()
     assert len(text) <= 8000, len(text)

@@ -11,14 +11,21 @@ the ladder added → report.  What pmalab says is checked here, not only by eye:
   base model;
 * diagnose's final number is what `pmalab identify --add ...` reports on the same runs;
 * what is left is located (the share tied to the loop, above the band, offset).
+
+The import, the diagnosis and the report are the import tutorial's commands
+(docs/tutorials/import.md, checked here to be these), as the documentation build ran them
+in an empty directory (docs/hooks/show.py's cache: made here if no build has made them for
+this code yet, once for both).
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import itertools
 import json
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +35,7 @@ from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import load
 from pmalab.paths import DATA_DIR
 
+ROOT = Path(__file__).resolve().parents[1]
 REAL = DATA_DIR / "real" / "zillen-oring257"
 FILES = sorted(REAL.glob("O-ring257_*bar.csv"))
 IMPORT = ["--no-header", "--delimiter", "\\t", "--columns", "time,-,-,-,position,pressure,force",
@@ -43,14 +51,48 @@ def _cli(args: list[str]) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
+def _show():
+    """The documentation build's hook (docs/hooks/show.py) as a module."""
+    spec = importlib.util.spec_from_file_location("docs_show", ROOT / "docs" / "hooks" / "show.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _commands(block: str) -> list[list[str]]:
+    """A bash block's commands, each split into its words (continued lines joined)."""
+    return [shlex.split(ln) for ln in block.replace("\\\n", " ").splitlines() if ln.strip()]
+
+
 @pytest.fixture(scope="module")
-def campaign(tmp_path_factory) -> Path:
+def tutorial() -> tuple[Path, list[str]]:
+    """The import tutorial's work directory as the documentation build left it, and what
+    each of its command blocks printed; its commands are checked to be the chain above:
+    the shipped files copied, imported with :data:`IMPORT`, diagnosed, reported."""
     assert len(FILES) == 4 and (REAL / "LICENSE").exists() and (REAL / "PROVENANCE.md").exists()
-    out = tmp_path_factory.mktemp("real") / "oring257.h5"
-    code, text, err = _cli(["import", *map(str, FILES), *IMPORT, "--out", str(out)])
-    assert code == 0, err
-    assert "8 runs from 4 file(s)" in text and "4 held out" in text
-    return out
+    show = _show()
+    page = "tutorials/import.md"
+    assert page in show.RUN_PAGES
+    blocks = [_commands(b) for b in show.BASH.findall((ROOT / "docs" / page).read_text())]
+    assert len(blocks) == 2, blocks
+    (cp, imp), (diag, report) = blocks
+    assert cp[:2] == ["cp", "-r"] and cp[2].endswith("/real/zillen-oring257"), cp
+    assert imp == ["pmalab", "import", "zillen-oring257/O-ring257_*bar.csv", *IMPORT,
+                   "--out", "oring.h5"], imp
+    assert diag == ["pmalab", "diagnose", "oring.h5", "--model", "bouc-wen", "--out",
+                    "diag-real", "--quiet"], diag
+    assert report[:5] == ["pmalab", "report", "diag-real", "--out", "oring.pdf"], report
+    root = show.unit("import")
+    printed = json.loads((root / "outputs.json").read_text())
+    return root / "generated" / "runs" / "import", printed
+
+
+@pytest.fixture(scope="module")
+def campaign(tutorial) -> Path:
+    work, printed = tutorial
+    assert "8 runs from 4 file(s)" in printed[0] and "4 held out" in printed[0], printed[0]
+    return work / "oring.h5"
 
 
 def test_import_keeps_the_files_numbers(campaign):
@@ -73,14 +115,9 @@ def test_import_keeps_the_files_numbers(campaign):
 
 
 @pytest.fixture(scope="module")
-def diagnosis(campaign, tmp_path_factory) -> dict:
-    out = tmp_path_factory.mktemp("diag") / "d"
-    code, _text, err = _cli(["diagnose", str(campaign), "--model", "bouc-wen", "--out", str(out),
-                            "--quiet"])
-    assert code == 0, err
-    d = json.loads((out / "diagnosis.json").read_text())
-    d["_dir"] = str(out)
-    return d
+def diagnosis(tutorial) -> dict:
+    work, _ = tutorial
+    return json.loads((work / "diag-real" / "diagnosis.json").read_text())
 
 
 def test_ladder_climbs_on_real_data_every_step_improving_every_held_out_run(diagnosis):
@@ -110,10 +147,9 @@ def test_diagnose_numbers_are_identifys(diagnosis, campaign, tmp_path):
     assert got == pytest.approx(diagnosis["ladder"][-1]["nrmse"], rel=0.02)
 
 
-def test_report_of_the_real_diagnosis(diagnosis, tmp_path):
+def test_report_of_the_real_diagnosis(tutorial):
     import pypdfium2
 
-    pdf = tmp_path / "real.pdf"
-    code, _, err = _cli(["report", diagnosis["_dir"], "--out", str(pdf)])
-    assert code == 0, err
+    work, _ = tutorial
+    pdf = work / "oring.pdf"  # `pmalab report diag-real --out oring.pdf`
     assert len(pypdfium2.PdfDocument(str(pdf))) >= 2

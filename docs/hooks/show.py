@@ -16,13 +16,16 @@ pmalab's code (docstrings and comments excluded: editing them reruns nothing) an
 unit's own inputs (a page's commands, not its prose).  The outputs are added to the site as
 generated files: the build writes nothing into the tree (``make docs`` leaves it clean), a
 second build with unchanged code costs nothing, and a change of the code or of a page's
-commands makes that unit again.  Missing units are made two at a time.
+commands makes that unit again.  Missing units are made two at a time; a unit is made by
+one process at a time (a lock file beside it): a test that reads what a page's commands made
+(:func:`unit`) waits for a build making it, never makes it a second time.
 """
 
 from __future__ import annotations
 
 import ast
 import base64
+import contextlib
 import hashlib
 import json
 import os
@@ -31,6 +34,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -222,8 +226,30 @@ def _unit_dir(name: str, inputs: bytes) -> Path:
     return _cache_root() / name / h.hexdigest()[:16]
 
 
+@contextlib.contextmanager
+def _making(final: Path) -> Iterator[None]:
+    """Hold the unit's lock (``<key>.lock`` beside its directory) while it is made: another
+    process that wants the same unit (a second build, a test reading its outputs) waits,
+    then finds it made.  Without ``fcntl`` (not POSIX) nothing is locked and two makers
+    may both make it; the first to finish is kept."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(final.parent / f"{final.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file is closed
+        yield
+
+
 def _make_unit(final: Path, kind: str) -> None:
     final.parent.mkdir(parents=True, exist_ok=True)
+    with _making(final):
+        if not (final / "done").exists():  # else made while this process waited
+            _make_locked(final, kind)
+
+
+def _make_locked(final: Path, kind: str) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="making-", dir=final.parent))
     try:
         _make(kind, tmp)
@@ -242,6 +268,18 @@ def _make_unit(final: Path, kind: str) -> None:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     _prune(final.parent, KEEP)
+
+
+def unit(name: str) -> Path:
+    """One unit's cache directory for the current code and inputs (``name``: a run page's
+    stem, ``notebook-<stem>`` or ``make_figures``), made when missing, alone.  The tests
+    that check what a tutorial's commands did read it there instead of running the same
+    commands again."""
+    kind, inputs = _units()[name]
+    final = _unit_dir(name, inputs)
+    if not (final / "done").exists():
+        _make_unit(final, kind)
+    return final
 
 
 def built() -> dict[str, Path]:
@@ -273,6 +311,7 @@ def _prune(root: Path, keep: int) -> None:
     )
     for old in done[keep:]:
         shutil.rmtree(old, ignore_errors=True)
+        (root / f"{old.name}.lock").unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------- the hooks
