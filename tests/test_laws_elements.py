@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shared_work import maxwell_slip_four_laws
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify import identify
@@ -39,7 +40,8 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> Path:
-    return _campaign(tmp_path_factory.mktemp("ms"), TRUTH, 7)
+    """The diagnosis-test campaign on :data:`TRUTH`, sensor seed 7."""
+    return maxwell_slip_four_laws(tmp_path_factory)[0]
 
 
 def test_element_laws_fit_each_run_closer_than_bouc_wen(campaign):
@@ -64,16 +66,13 @@ def test_element_laws_fit_each_run_closer_than_bouc_wen(campaign):
 
 
 @pytest.fixture(scope="module")
-def four_laws(campaign, tmp_path_factory) -> tuple[Path, str]:
+def four_laws(tmp_path_factory) -> tuple[Path, str]:
     """``pmalab identify CAMPAIGN --model bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip``
-    on the module's campaign (its held-out runs validate): the output directory (laws.json,
-    one identification per law) and what it printed.  One run of it serves the tests that
-    need these laws identified on this campaign."""
-    out = tmp_path_factory.mktemp("laws") / "laws"
-    rc, text = _cli(["identify", str(campaign), "--model",
-                     "bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip", "--out", str(out)])
-    assert rc == 0, text
-    return out, text
+    on :func:`campaign` (its held-out runs validate): the output directory (laws.json, one
+    identification per law) and what it printed; made once in a test session (the laws
+    report's tests read it too)."""
+    _, laws, text = maxwell_slip_four_laws(tmp_path_factory)
+    return laws, text
 
 
 def _campaign(work: Path, truth: Path, seed: int) -> Path:
