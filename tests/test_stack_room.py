@@ -85,3 +85,24 @@ def test_identify_runs_its_work_in_the_room(tmp_path, monkeypatch):
     assert main(["identify", str(f), "--model", "duhem", "--out", str(tmp_path / "o"), "-q"]) == 0
     assert seen == [cli.identify_command]
     assert (tmp_path / "o" / "identification.json").is_file()
+
+
+def test_diagnose_runs_its_work_in_the_room(tmp_path, monkeypatch):
+    from pmalab.cli import main
+    from pmalab.identify import cli
+
+    runs = [make_run("duhem", p, seed=i, n=3000, f=0.3, name=f"p{i}")[0]
+            for i, p in enumerate((0.2, 0.4, 0.6))]
+    f = write_runs(tmp_path / "c.h5", runs)
+    seen = []
+
+    def spy(fn, *args, **kwargs):
+        seen.append(fn)
+        return with_stack_room(fn, *args, **kwargs)
+
+    monkeypatch.setattr(cli, "with_stack_room", spy)
+    args = ["diagnose", str(f), "--model", "duhem", "--out", str(tmp_path / "d"), "-q",
+            "--only", "viscous-friction", "--laws", "none", "--max-steps", "0", "--jobs", "1"]
+    assert main(args) == 0
+    assert seen == [cli.diagnose_command]
+    assert (tmp_path / "d" / "diagnosis.json").is_file()
