@@ -3,12 +3,16 @@
 Every verb registers its options at start-up through its area's ``cli`` module, which
 imports the area's package; a package that re-exported its API eagerly would make every
 ``pmalab`` command pay for numpy, h5py, scipy or matplotlib before the chosen verb runs.
+The other start-up helpers: :func:`gc_paused` (imports without the cyclic collector) and
+:func:`with_stack_room` (a command's work without CPython's frame-stack chunk churn).
 """
 
 from __future__ import annotations
 
 import gc
 import importlib
+import sys
+import types
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
@@ -56,3 +60,57 @@ def gc_paused(freeze: bool) -> Iterator[None]:
             if freeze:
                 gc.freeze()
             gc.enable()
+
+
+#: bytes of CPython frame stack kept free for the work :func:`with_stack_room` runs
+STACK_ROOM = 64 * 1024
+
+
+def _call(fn: Callable[..., Any], args: tuple, kwargs: dict) -> Any:
+    return fn(*args, **kwargs)
+
+
+def _roomy_call() -> Callable[[Callable[..., Any], tuple, dict], Any]:
+    """:func:`_call` with a frame of :data:`STACK_ROOM` bytes more (a larger evaluation
+    stack than it uses: the slots are reserved, never read), or :func:`_call` itself where
+    code objects cannot be rebuilt so (not CPython)."""
+    if sys.implementation.name != "cpython":
+        return _call
+    code = _call.__code__
+    try:
+        roomy = code.replace(co_stacksize=code.co_stacksize + STACK_ROOM // 8)
+    except (AttributeError, TypeError, ValueError):  # pragma: no cover - other runtimes
+        return _call
+    return types.FunctionType(roomy, _call.__globals__, "_roomy_call")
+
+
+_ROOMY_CALL = _roomy_call()
+
+
+def with_stack_room(fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)`` with :data:`STACK_ROOM` bytes of CPython's frame stack free
+    above it, in one block that lives as long as the call.
+
+    CPython (3.11 on) keeps its frames in chunks of 16 KiB and frees a chunk as soon as
+    the frame at its base returns, so a loop that keeps calling across a chunk's end maps
+    and unmaps a chunk on every call (CPython issue gh-142183; later 3.13 and 3.14 releases
+    keep one chunk spare).  Where that end falls depends on every frame below: for
+    ``pmalab identify`` run from the shell it fell inside numba's import, 27,000
+    mmap/munmap pairs and page faults, about 0.15 s of system time.  This call's own frame
+    is made larger than the room (its evaluation stack is reserved, never used), so it
+    starts a block of twice the room and ``fn`` runs in the other half: nothing it calls
+    within that depth reaches a chunk's end, wherever the caller stood.
+
+    Parameters
+    ----------
+    fn
+        The work (a command's body).
+    args, kwargs
+        Passed to ``fn``.
+
+    Returns
+    -------
+    object
+        What ``fn`` returns; what it raises propagates unchanged.
+    """
+    return _ROOMY_CALL(fn, args, kwargs)

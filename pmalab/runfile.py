@@ -478,7 +478,9 @@ def read_runs(
     """Read every run (or the named ``runs``) of a contract file, in canonical units.
 
     Runs recorded by :mod:`pmalab.acquisition` also carry ``attrs["status"]``
-    ("completed", "aborted: <reason>", or "running" for a file whose writer was killed),
+    ("completed", "aborted: <reason>", or "running" for a file whose writer was killed —
+    or still records it: such a file is read to the samples flushed so far, with one
+    warning naming the live writer, :func:`recording_by`),
     ``attrs["timing"]`` (lateness statistics) and ``attrs["device_stats"]`` (the devices'
     link/fault counters at the run's end, a dict; {} when the rig reports none); runs
     never started are skipped.  A run's ``summary`` dataset (JSON written at its end:
@@ -792,7 +794,8 @@ def recording_by(f: Any) -> str | None:
 
 
 def is_running(g: Any) -> bool:
-    """The run's recorded status is ``running`` (its writer was killed mid-recording)."""
+    """The run's recorded status is ``running`` (its writer was killed mid-recording, or
+    still records it: :func:`recording_by`)."""
     import h5py
 
     st = g.get("status")

@@ -23,7 +23,7 @@ from pmalab.console import (
     warning,
 )
 from pmalab.errors import PmalabError
-from pmalab.lazy import gc_paused
+from pmalab.lazy import gc_paused, with_stack_room
 
 
 @contextmanager
@@ -266,7 +266,7 @@ def _identify_each_muscle(args: argparse.Namespace) -> int:
     for m in names:
         print(f"muscle {m}:")
         sub = argparse.Namespace(**{**vars(args), "muscle": m, "out": str(Path(args.out) / m)})
-        rc = run_identify(sub)
+        rc = identify_command(sub)
         if rc:
             return rc
     return 0
@@ -294,6 +294,14 @@ def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[l
 
 
 def run_identify(args: argparse.Namespace) -> int:
+    """``pmalab identify``: :func:`identify_command` with frame-stack room
+    (:func:`pmalab.lazy.with_stack_room`: its imports and fits never map and unmap
+    CPython's frame-stack chunks call after call)."""
+    return with_stack_room(identify_command, args)
+
+
+def identify_command(args: argparse.Namespace) -> int:
+    """The ``pmalab identify`` command (see :func:`_register_identify`); 0 on success."""
     from pathlib import Path
 
     from pmalab.paths import prepare_output_dir
@@ -517,6 +525,15 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
+    """``pmalab diagnose``: :func:`diagnose_command` with BLAS loaded on one thread
+    (:func:`_one_blas_thread_from_the_start`: the candidates' fits run on one BLAS thread
+    each already) and frame-stack room (:func:`pmalab.lazy.with_stack_room`)."""
+    _one_blas_thread_from_the_start()
+    return with_stack_room(diagnose_command, args)
+
+
+def diagnose_command(args: argparse.Namespace) -> int:
+    """The ``pmalab diagnose`` command (see :func:`_register_diagnose`); 0 on success."""
     from pathlib import Path
 
     with _fitting_code():
