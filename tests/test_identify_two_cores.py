@@ -297,14 +297,17 @@ def test_no_fork_once_a_gnu_openmp_runtime_has_started_threads(tmp_path):
     assert p.stdout.split()[-1:] == ["ok"]
 
 
-def _blas_after_identify(cwd: Path, ident: Path, env_extra: dict[str, str]) -> list[str]:
-    """Run `pmalab identify` in a fresh interpreter (as from the shell); print the threads
-    BLAS reports and the threads the process holds once the command has returned."""
+def _blas_after_identify(
+    cwd: Path, ident: Path, env_extra: dict[str, str], verb: tuple[str, ...] = ("identify",)
+) -> list[str]:
+    """Run `pmalab identify` (or ``verb``) in a fresh interpreter (as from the shell); print
+    the threads BLAS reports and the threads the process holds once the command has
+    returned."""
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "OPENBLAS_NUM_THREADS")}
     code = textwrap.dedent(f"""
         import os
         from pmalab.cli import main
-        rc = main(["identify", {str(ident)!r}, "--model", "duhem", "--out", "o", "-q"])
+        rc = main([*{verb!r}, {str(ident)!r}, "--model", "duhem", "--out", "o", "-q"])
         from threadpoolctl import threadpool_info
         blas = sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}})
         print(rc, blas, len(os.listdir("/proc/self/task")))
@@ -327,3 +330,10 @@ def test_identify_keeps_the_users_blas_thread_count(campaign, tmp_path):
     ident, _ = campaign
     out = _blas_after_identify(tmp_path, ident, {"OPENBLAS_NUM_THREADS": "2"})
     assert out[:2] == ["0", "[2]"], out
+
+
+def test_diagnose_loads_blas_with_one_thread_and_starts_no_thread(campaign, tmp_path):
+    ident, _ = campaign
+    verb = ("diagnose", "--only", "viscous-friction", "--laws", "none", "--max-steps", "0")
+    out = _blas_after_identify(tmp_path, ident, {}, verb)
+    assert out == ["0", "[1]", "1"], out

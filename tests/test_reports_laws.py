@@ -19,15 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.collections import LineCollection
+from shared_work import FOUR_LAWS, maxwell_slip_four_laws
 
 from pmalab.cli import main as pmalab_main
-from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
 from pmalab.reports import ReportError, load_report_dir, plan_pages
 from pmalab.reports.build import draw_page
 from pmalab.reports.figures_laws import run_floor
 from pmalab.reports.layout import text_problems
 
-LAWS = ["bouc-wen", "duhem", "prandtl-ishlinskii", "maxwell-slip"]
+LAWS = list(FOUR_LAWS)
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:
@@ -39,18 +39,10 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def laws_dir(tmp_path_factory) -> Path:
-    work = tmp_path_factory.mktemp("laws-report")
-    rig = work / "rig.toml"
-    truth = TRUTH_DIR / "hysteresis-maxwell-slip.toml"
-    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = 7\n')
-    c = work / "c.h5"
-    rc, text = _cli(["run", "--rig", str(rig), "--protocol",
-                     str(PROTOCOLS_DIR / "diagnosis-test.toml"), "--out", str(c), "-q"])
-    assert rc == 0, text
-    rc, text = _cli(["identify", str(c), "--model", ",".join(LAWS), "--out",
-                     str(work / "laws"), "-q"])
-    assert rc == 0, text
-    return work / "laws"
+    """``pmalab identify c.h5 --model bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip`` of the
+    Maxwell-slip-shaped muscle's diagnosis-test campaign (made once in a test session:
+    test_laws_elements checks the same identification)."""
+    return maxwell_slip_four_laws(tmp_path_factory)[1]
 
 
 def test_laws_pages_rank_the_laws_and_draw_them_on_one_scale(laws_dir):

@@ -525,6 +525,15 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
+    """``pmalab diagnose``: :func:`diagnose_command` with BLAS loaded on one thread
+    (:func:`_one_blas_thread_from_the_start`: the candidates' fits run on one BLAS thread
+    each already) and frame-stack room (:func:`pmalab.lazy.with_stack_room`)."""
+    _one_blas_thread_from_the_start()
+    return with_stack_room(diagnose_command, args)
+
+
+def diagnose_command(args: argparse.Namespace) -> int:
+    """The ``pmalab diagnose`` command (see :func:`_register_diagnose`); 0 on success."""
     from pathlib import Path
 
     with _fitting_code():
