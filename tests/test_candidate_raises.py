@@ -146,3 +146,37 @@ def test_a_base_model_that_raises_is_one_error_line(monkeypatch):
         "the base bouc-wen model's identification raised ValueError: singular (law.py, "
         "line 3): nothing to diagnose against"
     )
+
+
+def test_a_law_whose_identification_raises_is_one_table_row_not_a_traceback(
+    tmp_path, monkeypatch
+):
+    from pmalab.identify.diagnosis import ranking
+
+    real = ranking.fit_and_validate
+
+    def fit_and_validate(train, spec, *args, **kwargs):
+        if spec.law == "duhem":
+            raise FloatingPointError("duhem's hysteresis integral overflowed")
+        return real(train, spec, *args, **kwargs)
+
+    monkeypatch.setattr(ranking, "fit_and_validate", fit_and_validate)
+    campaign = tmp_path / "campaign.h5"
+    code, _, err = _cli(
+        "run", "--rig", str(DATA_DIR / "rigs" / "sim-viscous-friction.toml"),
+        "--protocol", str(DATA_DIR / "protocols" / "diagnosis-test.toml"),
+        "--out", str(campaign), "--quiet",
+    )  # fmt: skip
+    assert code == 0, err
+    code, out, err = _cli(
+        "diagnose", str(campaign), "--model", "bouc-wen", "--only", "viscous-friction",
+        "--laws", "duhem", "--max-steps", "1", "--jobs", "1", "--out", str(tmp_path / "d"),
+    )  # fmt: skip
+    assert code == 0, err
+    (law,) = json.loads((tmp_path / "d" / "diagnosis.json").read_text())["laws"]
+    assert law["status"] == "failed" and law["nrmse_after"] is None
+    assert law["reason"].startswith("the identification raised FloatingPointError: duhem's")
+    # the laws table: the law's row says it failed, with no error after it
+    row = next(line for line in out.splitlines() if line.lstrip().startswith("duhem"))
+    assert "fit failed" in row and "—" in row, row
+    assert "Traceback" not in err

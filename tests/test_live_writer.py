@@ -124,3 +124,15 @@ def test_the_writer_is_this_process_while_it_runs_and_no_other():
     reused = me.replace('"start_ticks": ', '"start_ticks": 1')  # same pid, another start
     assert alive(reused) is None
     assert alive(None) is None and alive("not json") is None
+
+
+def test_a_pid_of_another_pid_namespace_is_not_this_writer():
+    """A container has its own pids: the recording's pid 7 there is not this namespace's
+    pid 7, even on the same host (its name shared with host networking) and boot."""
+    import json
+
+    me = json.loads(identity())
+    assert me["pid_ns"].startswith("pid:[")
+    assert alive(json.dumps({**me, "pid_ns": "pid:[1]"})) is None
+    assert alive(json.dumps({k: v for k, v in me.items() if k != "pid_ns"})) is None
+    assert alive(json.dumps(me)) == f"process {os.getpid()} on {os.uname().nodename}"

@@ -627,7 +627,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
                     (
                         lw["law"],
                         f"{lw['nrmse_before']:.4f}",
-                        f"{lw['nrmse_after']:.4f}",
+                        # null: the law's identification raised
+                        "—" if lw["nrmse_after"] is None else f"{lw['nrmse_after']:.4f}",
                         "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",
                         "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
                         "fit failed"
