@@ -10,26 +10,29 @@ import pytest
 matplotlib.use("Agg")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "numba-cache"))
 
-#: the longest test files, longest first (summed test time of a whole-suite run; the docs
-#: site's cold build is one test of ~1.5 min idle).  ``make test`` runs the suite with
+#: the longest test files, longest first (summed test time per file of a whole-suite run;
+#: the docs site's cold build is one test of ~2 min).  ``make test`` runs the suite with
 #: ``--dist loadfile --no-loadscope-reorder``: the files are handed to the workers in
 #: collection order, so these start first and the short files fill in around them; a
-#: long file handed out last would run alone at the end, on one core
+#: long file handed out last would run alone at the end, on one core.  test_reports_laws
+#: is not here: it reads the laws test_laws_elements makes (tests/shared_work.py), so it
+#: comes later instead of waiting beside it for them; test_real_data reads what the docs
+#: build made (the import tutorial) and comes late for the same reason
 LONGEST_FIRST = (
     "test_docs_site.py",
     "test_diagnosis_invariant.py",
     "test_wheel.py",
-    "test_diagnose_dask.py",
-    "test_active.py",
     "test_first_hour.py",
-    "test_active_emulated.py",
-    "test_reports_parallel.py",
-    "test_forward.py",
+    "test_active.py",
     "test_static_identify.py",
-    "test_reports_laws.py",
+    "test_reports_parallel.py",
     "test_laws_elements.py",
-    "test_identify_joint.py",
+    "test_diagnose_dask.py",
     "test_reports_build.py",
+    "test_identify_two_cores.py",
+    "test_active_emulated.py",
+    "test_identify_joint.py",
+    "test_pair.py",
 )
 
 
