@@ -221,3 +221,23 @@ def test_every_function_on_the_api_page_has_numpy_parameters_and_returns():
         visit(path, obj.final_target if obj.is_alias else obj, path + "." in prefixes)
     assert checked >= 60, checked
     assert missing == [], "\n".join(missing)
+
+
+def test_a_unit_being_read_is_not_pruned_under_its_reader(tmp_path):
+    """The cache keeps the newest builds of a unit; a build of other code (another
+    checkout) prunes the oldest — never one a test is copying (``show.unit_copy`` reads
+    under the unit's lock), which it removes once the reader is done."""
+    import os
+
+    show = _show_hook()
+    root = tmp_path / "import"
+    keys = [f"{i:016x}" for i in range(4)]
+    for i, key in enumerate(keys):  # the first made first: the oldest
+        (root / key).mkdir(parents=True)
+        (root / key / "done").write_text("")
+        os.utime(root / key / "done", (1000 + i, 1000 + i))
+    with show._reading(root / keys[0]):
+        show._prune(root, 3)
+        assert (root / keys[0] / "done").exists()  # being read: kept
+    show._prune(root, 3)
+    assert sorted(p.name for p in root.iterdir() if p.is_dir()) == keys[1:]

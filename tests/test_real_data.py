@@ -66,7 +66,7 @@ def _commands(block: str) -> list[list[str]]:
 
 
 @pytest.fixture(scope="module")
-def tutorial() -> tuple[Path, list[str]]:
+def tutorial(tmp_path_factory) -> tuple[Path, list[str]]:
     """The import tutorial's work directory as the documentation build left it, and what
     each of its command blocks printed; its commands are checked to be the chain above:
     the shipped files copied, imported with :data:`IMPORT`, diagnosed, reported."""
@@ -83,7 +83,7 @@ def tutorial() -> tuple[Path, list[str]]:
     assert diag == ["pmalab", "diagnose", "oring.h5", "--model", "bouc-wen", "--out",
                     "diag-real", "--quiet"], diag
     assert report[:5] == ["pmalab", "report", "diag-real", "--out", "oring.pdf"], report
-    root = show.unit("import")
+    root = show.unit_copy("import", tmp_path_factory.mktemp("docs-unit") / "import")
     printed = json.loads((root / "outputs.json").read_text())
     return root / "generated" / "runs" / "import", printed
 

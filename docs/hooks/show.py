@@ -242,6 +242,20 @@ def _making(final: Path) -> Iterator[None]:
         yield
 
 
+@contextlib.contextmanager
+def _reading(final: Path) -> Iterator[None]:
+    """Hold the unit's lock shared while its files are read: :func:`_prune` (another
+    checkout's build, with other code) leaves a unit being read alone."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        yield
+        return
+    with open(final.parent / f"{final.name}.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_SH)
+        yield
+
+
 def _make_unit(final: Path, kind: str) -> None:
     final.parent.mkdir(parents=True, exist_ok=True)
     with _making(final):
@@ -282,6 +296,18 @@ def unit(name: str) -> Path:
     return final
 
 
+def unit_copy(name: str, dest: Path) -> Path:
+    """:func:`unit` copied to ``dest`` (a new directory), read under the unit's lock: the
+    cache keeps only the newest builds of a unit, and a build of other code (another
+    checkout) may remove this one while a test still reads it; the copy stays."""
+    while True:
+        final = unit(name)
+        with _reading(final):
+            if (final / "done").exists():  # else removed before the lock: make it again
+                shutil.copytree(final, dest)
+                return dest
+
+
 def built() -> dict[str, Path]:
     """Every unit's cache directory for the current code and inputs, made when missing
     (two at a time; the notebook in this thread, as its kernel client wants)."""
@@ -309,9 +335,20 @@ def _prune(root: Path, keep: int) -> None:
         key=lambda d: (d / "done").stat().st_mtime,
         reverse=True,
     )
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        fcntl = None
     for old in done[keep:]:
-        shutil.rmtree(old, ignore_errors=True)
-        (root / f"{old.name}.lock").unlink(missing_ok=True)
+        lock_path = root / f"{old.name}.lock"
+        with open(lock_path, "a") as lock:
+            if fcntl is not None:
+                try:  # a unit being read (:func:`_reading`) or made is left for later
+                    fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    continue
+            shutil.rmtree(old, ignore_errors=True)
+            lock_path.unlink(missing_ok=True)
 
 
 # --------------------------------------------------------------------------- the hooks
