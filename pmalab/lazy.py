@@ -70,16 +70,17 @@ def _call(fn: Callable[..., Any], args: tuple, kwargs: dict) -> Any:
     return fn(*args, **kwargs)
 
 
-def _roomy_call() -> Callable[[Callable[..., Any], tuple, dict], Any]:
-    """:func:`_call` with a frame of :data:`STACK_ROOM` bytes more (a larger evaluation
-    stack than it uses: the slots are reserved, never read), or :func:`_call` itself where
-    code objects cannot be rebuilt so (not CPython)."""
+def _roomy_call(room: int = STACK_ROOM) -> Callable[[Callable[..., Any], tuple, dict], Any]:
+    """:func:`_call` with a frame of ``room`` bytes more (a larger evaluation stack than it
+    uses: the slots are reserved, never read), or :func:`_call` itself where code objects
+    cannot be rebuilt so (not CPython, or a runtime that refuses the size: the work then
+    runs as a plain call, never fails for want of room)."""
     if sys.implementation.name != "cpython":
         return _call
     code = _call.__code__
     try:
-        roomy = code.replace(co_stacksize=code.co_stacksize + STACK_ROOM // 8)
-    except (AttributeError, TypeError, ValueError):  # pragma: no cover - other runtimes
+        roomy = code.replace(co_stacksize=code.co_stacksize + room // 8)
+    except Exception:  # AttributeError, TypeError, ValueError, OverflowError, SystemError
         return _call
     return types.FunctionType(roomy, _call.__globals__, "_roomy_call")
 

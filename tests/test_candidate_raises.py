@@ -180,3 +180,42 @@ def test_a_law_whose_identification_raises_is_one_table_row_not_a_traceback(
     row = next(line for line in out.splitlines() if line.lstrip().startswith("duhem"))
     assert "fit failed" in row and "—" in row, row
     assert "Traceback" not in err
+
+
+def test_raised_passes_generated_code_without_failing_itself():
+    """A dataclass's generated ``__init__`` (file ``<string>``, pmalab's module globals)
+    on the way to the error: named neither as a file nor relative to pmalab's tree (which
+    raised ValueError inside the handler meant to report the candidate's failure)."""
+    from pmalab.channels import Channel
+    from pmalab.errors import ConfigError
+
+    with pytest.raises(ConfigError) as info:
+        Channel("x", "no-such-kind")
+    assert raised(info.value) == (
+        "ConfigError: channel 'x': unknown kind 'no-such-kind' (known: "
+        + info.value.args[0].split("(known: ")[1]
+        + " (pmalab/channels.py, line "
+        + str(Channel.__post_init__.__code__.co_firstlineno + 2)
+        + ")"
+    )
+
+
+def test_raised_names_installed_code_inside_the_standard_librarys_directory(monkeypatch):
+    """A system Python keeps site-packages inside the standard library's directory
+    (/usr/lib/python3.x/site-packages): pmalab installed there is still named."""
+    import sysconfig
+    from pathlib import Path
+
+    import pmalab
+    from pmalab.channels import Channel
+
+    site = str(Path(pmalab.__file__).parent.parent)
+    paths = {**sysconfig.get_paths(), "stdlib": str(Path(site).parent), "purelib": site}
+    monkeypatch.setattr(sysconfig, "get_paths", lambda *a, **k: paths)
+    try:
+        Channel("x", "no-such-kind")
+    except Exception as exc:
+        text = raised(exc)
+    assert text.endswith(
+        f"(pmalab/channels.py, line {Channel.__post_init__.__code__.co_firstlineno + 2})"
+    ), text

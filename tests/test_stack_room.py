@@ -108,3 +108,13 @@ def test_diagnose_runs_its_work_in_the_room(tmp_path, monkeypatch):
     assert main(args) == 0
     assert seen == [cli.diagnose_command]
     assert (tmp_path / "d" / "diagnosis.json").is_file()
+
+
+def test_a_frame_size_the_runtime_refuses_leaves_a_plain_call():
+    """A code object the interpreter will not rebuild with that much room (here more than
+    its C int holds) costs the room, never the command: the work runs as a plain call."""
+    from pmalab import lazy
+
+    assert lazy._roomy_call(room=8 * 2**31) is lazy._call
+    if sys.implementation.name == "cpython":
+        assert lazy._roomy_call() is not lazy._call  # CPython rebuilds it at the usual room

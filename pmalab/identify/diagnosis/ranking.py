@@ -198,15 +198,24 @@ def raised(exc: BaseException) -> str:
     import pmalab
     from pmalab.errors import printable
 
-    std = sysconfig.get_paths()["stdlib"]
+    paths = sysconfig.get_paths()
+    std = paths["stdlib"]
+    # installed packages may sit inside the standard library's directory (a system
+    # Python's site-packages): they are not the standard library
+    site = tuple({paths.get("purelib") or "\0", paths.get("platlib") or "\0"})
     home = Path(pmalab.__file__).parent.parent  # pmalab's own files are named from here
     where = ""
     tb = exc.__traceback__
     while tb is not None:
         code, mod = tb.tb_frame.f_code, str(tb.tb_frame.f_globals.get("__name__", ""))
-        if mod.split(".")[0] not in _LIBRARIES and not code.co_filename.startswith(std):
-            name = code.co_filename
-            if mod.split(".")[0] == "pmalab":
+        name = code.co_filename
+        # generated code ("<string>": a dataclass's __init__, __eq__) has no file to name
+        if (
+            mod.split(".")[0] not in _LIBRARIES
+            and (not name.startswith(std) or name.startswith(site))
+            and not name.startswith("<")
+        ):
+            if mod.split(".")[0] == "pmalab" and Path(name).is_relative_to(home):
                 name = Path(name).relative_to(home).as_posix()
             where = f" ({name}, line {tb.tb_lineno})"
         tb = tb.tb_next
