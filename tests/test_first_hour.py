@@ -159,12 +159,22 @@ def _title_text(pdf: Path) -> str:
     return " ".join(pdfium.PdfDocument(str(pdf))[0].get_textpage().get_text_range().split())
 
 
-def test_title_page_lists_each_run_once_under_its_role(tmp_path):
-    from pmalab.reports.build import build_report
+def _title_page(directory: Path, out: Path) -> Path:
+    """The title page of ``pmalab report DIRECTORY`` alone, as a PDF: the report's own plan
+    (:func:`pmalab.reports.build.report_plan`) with its footer, its first page written as
+    :func:`pmalab.reports.build.build_report` writes every page (the rest of the report is
+    drawn in test_reports_build)."""
+    from pmalab.reports.build import report_plan
+    from pmalab.reports.pdf import write_pdf
 
+    plan = report_plan([str(directory)])
+    assert plan.pages[0].slug == "title", [p.slug for p in plan.pages]
+    return write_pdf(out, plan.pages[:1], title=plan.title, footer=plan.footer)
+
+
+def test_title_page_lists_each_run_once_under_its_role(tmp_path):
     diag = write_diagnosis_dir(tmp_path / "diag")  # held-out runs for base AND final model
-    build_report(diag, tmp_path / "d.pdf")
-    text = _title_text(tmp_path / "d.pdf")
+    text = _title_text(_title_page(diag, tmp_path / "d.pdf"))
     assert "ident.h5: held out (2): p3102, p4762" in text, text
     # the diagnosis's own split names the identification runs too
     import json
@@ -174,8 +184,7 @@ def test_title_page_lists_each_run_once_under_its_role(tmp_path):
                        "identification_runs": ["ident.h5:p3102-a", "ident.h5:p4762-a"],
                        "held_out": ["ident.h5:p3102", "ident.h5:p4762"]}
     (diag / "diagnosis.json").write_text(json.dumps(doc))
-    build_report(diag, tmp_path / "d2.pdf")
-    text = _title_text(tmp_path / "d2.pdf")
+    text = _title_text(_title_page(diag, tmp_path / "d2.pdf"))
     assert ("ident.h5: identification (2): p3102-a, p4762-a; held out (2): p3102, p4762"
             in text), text
 
@@ -188,11 +197,8 @@ def test_title_page_names_the_halves_of_a_split_record(tmp_path):
                      "K_1bar-b": "validation", "K_3bar-b": "validation"}}
     assert runs_by_role(inp) == ("identification (2): K_1bar-a, K_3bar-a; "
                                  "held out (2): K_1bar-b, K_3bar-b")
-    from pmalab.reports.build import build_report
-
     ident = write_identification_dir(tmp_path / "id")
-    build_report(ident, tmp_path / "i.pdf")
-    text = _title_text(tmp_path / "i.pdf")
+    text = _title_text(_title_page(ident, tmp_path / "i.pdf"))
     assert ("ident.h5: identification (3): p3102, p4762, p6000 val.h5: held out (2): p0498, "
             "p0304") in text, text
 
