@@ -12,6 +12,7 @@ import contextlib
 import fcntl
 import io
 import os
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -38,7 +39,8 @@ def made_once(factory: pytest.TempPathFactory, name: str, make: Callable[[Path],
     with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (d / ".done").exists():
-            d.mkdir(exist_ok=True)
+            shutil.rmtree(d, ignore_errors=True)  # a maker that failed left it half made
+            d.mkdir()
             make(d)
             (d / ".done").write_text("")
     return d
