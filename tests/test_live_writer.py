@@ -136,3 +136,18 @@ def test_a_pid_of_another_pid_namespace_is_not_this_writer():
     assert alive(json.dumps({**me, "pid_ns": "pid:[1]"})) is None
     assert alive(json.dumps({k: v for k, v in me.items() if k != "pid_ns"})) is None
     assert alive(json.dumps(me)) == f"process {os.getpid()} on {os.uname().nodename}"
+
+
+def test_a_run_being_recorded_with_damaged_attributes_is_said_damaged(monkeypatch):
+    """A live run's samples are not checked (their last chunk is rewritten at every
+    flush), but its attributes were sealed before the first sample: a checksum that fails
+    there is damage, reported and failing the check, not hidden behind "being recorded"."""
+    from pmalab.acquisition import check
+
+    rc = check.RunCheck("b", recording="process 7 on lab-pc", samples=4200)
+    rc.damaged.append("attributes (checksum does not match)")
+    monkeypatch.setattr(check, "check_file", lambda path: ([], [rc], None))
+    lines, ok = check.report("live.h5")
+    assert not ok
+    assert "  run 'b': DAMAGED: attributes (checksum does not match)" in lines, lines
+    assert lines[-1] == "live.h5: 0 of 1 runs intact, 1 still being recorded"

@@ -184,6 +184,9 @@ def report(path: str | Path) -> tuple[list[str], bool]:
                 f"  run '{rc.name}': still being recorded by {rc.recording}, {rc.samples} "
                 "samples so far: not checked until it ends"
             )
+            if rc.damaged:  # its attributes, sealed before the first sample, were checked
+                ok = False
+                lines.append(f"  run '{rc.name}': DAMAGED: " + "; ".join(rc.damaged))
         elif rc.damaged:
             ok = False
             lines.append(f"  run '{rc.name}': DAMAGED: " + "; ".join(rc.damaged))
