@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
@@ -57,14 +58,22 @@ def _cli(*args: str) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
-def test_a_candidate_that_raises_is_reported_failed_and_the_diagnosis_goes_on(tmp_path):
-    campaign = tmp_path / "campaign.h5"
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> Path:
+    """The tutorial's campaign (hidden viscous friction), recorded once for the module."""
+    out = tmp_path_factory.mktemp("campaign") / "campaign.h5"
     code, _, err = _cli(
         "run", "--rig", str(DATA_DIR / "rigs" / "sim-viscous-friction.toml"),
         "--protocol", str(DATA_DIR / "protocols" / "diagnosis-test.toml"),
-        "--out", str(campaign), "--quiet",
+        "--out", str(out), "--quiet",
     )  # fmt: skip
     assert code == 0, err
+    return out
+
+
+def test_a_candidate_that_raises_is_reported_failed_and_the_diagnosis_goes_on(
+    campaign, tmp_path
+):
     effects = tmp_path / "broken.py"
     effects.write_text(EFFECTS)
     code, out, err = _cli(
@@ -149,7 +158,7 @@ def test_a_base_model_that_raises_is_one_error_line(monkeypatch):
 
 
 def test_a_law_whose_identification_raises_is_one_table_row_not_a_traceback(
-    tmp_path, monkeypatch
+    campaign, tmp_path, monkeypatch
 ):
     from pmalab.identify.diagnosis import ranking
 
@@ -161,13 +170,6 @@ def test_a_law_whose_identification_raises_is_one_table_row_not_a_traceback(
         return real(train, spec, *args, **kwargs)
 
     monkeypatch.setattr(ranking, "fit_and_validate", fit_and_validate)
-    campaign = tmp_path / "campaign.h5"
-    code, _, err = _cli(
-        "run", "--rig", str(DATA_DIR / "rigs" / "sim-viscous-friction.toml"),
-        "--protocol", str(DATA_DIR / "protocols" / "diagnosis-test.toml"),
-        "--out", str(campaign), "--quiet",
-    )  # fmt: skip
-    assert code == 0, err
     code, out, err = _cli(
         "diagnose", str(campaign), "--model", "bouc-wen", "--only", "viscous-friction",
         "--laws", "duhem", "--max-steps", "1", "--jobs", "1", "--out", str(tmp_path / "d"),

@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import re
 import shutil
@@ -22,6 +21,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from docs_hook import show_hook
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = str(Path(sys.executable).parent)
@@ -48,15 +48,6 @@ def _tracked_state() -> str:
                           capture_output=True, text=True).stdout
 
 
-def _show():
-    """The build hook (docs/hooks/show.py) as a module."""
-    spec = importlib.util.spec_from_file_location("docs_show", ROOT / "docs" / "hooks" / "show.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.mark.timeout(1800)  # the first build runs the campaign tutorial and the notebook
 def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
     before = _tracked_state()
@@ -81,7 +72,7 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
     assert len(re.findall(r"<img [^>]*report-pages/", gallery)) >= 8
     # every page the build runs: each command followed by its output, the figures its
     # commands wrote shown (and present in the site)
-    for page in _show().RUN_PAGES:
+    for page in show_hook().RUN_PAGES:
         html = (site / page.removesuffix(".md") / "index.html").read_text()
         imgs = re.findall(r'<img [^>]*src="([^"]+generated/runs/[^"]+)"', html)
         assert imgs, page
@@ -89,7 +80,7 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
             assert (site / page.removesuffix(".md") / src).resolve().is_file(), (page, src)
         assert html.count('class="language-text') >= 1, page  # what the commands printed
     # what the tutorials' commands wrote, in the empty directories the build ran them in
-    cache = _show().built()  # where the build ran each page, the notebook, the figures
+    cache = show_hook().built()  # where the build ran each page, the notebook, the figures
     work = cache["campaign"] / "generated" / "runs" / "campaign"
     assert (work / "report.pdf").stat().st_size > 10_000
     assert "viscous-friction" in (work / "diag" / "diagnosis.json").read_text()
@@ -109,7 +100,7 @@ def test_site_builds_strictly_with_a_reference_for_every_verb(tmp_path):
     assert "viscous-friction" in nb_md and "validation nrmse" in nb_md
     assert "notebooks/tutorial-1.png" in nb_md  # the ladder's figure, shown inline
     # what a reader sees at a laptop's width: nothing clipped, every figure loaded
-    pages = [pg.removesuffix(".md") for pg in _show().RUN_PAGES]
+    pages = [pg.removesuffix(".md") for pg in show_hook().RUN_PAGES]
     figures = _check_in_a_browser(site, [*pages, "tutorials/notebook", "gallery",
                                          "reference/api", "reference/cli", ""])
     assert all(figures[pg] >= 1 for pg in [*pages, "tutorials/notebook"]), figures

@@ -21,7 +21,6 @@ this code yet, once for both).
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import io
 import itertools
 import json
@@ -30,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from docs_hook import show_hook
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import load
@@ -51,15 +51,6 @@ def _cli(args: list[str]) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
-def _show():
-    """The documentation build's hook (docs/hooks/show.py) as a module."""
-    spec = importlib.util.spec_from_file_location("docs_show", ROOT / "docs" / "hooks" / "show.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def _commands(block: str) -> list[list[str]]:
     """A bash block's commands, each split into its words (continued lines joined)."""
     return [shlex.split(ln) for ln in block.replace("\\\n", " ").splitlines() if ln.strip()]
@@ -71,7 +62,7 @@ def tutorial(tmp_path_factory) -> tuple[Path, list[str]]:
     each of its command blocks printed; its commands are checked to be the chain above:
     the shipped files copied, imported with :data:`IMPORT`, diagnosed, reported."""
     assert len(FILES) == 4 and (REAL / "LICENSE").exists() and (REAL / "PROVENANCE.md").exists()
-    show = _show()
+    show = show_hook()
     page = "tutorials/import.md"
     assert page in show.RUN_PAGES
     blocks = [_commands(b) for b in show.BASH.findall((ROOT / "docs" / page).read_text())]

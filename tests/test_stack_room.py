@@ -70,7 +70,15 @@ def test_no_offset_churns_chunks_inside_the_room():
     assert STACK_ROOM > len(LOOPS) * 8  # every padded frame lies within the room
 
 
-def test_identify_runs_its_work_in_the_room(tmp_path, monkeypatch):
+@pytest.mark.parametrize(
+    ("verb", "options", "written"),
+    [
+        ("identify", [], "identification.json"),
+        ("diagnose", ["--only", "viscous-friction", "--laws", "none", "--max-steps", "0",
+                      "--jobs", "1"], "diagnosis.json"),
+    ],
+)  # fmt: skip
+def test_the_command_runs_its_work_in_the_room(verb, options, written, tmp_path, monkeypatch):
     from pmalab.cli import main
     from pmalab.identify import cli
 
@@ -84,30 +92,10 @@ def test_identify_runs_its_work_in_the_room(tmp_path, monkeypatch):
         return with_stack_room(fn, *args, **kwargs)
 
     monkeypatch.setattr(cli, "with_stack_room", spy)
-    assert main(["identify", str(f), "--model", "duhem", "--out", str(tmp_path / "o"), "-q"]) == 0
-    assert seen == [cli.identify_command]
-    assert (tmp_path / "o" / "identification.json").is_file()
-
-
-def test_diagnose_runs_its_work_in_the_room(tmp_path, monkeypatch):
-    from pmalab.cli import main
-    from pmalab.identify import cli
-
-    runs = [make_run("duhem", p, seed=i, n=3000, f=0.3, name=f"p{i}")[0]
-            for i, p in enumerate((0.2, 0.4, 0.6))]
-    f = write_runs(tmp_path / "c.h5", runs)
-    seen = []
-
-    def spy(fn, *args, **kwargs):
-        seen.append(fn)
-        return with_stack_room(fn, *args, **kwargs)
-
-    monkeypatch.setattr(cli, "with_stack_room", spy)
-    args = ["diagnose", str(f), "--model", "duhem", "--out", str(tmp_path / "d"), "-q",
-            "--only", "viscous-friction", "--laws", "none", "--max-steps", "0", "--jobs", "1"]
-    assert main(args) == 0
-    assert seen == [cli.diagnose_command]
-    assert (tmp_path / "d" / "diagnosis.json").is_file()
+    out = tmp_path / "o"
+    assert main([verb, str(f), "--model", "duhem", "--out", str(out), "-q", *options]) == 0
+    assert seen == [getattr(cli, f"{verb}_command")]
+    assert (out / written).is_file()
 
 
 def test_a_frame_size_the_runtime_refuses_leaves_a_plain_call():
