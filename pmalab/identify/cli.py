@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from pmalab.arguments import fixes
@@ -293,11 +293,18 @@ def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[l
     return runs, val
 
 
+def _from_the_shell(command: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
+    """A fitting verb's ``command`` as the shell runs it: BLAS loaded on one thread
+    (:func:`_one_blas_thread_from_the_start`: every fit runs on one BLAS thread already) and
+    the work with frame-stack room (:func:`pmalab.lazy.with_stack_room`: its imports and
+    fits never map and unmap CPython's frame-stack chunks call after call)."""
+    _one_blas_thread_from_the_start()
+    return with_stack_room(command, args)
+
+
 def run_identify(args: argparse.Namespace) -> int:
-    """``pmalab identify``: :func:`identify_command` with frame-stack room
-    (:func:`pmalab.lazy.with_stack_room`: its imports and fits never map and unmap
-    CPython's frame-stack chunks call after call)."""
-    return with_stack_room(identify_command, args)
+    """``pmalab identify``: :func:`identify_command` from the shell (:func:`_from_the_shell`)."""
+    return _from_the_shell(identify_command, args)
 
 
 def identify_command(args: argparse.Namespace) -> int:
@@ -306,7 +313,6 @@ def identify_command(args: argparse.Namespace) -> int:
 
     from pmalab.paths import prepare_output_dir
 
-    _one_blas_thread_from_the_start()
     if args.jobs < 1:
         raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
     for f in args.effects:
@@ -525,11 +531,8 @@ def _register_diagnose(sub: argparse._SubParsersAction) -> None:
 
 
 def run_diagnose(args: argparse.Namespace) -> int:
-    """``pmalab diagnose``: :func:`diagnose_command` with BLAS loaded on one thread
-    (:func:`_one_blas_thread_from_the_start`: the candidates' fits run on one BLAS thread
-    each already) and frame-stack room (:func:`pmalab.lazy.with_stack_room`)."""
-    _one_blas_thread_from_the_start()
-    return with_stack_room(diagnose_command, args)
+    """``pmalab diagnose``: :func:`diagnose_command` from the shell (:func:`_from_the_shell`)."""
+    return _from_the_shell(diagnose_command, args)
 
 
 def diagnose_command(args: argparse.Namespace) -> int:
