@@ -147,13 +147,8 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
             raise
         except Exception as exc:  # ... and so is its own-fall check
             without, without_error = None, raised(exc)
-    nr, div = [], []
-    for v in vals:
-        x = float(v.metrics["nrmse"])
-        if v.diverged or not math.isfinite(x):
-            div.append(v.run.label)
-            x = DIVERGED_NRMSE
-        nr.append(min(x, DIVERGED_NRMSE))
+    nr = _nrmse_of(vals)
+    div = [v.run.label for v in vals if _diverged(v)]
     # the model's free parameters: free on at least one run (a parameter the fit fixes on
     # one run only, e.g. a collinear gamma, still belongs to the model)
     names = frozenset(p.name for rf in cf.runs for p in rf.result.params if p.vary)
@@ -225,13 +220,17 @@ def raised(exc: BaseException) -> str:
     return f"{type(exc).__name__}{': ' + text if text else ''}{where}"
 
 
+def _diverged(v: Any) -> bool:
+    """A validation whose prediction diverged or whose nrmse is not finite."""
+    return bool(v.diverged) or not math.isfinite(float(v.metrics["nrmse"]))
+
+
 def _nrmse_of(vals: Sequence[Any]) -> list[float]:
     """Held-out nrmse per validation, a diverged or non-finite one as ``DIVERGED_NRMSE``."""
-    out = []
-    for v in vals:
-        x = float(v.metrics["nrmse"])
-        out.append(DIVERGED_NRMSE if v.diverged or not math.isfinite(x) else min(x, DIVERGED_NRMSE))
-    return out
+    return [
+        DIVERGED_NRMSE if _diverged(v) else min(float(v.metrics["nrmse"]), DIVERGED_NRMSE)
+        for v in vals
+    ]
 
 
 def _without_last(cf: Any, spec: ModelSpec, held: Sequence[Run]) -> list[float] | None:
