@@ -7,15 +7,17 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean chromium docs
 
-# The installer is uv (from PyPI, into the venv; it resolves, downloads and installs in
-# parallel: the set-up takes a few seconds instead of half a minute); where uv cannot be
-# had or fails, pip does it all as before.  Both compile the bytecode at install, so the
-# first run of every command pays no compilation.
+# The installer is uv (from PyPI, into the venv: it resolves, downloads and installs in
+# parallel, a few seconds where pip takes half a minute); where uv cannot be had or fails,
+# pip does it all as before.  The bytecode is compiled at install, as pip does (a process
+# started with PYTHONDONTWRITEBYTECODE would otherwise compile every module it imports, every
+# time), except the libraries' own test suites, which nothing here imports.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv >/dev/null 2>&1 && \
-	  $(BIN)/uv pip install --quiet --python $(BIN)/python --compile-bytecode -e '.[test]'; then \
-	  echo "installed with uv"; \
+	  $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test]'; then \
+	  echo "installed with uv; compiling the bytecode"; \
+	  $(BIN)/python -m compileall -q -j0 -x 'site-packages/.*/tests/' $(VENV)/lib >/dev/null || true; \
 	else \
 	  echo "uv unavailable: installing with pip"; \
 	  $(BIN)/python -m pip install --quiet --upgrade pip && \
