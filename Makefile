@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	  echo "installed with uv; compiling the bytecode"; \
 	  $(BIN)/python -m compileall -q -j0 -x 'site-packages/.*/tests/' $(VENV)/lib >/dev/null || true; \
 	else \
-	  echo "uv unavailable: installing with pip"; \
+	  echo "uv could not be had or failed: installing with pip"; \
 	  $(BIN)/python -m pip install --quiet --upgrade pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[test]'; \
 	fi
