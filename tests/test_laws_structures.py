@@ -142,7 +142,7 @@ def test_a_strong_prior_pulls_the_corrections_to_the_pooled_profile():
     thetas = [cf.theta(rf.p_nom) for rf in cf.runs]
     kappa, delta = profile(base, thetas)
     model = ForceModel(structured_law(base, "scaled-thresholds", kappa, delta))
-    j = _joint_structured(cf, runs, model, thetas)
+    j, _ = _joint_structured(cf, runs, model, thetas)
     rows = prior_rows(j, base, model.law, "scaled-thresholds")
     assert rows is not None and rows[0].startswith("shrinkage")
     _, g_of, _ = rows
