@@ -269,13 +269,23 @@ def choose_structure(
     )
     joints: dict = {"free": cf.joint}
     per_run = per_run_laws(cf, runs, models, jobs=jobs, scheduler=scheduler)
-    for s, m in models.items():
+    # every candidate's starts refined in one batch (side by side on two cores), the lower
+    # training cost of each candidate's kept
+    tasks = {s: _starts(cf, runs, m, thetas, per_run.get(s)) for s, m in models.items()}
+    flat = [(s, k, t) for s in tasks for k, t in enumerate(tasks[s])]
+    # first starts first: a forked child takes the later half (the per-run starts)
+    order = sorted(range(len(flat)), key=lambda i: flat[i][1])
+    done = _refine_all([flat[i][2] for i in order], jobs)
+    fits: dict[str, list] = {s: [None] * len(tasks[s]) for s in tasks}
+    for i, f in zip(order, done):
+        fits[flat[i][0]][flat[i][1]] = f
+    for s in models:
         try:
-            joints[s], choice.starts[s] = _joint_structured(cf, runs, m, thetas, per_run.get(s))
+            joints[s], choice.starts[s] = _keep_lower(fits[s])
         except (ValueError, np.linalg.LinAlgError) as exc:  # reported, never fatal
             choice.failed[s] = str(exc)
     if d_names and structure in ("auto", *law.structures):
-        _element_counts(cf, runs, law, models, joints, thetas, choice, per_run)
+        _element_counts(cf, runs, law, models, joints, thetas, choice, per_run, jobs)
     for s, j in list(joints.items()):
         rows = prior_rows(j, law, models[s].law if s in models else law, s)
         got = apply_prior(j, rows)
@@ -456,26 +466,18 @@ def per_run_laws(
     return out
 
 
-def _joint_structured(
+def _starts(
     cf,
     runs: Sequence[Run],
     model,
     thetas: Sequence[Mapping[str, float]],
     per_run: PerRunLaws | None = None,
-):
-    """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
-    ``cf``'s records; returns (the fit, the name of its start in :data:`STARTS`).
-
-    Two starts, each refined (and its orders pruned) like the free fit: the free joint laws
-    (see :func:`choose_structure`) and, given ``per_run``, quadratics through the structured
-    law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the first).  The
-    lower training cost is kept: the weighted residual of the same records, compared by BIC
-    on a common N_eff (the larger of the two) should the pruned orders differ; a tie keeps
-    the first."""
+) -> list[tuple]:
+    """The structured ``model``'s joint refinements on ``cf``'s records, one per start
+    (:func:`_refine_start`'s arguments; see :func:`_joint_structured`)."""
     from pmalab.identify.campaign.fit import parameter_bounds
     from pmalab.identify.estimation.basis import fit_polynomial
-    from pmalab.identify.estimation.joint import prepare, refine
-    from pmalab.identify.metrics import information_criteria
+    from pmalab.identify.estimation.joint import prepare
 
     j = cf.joint
     law = model.law
@@ -508,35 +510,93 @@ def _joint_structured(
         starts.append({**start, **{n: q for n, q in alt.items() if n in start}})
     jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, cf.runs)]
     h0 = list(j.h0) if j.h0 else None
-    fits = []
-    for st in starts:
+    fixed_order = [*shape, *(n for n in model.campaign_shared if n in start)]
+    return [
+        (model, jruns, st, degree, constants, bounds, h0, j.nuisance or None, fixed_order)
+        for st in starts
+    ]
+
+
+def _refine_start(args: tuple):
+    """One start's joint refinement (with leave-one-pressure-out evidence), its orders pruned
+    like the free fit's (the candidates compare like with like); a failed fit is returned as
+    its error (reported per candidate, never fatal to the others)."""
+    from pmalab.identify.estimation.joint import refine
+
+    model, jruns, start, degree, constants, bounds, h0, nuisance, fixed_order = args
+    try:
         fit, _ = refine(
             model,
             jruns,
-            st,
+            start,
             degree,
             constants,
             bounds,
             h0,
-            nuisance_start=j.nuisance or None,
-            fixed_order=[*shape, *(n for n in model.campaign_shared if n in start)],
+            nuisance_start=nuisance,
+            fixed_order=fixed_order,
             lopo=True,
-            # each refinement's orders pruned like the free fit's (the candidates compare
-            # like with like)
             prune=True,
             max_nfev=CANDIDATE_NFEV,
         )
-        fits.append(fit)
-    if len(fits) == 1:
-        return fits[0], STARTS[0]
-    # the training cost on one footing: the same records, weights and cap in both problems
-    n_eff = max(f.n_eff for f in fits)
-    bic = []
-    for f in fits:
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return exc
+    return fit
+
+
+def _refine_all(tasks: Sequence[tuple], jobs: int) -> list:
+    """:func:`_refine_start` on every task, on two cores when ``jobs`` > 1 (a forked child
+    takes half: :func:`~pmalab.identify.campaign.batch.map_split`; it falls back to this
+    process wherever forking is not safe or the child fails)."""
+    from pmalab.identify.campaign.batch import map_split
+
+    if jobs > 1 and len(tasks) > 1:
+        return map_split(_refine_start, tasks, first_here=0)
+    return [_refine_start(t) for t in tasks]
+
+
+def _keep_lower(fits: Sequence) -> tuple:
+    """(the fit of the lower training cost, the name of its start in :data:`STARTS`) among
+    one candidate's refinements (:func:`_refine_start`'s results, in start order).
+
+    The training cost on one footing: the weighted residual of the same records, weights
+    and cap in every problem, compared by BIC on a common N_eff (the largest) should the
+    pruned orders differ; a tie keeps the first.  A failed start is skipped; when every
+    start failed the first's error is raised."""
+    from pmalab.identify.metrics import information_criteria
+
+    ok = [(i, f) for i, f in enumerate(fits) if not isinstance(f, BaseException)]
+    if not ok:
+        raise fits[0]
+    if len(ok) == 1:
+        return ok[0][1], STARTS[ok[0][0]]
+    n_eff = max(f.n_eff for _, f in ok)
+    best, best_ic = ok[0], np.inf
+    for i, f in ok:
         r = f.problem.residual(f.z)
-        bic.append(information_criteria(float(r @ r), f.problem.n_rows, f.problem.n_var, n_eff)[1])
-    best = 1 if bic[1] < bic[0] else 0
-    return fits[best], STARTS[best]
+        ic = information_criteria(float(r @ r), f.problem.n_rows, f.problem.n_var, n_eff)[1]
+        if ic < best_ic:
+            best, best_ic = (i, f), ic
+    return best[1], STARTS[best[0]]
+
+
+def _joint_structured(
+    cf,
+    runs: Sequence[Run],
+    model,
+    thetas: Sequence[Mapping[str, float]],
+    per_run: PerRunLaws | None = None,
+    jobs: int = 1,
+):
+    """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
+    ``cf``'s records; returns (the fit, the name of its start in :data:`STARTS`).
+
+    Two starts, each refined (and its orders pruned) like the free fit: the free joint laws
+    (see :func:`choose_structure`) and, given ``per_run``, quadratics through the structured
+    law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the first).  The
+    lower training cost is kept (:func:`_keep_lower`).  ``jobs`` > 1: the two refinements
+    run side by side (:func:`_refine_all`)."""
+    return _keep_lower(_refine_all(_starts(cf, runs, model, thetas, per_run), jobs))
 
 
 # --------------------------------------------------------------------------- priors
@@ -805,7 +865,9 @@ class ElementCount:
         )
 
 
-def _element_counts(cf, runs, base, models, joints, thetas, choice, per_run=None) -> None:
+def _element_counts(
+    cf, runs, base, models, joints, thetas, choice, per_run=None, jobs: int = 1
+) -> None:
     """Fewer elements for every free-element candidate structure whose fitted elements
     include ones carrying < ``REMOVE_SHARE`` of the friction: the structure is refitted
     jointly without the smallest one, then the two smallest (down to ``MIN_ELEMENTS``), each
@@ -813,7 +875,8 @@ def _element_counts(cf, runs, base, models, joints, thetas, choice, per_run=None
     out score is within ``SIMPLER_WITHIN`` of the best count's replace the candidate
     (``models``, ``joints``, ``choice.elements`` and ``choice.starts`` updated in place).
     ``per_run``: structure → its per-run fits (:func:`per_run_laws`), the second start of
-    every count's joint fit (the dropped elements' share taken out of s)."""
+    every count's joint fit (the dropped elements' share taken out of s); ``jobs`` > 1: each
+    count's two refinements side by side."""
     from pmalab.identify.laws.structures import structured_law
     from pmalab.identify.model import ForceModel
 
@@ -847,7 +910,9 @@ def _element_counts(cf, runs, base, models, joints, thetas, choice, per_run=None
             kappa[list(gone)] = 0.0
             mod = ForceModel(structured_law(base, s, kappa, law.delta), models[s].effects)
             try:
-                jr, how = _joint_structured(cf, runs, mod, thetas, (per_run or {}).get(s))
+                jr, how = _joint_structured(
+                    cf, runs, mod, thetas, (per_run or {}).get(s), jobs=jobs
+                )
             except (ValueError, np.linalg.LinAlgError):
                 continue
             counts[m - n_rm] = (score(jr), gone, mod, jr, how)
