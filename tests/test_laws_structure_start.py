@@ -71,6 +71,10 @@ def test_slip_displacement_growth_is_reached_from_the_per_run_start(tmp_path):
     res = identify(read_runs(out), "maxwell-slip", jobs=2, structure="scaled-thresholds")
     cf = res.campaign
     assert cf.structure is not None and cf.structure.chosen == "scaled-thresholds"
+    # the kept fit came from the per-run start (training nrmse far below the first start's
+    # on this campaign), and identification.json says so
+    (cand,) = [c for c in cf.structure.as_json()["candidates"] if c["structure"] != "free"]
+    assert cand["start"] == "per-run fits", cand
 
     mu = load_truth(TRUTH).section("muscle")
     pth, pref = mu["threshold_pressure_MPa"], mu["reference_pressure_MPa"]

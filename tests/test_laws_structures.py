@@ -46,6 +46,24 @@ def test_structured_law_is_the_base_law_with_its_pressure_laws_mapped(structure)
         np.testing.assert_allclose(law.h(x, th_s), base.h(x, th_b), rtol=1e-12, atol=1e-9)
 
 
+def test_structured_law_travels_to_a_worker_and_is_cached_apart_from_its_base():
+    """A structured law is built at run time: a pickled copy (what a worker process gets) is
+    rebuilt from its base law and profile and predicts the same, and its fits of a record
+    are never taken for the base law's (they share the law's name)."""
+    import pickle
+
+    base = get_law("maxwell-slip")
+    law = structured_law(base, "scaled-thresholds", KAPPA, DELTA)
+    copy = pickle.loads(pickle.dumps(law))
+    assert type(copy).__name__ == type(law).__name__ and copy.shared_shape == law.shared_shape
+    x = 6.0 + 5.0 * np.sin(np.linspace(0.0, 6.0 * np.pi, 600))
+    th = {"s": 80.0, "t": 1.3, "h0": 0.0, **dict.fromkeys(law.shared_shape, 1.1)}
+    np.testing.assert_array_equal(copy.h(x, th), law.h(x, th))
+    assert law.name == base.name and law.cache_key() != base.cache_key()
+    other = structured_law(base, "scaled-thresholds", KAPPA[::-1], DELTA)
+    assert other.cache_key() != law.cache_key() and copy.cache_key() == law.cache_key()
+
+
 def test_prandtl_ishlinskii_scaled_keeps_its_threshold_grid():
     base = get_law("prandtl-ishlinskii")
     k, d = base.elements({f"w{i + 1}": 1.0 + i for i in range(15)} | {"h0": 0.0})

@@ -88,7 +88,7 @@ class ProfileElements(HysteresisLaw):
         # process is rebuilt the same way: from the base law, the structure and the profile
         if self.base is None:
             raise TypeError(f"{type(self).__name__} was not built by structured_law()")
-        return (structured_law, (self.base, self.structure, self.kappa, self.delta))
+        return (_rebuilt, (self.base, self.structure, self.kappa, self.delta))
 
     def cache_key(self) -> tuple:
         # the base law's name is shared: the structure and its profile make it another law
@@ -221,6 +221,17 @@ def structured_law(
     )
     law = cls(kappa, delta)
     law.base = base
+    return law
+
+
+def _rebuilt(
+    base: HysteresisLaw, structure: str, kappa: np.ndarray, delta: np.ndarray
+) -> ProfileElements:
+    """A pickled structured law, rebuilt bit for bit: its shares as they were (normalising
+    them again could move their last bit, and a worker's fit would then differ from this
+    process's)."""
+    law = structured_law(base, structure, kappa, delta)
+    law.kappa = np.array(kappa, dtype=np.float64)
     return law
 
 
