@@ -413,7 +413,7 @@ def alike_phrase(alike_laws: Sequence[str]) -> str:
         f"{'' if len(others) > 1 else 's'} the held-out runs about as well as {best} "
         f"(≥ {100 * AMBIGUITY_RATIO:.0f} % of its fall, and {best} is not lower run by run "
         "beyond chance): these runs cannot tell them apart"
-        + (", both sums of elasto-slide elements." if elements else ".")
+        + (" (both are sums of elasto-slide elements)." if elements else ".")
     )
 
 
