@@ -583,6 +583,9 @@ class DiagnosisDoc(TypedDict):
     final_model: NotRequired[str]
     final_law: NotRequired[str]
     laws: NotRequired[list[LawEntry]]
+    #: the laws that predict the held-out runs about equally well as the best law, best
+    #: first (empty: one stands out, or fewer than two cut the base model's error)
+    laws_alike: NotRequired[list[str]]
     residual: NotRequired[Residual]
     settings: NotRequired[dict[str, Any]]
     summary: NotRequired[str]
