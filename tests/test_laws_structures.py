@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pmalab.identify.campaign.fit import fit_campaign
+from pmalab.identify.campaign.structure import STARTS
 from pmalab.identify.laws import get_law
 from pmalab.identify.laws.structures import base_laws, structured_law
 from pmalab.identify.model import ForceModel
@@ -112,6 +113,10 @@ def test_slip_displacements_growing_with_pressure_choose_scaled_thresholds():
     assert st.margin_percent > 0
     js = st.as_json()
     assert js["chosen"] == "scaled-thresholds" and len(js["candidates"]) == 3
+    # each structured candidate says which of its two starts its kept fit came from
+    assert {c["structure"]: c.get("start") for c in js["candidates"]}.keys() == {
+        "free", "scaled", "scaled-thresholds"}
+    assert all(c["start"] in STARTS for c in js["candidates"] if c["structure"] != "free")
     # the reported laws are the base law's: d1 grows with p (slope > 0), as simulated
     assert cf.pressure["d1"].coef[1] > 0 and cf.pressure["d1"].method.startswith("structure:")
     assert any(getattr(w, "code", "") == "pressure-structure" for w in cf.warnings)
