@@ -17,9 +17,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from sim_campaign import record_campaign
 
 from pmalab.cli import main as pmalab_main
-from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
+from pmalab.paths import TRUTH_DIR
 
 
 def _session_dir(factory: pytest.TempPathFactory) -> Path:
@@ -65,13 +66,7 @@ def maxwell_slip_four_laws(factory: pytest.TempPathFactory) -> tuple[Path, Path,
     runs validate): the campaign file, the laws directory and what identify printed."""
 
     def make(d: Path) -> None:
-        rig = d / "rig.toml"
-        truth = TRUTH_DIR / "hysteresis-maxwell-slip.toml"
-        rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = 7\n')
-        rc, text = _cli(["run", "--rig", str(rig), "--protocol",
-                         str(PROTOCOLS_DIR / "diagnosis-test.toml"), "--out", str(d / "c.h5"),
-                         "-q"])
-        assert rc == 0, text
+        record_campaign(TRUTH_DIR / "hysteresis-maxwell-slip.toml", d, 7, name="c.h5")
         rc, text = _cli(["identify", str(d / "c.h5"), "--model", ",".join(FOUR_LAWS), "--out",
                          str(d / "laws")])
         assert rc == 0, text

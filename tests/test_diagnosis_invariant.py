@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_campaign import record_campaign
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import identify, load
@@ -35,14 +36,7 @@ SEED = 7  # not a seed the truth files were sized on (bench_subtle uses its own)
 
 
 def _record(truth: Path, work: Path) -> tuple[list, list]:
-    work.mkdir(parents=True, exist_ok=True)
-    rig = work / "rig.toml"
-    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth.resolve()}"\nseed = {SEED}\n')
-    out = work / "campaign.h5"
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        assert pmalab_main(["run", "--rig", str(rig), "--protocol", str(PROTOCOL),
-                            "--out", str(out), "--quiet"]) == 0
-    runs = load(out)
+    runs = load(record_campaign(truth, work, SEED, PROTOCOL))
     return ([r for r in runs if r.attrs.get("role") != "validation"],
             [r for r in runs if r.attrs.get("role") == "validation"])
 

@@ -13,11 +13,10 @@ On the small two-frequency campaign (data/protocols/diagnosis-test.toml, 4 N loa
 
 from __future__ import annotations
 
-import contextlib
-import io
 from pathlib import Path
 
-from pmalab.cli import main as pmalab_main
+from sim_campaign import record_campaign
+
 from pmalab.identify.api import load
 from pmalab.identify.diagnosis import diagnose
 from pmalab.identify.diagnosis.ranking import MIN_GAIN_X_FLOOR
@@ -27,13 +26,7 @@ PROTOCOL = DATA_DIR / "protocols" / "diagnosis-test.toml"
 
 
 def _record(truth: Path, seed: int, work: Path) -> list:
-    rig = work / "rig.toml"
-    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth.resolve()}"\nseed = {seed}\n')
-    out = work / "campaign.h5"
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        assert pmalab_main(["run", "--rig", str(rig), "--protocol", str(PROTOCOL),
-                            "--out", str(out), "--quiet"]) == 0
-    return load(out)
+    return load(record_campaign(truth, work, seed, PROTOCOL))
 
 
 def _inertia_row(truth: Path, seed: int, work: Path) -> tuple[dict, str]:

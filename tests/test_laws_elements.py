@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from shared_work import maxwell_slip_four_laws
+from sim_campaign import record_campaign
 
 from pmalab.cli import main as pmalab_main
 from pmalab.identify import identify
@@ -76,13 +77,7 @@ def four_laws(tmp_path_factory) -> tuple[Path, str]:
 
 
 def _campaign(work: Path, truth: Path, seed: int) -> Path:
-    rig = work / "rig.toml"
-    rig.write_text(f'[rig]\nkind = "sim"\ntruth = "{truth}"\nseed = {seed}\n')
-    out = work / "c.h5"
-    rc, text = _cli(["run", "--rig", str(rig), "--protocol", str(PROTOCOL), "--out", str(out),
-                     "-q"])
-    assert rc == 0, text
-    return out
+    return record_campaign(truth, work, seed, PROTOCOL, name="c.h5")
 
 
 THREE_LAWS = ("bouc-wen", "prandtl-ishlinskii", "maxwell-slip")

@@ -66,3 +66,52 @@ def test_structure_margin_in_words_says_behind_when_the_simpler_was_kept():
     assert "held-out error)" in structure_phrase(
         {"structure": "scaled", "structure_margin_percent": None}
     )
+
+
+def _law(law: str, fall: float, runs: list[float]) -> dict:
+    return {
+        "law": law,
+        "status": "ok",
+        "nrmse_before": 0.0300,
+        "nrmse_after": 0.0300 * (1.0 - fall / 100.0),
+        "fall_percent": fall,
+        "gain_x_floor": 0.2,
+        "significant": False,
+        "per_run_after": runs,
+    }
+
+
+def test_two_element_laws_no_run_tells_apart_are_said_alike():
+    """Maxwell-slip cuts the base model's error by 15 %, Prandtl-Ishlinskii by 14 % (≥ 85 %
+    of it) and is lower on one of the four held-out runs: the runs cannot tell them apart,
+    and the summary says so; Duhem (5 %) is not alike."""
+    from pmalab.identify.diagnosis.diagnose import alike_phrase, laws_alike
+    from pmalab.identify.diagnosis.ranking import AMBIGUITY_RATIO
+
+    ms = _law("maxwell-slip", 15.0, [0.024, 0.025, 0.027, 0.026])
+    pi = _law("prandtl-ishlinskii", 14.0, [0.0225, 0.026, 0.028, 0.027])
+    du = _law("duhem", 5.0, [0.028, 0.028, 0.029, 0.029])
+    assert 14.0 >= AMBIGUITY_RATIO * 15.0 and 5.0 < AMBIGUITY_RATIO * 15.0
+    got = laws_alike([du, pi, ms])
+    assert got == ["maxwell-slip", "prandtl-ishlinskii"]
+    text = alike_phrase(got)
+    assert text.startswith("The prandtl-ishlinskii law predicts the held-out runs about as well")
+    assert "maxwell-slip" in text and "cannot tell them apart" in text
+    assert "elasto-slide" in text and "duhem" not in text
+
+
+def test_a_law_the_best_beats_on_every_run_or_by_far_is_not_alike():
+    from pmalab.identify.diagnosis.diagnose import alike_phrase, laws_alike
+
+    ms = _law("maxwell-slip", 15.0, [0.024, 0.025, 0.027, 0.026])
+    # ≥ 85 % of the fall, but higher on every one of four runs: a sign test, p = 1/16
+    pi = _law("prandtl-ishlinskii", 14.0, [0.0241, 0.0255, 0.0272, 0.0262])
+    assert laws_alike([ms, pi]) == [] and alike_phrase([]) == ""
+    # lower on one run, but 70 % of the fall
+    pi_far = _law("prandtl-ishlinskii", 10.5, [0.0238, 0.027, 0.029, 0.028])
+    assert laws_alike([ms, pi_far]) == []
+    # no law cut the base model's error: nothing to share
+    assert laws_alike([_law("maxwell-slip", -2.0, [0.03] * 4), _law("duhem", -3.0, [0.03] * 4)]) == []
+    # a failed law is never alike
+    failed = {**pi, "status": "failed", "fall_percent": None}
+    assert laws_alike([ms, failed]) == []

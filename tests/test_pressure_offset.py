@@ -15,15 +15,13 @@ load-cell noise of data/truth/subtle/):
 
 from __future__ import annotations
 
-import contextlib
-import io
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from sim_campaign import record_campaign
 
-from pmalab.cli import main as pmalab_main
 from pmalab.identify.api import identify, load
 from pmalab.identify.diagnosis import diagnose
 from pmalab.identify.labels import check_runs, use_measured
@@ -37,17 +35,7 @@ CANDIDATES = ["pressure-offset", "pressure-variation"]
 
 
 def _record(truth: str, work: Path) -> list:
-    work.mkdir(parents=True, exist_ok=True)
-    rig = work / "rig.toml"
-    rig.write_text(
-        f'[rig]\nkind = "sim"\ntruth = "{(TRUTH_DIR / "subtle" / truth).resolve()}"\n'
-        f"seed = {SEED}\n"
-    )
-    out = work / "campaign.h5"
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-        assert pmalab_main(["run", "--rig", str(rig), "--protocol", str(PROTOCOL),
-                            "--out", str(out), "--quiet"]) == 0
-    return load(out)
+    return load(record_campaign(TRUTH_DIR / "subtle" / truth, work, SEED, PROTOCOL))
 
 
 def _mislabel(runs: list) -> list:

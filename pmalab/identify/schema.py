@@ -263,6 +263,9 @@ class StructureCandidate(TypedDict):
     #: pressure-law coefficients of the muscle (k, c0 and the law's; no h0)
     n_params: int | None
     heldout_nrmse_per_run: list[float]
+    #: where the kept joint fit started: ``free laws`` | ``per-run fits`` (a structured
+    #: candidate is refined from both, the lower training cost kept)
+    start: NotRequired[str]
     status: NotRequired[str]
     reason: NotRequired[str]
 
@@ -580,6 +583,9 @@ class DiagnosisDoc(TypedDict):
     final_model: NotRequired[str]
     final_law: NotRequired[str]
     laws: NotRequired[list[LawEntry]]
+    #: the laws that predict the held-out runs about equally well as the best law, best
+    #: first (empty: one stands out, or fewer than two cut the base model's error)
+    laws_alike: NotRequired[list[str]]
     residual: NotRequired[Residual]
     settings: NotRequired[dict[str, Any]]
     summary: NotRequired[str]

@@ -42,7 +42,9 @@ from pmalab.identify.diagnosis.ladder import (
     run_ladder,
 )
 from pmalab.identify.diagnosis.ranking import (
+    AMBIGUITY_RATIO,
     MIN_GAIN_X_FLOOR,
+    alike,
     heldout_floor,
     rate_dependent,
     scored_part,
@@ -116,6 +118,8 @@ class Diagnosis:
     laws: list[dict[str, Any]] = field(default_factory=list)
     #: the law of the final ladder model (the base law unless a step changed it)
     final_law: str = ""
+    #: the laws that predict about equally well as the best law (best first; :func:`laws_alike`)
+    laws_alike: list[str] = field(default_factory=list)
     #: where the final model's held-out residual beyond the noise lies (loop / above the
     #: motion band / session offset / other: shares of its power) and what to look at next
     residual: dict[str, Any] = field(default_factory=dict)
@@ -139,6 +143,7 @@ class Diagnosis:
             "final_model": "+".join([self.final_law or self.model, *self.final_effects]),
             "final_law": self.final_law or self.model,
             "laws": self.laws,
+            "laws_alike": self.laws_alike,
             "residual": self.residual,
             "settings": self.settings,
             "summary": self.summary,
@@ -364,6 +369,54 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
     )
 
 
+def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The laws that predict the held-out runs about equally well as the best one (the
+    best first), or ``[]``: among the laws that cut the base model's error, those whose
+    fall is ≥ ``AMBIGUITY_RATIO`` of the best's and which the best does not beat run by run
+    beyond chance (:func:`~pmalab.identify.diagnosis.ranking.alike` — the rule that makes
+    two significant effects ambiguous).  A statement of what the runs can tell apart, not a
+    claim: significance is the ranking rule's alone."""
+    ok = [
+        lw
+        for lw in laws
+        if lw.get("status") != "failed"
+        and lw.get("fall_percent") is not None
+        and lw.get("per_run_after") is not None
+        and lw["fall_percent"] > 0.0
+    ]
+    if len(ok) < 2:
+        return []
+    best = max(ok, key=lambda lw: lw["fall_percent"])
+    same = [
+        lw["law"]
+        for lw in sorted(ok, key=lambda lw: -lw["fall_percent"])
+        if lw is not best
+        and alike(
+            best["fall_percent"] / 100.0,
+            best["per_run_after"],
+            lw["fall_percent"] / 100.0,
+            lw["per_run_after"],
+        )
+    ]
+    return [best["law"], *same] if same else []
+
+
+def alike_phrase(alike_laws: Sequence[str]) -> str:
+    """The summary's sentence on :func:`laws_alike` (``""`` for none)."""
+    if len(alike_laws) < 2:
+        return ""
+    best, others = alike_laws[0], list(alike_laws[1:])
+    names = " and ".join(others)
+    elements = all(LAWS.get(lw) is not None and LAWS[lw].structures for lw in alike_laws)
+    return (
+        f"The {names} law{'s' if len(others) > 1 else ''} predict"
+        f"{'' if len(others) > 1 else 's'} the held-out runs about as well as {best} "
+        f"(≥ {100 * AMBIGUITY_RATIO:.0f} % of its fall, and {best} is not lower run by run "
+        "beyond chance): these runs cannot tell them apart"
+        + (" (both are sums of elasto-slide elements)." if elements else ".")
+    )
+
+
 def structure_phrase(row: Mapping[str, Any]) -> str:
     """`` with <the structure in words> (chosen by … by N %)`` for a laws row, or ``""``."""
     st = row.get("structure")
@@ -475,6 +528,8 @@ def _summary(
             )
         elif closest := closest_law_phrase(model, laws):
             parts.append(closest)
+    if same := alike_phrase(laws_alike(laws)):
+        parts.append(same)
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
     if ratio < UNEXPLAINED_RATIO:
         verdict = "floor"
@@ -772,6 +827,7 @@ def diagnose(
         final_effects=list(final),
         laws=laws_json,
         final_law=final_law,
+        laws_alike=laws_alike(laws_json),
         residual=rest,
     )
 

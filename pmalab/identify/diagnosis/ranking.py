@@ -609,6 +609,22 @@ def judge(
     return cands, amb
 
 
+def alike(
+    best_fall: float, best_runs: Sequence[float], other_fall: float, other_runs: Sequence[float]
+) -> bool:
+    """Two candidates explain the residual about equally: the rule that makes two
+    significant effects *ambiguous* (the other's fall is ≥ ``AMBIGUITY_RATIO`` of the
+    best's, and the best's held-out errors ``best_runs`` are not :func:`clearly_lower` than
+    ``other_runs``), for candidates whether significant or not — what the held-out runs can
+    tell apart, never a claim.  Falls are fractions (1 − after / before); a best fall ≤ 0
+    (no fall to share) is never alike."""
+    return bool(
+        best_fall > 0.0
+        and other_fall >= AMBIGUITY_RATIO * best_fall
+        and not clearly_lower(best_runs, other_runs)
+    )
+
+
 def rate_dependent(effect: str) -> bool:
     """Whether the catalogue effect's force grows with the rate of motion
     (``Effect.rate_dependent``; False for a law or an unknown id)."""
@@ -641,9 +657,17 @@ def clearly_better(a: Candidate, b: Candidate) -> bool:
     mean(d) exceeds two standard errors on ≥ 3 runs.  Two runs never decide (p = 1/4): two
     effects that explain the residual about equally there stay ambiguous.
     """
-    d = np.asarray(b.after.nrmse, dtype=float) - np.asarray(a.after.nrmse, dtype=float)
+    return clearly_lower(a.after.nrmse, b.after.nrmse)
+
+
+def clearly_lower(a: Sequence[float], b: Sequence[float]) -> bool:
+    """The held-out errors ``a`` beat ``b`` beyond chance, paired run by run (the test of
+    :func:`clearly_better`, on the per-run nrmse themselves)."""
+    if len(a) != len(b):
+        return False
+    d = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
     n = d.size
-    if n != len(a.after.nrmse) or n < 3 or not np.all(np.isfinite(d)):
+    if n < 3 or not np.all(np.isfinite(d)):
         return False
     if n >= MIN_PAIRED_RUNS and bool(np.all(d > 0)):
         return True
