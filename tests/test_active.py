@@ -146,13 +146,13 @@ def test_run_suggested_resolves_delay_vs_viscous_on_the_rig(delay_campaign, tmp_
     from pmalab.identify.schema import read_diagnosis
     from pmalab.reports import load_report_dir, plan_pages
     from pmalab.reports.build import draw_page
-    from pmalab.reports.layout import text_problems
+    from pmalab.reports.layout import page_problems
 
     assert read_diagnosis(tmp_path / "d" / "diagnosis.json")["rounds"] == d["rounds"]
     data = load_report_dir(tmp_path / "d")
     pages = plan_pages(data)
     page = next(p for p in pages if p.title.startswith("Active identification"))
-    assert text_problems(draw_page(page, data, 1, len(pages))) == []
+    assert page_problems(draw_page(page, data, 1, len(pages))) == []
 
 
 def test_declined_experiment_runs_nothing_and_leaves_the_campaign(delay_campaign, tmp_path):

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import h5py
@@ -323,3 +325,21 @@ def test_identification_without_predictions_skips_signal_pages(tmp_path):
     (d / "predictions.h5").unlink()
     titles = [p.title for p in plan_pages(load_report_dir(d))]
     assert titles == [FULL_PAGES[i] for i in (0, 1, 2, 5, 6, 7)]
+
+
+def test_planning_a_report_loads_no_fitting_code(tmp_path):
+    """`pmalab report` of result directories asks whether its input is a static
+    characterization; answering must not import the identification's compiled laws (numba,
+    SciPy: a third of a second before the first page on every report)."""
+    d = rf.write_diagnosis_dir(tmp_path / "diag", with_predictions=False)
+    code = (
+        "import sys\n"
+        "from pmalab.reports.build import _plan_for\n"
+        "plan, args, _ = _plan_for([sys.argv[1]])\n"
+        "assert len(plan(*args).pages) == 5\n"
+        "print(sorted(m for m in ('numba', 'scipy', 'pmalab.identify.laws') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(d)], capture_output=True, text=True, check=True
+    ).stdout
+    assert out.strip() == "[]"

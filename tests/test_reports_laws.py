@@ -25,7 +25,7 @@ from pmalab.cli import main as pmalab_main
 from pmalab.reports import ReportError, load_report_dir, plan_pages
 from pmalab.reports.build import draw_page
 from pmalab.reports.figures_laws import run_floor
-from pmalab.reports.layout import text_problems
+from pmalab.reports.layout import page_problems
 
 LAWS = list(FOUR_LAWS)
 
@@ -61,7 +61,7 @@ def test_laws_pages_rank_the_laws_and_draw_them_on_one_scale(laws_dir):
     assert any(t.startswith("Parameters against muscle pressure") for t in titles[4:])
 
     fig = draw_page(pages[1], data, 2, len(pages))
-    assert text_problems(fig) == []
+    assert page_problems(fig) == []
     bars = [p for ax in fig.axes for p in ax.patches]
     # a bar per (law, held-out run), its height the run's nrmse over the run's own floor
     expect = sorted(
@@ -71,7 +71,7 @@ def test_laws_pages_rank_the_laws_and_draw_them_on_one_scale(laws_dir):
 
     for i in loops:
         fig = draw_page(pages[i], data, i + 1, len(pages))
-        assert text_problems(fig) == []
+        assert page_problems(fig) == []
         loop_axes = [ax for ax in fig.axes if ax.get_xlabel().startswith("Contraction")]
         cols = [c for ax in loop_axes for c in ax.collections if isinstance(c, LineCollection)]
         assert len(cols) == len(LAWS)

@@ -14,7 +14,7 @@ from pmalab.identify.headline import error_fall
 from pmalab.reports import ReportError, load_report_dir, plan_pages
 from pmalab.reports.build import draw_page
 from pmalab.reports.figures_signals import LOOP_MAX_POINTS
-from pmalab.reports.layout import text_problems
+from pmalab.reports.layout import page_problems, text_problems
 
 COMPARE_PAGES = [
     "Base vs improved: validation error per run, parameter changes",
@@ -67,7 +67,7 @@ def test_checker_compares_slanted_tick_labels_as_rotated_boxes():
 
 def test_every_page_is_free_of_overlapping_or_cut_text(pages, dirs):
     data = load_report_dir(list(dirs))
-    bad = {p.title: text_problems(draw_page(p, data, i, len(pages)))
+    bad = {p.title: page_problems(draw_page(p, data, i, len(pages)))
            for i, p in enumerate(pages, 1)}
     bad = {t: v for t, v in bad.items() if v}
     assert not bad, "\n".join(f"{t}: {v[:4]}" for t, v in bad.items())
@@ -161,3 +161,21 @@ def test_runs_that_never_were_in_a_file_still_pair_up(tmp_path):
     (diag / "diagnosis.json").write_text(json.dumps(ddoc))
     data = load_report_dir([ident, diag])
     assert data.diagnosis is not None
+
+
+def test_a_page_is_checked_in_the_layout_its_pdf_page_has():
+    """page_problems draws the page into a PDF, keeps that layout (as the PNG/SVG export
+    does) and checks it: the axes stay where the PDF put them, and a text cut at the page's
+    edge is still found."""
+    from pmalab.reports import style
+
+    fig = style.new_figure("A page")
+    ax = fig.subplots()
+    ax.plot([0, 1], [0, 1000])
+    ax.set_ylabel(style.FORCE)
+    assert page_problems(fig) == []
+    placed = ax.get_position().bounds
+    assert placed[0] > 0.03  # moved right of the figure's edge for the tick labels
+    fig.text(0.995, 0.5, "runs off the right edge")
+    assert page_problems(fig) == ["'runs off the right edge' leaves the page"]
+    assert ax.get_position().bounds == placed  # the kept layout: drawn again, not moved

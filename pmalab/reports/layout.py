@@ -4,15 +4,18 @@
 non-empty text (titles, labels, tick labels actually drawn, legend entries, table cells,
 annotations).  Rotated texts are compared as rotated rectangles, so two slanted tick
 labels that merely share a bounding box are not reported.  The report's tests run it on
-every page; ``python -m pmalab.reports.layout DIR... `` checks a real result directory.
+every page as the PDF lays it out (:func:`page_problems`); ``python -m
+pmalab.reports.layout DIR...`` checks a real result directory.
 """
 
 from __future__ import annotations
 
+import io
 import math
 import sys
 from collections.abc import Iterator
 
+import matplotlib as mpl
 import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.axis import Axis
@@ -20,6 +23,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.table import Cell
 from matplotlib.text import Text
+
+from pmalab.reports import style
 
 #: overlaps smaller than this (display pixels at 100 dpi) are ignored: glyph boxes include
 #: a little padding, and two texts that touch are still readable
@@ -133,10 +138,11 @@ def _name(t: Text) -> str:
 
 def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX) -> list[str]:
     """Texts of ``fig`` that overlap each other or leave the page, one line each (empty
-    when the page is clean).  Draws the figure first (at ``dpi``)."""
+    when the page is clean).  Lays the figure out and places its texts first, as a draw at
+    ``dpi`` does, without rasterizing it (the extents are those of a drawn page)."""
     fig.set_dpi(dpi)
     canvas = fig.canvas if isinstance(fig.canvas, FigureCanvasAgg) else FigureCanvasAgg(fig)
-    canvas.draw()
+    fig.draw_without_rendering()  # with the canvas's renderer, the one read below
     renderer = canvas.get_renderer()
     texts = list(page_texts(fig))
     boxes = [_corners(t, renderer) for t in texts]
@@ -177,6 +183,16 @@ def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX)
     return out
 
 
+def page_problems(fig: Figure, *, dpi: float = 150.0) -> list[str]:
+    """:func:`text_problems` of a report page as the report writes it: laid out while it is
+    drawn into the PDF, that layout kept for its PNG/SVG export
+    (:func:`pmalab.reports.style.keep_layout`), checked at the export's ``dpi``."""
+    with mpl.rc_context(style.RC):
+        fig.savefig(io.BytesIO(), format="pdf")
+    style.keep_layout(fig)
+    return text_problems(fig, dpi=dpi)
+
+
 def main(argv: list[str] | None = None) -> int:
     """``python -m pmalab.reports.layout DIR...``: check every page of the report of DIRs."""
     from pmalab.reports.build import draw_page, plan_pages
@@ -187,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     data = load_report_dir(dirs)
     pages = plan_pages(data)
     for i, page in enumerate(pages, 1):
-        probs = text_problems(draw_page(page, data, i, len(pages)))
+        probs = page_problems(draw_page(page, data, i, len(pages)))
         bad += bool(probs)
         for p in probs:
             print(f"page {i} ({page.title}): {p}")

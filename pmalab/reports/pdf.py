@@ -68,10 +68,20 @@ def _plan_renderer(
                 built.footer(fig, i, n)
             with PdfPages(path) as pdf:
                 pdf.savefig(fig)
-        for d, ext in exports:
-            style.save_figure(fig, d / f"{i:02d}-{page.slug}.{ext}", force=True, dpi=150)
+        _export(fig, exports, f"{i:02d}-{page.slug}")
 
     return render
+
+
+def _export(fig: Figure, exports: Sequence[tuple[Path, str]], stem: str) -> None:
+    """Export a page just drawn into the PDF as ``<dir>/<stem>.<ext>`` for each of
+    ``exports`` (checked against overwriting by the caller), 150 dpi, in the layout the PDF
+    page has (:func:`style.keep_layout`): the same page, not a second layout."""
+    if not exports:
+        return
+    style.keep_layout(fig)
+    for d, ext in exports:
+        style.save_figure(fig, d / f"{stem}.{ext}", force=True, dpi=150)
 
 
 def parallel_renderer(
@@ -252,8 +262,7 @@ def write_pdf(
                     if footer is not None:
                         footer(fig, i, n)
                     pdf.savefig(fig)
-                for d, ext in exports:
-                    style.save_figure(fig, d / f"{i:02d}-{page.slug}.{ext}", force=True, dpi=150)
+                _export(fig, exports, f"{i:02d}-{page.slug}")
                 if progress is not None:
                     progress(f"page {i}/{n}: {page.label}")
                 pbar.update(1)

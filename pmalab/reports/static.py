@@ -19,7 +19,6 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from pmalab.identify.schema import PredictionRun, read_predictions
-from pmalab.identify.static.maps import Geometry, get_static_map
 from pmalab.reports import style
 from pmalab.reports.errors import ReportError
 from pmalab.reports.pdf import PageSpec, ReportPlan, write_plan
@@ -186,6 +185,10 @@ def loops_figure(doc: dict[str, Any], runs: Sequence[PredictionRun], title: str)
 def family_figure(doc: dict[str, Any], runs: Sequence[PredictionRun]) -> Figure:
     """The static map as families of curves: F_s against pressure at each held length
     (with the measured force, thinned), and F_s against contraction at five pressures."""
+    # the static maps load the identification's compiled laws: imported where a static
+    # report draws them, not by every `pmalab report` that asks whether its input is static
+    from pmalab.identify.static.maps import Geometry, get_static_map
+
     sm = doc["static_map"]
     geo = Geometry(
         length_mm=sm["geometry"].get("length_mm"), diameter_mm=sm["geometry"].get("diameter_mm")
