@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from pmalab.identify.campaign.fit import fit_campaign
+from pmalab.identify.campaign.structure import STARTS
 from pmalab.identify.laws import get_law
 from pmalab.identify.laws.structures import base_laws, structured_law
 from pmalab.identify.model import ForceModel
@@ -44,6 +45,24 @@ def test_structured_law_is_the_base_law_with_its_pressure_laws_mapped(structure)
         th_b = {n: q[0] + q[1] * p + q[2] * p * p for n, q in mapped.items()}
         th_b["h0"] = 0.0
         np.testing.assert_allclose(law.h(x, th_s), base.h(x, th_b), rtol=1e-12, atol=1e-9)
+
+
+def test_structured_law_travels_to_a_worker_and_is_cached_apart_from_its_base():
+    """A structured law is built at run time: a pickled copy (what a worker process gets) is
+    rebuilt from its base law and profile and predicts the same, and its fits of a record
+    are never taken for the base law's (they share the law's name)."""
+    import pickle
+
+    base = get_law("maxwell-slip")
+    law = structured_law(base, "scaled-thresholds", KAPPA, DELTA)
+    copy = pickle.loads(pickle.dumps(law))
+    assert type(copy).__name__ == type(law).__name__ and copy.shared_shape == law.shared_shape
+    x = 6.0 + 5.0 * np.sin(np.linspace(0.0, 6.0 * np.pi, 600))
+    th = {"s": 80.0, "t": 1.3, "h0": 0.0, **dict.fromkeys(law.shared_shape, 1.1)}
+    np.testing.assert_array_equal(copy.h(x, th), law.h(x, th))
+    assert law.name == base.name and law.cache_key() != base.cache_key()
+    other = structured_law(base, "scaled-thresholds", KAPPA[::-1], DELTA)
+    assert other.cache_key() != law.cache_key() and copy.cache_key() == law.cache_key()
 
 
 def test_prandtl_ishlinskii_scaled_keeps_its_threshold_grid():
@@ -94,6 +113,10 @@ def test_slip_displacements_growing_with_pressure_choose_scaled_thresholds():
     assert st.margin_percent > 0
     js = st.as_json()
     assert js["chosen"] == "scaled-thresholds" and len(js["candidates"]) == 3
+    # each structured candidate says which of its two starts its kept fit came from
+    assert {c["structure"]: c.get("start") for c in js["candidates"]}.keys() == {
+        "free", "scaled", "scaled-thresholds"}
+    assert all(c["start"] in STARTS for c in js["candidates"] if c["structure"] != "free")
     # the reported laws are the base law's: d1 grows with p (slope > 0), as simulated
     assert cf.pressure["d1"].coef[1] > 0 and cf.pressure["d1"].method.startswith("structure:")
     assert any(getattr(w, "code", "") == "pressure-structure" for w in cf.warnings)
@@ -142,7 +165,7 @@ def test_a_strong_prior_pulls_the_corrections_to_the_pooled_profile():
     thetas = [cf.theta(rf.p_nom) for rf in cf.runs]
     kappa, delta = profile(base, thetas)
     model = ForceModel(structured_law(base, "scaled-thresholds", kappa, delta))
-    j = _joint_structured(cf, runs, model, thetas)
+    j, _ = _joint_structured(cf, runs, model, thetas)
     rows = prior_rows(j, base, model.law, "scaled-thresholds")
     assert rows is not None and rows[0].startswith("shrinkage")
     _, g_of, _ = rows

@@ -263,6 +263,9 @@ class StructureCandidate(TypedDict):
     #: pressure-law coefficients of the muscle (k, c0 and the law's; no h0)
     n_params: int | None
     heldout_nrmse_per_run: list[float]
+    #: where the kept joint fit started: ``free laws`` | ``per-run fits`` (a structured
+    #: candidate is refined from both, the lower training cost kept)
+    start: NotRequired[str]
     status: NotRequired[str]
     reason: NotRequired[str]
 

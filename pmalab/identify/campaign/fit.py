@@ -476,7 +476,7 @@ def fit_campaign(
     if fm.law.structures and structure != "free" and len(rfs) > 1:
         from pmalab.identify.campaign.structure import choose_structure
 
-        choose_structure(cf, runs, fixed=fixed, structure=structure)
+        choose_structure(cf, runs, fixed=fixed, structure=structure, jobs=jobs, scheduler=scheduler)
     return cf
 
 

@@ -58,6 +58,9 @@ CANDIDATE_NFEV = 120
 #: pressure levels (distinct nominal pressures, rounded to 1 kPa) a LOPO choice needs: one
 #: interior level left out still leaves ≥ 3 levels for a quadratic
 MIN_LEVELS = 4
+#: the starts of a structured candidate's joint fit, as ``identification.json`` names the
+#: one kept (:func:`_joint_structured`)
+STARTS = ("free laws", "per-run fits")
 
 
 @dataclass
@@ -82,6 +85,8 @@ class StructureChoice:
     #: structure → how many elements it keeps (chosen by the same evidence), when fewer
     #: than the law's were tried
     elements: dict[str, ElementCount] = field(default_factory=dict)
+    #: structure → the start its kept joint fit came from (:data:`STARTS`)
+    starts: dict[str, str] = field(default_factory=dict)
 
     @property
     def margin_percent(self) -> float:
@@ -100,6 +105,8 @@ class StructureChoice:
                 n_params=self.n_params.get(s),
                 heldout_nrmse_per_run=list(self.per_run.get(s, [])),
             )
+            if s in self.starts:
+                c["start"] = self.starts[s]
             if s in self.failed:
                 c["status"], c["reason"] = "failed", self.failed[s]
             cands.append(c)
@@ -189,6 +196,8 @@ def choose_structure(
     *,
     fixed: Mapping[str, float | None] | None = None,
     structure: str = "auto",
+    jobs: int = 1,
+    scheduler: str | None = None,
 ) -> StructureChoice | None:
     """Choose ``cf``'s pressure structure (``"auto"``: by LOPO; or the one named) and, when it
     is not ``"free"``, replace ``cf.pressure``'s laws by the winner's (in place; see module
@@ -196,10 +205,13 @@ def choose_structure(
     structures, the campaign has too few levels, its pressure laws were not refined jointly
     (the evidence is the joint fit's), or the user fixed element parameters.
 
-    Each structured candidate is one joint fit on the free campaign's records, started from
-    the free structure's joint laws (k, c0 and the effects' laws as they are, the magnitude
-    s(p) through the free laws' summed element stiffness, t = 1, the profile corrections
-    1): no per-run fits are needed, the laws are the joint fit's anyway."""
+    Each structured candidate is a joint fit on the free campaign's records from two starts,
+    the lower training cost kept (:func:`_joint_structured`): the free structure's joint laws
+    (k, c0 and the effects' laws as they are, the magnitude s(p) through the free laws'
+    summed element stiffness, t = 1, the profile corrections 1), and the structured law's
+    own per-run fits (:func:`per_run_laws`: s, t and h0 on every run, the profile held;
+    quadratics through their s and t).  ``jobs``, ``scheduler``: where those per-run fits
+    run (as the campaign's own, :func:`~pmalab.identify.campaign.fit.fit_runs`)."""
     from dataclasses import replace
 
     from pmalab.identify.campaign.pressure import weighted_r2
@@ -256,13 +268,24 @@ def choose_structure(
         folds=lv[1:-1],
     )
     joints: dict = {"free": cf.joint}
-    for s, m in models.items():
+    per_run = per_run_laws(cf, runs, models, jobs=jobs, scheduler=scheduler)
+    # every candidate's starts refined in one batch (side by side on two cores), the lower
+    # training cost of each candidate's kept
+    tasks = {s: _starts(cf, runs, m, thetas, per_run.get(s)) for s, m in models.items()}
+    flat = [(s, k, t) for s in tasks for k, t in enumerate(tasks[s])]
+    # first starts first: a forked child takes the later half (the per-run starts)
+    order = sorted(range(len(flat)), key=lambda i: flat[i][1])
+    done = _refine_all([flat[i][2] for i in order], jobs)
+    fits: dict[str, list] = {s: [None] * len(tasks[s]) for s in tasks}
+    for i, f in zip(order, done):
+        fits[flat[i][0]][flat[i][1]] = f
+    for s in models:
         try:
-            joints[s] = _joint_structured(cf, runs, m, thetas)
+            joints[s], choice.starts[s] = _keep_lower(fits[s])
         except (ValueError, np.linalg.LinAlgError) as exc:  # reported, never fatal
             choice.failed[s] = str(exc)
     if d_names and structure in ("auto", *law.structures):
-        _element_counts(cf, runs, law, models, joints, thetas, choice)
+        _element_counts(cf, runs, law, models, joints, thetas, choice, per_run, jobs)
     for s, j in list(joints.items()):
         rows = prior_rows(j, law, models[s].law if s in models else law, s)
         got = apply_prior(j, rows)
@@ -330,12 +353,134 @@ def choose_structure(
     return choice
 
 
-def _joint_structured(cf, runs: Sequence[Run], model, thetas: Sequence[Mapping[str, float]]):
-    """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
-    ``cf``'s records, started from ``cf``'s free joint laws (see :func:`choose_structure`)."""
+@dataclass
+class PerRunLaws:
+    """Per-run fits of one structured law, its profile held (:func:`per_run_laws`): the
+    second start of the structure's joint fit."""
+
+    #: the profile's element shares κ_i (Σ = 1) and slip displacements δ_i (mm) the runs
+    #: were fitted with
+    kappa: np.ndarray
+    delta: np.ndarray
+    #: per run: nominal pressure (MPa), magnitude s (N/mm), peak-to-peak stroke (mm)
+    p: np.ndarray
+    s: np.ndarray
+    stroke: np.ndarray
+    #: per run: the threshold scale t (1); None where the structure holds it
+    t: np.ndarray | None
+
+    def start(self, kappa: np.ndarray, delta: np.ndarray, top: int) -> dict[str, tuple]:
+        """Start laws (monomial q, order ``top``) of s and t through the per-run values, for
+        the profile (κ', δ) — this one, or this one with elements dropped (κ'_i = 0).
+
+        s: through every run, scaled by the kept elements' share Σκ_i (each kept element's
+        stiffness s·κ_i as fitted).  t: through the runs whose stroke slides the largest kept
+        element (2·t·δ_max < stroke: there every element's slip displacement shows in the
+        loop), or through every run when those leave fewer than ``top`` + 1 levels.
+
+        Parameters
+        ----------
+        kappa, delta
+            The profile the start is for (κ' ≥ 0; δ in mm at t = 1).
+        top
+            The pressure order of both laws.
+
+        Returns
+        -------
+        dict
+            ``{"s": q}`` and, when t is fitted, ``{"t": q}``; q monomial in MPa.
+        """
+        from pmalab.identify.estimation.basis import fit_polynomial
+
+        kept = np.asarray(kappa, dtype=np.float64) > 0
+        share = float(np.sum(self.kappa[kept])) or 1.0
+        out = {"s": tuple(fit_polynomial(self.p, self.s * share, max_degree=top).coef)}
+        if self.t is not None:
+            d_max = float(np.max(np.asarray(delta, dtype=np.float64)[kept], initial=0.0))
+            slides = 2.0 * self.t * d_max < self.stroke
+            if len(levels_of(self.p[slides])) < top + 1:
+                slides = np.ones_like(slides)
+            out["t"] = tuple(fit_polynomial(self.p[slides], self.t[slides], max_degree=top).coef)
+        return out
+
+
+def per_run_laws(
+    cf, runs: Sequence[Run], models: Mapping, *, jobs: int = 1, scheduler: str | None = None
+) -> dict[str, PerRunLaws]:
+    """Every structured candidate's law fitted on every identification run on its own: s, t
+    and h0 free (with k, c0 and the effects' parameters, as the campaign's own per-run fits),
+    the profile's corrections held at 1 and the campaign's fixes held.
+
+    The joint fit's first start holds every slip displacement where the free laws put them
+    (t = 1); a muscle whose slip displacements grow with pressure is then reached, if at all,
+    through a worse minimum.  Each run's own s and t see that growth directly, so their
+    quadratics are the second start (:meth:`PerRunLaws.start`).  The fits are fitted once
+    per structure and serve its element-count refits too.
+
+    Parameters
+    ----------
+    cf
+        The campaign (its free joint fit done).
+    runs
+        Its identification runs, in ``cf.runs`` order.
+    models
+        Structure → the structured :class:`~pmalab.identify.model.ForceModel`.
+    jobs, scheduler
+        Where the fits run (:func:`~pmalab.identify.campaign.fit.fit_runs`).
+
+    Returns
+    -------
+    dict
+        Structure → its per-run values; a structure whose fits failed is left out (its joint
+        fit then has one start).
+    """
+    from pmalab.errors import PmalabError
+    from pmalab.identify.campaign.fit import fit_runs
+
+    if cf.joint is None or not models:
+        return {}
+    base = cf.model.law
+    elem = {*base.element_names()[0], *base.element_names()[1]}
+    own = {p.name for p in base.params}
+    shared = {p.name for p in cf.runs[0].result.params} - elem - own
+    held = {n: float(v) for n, v in cf.joint.constants.items() if n in shared}
+    p = np.array([rf.p_nom for rf in cf.runs], dtype=np.float64)
+    # peak-to-peak contraction (a gap in a record is NaN: not a stroke)
+    stroke = np.array(
+        [float(np.nanmax(r.position) - np.nanmin(r.position)) for r in runs], dtype=np.float64
+    )
+    out: dict[str, PerRunLaws] = {}
+    for st, m in models.items():
+        law = m.law
+        fx = {**held, **dict.fromkeys(law.shared_shape, 1.0)}
+        try:
+            res = fit_runs(runs, m, jobs=jobs, scheduler=scheduler, fixed=fx)
+        except (PmalabError, ValueError, np.linalg.LinAlgError):
+            continue
+        sv = np.array([float(r.values["s"]) for r in res], dtype=np.float64)
+        tv = (
+            None
+            if "t" in law.default_fixed
+            else np.array([float(r.values["t"]) for r in res], dtype=np.float64)
+        )
+        if not np.all(np.isfinite(sv)) or (tv is not None and not np.all(np.isfinite(tv))):
+            continue
+        out[st] = PerRunLaws(np.array(law.kappa), np.array(law.delta), p, sv, stroke, tv)
+    return out
+
+
+def _starts(
+    cf,
+    runs: Sequence[Run],
+    model,
+    thetas: Sequence[Mapping[str, float]],
+    per_run: PerRunLaws | None = None,
+) -> list[tuple]:
+    """The structured ``model``'s joint refinements on ``cf``'s records, one per start
+    (:func:`_refine_start`'s arguments; see :func:`_joint_structured`)."""
     from pmalab.identify.campaign.fit import parameter_bounds
     from pmalab.identify.estimation.basis import fit_polynomial
-    from pmalab.identify.estimation.joint import prepare, refine
+    from pmalab.identify.estimation.joint import prepare
 
     j = cf.joint
     law = model.law
@@ -362,25 +507,99 @@ def _joint_structured(cf, runs: Sequence[Run], model, thetas: Sequence[Mapping[s
     shape = [n for n in law.shared_shape if n in own]
     for n in shape:
         start[n], degree[n] = (1.0, 0.0, 0.0), 0
+    starts = [start]
+    if per_run is not None:
+        alt = per_run.start(law.kappa, law.delta, top)
+        starts.append({**start, **{n: q for n, q in alt.items() if n in start}})
     jruns = [prepare(r, rf.result.rmse) for r, rf in zip(runs, cf.runs)]
     h0 = list(j.h0) if j.h0 else None
-    fit, _ = refine(
-        model,
-        jruns,
-        start,
-        degree,
-        constants,
-        bounds,
-        h0,
-        nuisance_start=j.nuisance or None,
-        fixed_order=[*shape, *(n for n in model.campaign_shared if n in start)],
-        lopo=True,
-        # one refinement from the free laws, its orders pruned like the free fit's (the
-        # candidates compare like with like)
-        prune=True,
-        max_nfev=CANDIDATE_NFEV,
-    )
+    fixed_order = [*shape, *(n for n in model.campaign_shared if n in start)]
+    return [
+        (model, jruns, st, degree, constants, bounds, h0, j.nuisance or None, fixed_order)
+        for st in starts
+    ]
+
+
+def _refine_start(args: tuple):
+    """One start's joint refinement (with leave-one-pressure-out evidence), its orders pruned
+    like the free fit's (the candidates compare like with like); a failed fit is returned as
+    its error (reported per candidate, never fatal to the others)."""
+    from pmalab.identify.estimation.joint import refine
+
+    model, jruns, start, degree, constants, bounds, h0, nuisance, fixed_order = args
+    try:
+        fit, _ = refine(
+            model,
+            jruns,
+            start,
+            degree,
+            constants,
+            bounds,
+            h0,
+            nuisance_start=nuisance,
+            fixed_order=fixed_order,
+            lopo=True,
+            prune=True,
+            max_nfev=CANDIDATE_NFEV,
+        )
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        return exc
     return fit
+
+
+def _refine_all(tasks: Sequence[tuple], jobs: int) -> list:
+    """:func:`_refine_start` on every task, on two cores when ``jobs`` > 1 (a forked child
+    takes half: :func:`~pmalab.identify.campaign.batch.map_split`; it falls back to this
+    process wherever forking is not safe or the child fails)."""
+    from pmalab.identify.campaign.batch import map_split
+
+    if jobs > 1 and len(tasks) > 1:
+        return map_split(_refine_start, tasks, first_here=0)
+    return [_refine_start(t) for t in tasks]
+
+
+def _keep_lower(fits: Sequence) -> tuple:
+    """(the fit of the lower training cost, the name of its start in :data:`STARTS`) among
+    one candidate's refinements (:func:`_refine_start`'s results, in start order).
+
+    The training cost on one footing: the weighted residual of the same records, weights
+    and cap in every problem, compared by BIC on a common N_eff (the largest) should the
+    pruned orders differ; a tie keeps the first.  A failed start is skipped; when every
+    start failed the first's error is raised."""
+    from pmalab.identify.metrics import information_criteria
+
+    ok = [(i, f) for i, f in enumerate(fits) if not isinstance(f, BaseException)]
+    if not ok:
+        raise fits[0]
+    if len(ok) == 1:
+        return ok[0][1], STARTS[ok[0][0]]
+    n_eff = max(f.n_eff for _, f in ok)
+    best, best_ic = ok[0], np.inf
+    for i, f in ok:
+        r = f.problem.residual(f.z)
+        ic = information_criteria(float(r @ r), f.problem.n_rows, f.problem.n_var, n_eff)[1]
+        if ic < best_ic:
+            best, best_ic = (i, f), ic
+    return best[1], STARTS[best[0]]
+
+
+def _joint_structured(
+    cf,
+    runs: Sequence[Run],
+    model,
+    thetas: Sequence[Mapping[str, float]],
+    per_run: PerRunLaws | None = None,
+    jobs: int = 1,
+):
+    """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
+    ``cf``'s records; returns (the fit, the name of its start in :data:`STARTS`).
+
+    Two starts, each refined (and its orders pruned) like the free fit: the free joint laws
+    (see :func:`choose_structure`) and, given ``per_run``, quadratics through the structured
+    law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the first).  The
+    lower training cost is kept (:func:`_keep_lower`).  ``jobs`` > 1: the two refinements
+    run side by side (:func:`_refine_all`)."""
+    return _keep_lower(_refine_all(_starts(cf, runs, model, thetas, per_run), jobs))
 
 
 # --------------------------------------------------------------------------- priors
@@ -649,13 +868,18 @@ class ElementCount:
         )
 
 
-def _element_counts(cf, runs, base, models, joints, thetas, choice) -> None:
+def _element_counts(
+    cf, runs, base, models, joints, thetas, choice, per_run=None, jobs: int = 1
+) -> None:
     """Fewer elements for every free-element candidate structure whose fitted elements
     include ones carrying < ``REMOVE_SHARE`` of the friction: the structure is refitted
     jointly without the smallest one, then the two smallest (down to ``MIN_ELEMENTS``), each
     from the free laws like any candidate, and the fewest elements whose leave-one-pressure-
     out score is within ``SIMPLER_WITHIN`` of the best count's replace the candidate
-    (``models``, ``joints`` and ``choice.elements`` updated in place)."""
+    (``models``, ``joints``, ``choice.elements`` and ``choice.starts`` updated in place).
+    ``per_run``: structure → its per-run fits (:func:`per_run_laws`), the second start of
+    every count's joint fit (the dropped elements' share taken out of s); ``jobs`` > 1: each
+    count's two refinements side by side."""
     from pmalab.identify.laws.structures import structured_law
     from pmalab.identify.model import ForceModel
 
@@ -680,8 +904,8 @@ def _element_counts(cf, runs, base, models, joints, thetas, choice) -> None:
         small = small[: max(0, m - MIN_ELEMENTS)]
         if not small:
             continue
-        counts: dict[int, tuple[float, tuple[int, ...], object, object]] = {
-            m: (score(j), (), models[s], j)
+        counts: dict[int, tuple[float, tuple[int, ...], object, object, str]] = {
+            m: (score(j), (), models[s], j, choice.starts.get(s, STARTS[0]))
         }
         for n_rm in range(1, len(small) + 1):
             gone = tuple(sorted(small[:n_rm]))
@@ -689,10 +913,12 @@ def _element_counts(cf, runs, base, models, joints, thetas, choice) -> None:
             kappa[list(gone)] = 0.0
             mod = ForceModel(structured_law(base, s, kappa, law.delta), models[s].effects)
             try:
-                jr = _joint_structured(cf, runs, mod, thetas)
+                jr, how = _joint_structured(
+                    cf, runs, mod, thetas, (per_run or {}).get(s), jobs=jobs
+                )
             except (ValueError, np.linalg.LinAlgError):
                 continue
-            counts[m - n_rm] = (score(jr), gone, mod, jr)
+            counts[m - n_rm] = (score(jr), gone, mod, jr, how)
         ok = {c: v for c, v in counts.items() if np.isfinite(v[0])}
         best = min(v[0] for v in ok.values())
         chosen = min(c for c, v in ok.items() if v[0] <= best * (1.0 + SIMPLER_WITHIN))
@@ -700,4 +926,4 @@ def _element_counts(cf, runs, base, models, joints, thetas, choice) -> None:
         choice.elements[s] = ElementCount(
             order, [ok[c][0] for c in order], chosen, [i + 1 for i in ok[chosen][1]]
         )
-        models[s], joints[s] = ok[chosen][2], ok[chosen][3]
+        models[s], joints[s], choice.starts[s] = ok[chosen][2], ok[chosen][3], ok[chosen][4]

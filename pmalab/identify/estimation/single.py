@@ -349,7 +349,7 @@ def _base_key(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[st
     h = hashlib.blake2b(digest_size=16)
     for a in (sig.t, sig.x, force):
         h.update(np.ascontiguousarray(a, dtype=np.float64).tobytes())
-    return (h.digest(), model.law.name, tuple(sorted(fixed.items())))
+    return (h.digest(), model.law.cache_key(), tuple(sorted(fixed.items())))
 
 
 def _remember(key: tuple, theta: dict[str, float]) -> None:

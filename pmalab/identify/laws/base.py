@@ -115,6 +115,18 @@ class HysteresisLaw:
     #: restructures): such a class is never registered as a law of its own
     structure_of: ClassVar[str] = ""
 
+    def cache_key(self) -> tuple:
+        """What tells this law's fits of a record apart from another law's in a cache of
+        fits: its name (a law built at run time under a name it shares with its base, a
+        pressure structure's, adds what makes it another law).
+
+        Returns
+        -------
+        tuple
+            Hashable; equal only for laws whose fits of one record are interchangeable.
+        """
+        return (self.name,)
+
     # ------------------------------------------------------------------ start values
     def shape_grid(self, stroke_mm: float) -> list[dict[str, float]]:
         """The shape parameters of the fit's start grid, sized from the stroke.

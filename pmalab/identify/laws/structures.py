@@ -80,6 +80,20 @@ class ProfileElements(HysteresisLaw):
         #: slip displacements δ_i (mm) of the start profile at t = 1
         self.delta = np.asarray(delta, dtype=np.float64)
 
+    #: the law restructured (set by :func:`structured_law`; what a copy is rebuilt from)
+    base: HysteresisLaw | None = None
+
+    def __reduce__(self) -> tuple:
+        # the class is built at run time (:func:`structured_law`), so a copy sent to a worker
+        # process is rebuilt the same way: from the base law, the structure and the profile
+        if self.base is None:
+            raise TypeError(f"{type(self).__name__} was not built by structured_law()")
+        return (_rebuilt, (self.base, self.structure, self.kappa, self.delta))
+
+    def cache_key(self) -> tuple:
+        # the base law's name is shared: the structure and its profile make it another law
+        return (self.name, self.structure, self.kappa.tobytes(), self.delta.tobytes())
+
     def corrections(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """(c_i, r_i) at ``theta`` (1 for an element without a correction parameter)."""
         m = int(np.size(self.kappa))
@@ -205,7 +219,20 @@ def structured_law(
     cls = type(
         f"{type(base).__name__}{structure.title().replace('-', '')}", (ProfileElements,), attrs
     )
-    return cls(kappa, delta)
+    law = cls(kappa, delta)
+    law.base = base
+    return law
+
+
+def _rebuilt(
+    base: HysteresisLaw, structure: str, kappa: np.ndarray, delta: np.ndarray
+) -> ProfileElements:
+    """A pickled structured law, rebuilt bit for bit: its shares as they were (normalising
+    them again could move their last bit, and a worker's fit would then differ from this
+    process's)."""
+    law = structured_law(base, structure, kappa, delta)
+    law.kappa = np.array(kappa, dtype=np.float64)
+    return law
 
 
 def profile(
