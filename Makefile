@@ -7,10 +7,22 @@ STAMP := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean chromium docs
 
+# The installer is uv (from PyPI, into the venv: it resolves, downloads and installs in
+# parallel, a few seconds where pip takes half a minute); where uv cannot be had or fails,
+# pip does it all as before.  The bytecode is compiled at install, as pip does (a process
+# started with PYTHONDONTWRITEBYTECODE would otherwise compile every module it imports, every
+# time), except the libraries' own test suites, which nothing here imports.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv >/dev/null 2>&1 && \
+	  $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test]'; then \
+	  echo "installed with uv; compiling the bytecode"; \
+	  $(BIN)/python -m compileall -q -j0 -x 'site-packages/.*/tests/' $(VENV)/lib >/dev/null || true; \
+	else \
+	  echo "uv could not be had or failed: installing with pip"; \
+	  $(BIN)/python -m pip install --quiet --upgrade pip && \
+	  $(BIN)/python -m pip install --quiet -e '.[test]'; \
+	fi
 	touch $(STAMP)
 
 demo: $(STAMP)
