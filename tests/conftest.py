@@ -36,6 +36,21 @@ LONGEST_FIRST = (
 )
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _reports_render_in_process():
+    """A report asked for no particular number of page workers renders in the test's own
+    process: the suite already runs one worker per core, so a pool of page workers per
+    report buys no time here and costs 10-14 % more CPU (interleaved runs of the report
+    test files).  The pool is tested where a test asks for it (``jobs=2``: the default
+    start method in test_reports_build, spawn and forkserver in test_reports_parallel,
+    the control and pair reports)."""
+    from pmalab.reports import parallel
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(parallel, "default_jobs", lambda: 1)
+        yield
+
+
 @pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     """The files of :data:`LONGEST_FIRST` first, in that order; within a file, and for every

@@ -47,7 +47,9 @@ def ink_fraction(img: np.ndarray) -> float:
 def full_report(tmp_path_factory):
     d = rf.write_full_dir(tmp_path_factory.mktemp("full") / "res")
     lines: list[str] = []
-    out = build_report(d, d.parent / "report.pdf", progress=lines.append)
+    # two page workers under the platform's default start method (the suite's other
+    # reports render in process: conftest)
+    out = build_report(d, d.parent / "report.pdf", progress=lines.append, jobs=2)
     return d, out, lines
 
 

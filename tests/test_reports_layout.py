@@ -179,3 +179,23 @@ def test_a_page_is_checked_in_the_layout_its_pdf_page_has():
     fig.text(0.995, 0.5, "runs off the right edge")
     assert page_problems(fig) == ["'runs off the right edge' leaves the page"]
     assert ax.get_position().bounds == placed  # the kept layout: drawn again, not moved
+
+
+def test_the_checked_layout_is_the_pdf_pages_layout(pages, dirs):
+    """page_problems lays a page out without writing it; the axes land exactly where
+    saving the page into a PDF puts them."""
+    import io
+
+    import matplotlib as mpl
+    from matplotlib.backends.backend_pdf import PdfPages
+
+    from pmalab.reports import style
+
+    data = load_report_dir(list(dirs))
+    i = next(k for k, p in enumerate(pages, 1) if p.title.startswith("Measured vs model loops"))
+    saved, checked = (draw_page(pages[i - 1], data, i, len(pages)) for _ in range(2))
+    with mpl.rc_context(style.RC), PdfPages(io.BytesIO()) as pdf:
+        pdf.savefig(saved)
+    assert page_problems(checked) == []
+    want = [ax.get_position().bounds for ax in saved.axes]
+    np.testing.assert_allclose([ax.get_position().bounds for ax in checked.axes], want, atol=1e-9)

@@ -446,7 +446,10 @@ def per_run_laws(
     shared = {p.name for p in cf.runs[0].result.params} - elem - own
     held = {n: float(v) for n, v in cf.joint.constants.items() if n in shared}
     p = np.array([rf.p_nom for rf in cf.runs], dtype=np.float64)
-    stroke = np.array([float(np.ptp(r.position)) for r in runs], dtype=np.float64)
+    # peak-to-peak contraction (a gap in a record is NaN: not a stroke)
+    stroke = np.array(
+        [float(np.nanmax(r.position) - np.nanmin(r.position)) for r in runs], dtype=np.float64
+    )
     out: dict[str, PerRunLaws] = {}
     for st, m in models.items():
         law = m.law
