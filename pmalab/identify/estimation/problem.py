@@ -304,7 +304,8 @@ class Problem:
             ]
             for (n, col), d in pairs:
                 if col is None:
-                    J[rows, self.slices[n]] = d[:, None] * self.B[n][i][None, :]  # np.outer's
+                    # np.outer's products, written straight into J (no temporary)
+                    np.multiply(d[:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
                 else:
                     J[rows, col] = d
 
