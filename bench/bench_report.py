@@ -28,8 +28,9 @@ REPEATS = 3
 BEFORE_DEFAULT = "e3efbc6"
 
 
-def _run(src: Path | None, *args: str) -> tuple[float, float]:
-    """Wall and CPU (user + sys, children included) of ``pmalab ARGS`` from ``src``."""
+def _run(src: Path | None, *args: str, cwd: Path) -> tuple[float, float]:
+    """Wall and CPU (user + sys, children included) of ``pmalab ARGS`` from ``src``, run in
+    ``cwd`` (not a source tree: ``python -c`` puts the working directory first on the path)."""
     env = dict(os.environ)
     if src is not None:
         env["PYTHONPATH"] = str(src)
@@ -40,6 +41,7 @@ def _run(src: Path | None, *args: str) -> tuple[float, float]:
         check=True,
         stdout=subprocess.DEVNULL,
         env=env,
+        cwd=cwd,
     )
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -57,7 +59,7 @@ def main() -> None:
         tmp = Path(tmp_)
         demo = Path(os.environ.get("PMALAB_BENCH_DEMO") or tmp / "demo")
         if not (demo / "report.pdf").exists():
-            _run(None, "demo", "--out", str(demo), "--quiet")
+            _run(None, "demo", "--out", str(demo), "--quiet", cwd=tmp)
         dirs = [str(demo / d) for d in ("identify", "identify-improved", "diagnose")]
         trees: dict[str, Path | None] = {"after": Path(__file__).resolve().parents[1]}
         if before:
@@ -77,7 +79,9 @@ def main() -> None:
                     opts = [*extra]
                     if opts[:1] == ["--png"]:
                         opts = ["--png", str(tmp / f"png-{name}-{k}")]
-                    w, c = _run(src, "report", *dirs, "--out", str(out), "--force", "-q", *opts)
+                    w, c = _run(
+                        src, "report", *dirs, "--out", str(out), "--force", "-q", *opts, cwd=tmp
+                    )
                     wall[name].append(w)
                     cpu[name].append(c)
                     pages[name] = _pages(out)
