@@ -62,6 +62,10 @@ MIN_LEVELS = 4
 #: the starts of a structured candidate's joint fit, as ``identification.json`` names the
 #: one kept (:func:`_joint_structured`)
 STARTS = ("free laws", "per-run fits")
+#: the second start is refined only when the first start's refined fit falls short of the
+#: structured law's own per-run fits by more than the free joint laws fall short of the free
+#: per-run fits, by this fraction of that excess (:func:`needs_second_start`)
+SECOND_START_MARGIN = 0.10
 
 
 @dataclass
@@ -206,8 +210,10 @@ def choose_structure(
     structures, the campaign has too few levels, its pressure laws were not refined jointly
     (the evidence is the joint fit's), or the user fixed element parameters.
 
-    Each structured candidate is a joint fit on the free campaign's records from two starts,
-    the lower training cost kept (:func:`_joint_structured`): the free structure's joint laws
+    Each structured candidate is a joint fit on the free campaign's records from up to two
+    starts, the lower training cost kept (:func:`_joint_structured`; the second is refined
+    only when the first's fit falls short of what the data allow,
+    :func:`needs_second_start`): the free structure's joint laws
     (k, c0 and the effects' laws as they are, the magnitude s(p) through the free laws'
     summed element stiffness, t = 1, the profile corrections 1), and the structured law's
     own per-run fits (:func:`per_run_laws`: s, t and h0 on every run, the profile held;
@@ -273,13 +279,16 @@ def choose_structure(
     # every candidate's starts refined in one batch (side by side on two cores), the lower
     # training cost of each candidate's kept
     tasks = {s: _starts(cf, runs, m, thetas, per_run.get(s)) for s, m in models.items()}
-    flat = [(s, k, t) for s in tasks for k, t in enumerate(tasks[s])]
-    # first starts first: a forked child takes the later half (the per-run starts)
-    order = sorted(range(len(flat)), key=lambda i: flat[i][1])
-    done = _refine_all([flat[i][2] for i in order], jobs)
-    fits: dict[str, list] = {s: [None] * len(tasks[s]) for s in tasks}
-    for i, f in zip(order, done):
-        fits[flat[i][0]][flat[i][1]] = f
+    # every candidate's first start refined in one batch (side by side on two cores); then
+    # the second starts of those whose first fell short of what the data allow
+    fits: dict[str, list] = dict(
+        zip(tasks, ([f] for f in _refine_all([t[0] for t in tasks.values()], jobs)))
+    )
+    second = [
+        s for s in tasks if len(tasks[s]) > 1 and needs_second_start(cf, fits[s][0], per_run.get(s))
+    ]
+    for s, f in zip(second, _refine_all([tasks[s][1] for s in second], jobs)):
+        fits[s].append(f)
     for s in models:
         try:
             joints[s], choice.starts[s] = _keep_lower(fits[s])
@@ -369,6 +378,8 @@ class PerRunLaws:
     stroke: np.ndarray
     #: per run: the threshold scale t (1); None where the structure holds it
     t: np.ndarray | None
+    #: per run: the structured law's own fit's nrmse (what the law reaches on that run)
+    nrmse: np.ndarray | None = None
 
     def start(self, kappa: np.ndarray, delta: np.ndarray, top: int) -> dict[str, tuple]:
         """Start laws (monomial q, order ``top``) of s and t through the per-run values, for
@@ -466,7 +477,8 @@ def per_run_laws(
         )
         if not np.all(np.isfinite(sv)) or (tv is not None and not np.all(np.isfinite(tv))):
             continue
-        out[st] = PerRunLaws(np.array(law.kappa), np.array(law.delta), p, sv, stroke, tv)
+        nr = np.array([float(r.nrmse) for r in res], dtype=np.float64)
+        out[st] = PerRunLaws(np.array(law.kappa), np.array(law.delta), p, sv, stroke, tv, nr)
     return out
 
 
@@ -595,12 +607,64 @@ def _joint_structured(
     """The joint fit (with leave-one-pressure-out evidence) of the structured ``model`` on
     ``cf``'s records; returns (the fit, the name of its start in :data:`STARTS`).
 
-    Two starts, each refined (and its orders pruned) like the free fit: the free joint laws
-    (see :func:`choose_structure`) and, given ``per_run``, quadratics through the structured
-    law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the first).  The
-    lower training cost is kept (:func:`_keep_lower`).  ``jobs`` > 1: the two refinements
-    run side by side (:func:`_refine_all`)."""
-    return _keep_lower(_refine_all(_starts(cf, runs, model, thetas, per_run), jobs))
+    Up to two starts, each refined (and its orders pruned) like the free fit: the free joint
+    laws (see :func:`choose_structure`) and, given ``per_run``, quadratics through the
+    structured law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the
+    first), refined only when the first start's fit falls short of what the data allow
+    (:func:`needs_second_start`).  The lower training cost is kept (:func:`_keep_lower`).
+    The two refinements run one after the other (``jobs`` is not used)."""
+    tasks = _starts(cf, runs, model, thetas, per_run)
+    fits = [_refine_start(tasks[0])]
+    if len(tasks) > 1 and needs_second_start(cf, fits[0], per_run):
+        fits.append(_refine_start(tasks[1]))
+    return _keep_lower(fits)
+
+
+def needs_second_start(cf, first, per_run: PerRunLaws | None) -> bool:
+    """Whether a structured candidate's second start (its own per-run fits) must be refined
+    too: the first start's refined joint fit ``first`` fell short of what the data allow.
+
+    What the data allow is judged run by run against the structured law's own per-run fits
+    (the best that law reaches on each run alone): the joint fit's excess is the mean over
+    the runs of (joint nrmse / per-run nrmse)².  A pressure law always costs something, and
+    the free joint laws show how much on these records: the same excess of ``cf.joint``
+    over the campaign's free per-run fits.  The first start stands unless its excess exceeds
+    the free laws' by more than :data:`SECOND_START_MARGIN` of it (a worse minimum, e.g.
+    slip displacements held where the free laws put them although they grow with
+    pressure); a failed first start, or an excess that cannot be judged, always asks for
+    the second.
+
+    Parameters
+    ----------
+    cf
+        The campaign (its free joint fit and per-run fits done).
+    first
+        The first start's refinement (:func:`_refine_start`'s result: a fit or an error).
+    per_run
+        The structured law's per-run fits (:func:`per_run_laws`); None: there is no second
+        start, so False.
+
+    Returns
+    -------
+    bool
+        True when the second start is to be refined.
+    """
+    if per_run is None:
+        return False
+    if isinstance(first, BaseException) or per_run.nrmse is None or cf.joint is None:
+        return True
+    own = np.asarray(per_run.nrmse, dtype=np.float64)
+    free = np.array([rf.result.nrmse for rf in cf.runs], dtype=np.float64)
+    jf = np.asarray(first.nrmse, dtype=np.float64)
+    jfree = np.asarray(cf.joint.nrmse, dtype=np.float64)
+    if not (own.shape == jf.shape == free.shape == jfree.shape) or jf.size == 0:
+        return True
+    with np.errstate(divide="ignore", invalid="ignore"):
+        excess = float(np.mean(np.square(jf / own)))
+        allowed = float(np.mean(np.square(jfree / free)))
+    if not (np.isfinite(excess) and np.isfinite(allowed)):
+        return True
+    return excess > allowed * (1.0 + SECOND_START_MARGIN)
 
 
 # --------------------------------------------------------------------------- priors
@@ -888,8 +952,8 @@ def _element_counts(
     out score is within ``SIMPLER_WITHIN`` of the best count's replace the candidate
     (``models``, ``joints``, ``choice.elements`` and ``choice.starts`` updated in place).
     ``per_run``: structure → its per-run fits (:func:`per_run_laws`), the second start of
-    every count's joint fit (the dropped elements' share taken out of s); ``jobs`` > 1: each
-    count's two refinements side by side."""
+    every count's joint fit (the dropped elements' share taken out of s), refined when the
+    first start's falls short (:func:`needs_second_start`)."""
     from pmalab.identify.laws.structures import structured_law
     from pmalab.identify.model import ForceModel
 
