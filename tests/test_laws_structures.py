@@ -200,6 +200,46 @@ def test_two_element_muscle_keeps_fewer_elements():
     assert st.as_json()["element_counts"][st.chosen]["chosen"] == ec.chosen
 
 
+def test_an_element_count_that_removes_only_zero_elements_reuses_the_fit(monkeypatch):
+    """A count whose removed elements are already at zero share is the candidate's own law:
+    its joint fit is the candidate's (reused), not fitted a second time, and it scores the
+    same.  The fits are stand-ins: only which laws get fitted is under test."""
+    from types import SimpleNamespace
+
+    import pmalab.identify.campaign.structure as S
+
+    base = get_law("maxwell-slip")
+    # element 2 has no share; element 1 carries < 10 % of the friction (0.15 of 1.9)
+    law = structured_law(base, "scaled", [0.5, 0.0, 0.3, 0.2], DELTA)
+    th = {lp.name: float(lp.init) for lp in law.params} | {"k": -50.0, "c0": 100.0}
+
+    class Fit:
+        def __init__(self) -> None:
+            self.lopo = {"p300": 0.02}
+
+        def theta(self, p):
+            return th
+
+    fitted = []
+
+    def joint_structured(cf, runs, model, thetas, per_run=None, jobs=1):
+        fitted.append(model.law)
+        return Fit(), STARTS[0]
+
+    monkeypatch.setattr(S, "_joint_structured", joint_structured)
+    cf = SimpleNamespace(runs=[SimpleNamespace(p_nom=p) for p in (0.2, 0.3, 0.4)])
+    choice = S.StructureChoice(
+        law="maxwell-slip", chosen="auto", criterion="", scores={}, n_params={}, folds=[0.3]
+    )
+    models = {"scaled": ForceModel(law)}
+    S._element_counts(cf, [], base, models, {"scaled": Fit()}, [], choice)
+    ec = choice.elements["scaled"]
+    # three elements carry force; the one count tried removes element 2 (already zero)
+    assert ec.counts == [2, 3] and ec.removed == [2], ec
+    assert ec.scores[0] == ec.scores[1]
+    assert fitted == []  # the same law is never fitted twice
+
+
 def _gate_case(joint_free: float, first: float | Exception):
     """A campaign of four runs whose free per-run fits reach nrmse 0.010 and free joint laws
     ``joint_free``; the structured law's own per-run fits reach 0.011 and its first start's
