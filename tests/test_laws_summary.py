@@ -31,6 +31,26 @@ def test_best_law_below_the_threshold_is_named_not_claimed():
     assert "(−3 %," in text  # 1 − 0.0222 / 0.0230 = 3.5 %
 
 
+def test_a_large_gain_not_claimed_says_which_part_of_the_rule_it_fails():
+    # a real O-ring campaign: 3.85 floors gained, but one of the four held-out runs got worse
+    runs = {"per_run_before": [0.12, 0.13, 0.14, 0.12], "runs_at_floor": 0}
+    worse = _row("maxwell-slip", 0.0150, 3.85, per_run_after=[0.10, 0.11, 0.12, 0.13],
+                 block_t=35.6, **runs)
+    text = closest_law_phrase("bouc-wen", [worse])
+    assert "only 3 of 4 held-out runs" in text and "within what noise gives" not in text
+    # the same run at its noise floor both times is no evidence either way
+    floor = {**worse, "runs_at_floor": 1}
+    assert "of 4 held-out runs" not in closest_law_phrase("bouc-wen", [floor])
+    # every run lower, but the cycles disagree
+    cycles = _row("maxwell-slip", 0.0150, 0.9, per_run_after=[0.10, 0.11, 0.12, 0.11],
+                  block_t=0.8, **runs)
+    text = closest_law_phrase("bouc-wen", [cycles])
+    assert "cycle by cycle (block t 0.8 < 1.5)" in text and "noise gives" not in text
+    # below the threshold: the gain is what the sentence names, whatever else fails
+    small = {**worse, "gain_x_floor": 0.2}
+    assert "within what noise gives" in closest_law_phrase("bouc-wen", [small])
+
+
 def test_no_law_better_than_the_base_says_nothing():
     laws = [
         _row("duhem", 0.0240, -0.5),

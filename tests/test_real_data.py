@@ -126,6 +126,21 @@ def test_ladder_climbs_on_real_data_every_step_improving_every_held_out_run(diag
     assert rest["next"] == "loop" and "Where the rest lies" in diagnosis["summary"]
 
 
+def test_readme_tells_what_the_ladder_does_on_real_data(diagnosis):
+    # the README's paragraph on these measurements names the steps and the fall as they are
+    readme = (ROOT / "README.md").read_text()
+    para = readme[readme.index("`data/real/zillen-oring257/`"):]
+    para = " ".join(para[: para.index("\n\n")].split())
+    ladder = diagnosis["ladder"]
+    steps = [s["added"].replace("-", " ") for s in ladder[1:] if s["added"]]
+    assert steps and all(s in para for s in steps), (steps, para)
+    assert [para.index(s) for s in steps] == sorted(para.index(s) for s in steps), para
+    for law in {s.get("law") for s in ladder[1:]} - {ladder[0].get("law")}:
+        assert law.replace("-", " ") in para.lower().replace("-", " "), (law, para)
+    fall = round(100 * (1 - ladder[-1]["nrmse"] / ladder[0]["nrmse"]))
+    assert f"−{fall} % in all" in para, (fall, para)
+
+
 def test_diagnose_numbers_are_identifys(diagnosis, campaign, tmp_path):
     adds = [a for s in diagnosis["ladder"][1:] for a in ("--add", s["added"]) if s["added"]]
     law = diagnosis["final_law"]

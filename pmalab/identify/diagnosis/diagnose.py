@@ -43,6 +43,7 @@ from pmalab.identify.diagnosis.ladder import (
 )
 from pmalab.identify.diagnosis.ranking import (
     AMBIGUITY_RATIO,
+    MIN_BLOCK_T,
     MIN_GAIN_X_FLOOR,
     alike,
     heldout_floor,
@@ -347,8 +348,9 @@ def _structure_keys(js: Mapping[str, Any] | None) -> dict[str, Any]:
 def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
     """What the laws say when none is significant: the law that predicts best, if it beats
     the base model at all, with its gain against the rule's threshold — so a user whose loop
-    has that law's shape is told, and told the gain is within what noise gives; ``""``
-    when no law predicts better than the base model."""
+    has that law's shape is told, and told which part of the rule it fails (the gain within
+    what noise gives, a held-out run it does not improve, or cycles that do not agree);
+    ``""`` when no law predicts better than the base model."""
     ok = [
         lw
         for lw in laws
@@ -364,9 +366,29 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
         f"Of the hysteresis laws, {b['law']}{structure_phrase(b)} predicts best: "
         f"{b['nrmse_before']:.4f} → {b['nrmse_after']:.4f} (−{fall:.0f} %, "
         f"{b['gain_x_floor']:.2f} noise floors; a claim needs ≥ {MIN_GAIN_X_FLOOR:g}): the "
-        f"loop may have its shape, but the gain over the {model} model is within what noise "
-        "gives, so it is not claimed."
+        f"loop may have its shape, but {_why_not_claimed(b, model)}, so it is not claimed."
     )
+
+
+def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
+    """The part of the significance rule a not-significant law row fails, in words (the
+    first that fails, in the rule's order: the mean gain, every held-out run, cycle by
+    cycle)."""
+    if row["gain_x_floor"] < MIN_GAIN_X_FLOOR:
+        return f"the gain over the {model} model is within what noise gives"
+    before, after = row.get("per_run_before"), row.get("per_run_after")
+    if before and after and len(before) == len(after):
+        fell = sum(a < b for a, b in zip(after, before))
+        at_floor = int(row.get("runs_at_floor") or 0)
+        if fell + at_floor < len(after):
+            return (
+                f"it lowers the error on only {fell} of {len(after)} held-out runs (the rule "
+                "asks for every run not at its noise floor)"
+            )
+    t = row.get("block_t")
+    if t is not None and t < MIN_BLOCK_T:
+        return f"its fall is not consistent cycle by cycle (block t {t:.1f} < {MIN_BLOCK_T:g})"
+    return "it does not pass the significance rule"
 
 
 def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
