@@ -279,8 +279,6 @@ def choose_structure(
     )
     joints: dict = {"free": cf.joint}
     per_run = per_run_laws(cf, runs, models, jobs=jobs, scheduler=scheduler)
-    # every candidate's starts refined in one batch (side by side on two cores), the lower
-    # training cost of each candidate's kept
     tasks = {s: _starts(cf, runs, m, thetas, per_run.get(s)) for s, m in models.items()}
     # every candidate's first start refined in one batch (side by side on two cores); then
     # the second starts of those whose first fell short of what the data allow
@@ -309,11 +307,11 @@ def choose_structure(
     if structure == "auto":
         for s, j in joints.items():
             labels = [rf.label for rf in cf.runs if rf.label in j.lopo]
-            per_run = [j.lopo[lb] for lb in labels]
+            left_out = [j.lopo[lb] for lb in labels]
             choice.scores[s] = (
-                float(np.sqrt(np.mean(np.square(per_run)))) if per_run else float("nan")
+                float(np.sqrt(np.mean(np.square(left_out)))) if left_out else float("nan")
             )
-            choice.per_run[s] = per_run
+            choice.per_run[s] = left_out
             # pressure-law coefficients of the muscle (record parameters excluded)
             choice.n_params[s] = sum(d + 1 for d in j.degree.values())
         choice.chosen = pick(choice.scores, choice.n_params)
