@@ -49,7 +49,8 @@ def _run(src: Path | None, *args: str, cwd: Path) -> tuple[float, float]:
 
 
 def _pages(pdf: Path) -> int:
-    return pdf.read_bytes().count(b"/Type /Page\n") + pdf.read_bytes().count(b"/Type /Page ")
+    data = pdf.read_bytes()
+    return data.count(b"/Type /Page\n") + data.count(b"/Type /Page ")
 
 
 def main() -> None:

@@ -280,16 +280,7 @@ def choose_structure(
     joints: dict = {"free": cf.joint}
     per_run = per_run_laws(cf, runs, models, jobs=jobs, scheduler=scheduler)
     tasks = {s: _starts(cf, runs, m, thetas, per_run.get(s)) for s, m in models.items()}
-    # every candidate's first start refined in one batch (side by side on two cores); then
-    # the second starts of those whose first fell short of what the data allow
-    fits: dict[str, list] = dict(
-        zip(tasks, ([f] for f in _refine_all([t[0] for t in tasks.values()], jobs)))
-    )
-    second = [
-        s for s in tasks if len(tasks[s]) > 1 and needs_second_start(cf, fits[s][0], per_run.get(s))
-    ]
-    for s, f in zip(second, _refine_all([tasks[s][1] for s in second], jobs)):
-        fits[s].append(f)
+    fits = _refine_gated(cf, tasks, per_run, jobs)
     for s in models:
         try:
             joints[s], choice.starts[s] = _keep_lower(fits[s])
@@ -572,6 +563,24 @@ def _refine_all(tasks: Sequence[tuple], jobs: int) -> list:
     return [_refine_start(t) for t in tasks]
 
 
+def _refine_gated(
+    cf, tasks: Mapping[str, Sequence[tuple]], per_run: Mapping[str, PerRunLaws], jobs: int
+) -> dict[str, list]:
+    """Candidate → its refinements (:func:`_refine_start`'s results, in start order):
+    every candidate's first start refined in one batch (side by side on two cores when
+    ``jobs`` > 1), then, in a second batch, the second starts of those whose first fell
+    short of what the data allow (:func:`needs_second_start`).  ``tasks``: candidate → its
+    starts (:func:`_starts`); ``per_run``: candidate → its per-run fits (absent: none)."""
+    firsts = _refine_all([t[0] for t in tasks.values()], jobs)
+    fits: dict[str, list] = {s: [f] for s, f in zip(tasks, firsts)}
+    second = [
+        s for s in tasks if len(tasks[s]) > 1 and needs_second_start(cf, fits[s][0], per_run.get(s))
+    ]
+    for s, f in zip(second, _refine_all([tasks[s][1] for s in second], jobs)):
+        fits[s].append(f)
+    return fits
+
+
 def _keep_lower(fits: Sequence) -> tuple:
     """(the fit of the lower training cost, the name of its start in :data:`STARTS`) among
     one candidate's refinements (:func:`_refine_start`'s results, in start order).
@@ -612,13 +621,11 @@ def _joint_structured(
     laws (see :func:`choose_structure`) and, given ``per_run``, quadratics through the
     structured law's per-run s and t (:meth:`PerRunLaws.start`; everything else as in the
     first), refined only when the first start's fit falls short of what the data allow
-    (:func:`needs_second_start`).  The lower training cost is kept (:func:`_keep_lower`).
-    The two refinements run one after the other (``jobs`` is not used)."""
-    tasks = _starts(cf, runs, model, thetas, per_run)
-    fits = [_refine_start(tasks[0])]
-    if len(tasks) > 1 and needs_second_start(cf, fits[0], per_run):
-        fits.append(_refine_start(tasks[1]))
-    return _keep_lower(fits)
+    (:func:`needs_second_start`; :func:`_refine_gated`, the two one after the other).  The
+    lower training cost is kept (:func:`_keep_lower`)."""
+    tasks = {model.name: _starts(cf, runs, model, thetas, per_run)}
+    per = {model.name: per_run} if per_run is not None else {}
+    return _keep_lower(_refine_gated(cf, tasks, per, jobs)[model.name])
 
 
 def needs_second_start(cf, first, per_run: PerRunLaws | None) -> bool:
