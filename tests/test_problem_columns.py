@@ -203,3 +203,26 @@ def test_jacobian_is_each_parameters_column_times_its_basis_bit_for_bit(law, eff
     assert np.array_equal(J, ref), np.argwhere(J != ref)[:5]
     assert not np.any(J[prob.rows[-1], sl]) and np.any(J[prob.rows[0], sl])
     assert np.signbit(J[prob.rows[-1], sl]).sum() == 0  # +0.0, as a column never written
+
+
+@pytest.mark.parametrize("rows", [1, 2, 5, 8])
+def test_slide_h_many_rows_are_slide_h_bit_for_bit(rows):
+    # the kernel advances two rows side by side; each row must stay its own slide_h, to the
+    # bit (-0.0 and NaN too), for odd and even row counts, both start branches, an element
+    # of zero share, negative slip forces (|f| is the slip force) and a NaN stiffness
+    from pmalab.identify.laws._slide import slide_h, slide_h_many
+
+    rng = np.random.default_rng(rows)
+    t = np.linspace(0.0, 3.0 * np.pi, 700)
+    x = 9.0 + 7.0 * np.sin(t) + 0.02 * rng.standard_normal(t.size)
+    K = rng.uniform(0.2, 6.0, (rows, 5))
+    F = K * rng.uniform(0.1, 4.0, (rows, 5)) * np.where(rng.uniform(size=(rows, 5)) < 0.3, -1, 1)
+    K[:, 2] = F[:, 2] = 0.0
+    if rows > 2:
+        K[2, 0] = np.nan
+    h0 = rng.uniform(-5.0, 5.0, rows)
+    rev = (np.arange(rows) % 2).astype(np.float64)
+    H = slide_h_many(x, K, F, h0, rev)
+    want = np.array([slide_h(x, K[j], F[j], h0[j], rev[j]) for j in range(rows)])
+    assert H.shape == want.shape and H.tobytes() == want.tobytes()
+    assert rows == 1 or not np.array_equal(H[0], H[1])
