@@ -123,6 +123,45 @@ def whole_record_x_floor(c: Path, law: str, floor: float | None) -> float | None
     return float(np.mean(vn)) / floor if vn and floor else None
 
 
+def truth_x_floor(c: Path, truth: Path, floor: float | None) -> float | None:
+    """The simulated muscle's own parameters, as Maxwell-slip law parameters
+    (:func:`pmalab.rig.sim.reference.maxwell_slip_theta`), predicting the held-out runs by
+    the rule ``identify`` predicts them by (start state and force zero estimated on each
+    record's early part, scored on the rest): mean held-out nrmse ÷ ``floor``.  What a
+    perfect identification would score; None when the law cannot express the truth.
+
+    A matching law above its bound where this is above it too misses on the held-out
+    scoring (a record's start state and zero taken from its first cycle), not on the fit."""
+    import numpy as np
+
+    from pmalab.identify.api import split_roles
+    from pmalab.identify.campaign.fit import _as_model
+    from pmalab.identify.estimation.records import predict_record, scored_from
+    from pmalab.identify.long_records import fit_part
+    from pmalab.identify.metrics import metrics
+    from pmalab.identify.signals import Signals
+    from pmalab.rig.sim.reference import maxwell_slip_theta
+    from pmalab.rig.sim.truth import load_truth
+    from pmalab.runfile import read_runs
+
+    tr = load_truth(truth)
+    model = _as_model("maxwell-slip")
+    _, held = split_roles([fit_part(r.steady()) for r in read_runs(c)])
+    vn = []
+    for r in held:
+        th = maxwell_slip_theta(float(r.nominal_pressure), tr)
+        if th is None:
+            return None
+        sig, f = Signals.from_run(r), np.asarray(r.force, dtype=float)
+        # the record parameters (start state h0; the zero c0 is the static line's) are
+        # estimated on the record's early part, as for a fitted model
+        fm = predict_record(model, sig, {**th, **dict.fromkeys(model.record_params, 0.0)},
+                            force=f)
+        i0 = scored_from(sig)
+        vn.append(float(metrics(f[i0:], fm[i0:], sig.x[i0:])["nrmse"]))
+    return float(np.mean(vn)) / floor if vn and floor else None
+
+
 def claim_headroom(base_x_floor: float | None) -> str:
     """The most any other law can gain on the diagnosis's base model, in noise floors, and
     whether that could be claimed: ``diagnose`` claims a law only when the law cuts the

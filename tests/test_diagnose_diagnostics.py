@@ -78,3 +78,29 @@ def test_campaign_groups_by_pressure_and_frequency() -> None:
     assert c["pressure_level"]["mean"] == pytest.approx([2.0, -2.0])
     assert c["frequency"]["centers"] == [0.25, 1.0]
     assert c["frequency"]["rms"][1] == pytest.approx(3.0)
+
+
+@pytest.mark.parametrize("n", [1, 2, 5, 1000, 2001])
+def test_the_loop_phase_signal_is_scipys_hilbert_bit_for_bit(n: int) -> None:
+    import scipy.signal
+
+    from pmalab.identify.diagnosis.diagnostics import analytic_signal
+
+    x = np.random.default_rng(n).normal(3.0, 7.0, n)
+    z, ref = analytic_signal(x), scipy.signal.hilbert(x)
+    assert z.dtype == ref.dtype and z.shape == ref.shape
+    assert z.tobytes() == ref.tobytes()  # the same operations, so the same bits (even and odd n)
+
+
+def test_a_diagnosis_does_not_import_scipy_signal_or_stats() -> None:
+    # their package imports cost a diagnosis start-up time it never uses
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\nimport pmalab.identify.cli, pmalab.identify.diagnosis.diagnose\n"
+        "import pmalab.identify.diagnosis.diagnostics\n"
+        "print(sorted(m for m in ('scipy.signal', 'scipy.stats') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["[]"], out.stdout

@@ -163,3 +163,66 @@ def test_nonneg_is_pythons_max_with_zero_bit_for_bit():
     v = np.array([-3.0, -0.0, 0.0, np.nan, 2.5, -np.inf, np.inf, 1e-320])
     want = np.array([max(float(a), 0.0) for a in v])
     assert want.tobytes() == nonneg(v).tobytes()  # -0.0 and NaN kept as max keeps them
+
+
+@pytest.mark.parametrize(("law", "effects"), [("maxwell-slip", ("viscous-friction",)),
+                                              ("bouc-wen", ("sensor-drift",))])
+def test_jacobian_is_each_parameters_column_times_its_basis_bit_for_bit(law, effects):
+    # the shared parameters' columns of a run are written in one product; each entry must
+    # still be the one multiplication ∂r_i/∂θ_n · B_n(p_i), and a θ clipped at a run
+    # (its law out of bounds there) must leave that run's entries exactly 0
+    model = ForceModel(law, [EFFECTS[e]() for e in effects])
+    prob = _problem(model, _records())
+    z = _z(prob, model, np.random.default_rng(11))
+    # push one pressure law with a slope out of its bounds at the highest pressure only
+    n_clip = next(n for n in prob.free
+                  if prob.degree[n] >= 1 and np.isfinite(prob.bounds[n][1]) and n != "k")
+    sl = prob.slices[n_clip]
+    b = prob.B[n_clip]
+    assert np.allclose(b[:, 0], 1.0) and b[0, 1] < 0 < b[-1, 1]  # P0 = 1; P1 ≈ ∓1 at the ends
+    # θ += δ·(P0 − P1/P1(p_min)): unchanged at the lowest pressure, ≈ +2δ at the highest
+    delta = 0.5 * (prob.bounds[n_clip][1] - prob.raw(z)[n_clip][-1]) + 1e-3
+    z[sl.start] += delta
+    z[sl.start + 1] -= delta / b[0, 1]
+    inside = [bool(prob.bounds[n_clip][0] <= v <= prob.bounds[n_clip][1])
+              for v in prob.raw(z)[n_clip]]
+    assert inside[0] and not inside[-1], inside
+    J = prob.jac(z)
+    r0 = prob.residual(z)
+    ths = prob.thetas(z)
+    ref = np.zeros_like(J)
+    for i, th in enumerate(ths):
+        rows = prob.rows[i]
+        for n in prob.free:
+            ok = prob.bounds[n][0] <= prob.raw(z)[n][i] <= prob.bounds[n][1]
+            if ok:
+                d = prob.dresid(i, th, n, r0)
+                ref[rows, prob.slices[n]] = d[:, None] * prob.B[n][i][None, :]
+        for j, rn in enumerate(prob.run_params):
+            ref[rows, prob.block(j).start + i] = prob.dresid(i, th, rn, r0)
+    assert np.array_equal(J, ref), np.argwhere(J != ref)[:5]
+    assert not np.any(J[prob.rows[-1], sl]) and np.any(J[prob.rows[0], sl])
+    assert np.signbit(J[prob.rows[-1], sl]).sum() == 0  # +0.0, as a column never written
+
+
+@pytest.mark.parametrize("rows", [1, 2, 5, 8])
+def test_slide_h_many_rows_are_slide_h_bit_for_bit(rows):
+    # the kernel advances two rows side by side; each row must stay its own slide_h, to the
+    # bit (-0.0 and NaN too), for odd and even row counts, both start branches, an element
+    # of zero share, negative slip forces (|f| is the slip force) and a NaN stiffness
+    from pmalab.identify.laws._slide import slide_h, slide_h_many
+
+    rng = np.random.default_rng(rows)
+    t = np.linspace(0.0, 3.0 * np.pi, 700)
+    x = 9.0 + 7.0 * np.sin(t) + 0.02 * rng.standard_normal(t.size)
+    K = rng.uniform(0.2, 6.0, (rows, 5))
+    F = K * rng.uniform(0.1, 4.0, (rows, 5)) * np.where(rng.uniform(size=(rows, 5)) < 0.3, -1, 1)
+    K[:, 2] = F[:, 2] = 0.0
+    if rows > 2:
+        K[2, 0] = np.nan
+    h0 = rng.uniform(-5.0, 5.0, rows)
+    rev = (np.arange(rows) % 2).astype(np.float64)
+    H = slide_h_many(x, K, F, h0, rev)
+    want = np.array([slide_h(x, K[j], F[j], h0[j], rev[j]) for j in range(rows)])
+    assert H.shape == want.shape and H.tobytes() == want.tobytes()
+    assert rows == 1 or not np.array_equal(H[0], H[1])

@@ -68,3 +68,57 @@ def baseline_tension(
     """Static + friction tension (N) of the baseline law along ``x`` at pressures ``p``
     (never negative: a muscle only pulls)."""
     return np.maximum(static_force(x, p, truth) + friction_force(x, p, truth, u0), 0.0)
+
+
+def maxwell_slip_theta(
+    p: float, truth: Truth | None = None, elements: int = 4
+) -> dict[str, float] | None:
+    """The baseline law at nominal pressure ``p`` (MPa) as parameters of pmalab's
+    Maxwell-slip law: what a perfect identification would find.
+
+    The static line F0(p)·(1 − x/x_max(p)) is ``c0 + k·x`` (c0 = F0 in N, k = −F0/x_max in
+    N/mm); element i of the braid friction slides at ``d_i`` = its slip displacement × q^a
+    (mm; a = ``presliding_pressure_exponent``) and holds it with the stiffness
+    ``k_i`` = its slip force ÷ d_i (N/mm), its slip force being its weight's share of the
+    pressure's total slip force.  Elements the truth does not have are given no stiffness
+    (``k_i`` = 0; ``d_i`` = 1 mm, which then acts on nothing).
+
+    Parameters
+    ----------
+    p : float
+        Nominal muscle pressure (MPa).
+    truth : Truth, optional
+        The simulated muscle (default: the simulator's default truth).
+    elements : int
+        The law's number of elasto-slide elements (names ``k1, d1, …``).
+
+    Returns
+    -------
+    dict or None
+        ``k``, ``c0``, ``k1…``, ``d1…``; None when the law cannot express the truth: more
+        elements than ``elements``, or any hidden effect enabled (an asymmetric loop, a
+        curved static line and the rate-dependent effects are not in the law).
+    """
+    truth = truth or default_truth()
+    fr = truth.section("friction")
+    d = np.asarray(fr["presliding_mm"], float)
+    if d.size > elements or truth.enabled_effects():
+        return None
+    m = truth.section("muscle")
+    q = float(_q(truth, np.asarray(p)))
+    beta = m["force_pressure_curvature"]
+    f0 = m["max_force_N"] * ((1 - beta) * q + beta * q * q)
+    sc = m["contraction_pressure_scale"]
+    xm = max(m["max_contraction_mm"] * (1 - math.exp(-q / sc)) / (1 - math.exp(-1 / sc)), 0.5)
+    w = np.asarray(fr["weights"], float)
+    w = w / w.sum()
+    g = fr["pressure_curvature"]
+    ftot = fr["slip_force_N"] * ((1 - g) * q + g * q * q)
+    a = fr["presliding_pressure_exponent"]
+    ds = d * (max(q, 0.05) ** a if a != 0.0 else 1.0)  # the kernel's slip scale
+    th = {"k": -f0 / xm, "c0": f0}
+    for i in range(elements):
+        on = i < d.size
+        th[f"d{i + 1}"] = float(ds[i]) if on else 1.0
+        th[f"k{i + 1}"] = float(ftot * w[i] / ds[i]) if on else 0.0
+    return th
