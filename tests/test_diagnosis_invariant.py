@@ -14,6 +14,11 @@ noise floor; of three modest ones (each alone ≈ 1 floor) the ladder adds hidde
 every step lowering every held-out run's error, and ends ≥ 20 % below the base; a loop the
 base law cannot shape (the simulator's braid friction under near-noiseless sensors) is
 reported as an unexplained residual, with its size.
+
+Every fit here runs in the test's own process (``jobs=1``): the suite runs one pytest
+worker per core, so a pool of fitting workers per test adds about a quarter to these
+diagnoses' CPU and saves no time.  The pools give the same numbers (test_identify_campaign,
+test_start_methods, test_diagnose_dask).
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ def _record(truth: Path, work: Path) -> tuple[list, list]:
 
 
 def _mean_validation(runs, val, effects=()) -> float:
-    res = identify(runs, "bouc-wen", effects=list(effects), validate=val, jobs=2)
+    res = identify(runs, "bouc-wen", effects=list(effects), validate=val, jobs=1)
     return float(np.mean([v.metrics["nrmse"] for v in res.validation]))
 
 
@@ -61,7 +66,7 @@ EFFECT_CASES = [
 @pytest.mark.parametrize(("truth", "effect"), EFFECT_CASES, ids=[c[0] for c in EFFECT_CASES])
 def test_diagnose_names_the_subtle_effect_with_identify_add_numbers(truth, effect, tmp_path):
     runs, val = _record(TRUTH_DIR / "subtle" / f"{truth}.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2)
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=1)
     floor = d.noise_floor["mean_nrmse"]
     top = d.ranking[0]
     # the hidden effect is subtle: the base model sits a few times above the noise floor
@@ -88,7 +93,7 @@ def test_slow_offsets_between_runs_are_not_claimed_as_an_effect(truth, tmp_path)
     (the same freedom for the null as for sensor-drift), so none of them is claimed: the
     numbers say what a record's own offset cannot."""
     runs, val = _record(TRUTH_DIR / f"{truth}.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2, laws=[],
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=1, laws=[],
                  effects=["sensor-drift", "nonlinear-stiffness", "asymmetric-hysteresis"])
     assert not any(r["significant"] for r in d.ranking), d.ranking_table()
     drift = next(r for r in d.ranking if r["effect"] == "sensor-drift")
@@ -98,7 +103,7 @@ def test_slow_offsets_between_runs_are_not_claimed_as_an_effect(truth, tmp_path)
 @pytest.mark.slow
 def test_clean_data_claims_nothing(tmp_path):
     runs, val = _record(TRUTH_DIR / "subtle" / "clean.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2)
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=1)
     assert not any(r["significant"] for r in d.ranking), d.ranking_table()
     assert len(d.ladder) == 1
     assert d.verdict == "floor", d.summary
@@ -107,7 +112,7 @@ def test_clean_data_claims_nothing(tmp_path):
 @pytest.mark.slow
 def test_two_hidden_effects_are_both_added_and_reach_the_floor(tmp_path):
     runs, val = _record(TRUTH_DIR / "subtle" / "two-effects.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=3, jobs=2,
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=3, jobs=1,
                  effects=["viscous-friction", "asymmetric-hysteresis", "sensor-delay",
                           "nonlinear-stiffness"])
     added = [s["added"] for s in d.ladder[1:]]
@@ -140,7 +145,7 @@ def test_three_modest_effects_the_ladder_adds_them_and_ends_20_percent_lower(tmp
     (a delay look-alike), 0.85 floors against sensor-delay's 0.97 at step 1.
     """
     runs, val = _record(TRUTH_DIR / "subtle" / "three-modest-effects.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, jobs=2, max_steps=3,
+    d = diagnose(runs, "bouc-wen", validate=val, jobs=1, max_steps=3,
                  effects=[*THREE_MODEST, "viscous-friction", "sensor-drift"], laws=[])
     why = f"{d.ladder_table()}\n{d.summary}"
     base = d.ladder[0]
@@ -164,7 +169,7 @@ def test_a_loop_the_law_cannot_shape_is_an_unexplained_residual(tmp_path):
     # the default truth: no hidden effect, but 0.7 N force noise — the braid friction's loop
     # shape (Maxwell-slip, not Bouc-Wen) is then far above the noise floor
     runs, val = _record(TRUTH_DIR / "default.toml", tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2)
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=1)
     assert d.verdict == "unexplained", d.summary
     assert "Unexplained structured residual" in d.summary and "× the noise floor" in d.summary
     assert "explains the data" not in d.summary
@@ -195,7 +200,7 @@ def test_imported_csv_exports_are_diagnosed_like_recordings(tmp_path):
     # the invariant holds on the imported files
     runs, val = _record(TRUTH_DIR / "subtle" / "viscous-friction.toml", tmp_path)
     runs, val = _as_imported_csv(runs, tmp_path), _as_imported_csv(val, tmp_path)
-    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=2)
+    d = diagnose(runs, "bouc-wen", validate=val, max_steps=1, jobs=1)
     top = d.ranking[0]
     # at one frequency per pressure a sensor delay mimics viscous force (the ranking says
     # "ambiguous" and which experiment separates them): either may come first

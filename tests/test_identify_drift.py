@@ -42,8 +42,9 @@ def drift_runs(tmp_path_factory: pytest.TempPathFactory):
 
 @pytest.fixture(scope="module")
 def fits(drift_runs):
-    base = identify(drift_runs, "bouc-wen", jobs=2)
-    drift = identify(drift_runs, "bouc-wen", effects=["sensor-drift"], jobs=2)
+    # in this process: the suite runs a pytest worker per core (pools: test_start_methods)
+    base = identify(drift_runs, "bouc-wen", jobs=1)
+    drift = identify(drift_runs, "bouc-wen", effects=["sensor-drift"], jobs=1)
     return base, drift
 
 
