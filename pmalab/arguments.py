@@ -12,6 +12,44 @@ from pmalab.errors import PmalabError
 
 #: the largest seed: it is stored with the recording as a 64-bit integer attribute
 MAX_SEED = 2**63 - 1
+#: the environment variable that sets the default of every command's ``--jobs``
+JOBS_ENV = "PMALAB_JOBS"
+
+
+def default_jobs(fallback: int) -> int:
+    """The worker processes a command starts when ``--jobs`` is not given.
+
+    ``$PMALAB_JOBS`` when set (1 where other work already fills the cores: a parallel test
+    suite, commands run side by side; every result is the same under any number of
+    workers), else ``fallback``.
+
+    Parameters
+    ----------
+    fallback
+        The command's own default (worker processes).
+
+    Returns
+    -------
+    int
+        The number of worker processes, ≥ 1.
+
+    Raises
+    ------
+    PmalabError
+        ``$PMALAB_JOBS`` is set but not a whole number ≥ 1 (one line naming it).
+    """
+    import os
+
+    text = os.environ.get(JOBS_ENV, "").strip()
+    if not text:
+        return fallback
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise PmalabError(f"{JOBS_ENV}={text}: give a whole number >= 1 (worker processes)")
+    return n
 
 
 def seed(text: str) -> int:

@@ -9,6 +9,15 @@ import pytest
 
 matplotlib.use("Agg")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "numba-cache"))
+# every command and report the suite runs (in process, and the docs build's commands in
+# subprocesses) works in its own process unless a test asks for workers (``jobs=2``,
+# ``--jobs 2``): xdist already runs one pytest worker per core, so a pool of fitting or
+# page workers per test buys no time here and costs 10-25 % more CPU (interleaved runs of
+# the diagnosis and report test files).  Results are the same under any number of
+# workers (test_identify_campaign, test_reports_parallel, test_start_methods); tests of
+# what a user's shell gets (the wheel, the reading child, the active loop over the wire)
+# remove the variable from their subprocesses' environment
+os.environ.setdefault("PMALAB_JOBS", "1")
 
 #: the longest test files, longest first (summed test time per file of a whole-suite run;
 #: the docs site's cold build is one test of ~2 min).  ``make test`` runs the suite with
@@ -34,21 +43,6 @@ LONGEST_FIRST = (
     "test_identify_joint.py",
     "test_pair.py",
 )
-
-
-@pytest.fixture(autouse=True, scope="session")
-def _reports_render_in_process():
-    """A report asked for no particular number of page workers renders in the test's own
-    process: the suite already runs one worker per core, so a pool of page workers per
-    report buys no time here and costs 10-14 % more CPU (interleaved runs of the report
-    test files).  The pool is tested where a test asks for it (``jobs=2``: the default
-    start method in test_reports_build, spawn and forkserver in test_reports_parallel,
-    the control and pair reports)."""
-    from pmalab.reports import parallel
-
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(parallel, "default_jobs", lambda: 1)
-        yield
 
 
 @pytest.hookimpl(tryfirst=True)

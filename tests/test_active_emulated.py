@@ -50,6 +50,7 @@ def test_killing_the_emulator_mid_round_reports_the_vent_truthfully(delay_campai
             [sys.executable, "-m", "pmalab.cli", "diagnose", str(camp), "--model", "bouc-wen",
              "--rig", str(rig), "--run-suggested", "--yes", "--out", str(tmp_path / "d"), "-q"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            env={k: v for k, v in os.environ.items() if k != "PMALAB_JOBS"},  # the shell's
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         round_file = tmp_path / "campaign-round1.h5"
         deadline = time.monotonic() + 240

@@ -69,6 +69,7 @@ def run_active(args: argparse.Namespace) -> int:
         protocol_duration,
         rig_recorder,
     )
+    from pmalab.identify.cli import resolve_jobs
     from pmalab.identify.diagnosis import write_outputs
     from pmalab.paths import prepare_output_dir
 
@@ -88,6 +89,7 @@ def run_active(args: argparse.Namespace) -> int:
             "--run-suggested: tag held-out runs with role 'validation' in the "
             "campaign instead of --validate (new runs are appended to it)"
         )
+    jobs = resolve_jobs(args.jobs)  # --jobs, else $PMALAB_JOBS, else 2
     if args.budget <= 0:
         raise PmalabError(f"--budget {args.budget:g}: must be a positive number of seconds")
     if args.rounds < 1:
@@ -125,7 +127,7 @@ def run_active(args: argparse.Namespace) -> int:
             confirm=confirm,
             max_rounds=args.rounds,
             effects=args.only,
-            jobs=args.jobs,
+            jobs=jobs,
             protocol_duration=protocol_duration,
         )
     except RoundAborted as exc:

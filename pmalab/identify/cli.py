@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from pmalab.arguments import fixes
+from pmalab.arguments import JOBS_ENV, default_jobs, fixes
 from pmalab.console import (
     VERBOSE,
     add_verbosity,
@@ -57,10 +57,44 @@ def _one_blas_thread_from_the_start() -> None:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+#: identify's and diagnose's worker processes when neither ``--jobs`` nor ``$PMALAB_JOBS``
+#: says (the library's ``identify.campaign.batch.DEFAULT_JOBS``, not imported here: the
+#: package loads the fitting code)
+DEFAULT_JOBS = 2
+
+
+def resolve_jobs(jobs: int | None) -> int:
+    """``--jobs`` as given, else ``$PMALAB_JOBS``, else :data:`DEFAULT_JOBS`.
+
+    Parameters
+    ----------
+    jobs
+        The option's value (None: not given).
+
+    Returns
+    -------
+    int
+        Worker processes, ≥ 1.
+
+    Raises
+    ------
+    PmalabError
+        Fewer than one, or ``$PMALAB_JOBS`` not a whole number (one line).
+    """
+    n = default_jobs(DEFAULT_JOBS) if jobs is None else jobs
+    if n < 1:
+        raise PmalabError(f"--jobs {n}: must be at least 1")
+    return n
+
+
 def _add_parallel(p: argparse.ArgumentParser, what: str, more: str = "") -> None:
     """``--jobs N`` (worker processes) and ``--scheduler ADDRESS`` (a Dask cluster)."""
     p.add_argument(
-        "--jobs", type=int, default=2, metavar="N", help="parallel worker processes (default 2)"
+        "--jobs",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"parallel worker processes (default {DEFAULT_JOBS}, or ${JOBS_ENV} when set)",
     )
     p.add_argument(
         "--scheduler",
@@ -313,8 +347,7 @@ def identify_command(args: argparse.Namespace) -> int:
 
     from pmalab.paths import prepare_output_dir
 
-    if args.jobs < 1:
-        raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
+    args.jobs = resolve_jobs(args.jobs)
     for f in args.effects:
         if not Path(f).is_file():
             raise PmalabError(f"--effects {f}: no such file")
@@ -546,8 +579,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
         from pmalab.paths import check_output, prepare_output_dir
         from pmalab.runfile import check_distinct, check_distinct_runs, read_many
 
-    if args.jobs < 1:
-        raise PmalabError(f"--jobs {args.jobs}: must be at least 1")
+    args.jobs = resolve_jobs(args.jobs)
     if args.max_steps < 0:
         raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
     out = prepare_output_dir(args.out, ("diagnosis.json", "predictions.h5"), args.force)

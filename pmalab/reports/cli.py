@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         type=_jobs,
         default=None,
         metavar="N",
-        help="render the pages in N processes (default: the number of CPUs; 1: in this process)",
+        help="render the pages in N processes (default: $PMALAB_JOBS when set, else the "
+        "number of CPUs; 1: in this process)",
     )
     add_verbosity(p, quiet_help="print nothing on success")
     p.set_defaults(func=run_report)

@@ -32,11 +32,15 @@ _TRAILER = re.compile(rb"trailer\s*<<(.*?)>>\s*startxref", re.S)
 
 
 def default_jobs() -> int:
-    """Worker processes a report uses by default: the CPUs this process may run on."""
+    """Worker processes a report uses by default: ``$PMALAB_JOBS`` when set, else the
+    CPUs this process may run on."""
+    from pmalab.arguments import default_jobs as jobs_from_env
+
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cpus = max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
-        return max(1, os.cpu_count() or 1)
+        cpus = max(1, os.cpu_count() or 1)
+    return jobs_from_env(cpus)
 
 
 def _objects(data: bytes, name: str) -> tuple[dict[int, bytes], int, int]:
