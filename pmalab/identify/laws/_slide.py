@@ -189,19 +189,7 @@ def slide_h_many(x, K, F, h0, reversed):
             out[j + 1, q + 1] = hb
         j += 2
     if j < rows:  # an odd count's last row alone
-        for q in range(n - 1):
-            dx = x[q + 1] - x[q]
-            ha = 0.0
-            for i in range(m):
-                fa = FA[j, i]
-                za = Z[j, i] - K[j, i] * dx
-                if za > fa:
-                    za = fa
-                elif za < -fa:
-                    za = -fa
-                Z[j, i] = za
-                ha += za
-            out[j, q + 1] = ha
+        out[j, :] = slide_h(x, K[j], F[j], h0[j], reversed[j])
     return out
 
 
