@@ -16,7 +16,7 @@ os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__),
 # the diagnosis and report test files).  Results are the same under any number of
 # workers (test_identify_campaign, test_reports_parallel, test_start_methods); tests of
 # what a user's shell gets (the wheel, the reading child, the active loop over the wire)
-# remove the variable from their subprocesses' environment
+# remove the variable from their subprocesses' environment (``user_shell.shell_env``)
 os.environ.setdefault("PMALAB_JOBS", "1")
 
 #: the longest test files, longest first (summed test time per file of a whole-suite run;

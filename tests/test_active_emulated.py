@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from test_active import delay_campaign  # noqa: F401  (the module-scoped fixture)
 from test_emulate_run import start_emulate_process
+from user_shell import shell_env
 
 from pmalab.paths import RIGS_DIR
 from pmalab.rig.emulators.launcher import free_tcp_port
@@ -50,7 +51,7 @@ def test_killing_the_emulator_mid_round_reports_the_vent_truthfully(delay_campai
             [sys.executable, "-m", "pmalab.cli", "diagnose", str(camp), "--model", "bouc-wen",
              "--rig", str(rig), "--run-suggested", "--yes", "--out", str(tmp_path / "d"), "-q"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-            env={k: v for k, v in os.environ.items() if k != "PMALAB_JOBS"},  # the shell's
+            env=shell_env(),  # the shell's
             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         round_file = tmp_path / "campaign-round1.h5"
         deadline = time.monotonic() + 240

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from identify_synth import make_run
+from user_shell import shell_env
 
 from pmalab.errors import RunFileWarning
 from pmalab.identify.reading import read_files, start_reading
@@ -44,7 +45,7 @@ def campaign(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def _python(code: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PMALAB_JOBS")}
+    env = shell_env("PYTHONPATH")
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
 
@@ -81,7 +82,7 @@ def test_the_child_reads_the_runs_bit_for_bit_with_the_warnings(campaign, tmp_pa
 
 
 def _identify(cwd: Path, *args: str) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PMALAB_JOBS")}
+    env = shell_env("PYTHONPATH")
     cli = "import sys; from pmalab.cli import main; sys.exit(main())"
     return subprocess.run([sys.executable, "-c", cli, "identify", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=300)
@@ -303,8 +304,7 @@ def _blas_after_identify(
     """Run `pmalab identify` (or ``verb``) in a fresh interpreter (as from the shell); print
     the threads BLAS reports and the threads the process holds once the command has
     returned."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "OPENBLAS_NUM_THREADS", "PMALAB_JOBS")}
+    env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
     code = textwrap.dedent(f"""
         import os
         from pmalab.cli import main

@@ -26,6 +26,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from user_shell import shell_env
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -200,8 +201,7 @@ def test_installed_wheel_runs_the_demo_outside_the_repository(wheel, tmp_path):
           str(wheel)], cwd=tmp_path)
     work = tmp_path / "lab"
     work.mkdir()
-    env = {k: v for k, v in os.environ.items()  # a user's shell: the default workers too
-           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PMALAB_JOBS")}
+    env = shell_env("PYTHONPATH", "VIRTUAL_ENV")  # a user's shell: the default workers too
     env["PATH"] = f"{env_dir / 'bin'}{os.pathsep}{env['PATH']}"
     where = _run([str(py), "-c", "import pmalab; print(pmalab.__file__)"], cwd=work, env=env)
     assert str(env_dir) in where and str(ROOT) not in where, where
@@ -270,9 +270,7 @@ def test_numba_cache_of_a_read_only_install_is_warm_on_the_second_run(wheel, tmp
     work = tmp_path / "lab"
     work.mkdir()
     home = tmp_path / "home"
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME",
-                         "PMALAB_JOBS")}
+    env = shell_env("PYTHONPATH", "VIRTUAL_ENV", "NUMBA_CACHE_DIR", "XDG_CACHE_HOME")
     env["HOME"] = str(home)
     pmalab = str(env_dir / "bin" / "pmalab")
     env["NUMBA_DEBUG_CACHE"] = "1"  # numba says what it saved and what it loaded
