@@ -123,19 +123,36 @@ def whole_record_x_floor(c: Path, law: str, floor: float | None) -> float | None
     return float(np.mean(vn)) / floor if vn and floor else None
 
 
-def truth_x_floor(c: Path, truth: Path, floor: float | None) -> float | None:
-    """The simulated muscle's own parameters, as Maxwell-slip law parameters
-    (:func:`pmalab.rig.sim.reference.maxwell_slip_theta`), predicting the held-out runs by
-    the rule ``identify`` predicts them by (start state and force zero estimated on each
-    record's early part, scored on the rest): mean held-out nrmse ÷ ``floor``.  What a
-    perfect identification would score; None when the law cannot express the truth.
+def truth_model(truth: Path):
+    """The force model that expresses ``truth``'s friction elements exactly: pmalab's
+    Maxwell-slip law when the truth has at most its four elements, else
+    :func:`bench.elasto_slide.elements_law` with the truth's count (a play-operator muscle:
+    an operator of threshold r and weight w is an element of stiffness w and slip
+    displacement r).  Returns (model, elements to pass to
+    :func:`pmalab.rig.sim.reference.maxwell_slip_theta`)."""
+    from bench.elasto_slide import elements_law
+    from pmalab.identify.campaign.fit import _as_model
+    from pmalab.identify.laws.maxwell_slip import ELEMENTS
+    from pmalab.identify.model import ForceModel
+    from pmalab.rig.sim.truth import load_truth
 
-    A matching law above its bound where this is above it too misses on the held-out
-    scoring (a record's start state and zero taken from its first cycle), not on the fit."""
+    n = len(load_truth(truth).section("friction")["presliding_mm"])
+    if n <= ELEMENTS:
+        return _as_model("maxwell-slip"), ELEMENTS
+    return ForceModel(elements_law(n)), n
+
+
+def truth_held_out(c: Path, truth: Path) -> list[tuple[str, float]] | None:
+    """Each held-out run's (name, nrmse) when the simulated muscle's own parameters predict
+    it by the rule ``identify`` predicts it by: the truth at the run's nominal pressure as
+    element parameters (:func:`pmalab.rig.sim.reference.maxwell_slip_theta`, the model of
+    :func:`truth_model`), the record's start state h0 and force zero estimated on its early
+    part (:func:`pmalab.identify.estimation.records.predict_record`), scored from
+    :func:`~pmalab.identify.estimation.records.scored_from` on.  None when no element sum
+    can express the truth (a hidden effect enabled)."""
     import numpy as np
 
     from pmalab.identify.api import split_roles
-    from pmalab.identify.campaign.fit import _as_model
     from pmalab.identify.estimation.records import predict_record, scored_from
     from pmalab.identify.long_records import fit_part
     from pmalab.identify.metrics import metrics
@@ -145,11 +162,11 @@ def truth_x_floor(c: Path, truth: Path, floor: float | None) -> float | None:
     from pmalab.runfile import read_runs
 
     tr = load_truth(truth)
-    model = _as_model("maxwell-slip")
+    model, elements = truth_model(truth)
     _, held = split_roles([fit_part(r.steady()) for r in read_runs(c)])
-    vn = []
+    out = []
     for r in held:
-        th = maxwell_slip_theta(float(r.nominal_pressure), tr)
+        th = maxwell_slip_theta(float(r.nominal_pressure), tr, elements)
         if th is None:
             return None
         sig, f = Signals.from_run(r), np.asarray(r.force, dtype=float)
@@ -158,8 +175,27 @@ def truth_x_floor(c: Path, truth: Path, floor: float | None) -> float | None:
         fm = predict_record(model, sig, {**th, **dict.fromkeys(model.record_params, 0.0)},
                             force=f)
         i0 = scored_from(sig)
-        vn.append(float(metrics(f[i0:], fm[i0:], sig.x[i0:])["nrmse"]))
-    return float(np.mean(vn)) / floor if vn and floor else None
+        out.append((r.name, float(metrics(f[i0:], fm[i0:], sig.x[i0:])["nrmse"])))
+    return out
+
+
+def truth_x_floor(c: Path, truth: Path, floor: float | None) -> float | None:
+    """The simulated muscle's own parameters predicting the held-out runs by the rule
+    ``identify`` predicts them by (:func:`truth_held_out`: start state and force zero
+    estimated on each record's early part, scored on the rest): mean held-out nrmse ÷
+    ``floor``.  What a perfect identification would score — of the Maxwell-slip law for a
+    muscle of up to four elements, of a law with the truth's own play operators for a
+    Prandtl-Ishlinskii-shaped one (whose thresholds sit off the law's grid); None when no
+    element sum can express the truth.
+
+    A matching law above its bound where this is above it too misses on the held-out
+    scoring (a record's start state and zero taken from its first cycle), not on the fit."""
+    import numpy as np
+
+    vn = truth_held_out(c, truth)
+    if vn is None:
+        return None
+    return float(np.mean([v for _, v in vn])) / floor if vn and floor else None
 
 
 def claim_headroom(base_x_floor: float | None) -> str:
