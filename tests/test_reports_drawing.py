@@ -80,3 +80,28 @@ def test_each_page_is_drawn_once_per_export(tmp_path):
     out = write_pdf(tmp_path / "r.pdf", pages, title="t", png_dir=tmp_path / "png")
     assert out.exists() and len(list((tmp_path / "png").glob("*.png"))) == 2
     assert draws == ["page 1", "page 1", "page 2", "page 2"]
+
+
+@style.styled
+def _offset_page() -> Figure:
+    """A page whose y tick labels need an offset text (×1e-7) right under a long title."""
+    fig = style.new_figure("Offsets")
+    ax = fig.subplots()
+    ax.plot([0.0, 1.0], [1.0e-7, 3.0e-7])
+    ax.set_title("a title as wide as the axes, left aligned over the offset text", loc="left")
+    return fig
+
+
+def test_titles_are_placed_once_where_a_draw_places_them():
+    """A title raised above the y offset text by matplotlib's draw is raised just as far on
+    the laid-out page, and its place is kept for every export (no draw moves it)."""
+    plain, laid = _offset_page(), _offset_page()
+    _pdf_bytes(plain)
+    want = plain.axes[0]._left_title.get_position()
+    assert want[1] > 1.0  # raised: the test page does need it
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    got = laid.axes[0]._left_title.get_position()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    laid.savefig(io.BytesIO(), format="png", dpi=60)
+    assert laid.axes[0]._left_title.get_position() == got
