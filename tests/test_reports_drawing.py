@@ -8,6 +8,7 @@ import re
 
 import matplotlib as mpl
 import numpy as np
+import pytest
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from PIL import Image
@@ -105,3 +106,23 @@ def test_titles_are_placed_once_where_a_draw_places_them():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
     laid.savefig(io.BytesIO(), format="png", dpi=60)
     assert laid.axes[0]._left_title.get_position() == got
+
+
+def test_png_export_is_matplotlibs_pixels_rgb_when_opaque(tmp_path):
+    """save_figure's PNG holds the very pixels matplotlib's own PNG writer gives (same rc),
+    as RGB for an opaque page, RGBA for a figure with transparent parts."""
+    fig = _page("A page")
+    with mpl.rc_context(style.RC):
+        style.lay_out(fig)
+        fig.savefig(tmp_path / "mpl.png", dpi=50)
+    ours = style.save_figure(fig, tmp_path / "ours.png", dpi=50)
+    want = np.asarray(Image.open(tmp_path / "mpl.png"))
+    with Image.open(ours) as img:
+        assert img.mode == "RGB" and img.info["dpi"] == pytest.approx((50, 50), abs=0.02)
+        got = np.asarray(img)
+    assert (want[..., 3] == 255).all() and np.array_equal(got, want[..., :3])
+    clear = Figure(figsize=(2, 1))
+    clear.patch.set_alpha(0.0)
+    clear.text(0.5, 0.5, "x")
+    with Image.open(style.save_figure(clear, tmp_path / "clear.png", dpi=40)) as img:
+        assert img.mode == "RGBA" and np.asarray(img)[0, 0, 3] == 0

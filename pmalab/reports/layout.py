@@ -190,7 +190,7 @@ def page_problems(fig: Figure, *, dpi: float = 150.0) -> list[str]:
     # without writing the PDF: the same axes positions
     with mpl.rc_context(style.RC):
         style.lay_out(fig)
-    return text_problems(fig, dpi=dpi)
+        return text_problems(fig, dpi=dpi)
 
 
 def main(argv: list[str] | None = None) -> int:
