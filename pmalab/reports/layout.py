@@ -19,7 +19,6 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.axis import Axis
 from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.backends.backend_pdf import FigureCanvasPdf
 from matplotlib.figure import Figure
 from matplotlib.table import Cell
 from matplotlib.text import Text
@@ -187,13 +186,11 @@ def page_problems(fig: Figure, *, dpi: float = 150.0) -> list[str]:
     """:func:`text_problems` of a report page as the report writes it: laid out while it is
     drawn into the PDF, that layout kept for its PNG/SVG export
     (:func:`pmalab.reports.style.keep_layout`), checked at the export's ``dpi``."""
-    # laid out as the PDF backend lays it out when the page is saved (its text metrics),
-    # without writing the PDF: the same axes positions, at half the cost
-    FigureCanvasPdf(fig)
+    # laid out as the report lays it out before saving it (the PDF backend's text metrics),
+    # without writing the PDF: the same axes positions
     with mpl.rc_context(style.RC):
-        fig.draw_without_rendering()
-    style.keep_layout(fig)
-    return text_problems(fig, dpi=dpi)
+        style.lay_out(fig)
+        return text_problems(fig, dpi=dpi)
 
 
 def main(argv: list[str] | None = None) -> int:

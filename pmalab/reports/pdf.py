@@ -66,6 +66,7 @@ def _plan_renderer(
         with mpl.rc_context(style.RC):
             if built.footer is not None:
                 built.footer(fig, i, n)
+            style.lay_out(fig)
             with PdfPages(path) as pdf:
                 pdf.savefig(fig)
         _export(fig, exports, f"{i:02d}-{page.slug}")
@@ -261,6 +262,7 @@ def write_pdf(
                 with mpl.rc_context(style.RC):
                     if footer is not None:
                         footer(fig, i, n)
+                    style.lay_out(fig)
                     pdf.savefig(fig)
                 _export(fig, exports, f"{i:02d}-{page.slug}")
                 if progress is not None:

@@ -1,0 +1,128 @@
+"""How a report page is drawn: laid out once (as saving to PDF lays it out), then drawn
+once per export; the PDF page and its PNG are those of a plain ``savefig``."""
+
+from __future__ import annotations
+
+import io
+import re
+
+import matplotlib as mpl
+import numpy as np
+import pytest
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
+from PIL import Image
+
+from pmalab.reports import style
+from pmalab.reports.pdf import PageSpec, write_pdf
+
+
+@style.styled
+def _page(title: str) -> Figure:
+    """A small constrained-layout page with a colour bar (an axes locator) and long labels."""
+    fig = style.new_figure(title)
+    left, right = fig.subplots(1, 2)
+    x = np.linspace(0.0, 20.0, 50)
+    left.plot(x, 300.0 - 9.0 * x, label="measured")
+    left.set(xlabel=style.POSITION, ylabel=style.FORCE, title="a loop")
+    left.legend()
+    im = right.imshow(np.outer(x, x), aspect="auto", cmap=style.ERROR_CMAP)
+    fig.colorbar(im, ax=right, label=style.ABS_ERROR)
+    right.set(xlabel=style.TIME, ylabel=style.PRESSURE)
+    return fig
+
+
+def _pdf_bytes(fig: Figure) -> bytes:
+    buf = io.BytesIO()
+    with mpl.rc_context(style.RC), PdfPages(buf) as pdf:
+        pdf.savefig(fig)
+    return re.sub(rb"/CreationDate \(.*?\)", b"", buf.getvalue())
+
+
+def test_laid_out_page_saves_as_a_plain_savefig_does():
+    """style.lay_out then savefig gives the very PDF (byte for byte) a plain savefig of the
+    constrained-layout page gives, and the PNG exported afterwards keeps that layout."""
+    plain, laid = _page("A page"), _page("A page")
+    want = _pdf_bytes(plain)
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    assert laid.get_layout_engine() is None
+    assert _pdf_bytes(laid) == want
+    np.testing.assert_allclose(  # the colour bar too, once its locator has placed it
+        [ax.get_position().bounds for ax in laid.axes],
+        [ax.get_position().bounds for ax in plain.axes],
+        atol=1e-12,
+    )
+    # the plain page, kept as it was saved, exports the same PNG as the laid-out one
+    style.keep_layout(plain)
+    pngs = []
+    for fig in (plain, laid):
+        buf = io.BytesIO()
+        with mpl.rc_context(style.RC):
+            fig.savefig(buf, format="png", dpi=60)
+        pngs.append(np.asarray(Image.open(buf)))
+    assert np.array_equal(*pngs)
+
+
+def test_each_page_is_drawn_once_per_export(tmp_path):
+    """A report page with a PNG export costs two draws (PDF, PNG): no draw without output
+    to run the layout engine, none for a placeholder engine."""
+    draws: list[str] = []
+
+    def make(title: str):
+        def page(i: int, n: int) -> Figure:
+            fig = _page(title)
+            fig.canvas.mpl_connect("draw_event", lambda e: draws.append(title))
+            return fig
+
+        return page
+
+    pages = [PageSpec(f"p{k}", f"page {k}", make(f"page {k}")) for k in (1, 2)]
+    out = write_pdf(tmp_path / "r.pdf", pages, title="t", png_dir=tmp_path / "png")
+    assert out.exists() and len(list((tmp_path / "png").glob("*.png"))) == 2
+    assert draws == ["page 1", "page 1", "page 2", "page 2"]
+
+
+@style.styled
+def _offset_page() -> Figure:
+    """A page whose y tick labels need an offset text (×1e-7) right under a long title."""
+    fig = style.new_figure("Offsets")
+    ax = fig.subplots()
+    ax.plot([0.0, 1.0], [1.0e-7, 3.0e-7])
+    ax.set_title("a title as wide as the axes, left aligned over the offset text", loc="left")
+    return fig
+
+
+def test_titles_are_placed_once_where_a_draw_places_them():
+    """A title raised above the y offset text by matplotlib's draw is raised just as far on
+    the laid-out page, and its place is kept for every export (no draw moves it)."""
+    plain, laid = _offset_page(), _offset_page()
+    _pdf_bytes(plain)
+    want = plain.axes[0]._left_title.get_position()
+    assert want[1] > 1.0  # raised: the test page does need it
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    got = laid.axes[0]._left_title.get_position()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    laid.savefig(io.BytesIO(), format="png", dpi=60)
+    assert laid.axes[0]._left_title.get_position() == got
+
+
+def test_png_export_is_matplotlibs_pixels_rgb_when_opaque(tmp_path):
+    """save_figure's PNG holds the very pixels matplotlib's own PNG writer gives (same rc),
+    as RGB for an opaque page, RGBA for a figure with transparent parts."""
+    fig = _page("A page")
+    with mpl.rc_context(style.RC):
+        style.lay_out(fig)
+        fig.savefig(tmp_path / "mpl.png", dpi=50)
+    ours = style.save_figure(fig, tmp_path / "ours.png", dpi=50)
+    want = np.asarray(Image.open(tmp_path / "mpl.png"))
+    with Image.open(ours) as img:
+        assert img.mode == "RGB" and img.info["dpi"] == pytest.approx((50, 50), abs=0.02)
+        got = np.asarray(img)
+    assert (want[..., 3] == 255).all() and np.array_equal(got, want[..., :3])
+    clear = Figure(figsize=(2, 1))
+    clear.patch.set_alpha(0.0)
+    clear.text(0.5, 0.5, "x")
+    with Image.open(style.save_figure(clear, tmp_path / "clear.png", dpi=40)) as img:
+        assert img.mode == "RGBA" and np.asarray(img)[0, 0, 3] == 0
