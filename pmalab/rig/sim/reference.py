@@ -81,7 +81,10 @@ def maxwell_slip_theta(
     (mm; a = ``presliding_pressure_exponent``) and holds it with the stiffness
     ``k_i`` = its slip force ÷ d_i (N/mm), its slip force being its weight's share of the
     pressure's total slip force.  Elements the truth does not have are given no stiffness
-    (``k_i`` = 0; ``d_i`` = 1 mm, which then acts on nothing).
+    (``k_i`` = 0; ``d_i`` = 1 mm, which then acts on nothing).  With ``elements`` = the
+    truth's count it restates any truth's friction as elements, a Prandtl-Ishlinskii-shaped
+    one included: a play operator of threshold r and weight w is the element with d = r and
+    k = w (slip force w·r).
 
     Parameters
     ----------
