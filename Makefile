@@ -28,15 +28,20 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/pmalab demo --out demo-output --force
 
-# basedpyright (a minute of mostly one core) runs beside the suite and fills the cores the
-# suite leaves idle (waiting tests, the last long files); its report follows the tests' and
-# either failing fails the target
+# basedpyright (~25 CPU-s, mostly one core) runs beside the suite at the lowest priority
+# (nice 19): it takes only what the suite leaves idle (tests waiting on real-time recordings,
+# emulators, kill tests) instead of a third of the cores while the suite is busy; its report
+# follows the tests' and either failing fails the target
 test: $(STAMP) chromium
 	$(BIN)/ruff check pmalab tests bench docs
 	$(BIN)/ruff format --check pmalab
 	$(BIN)/lint-imports
+	@# the project's own bytecode, once (as the install step does for the libraries): with
+	@# PYTHONDONTWRITEBYTECODE set, every process the suite starts (commands in
+	@# subprocesses, the docs build's, pool workers) would compile every pmalab module it imports
+	$(BIN)/python -m compileall -q -j0 pmalab tests bench docs >/dev/null
 	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~6 min on 2 cores (longer under load); the 10 slowest tests are listed at the end"
-	@$(BIN)/basedpyright > $(VENV)/basedpyright.log 2>&1 & typing=$$!; \
+	@nice -n 19 $(BIN)/basedpyright > $(VENV)/basedpyright.log 2>&1 & typing=$$!; \
 	trap 'kill $$typing 2>/dev/null' INT TERM; \
 	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder -q --durations=10; tests=$$?; \
 	wait $$typing; typed=$$?; \

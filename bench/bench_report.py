@@ -1,9 +1,10 @@
 """Report: `pmalab report` of a demo output, this tree against an earlier commit (wall and CPU)
 
 The report a user waits for at the end of ``pmalab demo`` (identify + identify --add +
-diagnose, 23 pages) and in the campaign tutorial (the same with ``--png``), rendered by
-this tree and by the sources of an earlier commit (``PMALAB_BENCH_BEFORE``, default
-e3efbc6: before the report work of 2026-11-26; empty: this tree only), each from the shell
+diagnose, 23 pages) and in the campaign tutorial (the same with ``--png``; the docs build
+and the suite run it with one page worker), rendered by this tree and by the sources of an
+earlier commit (``PMALAB_BENCH_BEFORE``, default 75093c8: before the page drawing work of
+2026-11-26's second session; empty: this tree only), each from the shell
 (a fresh interpreter), interleaved run by run so a loaded machine slows both alike.  Wall
 time is the median of ``REPEATS`` runs; CPU time is user + sys of the command and its page
 workers (median).  ``PMALAB_BENCH_DEMO`` names an existing demo directory (else one is
@@ -25,7 +26,7 @@ from bench.bench_first_hour import _source
 from bench.table import print_table
 
 REPEATS = 3
-BEFORE_DEFAULT = "e3efbc6"
+BEFORE_DEFAULT = "75093c8"
 
 
 def _run(src: Path | None, *args: str, cwd: Path) -> tuple[float, float]:
@@ -69,6 +70,7 @@ def main() -> None:
             "report, demo output (PDF; the demo's call)": [],
             "report, demo output --png (the tutorial's call)": ["--png"],
             "report, demo output --jobs 1 (one process)": ["--jobs", "1"],
+            "report, demo output --png --jobs 1 (the docs build's call)": ["--png", "--jobs", "1"],
         }
         pages: dict[str, int] = {}
         for what, extra in cases.items():
@@ -79,7 +81,7 @@ def main() -> None:
                     out = tmp / f"{name}.pdf"
                     opts = [*extra]
                     if opts[:1] == ["--png"]:
-                        opts = ["--png", str(tmp / f"png-{name}-{k}")]
+                        opts = ["--png", str(tmp / f"png-{name}-{k}-{len(extra)}"), *opts[1:]]
                     w, c = _run(
                         src, "report", *dirs, "--out", str(out), "--force", "-q", *opts, cwd=tmp
                     )

@@ -6,9 +6,9 @@ that grid (``data/truth/hysteresis-prandtl-ishlinskii.toml``, ``laws/pi-*.toml``
 simulator's braid friction is such elements (:mod:`pmalab.rig.sim.kernel`), and so are both
 laws: a play operator of threshold r and weight w is an elasto-slide element of stiffness
 k = w and slip displacement d = r (slip force w·r).  :func:`elements_law` is that element
-sum with as many elements as the truth has, integrated by the laws' own integrator
-(:mod:`pmalab.identify.laws._slide`: the same start state from h0 on either branch, the
-same segment), so a :class:`~pmalab.identify.model.ForceModel` of it predicts a record by
+sum with as many elements as the truth has, an
+:class:`~pmalab.identify.laws.element_sum.ElementSum` as both laws are (the same integrator,
+the same start state from h0 on either branch, the same segment), so a :class:`~pmalab.identify.model.ForceModel` of it predicts a record by
 identify's rule (:func:`pmalab.identify.estimation.records.predict_record`) exactly as the
 Maxwell-slip law would with that many elements.
 
@@ -20,15 +20,15 @@ higher while stretching).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
-from pmalab.identify.laws._slide import branch, slide_h, slide_start, slide_stepper
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
+from pmalab.identify.laws.element_sum import ElementSum
 
 
-class _Elements(HysteresisLaw):
+class _Elements(ElementSum):
     """The element sum; :func:`elements_law` sets its size (class attributes of a subclass,
     so that the base class's registry never sees it)."""
 
@@ -48,22 +48,6 @@ class _Elements(HysteresisLaw):
 
     def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         return self.names_k, self.names_d
-
-    def h(self, x, theta, extras=None):
-        k, f = self._kf(theta)
-        return slide_h(
-            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
-        )
-
-    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
-        k, f = self._kf(theta)
-        return slide_start(k, f, float(h0), float(direction))
-
-    def output(self, state) -> float:
-        return float(np.sum(state))
-
-    def stepper(self, theta, extras=None) -> Callable:
-        return slide_stepper(*self._kf(theta))
 
 
 def elements_law(n: int) -> HysteresisLaw:

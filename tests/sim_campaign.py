@@ -11,7 +11,17 @@ import io
 from pathlib import Path
 
 from pmalab.cli import main as pmalab_main
-from pmalab.paths import PROTOCOLS_DIR
+from pmalab.paths import PROTOCOLS_DIR, TRUTH_DIR
+
+
+def noise_free_truth(name: str, work: Path) -> Path:
+    """``work/truth.toml``: the shipped truth file ``name`` (relative to the truth folder)
+    without sensor noise (load cell and position), the rest as shipped."""
+    text = (TRUTH_DIR / name).read_text().replace("force_noise_N = 4.0", "force_noise_N = 0.0")
+    assert "force_noise_N = 0.0" in text
+    out = work / "truth.toml"
+    out.write_text(text + "position_noise_mm = 0.0\n")
+    return out
 
 
 def record_campaign(truth: Path, work: Path, seed: int,

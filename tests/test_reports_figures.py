@@ -138,6 +138,24 @@ def test_residual_panels_and_correlation_bounds():
     np.testing.assert_allclose(regions.images[0].get_array(), [[3.1, 4.0, 6.1], [2.5, 3.0, 3.3]])
 
 
+def test_region_means_are_written_without_powers_of_ten():
+    """A mean residual of -117 N is written '-117' in its heatmap cell ('-1.2e+02' overran
+    the cell into its neighbour's text); small means keep two significant digits."""
+    from matplotlib.axes import Axes
+
+    from pmalab.reports.figures_diagnosis import plot_regions
+
+    regions = [
+        {"branch": "stretch (x falling)", "position": p, "rms": r, "mean": m}
+        for p, r, m in (("low", 42.2, 16.4), ("mid", 117.0, -117.3), ("high", 3.1, -0.532))
+    ]
+    ax = Figure().add_subplot()
+    assert isinstance(ax, Axes)
+    plot_regions(ax, regions)
+    texts = [t.get_text() for t in ax.texts]
+    assert texts == ["42.2 N\nmean +16", "117 N\nmean -117", "3.1 N\nmean -0.53"]
+
+
 def test_correlation_heatmap_outlines_near_collinear_pairs():
     r = rf.identification_doc()[0]["runs"][0]
     fig = F.correlation_figure([{"title": "x", **r["correlation"]}])

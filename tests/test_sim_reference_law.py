@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sim_campaign import record_campaign
+from sim_campaign import noise_free_truth, record_campaign
 
 from pmalab.identify.campaign.fit import _as_model
 from pmalab.identify.estimation.records import predict_record
@@ -25,20 +25,11 @@ from pmalab.rig.sim.truth import load_truth
 from pmalab.runfile import read_runs
 
 
-def _noise_free(name: str, work: Path) -> Path:
-    """``name``'s truth file without sensor noise (the rest as shipped)."""
-    text = (TRUTH_DIR / name).read_text().replace("force_noise_N = 4.0", "force_noise_N = 0.0")
-    assert "force_noise_N = 0.0" in text
-    out = work / "truth.toml"
-    out.write_text(text + "position_noise_mm = 0.0\n")
-    return out
-
-
 @pytest.mark.parametrize("name", ["laws/ms-slip-growing.toml", "laws/ms-two-elements.toml"])
 def test_the_truths_parameters_reproduce_its_recorded_force(tmp_path: Path, name: str) -> None:
     # ms-slip-growing: four elements whose slip displacements grow with pressure (q^1);
     # ms-two-elements: two elements (the law's other two carry nothing), q^0.5
-    truth = _noise_free(name, tmp_path)
+    truth = noise_free_truth(name, tmp_path)
     tr = load_truth(truth)
     model = _as_model("maxwell-slip")
     for run in read_runs(record_campaign(truth, tmp_path, 3)):

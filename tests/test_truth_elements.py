@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sim_campaign import record_campaign
+from sim_campaign import noise_free_truth, record_campaign
 
 from pmalab.identify.campaign.fit import _as_model
 from pmalab.identify.estimation.records import predict_record
@@ -38,15 +38,6 @@ from bench.bench_laws import truth_model  # noqa: E402
 from bench.elasto_slide import elements_law  # noqa: E402
 
 
-def _noise_free(name: str, work: Path) -> Path:
-    """``name``'s truth file without sensor noise (the rest as shipped)."""
-    text = (TRUTH_DIR / name).read_text().replace("force_noise_N = 4.0", "force_noise_N = 0.0")
-    assert "force_noise_N = 0.0" in text
-    out = work / "truth.toml"
-    out.write_text(text + "position_noise_mm = 0.0\n")
-    return out
-
-
 @pytest.mark.parametrize(
     "name",
     [
@@ -58,7 +49,7 @@ def _noise_free(name: str, work: Path) -> Path:
 def test_a_play_operator_truth_restated_as_elements_reproduces_its_load_cell(
     tmp_path: Path, name: str
 ) -> None:
-    truth = _noise_free(name, tmp_path)
+    truth = noise_free_truth(name, tmp_path)
     tr = load_truth(truth)
     model, n = truth_model(truth)
     assert n == len(tr.section("friction")["presliding_mm"]) > 4

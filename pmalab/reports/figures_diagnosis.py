@@ -100,6 +100,13 @@ def plot_correlation(ax: Axes, corr: Mapping[str, Any], *, title: str) -> None:
     ax.set_title(title)
 
 
+def _signed(v: float) -> str:
+    """A mean residual (N) with its sign, short enough for a heatmap cell: two significant
+    digits, whole newtons from 10 N on (``-117``, not ``-1.2e+02``, which overran the
+    cell), powers of ten only from 10 kN."""
+    return f"{v:+.0f}" if 10.0 <= abs(v) < 1.0e4 else f"{v:+.2g}"
+
+
 def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
     """R.m.s. residual (N) in each (branch × part of the stroke) cell as a heatmap; the
     cell's mean residual is written under its r.m.s."""
@@ -133,7 +140,7 @@ def plot_regions(ax: Axes, regions: Sequence[Mapping[str, Any]]) -> None:
         for j in range(rms.shape[1]):
             if np.isfinite(rms[i, j]):
                 txt = f"{rms[i, j]:.3g} N" + (
-                    f"\nmean {mean[i, j]:+.2g}" if np.isfinite(mean[i, j]) else ""
+                    f"\nmean {_signed(mean[i, j])}" if np.isfinite(mean[i, j]) else ""
                 )
                 ax.text(
                     j,

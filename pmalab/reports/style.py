@@ -127,6 +127,12 @@ def lay_out(fig: Figure) -> None:
     that first draw gives it (the PDF backend's text metrics at 72 dpi, axes locators
     applied first), so the page's PDF and PNG exports are each drawn once, in the very
     layout a plain ``savefig`` to PDF gives.
+
+    Axes titles are placed once, after the layout (:func:`_place_titles`).  While the
+    engine runs they sit where a title sits unless something on top of its axes (top tick
+    labels, an offset text) pushes it up; if one is pushed up at the end, the page is laid
+    out again from where it started with the titles placed on every pass, as matplotlib
+    does, so that their height is left free.
     """
     engine = fig.get_layout_engine()
     if engine is None or isinstance(engine, PlaceHolderLayoutEngine) or not fig.axes:
@@ -144,29 +150,79 @@ def lay_out(fig: Figure) -> None:
             for a in (ax, *ax.child_axes):
                 locator = a.get_axes_locator()
                 a.apply_aspect(locator(a, renderer) if locator else None)
+        titled = _auto_titled(fig)
+        start = _geometry(fig) if titled else []
+        for ax in titled:  # titles at the top of their axes while the engine runs
+            for t in _titles(ax):
+                t.set_y(1.0)
+            ax._autotitlepos = False
         engine.execute(fig)
-        _keep_titles(fig, renderer)
+        if _place_titles(titled, renderer):  # one pushed up: matplotlib's own layout
+            _restore_geometry(start)
+            for ax in titled:
+                ax._autotitlepos = True
+            engine.execute(fig)
+            _place_titles(titled, renderer)
     finally:
         fig.set_dpi(dpi)
         fig.set_canvas(canvas)
     keep_layout(fig)
 
 
-def _keep_titles(fig: Figure, renderer: Any) -> None:
-    """Place the axes titles of a laid-out ``fig`` once, as a draw places them (raised above
-    whatever sits on top of the axes: top tick labels, an offset text), and keep them
-    there: otherwise every draw places them again, measuring the axes' tick labels anew."""
-    for ax in cast(list[Any], fig.axes):  # matplotlib's private title placement
-        if getattr(ax, "_autotitlepos", False) is False or not hasattr(
-            ax, "_update_title_position"
-        ):
-            continue  # placed by hand, or another matplotlib: left to the draws
-        if not any(t.get_text() for t in (ax.title, ax._left_title, ax._right_title)):
-            continue
+def _titles(ax: Any) -> tuple[Any, Any, Any]:
+    return ax.title, ax._left_title, ax._right_title
+
+
+def _auto_titled(fig: Figure) -> list[Any]:
+    """The axes of ``fig`` whose titles matplotlib places itself (its private placement;
+    none under another matplotlib that lacks it: there, every draw places them)."""
+    return [
+        ax
+        for ax in cast(list[Any], fig.axes)
+        if getattr(ax, "_autotitlepos", False) is not False
+        and hasattr(ax, "_update_title_position")
+        and any(t.get_text() for t in _titles(ax))
+    ]
+
+
+def _place_titles(titled: list[Any], renderer: Any) -> bool:
+    """Place the titles of the laid-out axes ``titled`` as a draw places them, and keep them
+    there (otherwise every draw places them again, measuring the tick labels anew); True
+    when one had to be pushed up above its axes' top."""
+    pushed = False
+    for ax in titled:
         locator = ax.get_axes_locator()
         ax.apply_aspect(locator(ax, renderer) if locator else None)
+        ax._autotitlepos = True
         ax._update_title_position(renderer)
         ax._autotitlepos = False
+        pushed |= any(t.get_position()[1] != 1.0 for t in _titles(ax))
+    return pushed
+
+
+def _geometry(fig: Figure) -> list[tuple[Any, Any, Any, Any, Any, Any]]:
+    """Where every axes of ``fig`` is (original and active box, anchor, box aspect, aspect):
+    what a layout engine changes."""
+    return [
+        (
+            ax,
+            ax.get_position(original=True).frozen(),
+            ax.get_position(original=False).frozen(),
+            ax.get_anchor(),
+            ax.get_box_aspect(),
+            ax.get_aspect(),
+        )
+        for ax in cast(list[Any], fig.axes)
+    ]
+
+
+def _restore_geometry(geometry: list[tuple[Any, Any, Any, Any, Any, Any]]) -> None:
+    for ax, original, active, anchor, box_aspect, aspect in geometry:
+        ax._set_position(original, which="original")  # in the layout still (set_position
+        ax._set_position(active, which="active")  # would take the axes out of it)
+        ax.set_anchor(anchor)
+        ax.set_box_aspect(box_aspect)
+        ax.set_aspect(aspect)
 
 
 def grid_shape(n: int) -> tuple[int, int]:

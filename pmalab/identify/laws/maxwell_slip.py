@@ -21,22 +21,19 @@ displacement.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.optimize import nnls
 
 from pmalab.identify.laws._slide import (
-    branch,
     column,
     nonneg,
     play_basis,
-    slide_h,
     slide_h_rows,
-    slide_start,
-    slide_stepper,
 )
-from pmalab.identify.laws.base import HysteresisLaw, LawParam
+from pmalab.identify.laws.base import LawParam
+from pmalab.identify.laws.element_sum import ElementSum
 
 ELEMENTS = 4
 _K = tuple(f"k{i + 1}" for i in range(ELEMENTS))
@@ -49,7 +46,7 @@ def _kf(theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
     return k, k * d
 
 
-class MaxwellSlip(HysteresisLaw):
+class MaxwellSlip(ElementSum):
     name = "maxwell-slip"
     order = 3
     title = "Maxwell-slip (elasto-slide elements)"
@@ -112,23 +109,10 @@ class MaxwellSlip(HysteresisLaw):
     def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         return _K, _D
 
-    def h(self, x, theta, extras=None):
-        k, f = _kf(theta)
-        return slide_h(
-            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
-        )
+    def _kf(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        return _kf(theta)
 
     def h_many(self, x, thetas, extras=None):
         # every row's _kf at once: the same max(k, 0)·max(d, 0), elementwise
         K = nonneg(column(thetas, _K))
         return slide_h_rows(x, K, K * nonneg(column(thetas, _D)), thetas)
-
-    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
-        k, f = _kf(theta)
-        return slide_start(k, f, float(h0), float(direction))
-
-    def output(self, state) -> float:
-        return float(np.sum(state))
-
-    def stepper(self, theta, extras=None) -> Callable:
-        return slide_stepper(*_kf(theta))

@@ -38,22 +38,19 @@ while stretching).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 from scipy.optimize import nnls
 
 from pmalab.identify.laws._slide import (
-    branch,
     column,
     nonneg,
     play_basis,
-    slide_h,
     slide_h_rows,
-    slide_start,
-    slide_stepper,
 )
-from pmalab.identify.laws.base import HysteresisLaw, LawParam
+from pmalab.identify.laws.base import LawParam
+from pmalab.identify.laws.element_sum import ElementSum
 
 #: play-operator thresholds (mm)
 THRESHOLDS_MM = tuple(float(r) for r in 0.1 * 2.0 ** (np.arange(15) / 2))
@@ -65,7 +62,7 @@ def _kf(theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
     return w, w * np.asarray(THRESHOLDS_MM)
 
 
-class PrandtlIshlinskii(HysteresisLaw):
+class PrandtlIshlinskii(ElementSum):
     name = "prandtl-ishlinskii"
     order = 4
     title = "Prandtl-Ishlinskii (play operators)"
@@ -109,23 +106,10 @@ class PrandtlIshlinskii(HysteresisLaw):
     def element_names(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         return _W, ()
 
-    def h(self, x, theta, extras=None):
-        k, f = _kf(theta)
-        return slide_h(
-            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
-        )
+    def _kf(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        return _kf(theta)
 
     def h_many(self, x, thetas, extras=None):
         # every row's _kf at once: the same max(w, 0) and w·r, elementwise
         K = nonneg(column(thetas, _W))
         return slide_h_rows(x, K, K * np.asarray(THRESHOLDS_MM), thetas)
-
-    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
-        k, f = _kf(theta)
-        return slide_start(k, f, float(h0), float(direction))
-
-    def output(self, state) -> float:
-        return float(np.sum(state))
-
-    def stepper(self, theta, extras=None) -> Callable:
-        return slide_stepper(*_kf(theta))

@@ -24,21 +24,18 @@ t's), so the model a campaign reports is always the base law's, whatever structu
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
 
 from pmalab.identify.laws._slide import (
-    branch,
     column,
     nonneg,
-    slide_h,
     slide_h_rows,
-    slide_start,
-    slide_stepper,
 )
 from pmalab.identify.laws.base import HysteresisLaw, LawParam
+from pmalab.identify.laws.element_sum import ElementSum
 
 #: every structure a law may offer, in order of decreasing parameter count
 ALL_STRUCTURES = ("free", "scaled-thresholds", "scaled")
@@ -46,7 +43,7 @@ ALL_STRUCTURES = ("free", "scaled-thresholds", "scaled")
 T_GRID = (0.35, 0.5, 0.7, 1.0, 1.4, 2.0, 2.8)
 
 
-class ProfileElements(HysteresisLaw):
+class ProfileElements(ElementSum):
     """Elements of one profile: k_i = s·κ_i·c_i, d_i = t·δ_i·r_i (see module doc).
 
     (κ, δ) is the start profile the law is built with; the corrections c_i (stiffness shares)
@@ -124,12 +121,6 @@ class ProfileElements(HysteresisLaw):
         out.update({k: float(v) for k, v in (fixed or {}).items() if v is not None})
         return out
 
-    def h(self, x, theta, extras=None):
-        k, f = self._kf(theta)
-        return slide_h(
-            np.ascontiguousarray(x, dtype=np.float64), k, f, float(theta["h0"]), branch(theta)
-        )
-
     def h_many(self, x, thetas, extras=None):
         # every row's _kd at once: k = (max(s, 0)·κ)·c, d = (δ·r)·max(t, 0), f = k·d,
         # the same operations as _kd's, elementwise
@@ -144,16 +135,6 @@ class ProfileElements(HysteresisLaw):
         T = nonneg(np.array([[float(th.get("t", 1.0))] for th in thetas]).reshape(n, 1))
         K = S * self.kappa[None, :] * C
         return slide_h_rows(x, K, K * (self.delta[None, :] * Rr * T), thetas)
-
-    def initial_state(self, theta: Mapping[str, float], h0: float = 0.0, direction: float = 1.0):
-        k, f = self._kf(theta)
-        return slide_start(k, f, float(h0), float(direction))
-
-    def output(self, state) -> float:
-        return float(np.sum(state))
-
-    def stepper(self, theta, extras=None) -> Callable:
-        return slide_stepper(*self._kf(theta))
 
     def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
         return self._kd(theta)
