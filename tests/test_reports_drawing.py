@@ -153,3 +153,14 @@ def test_without_matplotlibs_title_placement_every_draw_places_the_titles(monkey
     assert laid.axes[0]._autotitlepos is not False  # left to matplotlib: placed on each draw
     assert _pdf_bytes(laid) == pdf
     assert laid.axes[0]._left_title.get_position()[1] > 1.0
+
+
+def test_png_export_takes_savefigs_pil_kwargs(tmp_path):
+    """Pillow options given to savefig (dpi, compression) override the export's own, as with
+    matplotlib's PNG writer, instead of failing on a keyword given twice."""
+    fig = Figure(figsize=(2, 1))
+    fig.text(0.5, 0.5, "x")
+    style._PngCanvas(fig)
+    fig.savefig(tmp_path / "a.png", dpi=40, pil_kwargs={"dpi": (72, 72), "compress_level": 9})
+    with Image.open(tmp_path / "a.png") as img:
+        assert img.info["dpi"] == pytest.approx((72, 72), abs=0.02) and img.size == (80, 40)
