@@ -36,13 +36,13 @@ class _Elements(ElementSum):
     names_d: tuple[str, ...] = ()
 
     def _kf(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-        # as maxwell_slip._kf: negative values act as zero; slip force f_i = k_i·d_i
-        k = np.array([max(float(theta[n]), 0.0) for n in self.names_k])
-        d = np.array([max(float(theta[n]), 0.0) for n in self.names_d])
+        # as maxwell_slip._kf: slip force f_i = k_i·d_i
+        k, d = self.elements(theta)
         return k, k * d
 
     def elements(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
-        """Stiffnesses (N/mm) and slip displacements (mm) of the elements."""
+        """Stiffnesses (N/mm) and slip displacements (mm) of the elements (negative values
+        act as zero)."""
         k = np.array([max(float(theta[n]), 0.0) for n in self.names_k])
         return k, np.array([max(float(theta[n]), 0.0) for n in self.names_d])
 

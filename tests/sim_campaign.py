@@ -40,3 +40,27 @@ def record_campaign(truth: Path, work: Path, seed: int,
                           "--out", str(out), "--quiet"])
     assert rc == 0, text.getvalue()
     return out
+
+
+def truth_runs(truth: Path, work: Path, seed: int, elements: int = 4):
+    """Each steady run of a campaign recorded with ``truth`` and ``seed``
+    (:func:`record_campaign`), with its signals and the truth's own parameters at the run's
+    nominal pressure as ``elements`` elasto-slide elements
+    (:func:`pmalab.rig.sim.reference.maxwell_slip_theta`, start state ``h0`` = 0 N): the
+    arguments of ``predict_record(model, signals, theta, force=run.force)``.
+
+    Yields
+    ------
+    (run, signals, theta)
+        Fails the calling test when the law cannot express the truth."""
+    from pmalab.identify.signals import Signals
+    from pmalab.rig.sim.reference import maxwell_slip_theta
+    from pmalab.rig.sim.truth import load_truth
+    from pmalab.runfile import read_runs
+
+    tr = load_truth(truth)
+    for run in read_runs(record_campaign(truth, work, seed)):
+        r = run.steady()
+        th = maxwell_slip_theta(float(r.nominal_pressure), tr, elements)
+        assert th is not None, r.name
+        yield r, Signals.from_run(r), {**th, "h0": 0.0}

@@ -128,3 +128,39 @@ def test_png_export_is_matplotlibs_pixels_rgb_when_opaque(tmp_path):
     clear.text(0.5, 0.5, "x")
     with Image.open(style.save_figure(clear, tmp_path / "clear.png", dpi=40)) as img:
         assert img.mode == "RGBA" and np.asarray(img)[0, 0, 3] == 0
+
+
+def test_without_matplotlibs_title_placement_every_draw_places_the_titles(monkeypatch):
+    """The title placement lay_out relies on is matplotlib's private API
+    (``_autotitlepos``, ``_update_title_position``).  An axes without it is left out
+    (``_auto_titled``), and a page whose axes are all left out is laid out and drawn as a
+    plain savefig draws it: the title raised over the offset text by each draw, the PDF
+    the same byte for byte."""
+    from types import SimpleNamespace
+
+    no_api = SimpleNamespace(title=SimpleNamespace(get_text=lambda: "t"))  # neither attribute
+    no_placer = SimpleNamespace(title=no_api.title, _autotitlepos=None)
+    no_flag = SimpleNamespace(title=no_api.title, _update_title_position=lambda r: None)
+    fake = SimpleNamespace(axes=[no_api, no_placer, no_flag])
+    assert style._auto_titled(fake) == []  # pyright: ignore[reportArgumentType]
+
+    plain, laid = _offset_page(), _offset_page()
+    pdf = _pdf_bytes(plain)
+    monkeypatch.setattr(style, "_auto_titled", lambda fig: [])
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    assert laid.get_layout_engine() is None
+    assert laid.axes[0]._autotitlepos is not False  # left to matplotlib: placed on each draw
+    assert _pdf_bytes(laid) == pdf
+    assert laid.axes[0]._left_title.get_position()[1] > 1.0
+
+
+def test_png_export_takes_savefigs_pil_kwargs(tmp_path):
+    """Pillow options given to savefig (dpi, compression) override the export's own, as with
+    matplotlib's PNG writer, instead of failing on a keyword given twice."""
+    fig = Figure(figsize=(2, 1))
+    fig.text(0.5, 0.5, "x")
+    style._PngCanvas(fig)
+    fig.savefig(tmp_path / "a.png", dpi=40, pil_kwargs={"dpi": (72, 72), "compress_level": 9})
+    with Image.open(tmp_path / "a.png") as img:
+        assert img.info["dpi"] == pytest.approx((72, 72), abs=0.02) and img.size == (80, 40)

@@ -14,15 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sim_campaign import noise_free_truth, record_campaign
+from sim_campaign import noise_free_truth, truth_runs
 
 from pmalab.identify.campaign.fit import _as_model
 from pmalab.identify.estimation.records import predict_record
-from pmalab.identify.signals import Signals
 from pmalab.paths import TRUTH_DIR
 from pmalab.rig.sim.reference import maxwell_slip_theta
 from pmalab.rig.sim.truth import load_truth
-from pmalab.runfile import read_runs
 
 
 @pytest.mark.parametrize("name", ["laws/ms-slip-growing.toml", "laws/ms-two-elements.toml"])
@@ -30,14 +28,9 @@ def test_the_truths_parameters_reproduce_its_recorded_force(tmp_path: Path, name
     # ms-slip-growing: four elements whose slip displacements grow with pressure (q^1);
     # ms-two-elements: two elements (the law's other two carry nothing), q^0.5
     truth = noise_free_truth(name, tmp_path)
-    tr = load_truth(truth)
     model = _as_model("maxwell-slip")
-    for run in read_runs(record_campaign(truth, tmp_path, 3)):
-        r = run.steady()
-        sig = Signals.from_run(r)
-        th = maxwell_slip_theta(float(r.nominal_pressure), tr)
-        assert th is not None
-        fm = predict_record(model, sig, {**th, "h0": 0.0}, force=r.force)
+    for r, sig, th in truth_runs(truth, tmp_path, 3):
+        fm = predict_record(model, sig, th, force=r.force)
         half = len(fm) // 2  # the start state is wiped by then
         rms = float(np.sqrt(np.mean((r.force[half:] - fm[half:]) ** 2)))
         # measured on seed 3: 0.15-0.28 N at 0.5 Hz, 0.25-1.1 N at 2 Hz (the sensors'

@@ -18,16 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from sim_campaign import noise_free_truth, record_campaign
+from sim_campaign import noise_free_truth, truth_runs
 
 from pmalab.identify.campaign.fit import _as_model
 from pmalab.identify.estimation.records import predict_record
 from pmalab.identify.model import ForceModel
-from pmalab.identify.signals import Signals
 from pmalab.paths import TRUTH_DIR
-from pmalab.rig.sim.reference import maxwell_slip_theta
 from pmalab.rig.sim.truth import load_truth
-from pmalab.runfile import read_runs
 
 # bench/ belongs to the repository, not the package: import it from the checkout
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,15 +47,10 @@ def test_a_play_operator_truth_restated_as_elements_reproduces_its_load_cell(
     tmp_path: Path, name: str
 ) -> None:
     truth = noise_free_truth(name, tmp_path)
-    tr = load_truth(truth)
     model, n = truth_model(truth)
-    assert n == len(tr.section("friction")["presliding_mm"]) > 4
-    for run in read_runs(record_campaign(truth, tmp_path, 3)):
-        r = run.steady()
-        sig = Signals.from_run(r)
-        th = maxwell_slip_theta(float(r.nominal_pressure), tr, n)
-        assert th is not None
-        fm = predict_record(model, sig, {**th, "h0": 0.0}, force=r.force)
+    assert n == len(load_truth(truth).section("friction")["presliding_mm"]) > 4
+    for r, sig, th in truth_runs(truth, tmp_path, 3, n):
+        fm = predict_record(model, sig, th, force=r.force)
         half = len(fm) // 2  # the stroke has wiped the start state by then
         e = r.force[half:] - fm[half:]
         span = float(np.ptp(r.force))
@@ -69,7 +61,7 @@ def test_a_play_operator_truth_restated_as_elements_reproduces_its_load_cell(
         # 11-139 N, and the Maxwell-slip law's four smallest elements alone 5.7-56 N
         assert float(np.std(e)) < 0.0015 * span, (r.name, float(np.std(e)))
         # its level: the force zero estimated on the early part is biased on the 2 Hz runs
-        # (mean +0.2 ... +2.2 N there, under 0.1 N at 0.5 Hz): the held-out rule's, kept
+        # (mean +0.0 ... +2.2 N there, under 0.1 N at 0.5 Hz): the held-out rule's, kept
         assert float(np.sqrt(np.mean(e**2))) < 0.006 * span, (r.name, float(np.mean(e)))
 
 
@@ -77,17 +69,12 @@ def test_four_elements_predict_as_the_maxwell_slip_law(tmp_path: Path) -> None:
     # the project's own Maxwell-slip muscle (noise as shipped): the element sum with four
     # elements is that law, so every predicted record is the same to the last bit
     truth = TRUTH_DIR / "hysteresis-maxwell-slip.toml"
-    tr = load_truth(truth)
     law, mine = _as_model("maxwell-slip"), ForceModel(elements_law(4))
     model, n = truth_model(truth)
     assert n == 4 and model.law.name == "maxwell-slip"
-    for run in read_runs(record_campaign(truth, tmp_path, 8)):
-        r = run.steady()
-        sig = Signals.from_run(r)
-        th = maxwell_slip_theta(float(r.nominal_pressure), tr)
-        assert th is not None
-        a = predict_record(law, sig, {**th, "h0": 0.0}, force=r.force)
-        b = predict_record(mine, sig, {**th, "h0": 0.0}, force=r.force)
+    for r, sig, th in truth_runs(truth, tmp_path, 8):
+        a = predict_record(law, sig, th, force=r.force)
+        b = predict_record(mine, sig, th, force=r.force)
         assert np.array_equal(a, b), r.name
 
 

@@ -183,9 +183,9 @@ def text_problems(fig: Figure, *, dpi: float = 100.0, tol: float = TOLERANCE_PX)
 
 
 def page_problems(fig: Figure, *, dpi: float = 150.0) -> list[str]:
-    """:func:`text_problems` of a report page as the report writes it: laid out while it is
-    drawn into the PDF, that layout kept for its PNG/SVG export
-    (:func:`pmalab.reports.style.keep_layout`), checked at the export's ``dpi``."""
+    """:func:`text_problems` of a report page as the report writes it: laid out once before
+    it is drawn into the PDF (:func:`pmalab.reports.style.lay_out`), that layout kept for
+    its PNG/SVG export, checked at the export's ``dpi``."""
     # laid out as the report lays it out before saving it (the PDF backend's text metrics),
     # without writing the PDF: the same axes positions
     with mpl.rc_context(style.RC):

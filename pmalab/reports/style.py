@@ -301,11 +301,7 @@ class _PngCanvas(FigureCanvasAgg):
             if v is not None:
                 info.add_text(k, str(v))
         dpi = self.figure.dpi
-        img.save(
-            filename_or_obj,
-            format="png",
-            dpi=(dpi, dpi),
-            pnginfo=info,
-            compress_level=PNG_COMPRESS_LEVEL,
-            **(pil_kwargs or {}),
-        )
+        # the caller's pil_kwargs win, as in matplotlib's own writer (its pnginfo replaces
+        # the metadata, its dpi the figure's)
+        opts = {"dpi": (dpi, dpi), "pnginfo": info, "compress_level": PNG_COMPRESS_LEVEL}
+        img.save(filename_or_obj, format="png", **{**opts, **(pil_kwargs or {})})
