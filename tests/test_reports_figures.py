@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import reports_fixtures as rf
+from matplotlib import rc_context as mpl_rc
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from matplotlib.text import Text
@@ -57,6 +59,27 @@ def test_loops_figure_gives_each_run_its_own_error_scale():
     assert lcs[2].norm.vmax > 3 * lcs[0].norm.vmax
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
     assert "fit 95.0 %" in titles[0] and f"fit {ts[1].fit_percent:.1f} %" in titles[1]
+
+
+def test_loops_page_legend_lies_outside_every_panel():
+    """One legend for the page, below the panels: inside a panel, "best" could find no place
+    free of data and put it across a branch of the loop."""
+    from pmalab.reports import style
+
+    fig = F.loops_figure([_trace(80, p) for p in (0.3, 0.45, 0.6, 0.5)])
+    with mpl_rc(style.RC):
+        style.lay_out(fig)
+    panels = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert len(panels) == 4 and all(ax.get_legend() is None for ax in panels)
+    (leg,) = fig.legends
+    assert [t.get_text() for t in leg.get_texts()] == ["measured", "model (colour = |error|)"]
+    canvas = FigureCanvasAgg(fig)  # drawn as the PNG export draws it
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    box = leg.get_window_extent(renderer)
+    for ax in fig.axes:  # no panel and no colour bar under it
+        assert not box.overlaps(ax.get_window_extent(renderer)), ax.get_title()
+    assert box.y1 < min(ax.get_window_extent(renderer).y0 for ax in panels)
 
 
 def test_ladder_plot_y_data_are_the_nrmse_values():

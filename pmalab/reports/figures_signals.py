@@ -129,7 +129,11 @@ def loops_figure(
         _colorbar(fig, lc, ax)
         fp = None if fit_percent is None else fit_percent[i]
         ax.set_title(f"{t.describe()} — {_fit_text(t, fp)}\n{t.label}")
-        ax.legend(loc="best")
+    if axes:
+        # one legend for the page, under the panels: inside a panel no place is free of
+        # data on every loop ("best" put it across a branch of the loop)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=len(labels))
     return fig
 
 
