@@ -199,3 +199,13 @@ def test_the_checked_layout_is_the_pdf_pages_layout(pages, dirs):
     assert page_problems(checked) == []
     want = [ax.get_position().bounds for ax in saved.axes]
     np.testing.assert_allclose([ax.get_position().bounds for ax in checked.axes], want, atol=1e-9)
+
+
+def test_layout_check_of_a_missing_directory_is_one_line(tmp_path, capsys):
+    """``python -m pmalab.reports.layout DIR`` on a directory that is not there: one line
+    naming it, exit 2, no traceback."""
+    from pmalab.reports.layout import main
+
+    assert main([str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "nowhere: no such directory" in err

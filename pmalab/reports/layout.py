@@ -197,10 +197,15 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m pmalab.reports.layout DIR...``: check every page of the report of DIRs."""
     from pmalab.reports.build import draw_page, plan_pages
     from pmalab.reports.data import load_report_dir
+    from pmalab.reports.errors import ReportError
 
     dirs = list(sys.argv[1:] if argv is None else argv)
     bad = 0
-    data = load_report_dir(dirs)
+    try:
+        data = load_report_dir(dirs)
+    except ReportError as exc:  # a wrong directory: one line, no traceback
+        print(f"python -m pmalab.reports.layout: error: {exc}", file=sys.stderr)
+        return 2
     pages = plan_pages(data)
     for i, page in enumerate(pages, 1):
         probs = page_problems(draw_page(page, data, i, len(pages)))
