@@ -155,7 +155,8 @@ def test_residual_panels_and_correlation_bounds():
     assert "Pressure p − p_nom (kPa)" in labels  # small MPa shown in kPa
     assert "Contraction x (mm)" in labels and labels.count("Lag (s)") == 2
     acf_ax = visible[6]
-    assert "lags outside the bound" in acf_ax.get_title()
+    assert "lags outside ±" in acf_ax.get_title() and "95 % bound" in acf_ax.get_ylabel()
+    assert acf_ax.get_legend() is None  # the bound is named in the title, over no data
     assert "worst region: stretch, high contraction" in fig._suptitle.get_text()
     regions = visible[8]
     np.testing.assert_allclose(regions.images[0].get_array(), [[3.1, 4.0, 6.1], [2.5, 3.0, 3.3]])
