@@ -14,6 +14,10 @@ from pmalab.errors import PmalabError
 MAX_SEED = 2**63 - 1
 #: the environment variable that sets the default of every command's ``--jobs``
 JOBS_ENV = "PMALAB_JOBS"
+#: worker processes of an identification or a diagnosis when neither ``--jobs`` nor
+#: ``$PMALAB_JOBS`` says (the library's default too; here, where the command line reads it
+#: without loading the fitting code)
+DEFAULT_JOBS = 2
 
 
 def default_jobs(fallback: int) -> int:

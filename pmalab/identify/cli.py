@@ -12,7 +12,7 @@ import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from pmalab.arguments import JOBS_ENV, default_jobs, fixes
+from pmalab.arguments import DEFAULT_JOBS, JOBS_ENV, default_jobs, fixes
 from pmalab.console import (
     VERBOSE,
     add_verbosity,
@@ -57,14 +57,8 @@ def _one_blas_thread_from_the_start() -> None:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
-#: identify's and diagnose's worker processes when neither ``--jobs`` nor ``$PMALAB_JOBS``
-#: says (the library's ``identify.campaign.batch.DEFAULT_JOBS``, not imported here: the
-#: package loads the fitting code)
-DEFAULT_JOBS = 2
-
-
 def resolve_jobs(jobs: int | None) -> int:
-    """``--jobs`` as given, else ``$PMALAB_JOBS``, else :data:`DEFAULT_JOBS`.
+    """``--jobs`` as given, else ``$PMALAB_JOBS``, else :data:`pmalab.arguments.DEFAULT_JOBS`.
 
     Parameters
     ----------

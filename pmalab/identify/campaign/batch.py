@@ -19,13 +19,13 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
+from pmalab.arguments import DEFAULT_JOBS
 from pmalab.errors import PmalabError
 
 T = TypeVar("T")
 R = TypeVar("R")
 C = TypeVar("C")
 
-DEFAULT_JOBS = 2
 #: how long to try reaching a Dask scheduler before giving up (s)
 SCHEDULER_TIMEOUT_S = 10.0
 #: environment variable choosing the worker start method (fork, forkserver, spawn); unset:
