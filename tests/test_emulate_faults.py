@@ -122,6 +122,10 @@ def test_rtu_on_pty_faults_crc_drop_exception():
     ) as emus:
         spec = emus.rig_spec()
         spec.probe_samples = 0
+        # the emulator answers from this process's threads: on a busy machine they may
+        # wait longer for a CPU than a real device takes to answer (the rig file's 0.1 s),
+        # which would add a timeout to the counts of the faults injected
+        spec.transport.timeout_s = 0.5
         rig = build_modbus_rig(spec)
         try:
             st = rig.sampler.link.stats
