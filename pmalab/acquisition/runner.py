@@ -458,7 +458,8 @@ def recording_rate(rig: Rig, protocol: Protocol) -> tuple[float, str | None]:
     name = rig.info.get("name") or rig.info.get("kind") or "rig"
     sustain = timing.get("sustainable_Hz") if isinstance(timing, dict) else None
     why = f" (its link sustains about {sustain:.0f} Hz)" if isinstance(sustain, int | float) else ""
-    if why and timing.get("host_busy"):  # the probe measured the busy computer too
+    if why and isinstance(timing, dict) and timing.get("host_busy"):
+        # the probe measured the busy computer too
         why = (
             f" (its link, on this busy computer, sustained about {sustain:.0f} Hz: the driver "
             f"waited for a CPU {100 * float(timing.get('cpu_wait_share', 0.0)):.0f} % of the probe)"
