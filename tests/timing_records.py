@@ -73,16 +73,22 @@ def deadline_indices(n: int, gaps: np.ndarray, dt: float) -> np.ndarray:
     return k
 
 
-def check_software_polled(rec: TimingRecords, n_scheduled: int, read_max_s: float) -> np.ndarray:
+def check_software_polled(rec: TimingRecords, n_scheduled: int | None, read_max_s: float
+                          ) -> np.ndarray:
     """Assert the file is consistent with its own lateness and gap records (module
-    docstring); ``n_scheduled``: the run's deadlines (duration × rate + 1), ``read_max_s``:
-    the longest a request may take (its link's timeout × attempts).  Returns each sample's
-    wake time (deadline + lateness, s)."""
+    docstring); ``n_scheduled``: the run's deadlines (duration × rate + 1; None for a run
+    that ended early: only the deadlines up to its last sample are accounted for),
+    ``read_max_s``: the longest a request may take (its link's timeout × attempts).
+    Returns each sample's wake time (deadline + lateness, s)."""
     n = len(rec.time)
     dt = 1.0 / rec.rate_Hz
     assert n >= 2 and rec.lateness.shape == (n,)
     assert np.all(rec.lateness >= -TOL_S), rec.lateness.min()  # never before its deadline
     k = deadline_indices(n, rec.gaps, dt)
+    if n_scheduled is None:  # ended early: the schedule ran to its last sample
+        n_scheduled = int(k[-1]) + 1
+        rec = TimingRecords(rec.time, rec.lateness, rec.gaps[rec.gaps[:, 0] < k[-1] * dt],
+                            rec.rate_Hz)
     # nothing lost, nothing invented: samples and missed deadlines make up the schedule
     # (a skip past the last deadline counts only the deadlines that were scheduled)
     missed = np.minimum(rec.gaps[:, 1], np.maximum(0.0, n_scheduled - rec.gaps[:, 0] / dt))
