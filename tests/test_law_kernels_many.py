@@ -164,3 +164,68 @@ def test_many_row_kernels_compile_no_error_message_code(tmp_path):
     assert "pmalab.identify.laws._slide.slide_h_many" in compiled
     shape_message = [c for c in compiled if "raise_with_shape_context" in c]
     assert not shape_message, shape_message
+
+
+_LOADS = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from identify_synth import make_run
+from pmalab.identify.estimation.single import fit_run
+from pmalab.identify.laws import _slide, bouc_wen, duhem, get_law
+
+kernels = {
+    "bouc-wen": [bouc_wen.bouc_wen_h1, bouc_wen.bouc_wen_h1_many],
+    "duhem": [duhem.duhem_h, duhem.duhem_h_many],
+    "maxwell-slip": [_slide.slide_h, _slide.slide_h_many],
+    "prandtl-ishlinskii": [_slide.slide_h, _slide.slide_h_many],
+}
+run, _ = make_run("bouc-wen", 0.3, n=1200, seed=3, f=0.8)
+out = {}
+for law, ds in kernels.items():
+    get_law(law).load_compiled()
+    loaded = [len(d.signatures) for d in ds]
+    fit_run(run, law)
+    out[law] = (loaded, [len(d.signatures) for d in ds])
+json.dump(out, sys.stdout)
+"""
+
+
+def test_load_compiled_loads_the_kernels_a_fit_calls():
+    # in a fresh process: what load_compiled loads is what a fit then runs (fitting
+    # afterwards adds no signature: a worker forked after it would otherwise compile or
+    # load its own)
+    here = os.path.dirname(os.path.abspath(__file__))
+    got = subprocess.run(
+        [sys.executable, "-c", _LOADS, here], capture_output=True, text=True, timeout=300
+    )
+    assert got.returncode == 0, got.stderr
+    for law, (loaded, after_fit) in json.loads(got.stdout).items():
+        assert min(loaded) >= 1, law
+        assert after_fit == loaded, law
+
+
+@pytest.mark.parametrize(
+    ("jobs", "scheduler", "loads"),
+    [(2, None, True), (1, None, False), (2, "tcp://nowhere:1", False)],
+)
+def test_the_ladder_loads_every_scored_law_before_its_workers_start(
+    monkeypatch, jobs, scheduler, loads
+):
+    from pmalab.identify.diagnosis import ladder
+    from pmalab.identify.laws.base import HysteresisLaw
+
+    seen: list[str] = []
+    monkeypatch.setattr(HysteresisLaw, "load_compiled", lambda self: seen.append(self.name))
+
+    class Started(Exception):
+        pass
+
+    def scorer(*a, **k):
+        raise Started(list(seen))
+
+    monkeypatch.setattr(ladder, "Scorer", scorer)
+    with pytest.raises(Started) as got:
+        ladder.run_ladder(
+            [], [], "bouc-wen", [], jobs=jobs, laws=["duhem", "maxwell-slip"], scheduler=scheduler
+        )
+    assert got.value.args[0] == (["bouc-wen", "duhem", "maxwell-slip"] if loads else [])
