@@ -86,17 +86,18 @@ def test_kill9_realtime_keeps_samples_up_to_one_second_before(tmp_path):
     recorded_until = start + r.time[-1]
     assert t_kill - recorded_until <= 1.0, f"lost {t_kill - recorded_until:.2f} s of samples"
     assert r.time[-1] > 1.5  # it really recorded for a while in real time
-    # paced at 500 Hz: the typical step is exactly 2 ms.  How many deadlines a machine
-    # shared with other work misses is its business: the file records each sample's
-    # lateness and every missed deadline as a gap (never an invented sample), and the last
-    # stamp is where those records put it
-    np.testing.assert_allclose(np.median(np.diff(r.time)), 1 / 500, rtol=1e-3)
+    # paced at 500 Hz.  How many deadlines a machine shared with other work misses is its
+    # business: the file records each sample's lateness and every missed deadline as a gap
+    # (never an invented sample), and the last stamp is where those records put it
     n = len(r)
     lateness = read_run_datasets(out, r.name)["lateness"][0]
     with h5py.File(out, "r", libver="latest", swmr=True) as f:
         gaps = np.asarray(f[f"runs/{r.name}/gaps"][()], dtype=np.float64).reshape(-1, 2)
     missed = int(gaps[gaps[:, 0] <= r.time[-1], 1].sum())
     assert lateness.shape == (n,) and np.all(lateness > -1e-3)
+    if np.mean(lateness < 1e-5) >= 0.8:  # kept its deadlines (an idle machine: ~all)
+        # the typical step is then exactly 2 ms
+        np.testing.assert_allclose(np.median(np.diff(r.time)), 1 / 500, rtol=1e-3)
     due = (n - 1 + missed) / 500  # the last sample's deadline, s from the first
     assert due - 1e-3 <= r.time[-1] <= due + float(lateness[-1]) + 0.05, (
         r.time[-1], due, lateness[-1], missed)

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 from test_active import delay_campaign  # noqa: F401  (the module-scoped fixture)
 from test_emulate_run import start_emulate_process
+from timing_records import too_busy_refusal
 from user_shell import shell_env
 
 from pmalab.paths import RIGS_DIR
@@ -44,6 +45,10 @@ def test_killing_the_emulator_mid_round_reports_the_vent_truthfully(delay_campai
     text = text.replace('truth = ""', f'truth = "{SUBTLE / "sensor-delay.toml"}"')
     text = text.replace("probe_samples = 300", "probe_samples = 50")
     text = text.replace("allow_reduced_rate = false", "allow_reduced_rate = true")
+    # the emulator is a process on this machine: when it is busy, the emulator may wait
+    # longer for a CPU than a T7 takes to answer (the rig file's 0.05 s)
+    assert "timeout_s = 0.05 " in text
+    text = text.replace("timeout_s = 0.05 ", "timeout_s = 0.5 ")
     rig.write_text(text)
     emu = start_emulate_process(rig, port)
     try:
@@ -56,7 +61,11 @@ def test_killing_the_emulator_mid_round_reports_the_vent_truthfully(delay_campai
         round_file = tmp_path / "campaign-round1.h5"
         deadline = time.monotonic() + 240
         while not round_file.exists():
-            assert proc.poll() is None, proc.communicate()
+            if proc.poll() is not None:
+                err = proc.communicate()[1]
+                # the probe may say the computer is too busy to judge the link (its own
+                # figures checked); anything else fails here, with the command's stderr
+                pytest.skip(too_busy_refusal(err.strip().splitlines()[-1] if err.strip() else err))
             assert time.monotonic() < deadline, "the round never started"
             time.sleep(0.2)
         time.sleep(2.0)  # a couple of seconds of samples over the wire

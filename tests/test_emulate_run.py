@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import threading
@@ -10,6 +11,7 @@ import time
 import h5py
 import numpy as np
 import pytest
+from timing_records import check_software_polled, kept_deadlines, read_timing_records
 
 from pmalab.acquisition.protocol import load_protocol
 from pmalab.acquisition.runner import RunnerOptions, run_protocol
@@ -73,6 +75,9 @@ def test_emulated_t7_records_the_same_loops_as_the_in_process_sim(tmp_path):
         # the loops are the point: on a loaded 2-core machine the probe may measure a link
         # too slow for 500 Hz, and the rig then records at the reduced rate it announces
         spec.allow_reduced_rate = True
+        # the emulator is a process on this machine: when it is busy, the emulator may wait
+        # longer for a CPU than a T7 takes to answer (the rig file's 0.05 s)
+        spec.transport.timeout_s = 0.5
         with build_modbus_rig(spec) as rig:
             rate = float(rig.info["timing"]["sample_rate_Hz"])
             assert rate in FALLBACK_RATES_HZ
@@ -88,11 +93,15 @@ def test_emulated_t7_records_the_same_loops_as_the_in_process_sim(tmp_path):
         g = f["runs"][run]
         t = g["time"][:]
         assert g.attrs["sample_rate_Hz"] == rate
-    # real timestamps at the announced rate: median period 1/rate; most deadlines kept (on a
-    # machine shared with other work a few are missed, and counted as such by the runner)
-    dt = np.diff(t)
-    assert np.median(dt) == pytest.approx(1.0 / rate, rel=0.03)
-    assert len(t) >= 0.6 * (t[-1] - t[0]) * rate
+    # real timestamps at the announced rate, as the file's own lateness and gap records
+    # place them (on a machine shared with other work samples wake late and deadlines are
+    # missed: the file says which), every scheduled deadline a sample or a recorded gap
+    rec = read_timing_records(emu_out, run)
+    n_scheduled = math.floor(protocol.runs[0].duration_s * rate + 1e-9) + 1
+    read_max_s = (spec.transport.retries + 1) * spec.transport.timeout_s
+    check_software_polled(rec, n_scheduled, read_max_s)
+    if kept_deadlines(rec):  # the idle-machine figure: median period 1/rate
+        assert np.median(np.diff(t)) == pytest.approx(1.0 / rate, rel=0.03)
     # the same loop shapes: branch-wise mean force per position bin agree
     with h5py.File(sim_out) as f:
         xs = f["runs"][run]["position"][:]

@@ -200,10 +200,11 @@ def test_two_element_muscle_keeps_fewer_elements():
     assert st.as_json()["element_counts"][st.chosen]["chosen"] == ec.chosen
 
 
-def test_an_element_count_that_removes_only_zero_elements_reuses_the_fit(monkeypatch):
-    """A count whose removed elements are already at zero share is the candidate's own law:
-    its joint fit is the candidate's (reused), not fitted a second time, and it scores the
-    same.  The fits are stand-ins: only which laws get fitted is under test."""
+def test_element_counts_remove_only_elements_the_law_has(monkeypatch):
+    """An element at zero weight is not one of the law's: a count never 'removes' it (that
+    refitted the candidate's own law and labelled it one element fewer).  The small element
+    that carries force is the one taken out, the count is the elements left, and that law is
+    fitted once.  The fits are stand-ins: only which laws get fitted is under test."""
     from types import SimpleNamespace
 
     import pmalab.identify.campaign.structure as S
@@ -234,10 +235,11 @@ def test_an_element_count_that_removes_only_zero_elements_reuses_the_fit(monkeyp
     models = {"scaled": ForceModel(law)}
     S._element_counts(cf, [], base, models, {"scaled": Fit()}, [], choice)
     ec = choice.elements["scaled"]
-    # three elements carry force; the one count tried removes element 2 (already zero)
-    assert ec.counts == [2, 3] and ec.removed == [2], ec
-    assert ec.scores[0] == ec.scores[1]
-    assert fitted == []  # the same law is never fitted twice
+    # three elements carry force; the one count tried removes element 1 (7.9 % of it), not
+    # element 2 (none), and leaves two
+    assert ec.counts == [2, 3] and ec.removed == [1], ec
+    assert len(fitted) == 1
+    np.testing.assert_allclose(fitted[0].kappa, [0.0, 0.0, 0.6, 0.4])  # the profile, renormed
 
 
 def _gate_case(joint_free: float, first: float | Exception):

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from cdp import Browser, chromium
+from timing_records import check_software_polled, kept_deadlines, read_timing_records
 
 from pmalab.errors import SafetyAbort
 from pmalab.runfile import read_runs
@@ -148,5 +149,13 @@ def test_live_page_draws_the_loop_and_its_stop_button_aborts_safely(tmp_path):
     # the samples are kept and the run is marked aborted
     (run,) = read_runs(tmp_path / "live.h5")
     assert run.attrs["status"] == "aborted: stopped from the live view"
-    assert 3.4 < run.time[-1] < 30 and len(run) > 1500
-    np.testing.assert_allclose(np.median(np.diff(run.time)), 1 / 500, rtol=1e-3)
+    assert 3.4 < run.time[-1] < 30
+    # paced at 500 Hz, as the file's own lateness and gap records place each sample (a
+    # machine busy with the browser and other work wakes late and misses deadlines: the
+    # file says which); when they show the deadlines kept, the idle-machine figures
+    rec = read_timing_records(tmp_path / "live.h5", "long")
+    check_software_polled(rec, None, read_max_s=0.5)
+    assert len(run) + rec.gaps[:, 1].sum() > 1500
+    if kept_deadlines(rec):
+        assert len(run) > 1500
+        np.testing.assert_allclose(np.median(np.diff(run.time)), 1 / 500, rtol=1e-3)

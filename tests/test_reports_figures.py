@@ -303,3 +303,24 @@ def test_contents_titles_are_cut_only_when_they_do_not_fit_their_column():
     assert cut.endswith("…") and "end" not in cut
     assert too_long.startswith(cut[:-1].split(". ", 1)[1] + " ")  # cut between words
     assert text_problems(fig) == []
+
+
+def test_wrapped_page_text_never_splits_a_number_from_its_unit():
+    """A wrapped heading broke '-117' and 'N' across two lines; at every width the page
+    text keeps each number with its unit (the other words still wrap)."""
+    import itertools
+    import re
+
+    from pmalab.reports.style import wrap
+
+    text = (
+        "worst region: stretch, high contraction (x 14.7–20.0 mm): rms error 6.1 N (1.5× the "
+        "run's 4.2 N), mean -117 N at 2.5 Hz, 350 kPa, 12 %: model tension too low"
+    )
+    units = ("N", "mm", "Hz", "kPa", "%")
+    for width in range(16, 60):  # from the longest bound word on (shorter breaks words)
+        lines = wrap(text, width)
+        assert len(lines) > 1
+        for a, b in itertools.pairwise(lines):
+            assert not (re.search(r"\d$", a) and b.split()[0] in units), (width, a, b)
+        assert " ".join(lines) == text  # nothing lost or changed

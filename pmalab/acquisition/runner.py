@@ -458,6 +458,12 @@ def recording_rate(rig: Rig, protocol: Protocol) -> tuple[float, str | None]:
     name = rig.info.get("name") or rig.info.get("kind") or "rig"
     sustain = timing.get("sustainable_Hz") if isinstance(timing, dict) else None
     why = f" (its link sustains about {sustain:.0f} Hz)" if isinstance(sustain, int | float) else ""
+    if why and isinstance(timing, dict) and timing.get("host_busy"):
+        # the probe measured the busy computer too
+        why = (
+            f" (its link, on this busy computer, sustained about {sustain:.0f} Hz: the driver "
+            f"waited for a CPU {100 * float(timing.get('cpu_wait_share', 0.0)):.0f} % of the probe)"
+        )
     return rate, (
         f"pmalab: warning: {name}: recording at a reduced {rate:g} Hz instead of "
         f"the protocol's {requested:g} Hz{why}; allow_reduced_rate = true"

@@ -9,7 +9,6 @@ each point is the validation error on the campaign as it stood after that round)
 
 from __future__ import annotations
 
-import textwrap
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -87,7 +86,7 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
     ax.legend(loc="best", framealpha=0.9)
     axt.axis("off")
     lines = [
-        *textwrap.wrap(
+        *style.wrap(
             f"Started: first {initial.get('first') or '-'}"
             + (
                 f", ambiguous {', '.join(initial['ambiguous'])}"
@@ -101,17 +100,17 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
     for r in rounds:
         e, v = r["experiment"], r.get("verdict") or {}
         sep = r.get("expected_separation") or {}
-        lines += textwrap.wrap(
+        lines += style.wrap(
             f"Round {r['round']}: {e.get('label', '')} — "
             f"{r.get('rig_time_s', 0):.0f} s of rig time, "
             f"{len(r.get('recorded_runs') or [])} runs",
             72,
             subsequent_indent="    ",
         )
-        lines += textwrap.wrap(
+        lines += style.wrap(
             f"why: {e.get('reason', '')}", 72, initial_indent="  ", subsequent_indent="    "
         )
-        lines += textwrap.wrap(
+        lines += style.wrap(
             f"expected separation {float(sep.get('min_x_floor', 0)):.1f}× the noise floor → "
             f"first {v.get('first') or '-'}"
             + (
@@ -126,7 +125,7 @@ def active_figure(diag: Mapping[str, Any]) -> Figure:
         lines.append("")
     if not rounds:
         lines.append("No experiment was run.")
-    lines += textwrap.wrap(
+    lines += style.wrap(
         f"Stopped: {act.get('stop', '')} ({float(act.get('rig_time_s', 0)):.0f} "
         f"s of {float(act.get('budget_s', 0)):.0f} s rig time).",
         72,

@@ -9,7 +9,6 @@ Units: x contraction in mm (positive = shorter), F tension in N, residuals F −
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -90,7 +89,7 @@ def compare_figure(
     head.text(
         0.5,
         1.0,
-        "\n".join(textwrap.wrap(headline[:1].upper() + headline[1:], 125)),
+        "\n".join(style.wrap(headline[:1].upper() + headline[1:], 125)),
         ha="center",
         va="top",
         fontsize=10.5,
@@ -274,7 +273,7 @@ def hysteresis_component_figure(
         0.0,
         0.5,
         "\n".join(
-            textwrap.wrap(
+            style.wrap(
                 f"{base.label}: {base.describe()}.  k·x + c0 with k = {k:.4g} N/mm, c0 = {c0:.4g} N "
                 "(the base model's linear component) is removed from the measured tension and from both "
                 "models, leaving the hysteretic part the laws must reproduce; the loop is thin in the "

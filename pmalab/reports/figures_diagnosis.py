@@ -8,7 +8,6 @@ Inputs are the plain dicts of ``diagnosis.json``.
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -230,7 +229,7 @@ def residual_diagnostics_figure(label: str, diag: Mapping[str, Any]) -> Figure:
             plot_correlation(ax, diag["ccf_input"], title=f"Correlation with {what}")
     worst = diag.get("worst_region")
     if worst:
-        wrapped = "\n".join(textwrap.wrap(f"worst region: {worst}", 115))
+        wrapped = "\n".join(style.wrap(f"worst region: {worst}", 115))
         fig.suptitle(f"{title}\n{wrapped}", fontweight="bold", fontsize=11)
     return fig
 
@@ -352,16 +351,16 @@ def effects_figure(
     width = 150
     lines: list[str] = []
     if summary:
-        lines += textwrap.wrap("Summary: " + summary, width)
+        lines += style.wrap("Summary: " + summary, width)
     if ambiguous:
-        lines += textwrap.wrap(
+        lines += style.wrap(
             "Ambiguous (explain the residual about equally well): " + ", ".join(ambiguous), width
         )
         if suggested_experiment:
-            lines += textwrap.wrap("Suggested experiment: " + suggested_experiment, width)
+            lines += style.wrap("Suggested experiment: " + suggested_experiment, width)
     for r in ranking[:4]:
         if r.get("explanation"):
-            lines += textwrap.wrap(
+            lines += style.wrap(
                 f"{r['effect']}: {_first_sentence(str(r['explanation']))}",
                 width,
                 subsequent_indent="    ",

@@ -7,7 +7,6 @@ Inputs are plain data (lists, dicts) as found in ``identification.json``.
 from __future__ import annotations
 
 import math
-import textwrap
 from collections.abc import Mapping, Sequence, Set
 from pathlib import Path
 from typing import Any
@@ -249,7 +248,7 @@ def parameters_vs_pressure_figure(
                 handles.keys(),
                 loc="center",
                 frameon=False,
-                title="\n".join(textwrap.wrap(caption, 52)) or None,
+                title="\n".join(style.wrap(caption, 52)) or None,
                 title_fontsize=8.5,
                 fontsize=8.5,
             )
@@ -310,7 +309,7 @@ def bullet_lines(lines: Sequence[str], width: int = 150) -> list[str]:
     """Lines as wrapped bullet points."""
     out: list[str] = []
     for ln in lines:
-        out.extend(textwrap.wrap(ln, width, initial_indent="• ", subsequent_indent="  "))
+        out.extend(style.wrap(ln, width, initial_indent="• ", subsequent_indent="  "))
     return out
 
 

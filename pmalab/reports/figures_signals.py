@@ -8,7 +8,6 @@ tension in N; in an F–x loop the tension is higher while the muscle is being s
 
 from __future__ import annotations
 
-import textwrap
 from collections.abc import Sequence
 
 import numpy as np
@@ -275,7 +274,7 @@ def before_after_figure(
             # the run heads its column; each panel names its model and fit (titles no wider
             # than the panel, so they stay clear of the next column's colour bar)
             head = f"{t.run or t.label}\n{t.describe()}\n" if i == 0 else ""
-            label = "\n".join(textwrap.wrap(name, 36, break_on_hyphens=False))
+            label = "\n".join(style.wrap(name, 36, break_on_hyphens=False))
             ax.set_title(f"{head}{label}\nfit {t.fit_percent:.1f} %", fontsize=9)
             if i == 0 and j == 0:
                 ax.legend(loc="best")

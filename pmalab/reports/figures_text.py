@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import textwrap
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -142,8 +141,8 @@ def title_page_figure(
         heading("Data files")
         block(lines)
     # room the blocks under the runs table need (figure fraction), so the table can grow
-    sum_lines = min(len(textwrap.wrap(summary, 150)), TITLE_MAX_SUMMARY_LINES) if summary else 0
-    head_lines = len(textwrap.wrap(headline, 150)) if headline else 0
+    sum_lines = min(len(style.wrap(summary, 150)), TITLE_MAX_SUMMARY_LINES) if summary else 0
+    head_lines = len(style.wrap(headline, 150)) if headline else 0
     below = 0.07
     for n_lines in (sum_lines, head_lines):
         if n_lines:
@@ -212,10 +211,10 @@ def title_page_figure(
         y -= 0.02
     if headline:
         heading("Base vs improved model")
-        block(textwrap.wrap(headline[:1].upper() + headline[1:], 150))
+        block(style.wrap(headline[:1].upper() + headline[1:], 150))
     if summary:
         heading("Diagnosis")
-        wrapped = textwrap.wrap(summary, 150)
+        wrapped = style.wrap(summary, 150)
         if len(wrapped) > TITLE_MAX_SUMMARY_LINES:
             wrapped = wrapped[:TITLE_MAX_SUMMARY_LINES]
             wrapped[-1] = wrapped[-1][:146] + " …"
@@ -431,7 +430,7 @@ def provenance_figure(
         fig.text(0.04, y, file, fontweight="bold", fontsize=10, va="top")
         y -= 0.03
         shown = list(lines[: max(lines_left, 1)])
-        wrapped = [w for ln in shown for w in textwrap.wrap(ln, 170, subsequent_indent="    ")]
+        wrapped = [w for ln in shown for w in style.wrap(ln, 170, subsequent_indent="    ")]
         if wrapped:
             fig.text(0.05, y, "\n".join(wrapped), fontsize=8.5, va="top", linespacing=1.35)
         y -= 0.0205 * len(wrapped) + 0.025

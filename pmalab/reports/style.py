@@ -8,6 +8,8 @@ pyplot state), under :data:`RC` applied by the :func:`styled` decorator.
 from __future__ import annotations
 
 import functools
+import re
+import textwrap
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar, cast
@@ -240,6 +242,17 @@ def panel_axes(fig: Figure, n: int, nrows: int, ncols: int) -> list[Axes]:
     for ax in axes[n:]:
         ax.set_visible(False)
     return axes[:n]
+
+
+#: a number and the unit after it (``-117 N``, ``2.5 Hz``, ``12 %``): one word when wrapped
+_NUMBER_UNIT = re.compile(r"(?<=\d) (?=(?:N|mm|mm/s|kPa|MPa|bar|Hz|s|ms|%|°C|x|×)(?![\w/]))")
+
+
+def wrap(text: str, width: int, **kwargs: Any) -> list[str]:
+    """``textwrap.wrap`` for page text: a number is never split from its unit (the space
+    between them is a no-break space while the lines are cut, a plain space again after)."""
+    lines = textwrap.wrap(_NUMBER_UNIT.sub("\u00a0", text), width, **kwargs)
+    return [line.replace("\u00a0", " ") for line in lines]
 
 
 def decimate(n: int, max_points: int) -> slice:

@@ -37,7 +37,6 @@ law.  :class:`StructureChoice` is what ``identification.json`` reports as
 
 from __future__ import annotations
 
-import pickle
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -941,15 +940,6 @@ class ElementCount:
         )
 
 
-def _state(law) -> bytes | None:
-    """The whole state of ``law`` as bytes (equal bytes: the same law), or None when it
-    cannot be pickled (a user's law class that pickle cannot find by name)."""
-    try:
-        return pickle.dumps(law)
-    except Exception:  # any refusal: the law is then simply fitted, never reused
-        return None
-
-
 def _element_counts(
     cf, runs, base, models, joints, thetas, choice, per_run=None, jobs: int = 1
 ) -> None:
@@ -981,36 +971,28 @@ def _element_counts(
         if f.sum() <= 0:
             continue
         share = f / f.sum()
-        small = [int(i) for i in np.argsort(share) if share[i] < REMOVE_SHARE]
-        m = int(np.count_nonzero(np.asarray(law.kappa) > 0))
+        # the elements the law has (an element at zero weight is not one: removing it would
+        # refit the same law under a count one lower)
+        present = np.asarray(law.kappa) > 0
+        small = [int(i) for i in np.argsort(share) if present[i] and share[i] < REMOVE_SHARE]
+        m = int(np.count_nonzero(present))
         small = small[: max(0, m - MIN_ELEMENTS)]
         if not small:
             continue
         counts: dict[int, tuple[float, tuple[int, ...], object, object, str]] = {
             m: (score(j), (), models[s], j, choice.starts.get(s, STARTS[0]))
         }
-        # a count that takes out only elements already at zero share is a law fitted before
-        # (the candidate's own, or a smaller count's): the same joint fit of the same
-        # records from the same starts, so its fit is reused instead of computed again
-        # (laws compared by their whole pickled state: equal bytes, equal law)
-        fitted = {_state(law): (j, choice.starts.get(s, STARTS[0]))}
         for n_rm in range(1, len(small) + 1):
             gone = tuple(sorted(small[:n_rm]))
             kappa = np.array(law.kappa, dtype=np.float64)
             kappa[list(gone)] = 0.0
             mod = ForceModel(structured_law(base, s, kappa, law.delta), models[s].effects)
-            key = _state(mod.law)
-            if key is not None and key in fitted:
-                jr, how = fitted[key]
-            else:
-                try:
-                    jr, how = _joint_structured(
-                        cf, runs, mod, thetas, (per_run or {}).get(s), jobs=jobs
-                    )
-                except (ValueError, np.linalg.LinAlgError):
-                    continue
-                if key is not None:
-                    fitted[key] = (jr, how)
+            try:
+                jr, how = _joint_structured(
+                    cf, runs, mod, thetas, (per_run or {}).get(s), jobs=jobs
+                )
+            except (ValueError, np.linalg.LinAlgError):
+                continue
             counts[m - n_rm] = (score(jr), gone, mod, jr, how)
         ok = {c: v for c, v in counts.items() if np.isfinite(v[0])}
         best = min(v[0] for v in ok.values())

@@ -15,11 +15,17 @@ output register (LabJack DAC0 at 1000: 0–10 V → ITV1050 0–0.9 MPa).
 
 Timing honesty: :meth:`ModbusSampler.probe_rate` measures the block-read latency of the
 configured link; :meth:`ModbusSampler.check_rate` refuses a rate it cannot sustain, or (only
-with ``allow_reduced_rate``) lowers :attr:`sample_rate_Hz` to one it can.
+with ``allow_reduced_rate``) lowers :attr:`sample_rate_Hz` to one it can.  A probe on a busy
+computer also measures the computer: every read waits until the scheduler gives the driver
+(and an emulator running in the same process) a CPU again.  The probe therefore records how
+long this process's threads waited for a CPU (:func:`cpu_wait_s`); when that is a large share
+of the probe and even the fastest read fits the sample period, the link is not blamed: the
+rig is refused with "too busy to judge the link" instead.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -49,6 +55,10 @@ FALLBACK_RATES_HZ = (500.0, 400.0, 250.0, 200.0, 125.0, 100.0, 50.0, 25.0, 10.0)
 PERIOD_BUDGET = 0.5
 #: block reads done before timing starts (connection and caches warm up)
 PROBE_WARMUP = 20
+#: share of a probe's wall time this process's threads may wait for a CPU (summed over the
+#: threads) before the probe counts as a measurement of the busy computer, not of the link
+#: (an idle machine: a few per cent; other programs using every core: 0.5 and more)
+HOST_BUSY_SHARE = 0.25
 
 SAMPLED = ("position", "force", "muscle_pressure", "cylinder_pressure")
 
@@ -62,6 +72,29 @@ class AnalogChannel:
     codec: RegisterCodec
     calibration: Calibration
     raw_range: tuple[float, float] | None = None
+
+
+def cpu_wait_s() -> float | None:
+    """Seconds this process's threads have spent runnable but waiting for a CPU.
+
+    Summed over the process's threads (a thread that ended is no longer counted), from the
+    Linux scheduler statistics (``/proc/self/task/<tid>/schedstat``, its second field, ns).
+    Returns None where the kernel does not report them (not Linux, or no ``/proc``).
+    """
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:
+        return None
+    total = 0
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
+                total += int(f.read().split()[1])
+        except FileNotFoundError:  # the thread ended meanwhile
+            continue
+        except (OSError, ValueError, IndexError):
+            return None
+    return total * 1e-9
 
 
 @dataclass
@@ -78,6 +111,16 @@ class ProbeResult:
     max_rate_Hz: float  # 1 / mean latency: back-to-back reads
     sustainable_Hz: float  # PERIOD_BUDGET / median latency
     over_budget: float  # share of reads longer than PERIOD_BUDGET of the requested period
+    min_ms: float = float("nan")  # the fastest read: what the link does when nothing waits
+    #: seconds this process's threads waited for a CPU during the probe, per second of the
+    #: probe (summed over the threads; NaN where the kernel does not report it)
+    cpu_wait_share: float = float("nan")
+
+    @property
+    def host_busy(self) -> bool:
+        """The computer, not the link, made the reads slow: its threads waited for a CPU
+        more than :data:`HOST_BUSY_SHARE` of the probe."""
+        return self.cpu_wait_share > HOST_BUSY_SHARE  # False for NaN
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
@@ -179,12 +222,17 @@ class ModbusSampler(Sampler):
         for _ in range(min(PROBE_WARMUP, n)):
             self.read_values()
         lat = np.empty(n)
+        waited0, wall0 = cpu_wait_s(), time.perf_counter()
         for i in range(n):
             t0 = time.perf_counter()
             self.read_values()
             if extra is not None:
                 extra()
             lat[i] = time.perf_counter() - t0
+        waited1, wall = cpu_wait_s(), time.perf_counter() - wall0
+        share = float("nan")
+        if waited0 is not None and waited1 is not None and wall > 0:
+            share = (waited1 - waited0) / wall
         ms = lat * 1e3
         p95 = float(np.percentile(ms, 95))
         budget_ms = PERIOD_BUDGET * 1e3 / float(rate_Hz or self.requested_rate_Hz)
@@ -199,6 +247,8 @@ class ModbusSampler(Sampler):
             max_rate_Hz=float(1e3 / ms.mean()),
             sustainable_Hz=float(PERIOD_BUDGET * 1e3 / float(np.median(ms))),
             over_budget=float(np.mean(ms > budget_ms)),
+            min_ms=float(ms.min()),
+            cpu_wait_share=share,
         )
         self.last_probe = res
         return res
@@ -208,7 +258,10 @@ class ModbusSampler(Sampler):
 
         A probe that falls short is repeated once and the faster of the two kept.  Raises
         :class:`RigError` with one line when the link cannot sustain the rate and a
-        reduced rate was not allowed.  Sets :attr:`sample_rate_Hz` to the rate to run at.
+        reduced rate was not allowed, and when the computer was too busy to judge the link
+        (:attr:`ProbeResult.host_busy` while even the fastest read fits the sample period:
+        the reads were slow because the driver waited for a CPU, which says nothing about
+        the link).  Sets :attr:`sample_rate_Hz` to the rate to run at.
         """
         rate = float(rate_Hz or self.requested_rate_Hz)
         res = self.probe_rate(n, rate)
@@ -224,7 +277,19 @@ class ModbusSampler(Sampler):
             self.sample_rate_Hz = rate
             return res
         where = self.link.name
+        budget_ms = PERIOD_BUDGET * 1e3 / rate
+        # a link that is too slow is too slow on a busy computer too: its fastest read
+        # already exceeds the budget; a fast read beside a slow median, while the process
+        # waited for a CPU, is the computer's doing
+        too_busy = (
+            f"{where}: this computer was too busy to judge the link: during the rate probe "
+            f"the driver waited for a CPU {100 * res.cpu_wait_share:.0f} % of the time, and "
+            f"block reads took {res.p50_ms:.2f} ms (median) though the fastest took "
+            f"{res.min_ms:.2f} ms; close other programs and connect again"
+        )
         if not self.allow_reduced_rate:
+            if res.host_busy and res.min_ms <= budget_ms:
+                raise RigError(too_busy)
             raise RigError(
                 f"{where}: block reads take {res.p50_ms:.2f} ms (median; p95 {res.p95_ms:.2f} ms), "
                 f"sustainable about {res.sustainable_Hz:.0f} Hz < {rate:.0f} Hz requested; "
@@ -232,6 +297,8 @@ class ModbusSampler(Sampler):
             )
         fallback = [r for r in FALLBACK_RATES_HZ if r <= min(res.sustainable_Hz, rate)]
         if not fallback:
+            if res.host_busy and res.min_ms <= PERIOD_BUDGET * 1e3 / FALLBACK_RATES_HZ[-1]:
+                raise RigError(too_busy)
             raise RigError(
                 f"{where}: sustainable rate {res.sustainable_Hz:.1f} Hz is too low to record"
             )

@@ -471,6 +471,7 @@ def build_modbus_rig(
         except RigError as exc:
             fail(exc)
         timing.update(res.as_dict())
+        timing["host_busy"] = res.host_busy
     timing["sample_rate_Hz"] = sampler.sample_rate_Hz
     timing["reduced"] = sampler.sample_rate_Hz < rs.sample_rate_Hz
 

@@ -111,7 +111,7 @@ class PtyBridge:
                 continue
             if self.baudrate:
                 # the bytes take this long on the wire, then the silence that ends a frame
-                _sleep_precise(len(data) * byte_time(self.baudrate) + gap)
+                wire_sleep(len(data) * byte_time(self.baudrate) + gap)
             dst.write(data)
 
     def stop(self) -> None:
@@ -122,12 +122,17 @@ class PtyBridge:
         self.b.close()
 
 
-def _sleep_precise(dt: float) -> None:
-    end = time.perf_counter() + dt
-    if dt > 0.002:
-        time.sleep(dt - 0.001)
-    while time.perf_counter() < end:
-        pass
+def wire_sleep(dt: float) -> None:
+    """Sleep ``dt`` s (a byte's time on the wire).
+
+    A plain sleep, late by the kernel's timer slack (~0.05–0.1 ms): it holds no CPU and no
+    interpreter lock meanwhile.  Spinning for the last millisecond, as this once did, was
+    more exact on an idle machine but burnt a CPU per byte chunk and kept the driver (and
+    the Modbus server) of the same process off the interpreter; on a busy machine the
+    spinning thread was preempted holding the lock and every read waited for it.
+    """
+    if dt > 0:
+        time.sleep(dt)
 
 
 def link_path(target: str, link: str | Path) -> Path:

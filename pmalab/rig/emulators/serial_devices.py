@@ -22,7 +22,7 @@ from pmalab.rig.drivers.itv_serial import FULL_SCALE
 from pmalab.rig.drivers.loadcell_serial import G0
 from pmalab.rig.emulators.faults import FaultPlan
 from pmalab.rig.emulators.plant import EmulatedPlant
-from pmalab.rig.emulators.pty_link import Pty, _sleep_precise, byte_time
+from pmalab.rig.emulators.pty_link import Pty, byte_time, wire_sleep
 
 
 class _PtyDevice:
@@ -40,7 +40,7 @@ class _PtyDevice:
 
     def send(self, data: bytes) -> None:
         if self.pace:
-            _sleep_precise(len(data) * byte_time(self.baudrate))
+            wire_sleep(len(data) * byte_time(self.baudrate))
         self.pty.write(data)
 
     def start(self):

@@ -1,0 +1,142 @@
+"""The link probe tells a busy computer from a slow link.
+
+The probe times block reads on the host's clock; a read also waits whenever the driver (or
+an emulator in the same process) waits for a CPU.  Scripted here: each read takes a given
+time on a fake clock and the process waits for a CPU a given share of it (the kernel's
+count, :func:`pmalab.rig.drivers.modbus_daq.cpu_wait_s`, replaced).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import sys
+from types import SimpleNamespace
+
+import pytest
+
+from pmalab.acquisition.runner import recording_rate
+from pmalab.errors import RigError
+from pmalab.rig.base import RealClock
+from pmalab.rig.drivers import modbus_daq
+from pmalab.rig.drivers.calibration import Calibration, RegisterCodec
+from pmalab.rig.drivers.modbus_daq import (
+    HOST_BUSY_SHARE,
+    AnalogChannel,
+    ModbusSampler,
+    cpu_wait_s,
+)
+from pmalab.rig.drivers.modbus_link import ModbusLink
+from pmalab.rig.drivers.testing import ProtocolAdapter
+
+
+class FakeTime:
+    """``time`` for the probe: a clock that moves only when a scripted read takes time."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def perf_counter(self) -> float:
+        return self.t
+
+
+def scripted_sampler(monkeypatch, reads_ms: list[float], wait_share: float,
+                     allow_reduced: bool) -> ModbusSampler:
+    """A sampler whose reads take ``reads_ms`` in turn, the process waiting for a CPU
+    ``wait_share`` of every read."""
+    clock = FakeTime()
+    waited = [0.0]
+    monkeypatch.setattr(modbus_daq, "time", clock)
+    monkeypatch.setattr(modbus_daq, "cpu_wait_s", lambda: waited[0])
+    link = ModbusLink(ProtocolAdapter([]), "tcp", device_id=1, timeout=0.01, retries=0)
+    p = Calibration.two_point(1.0, 0.0, 5.0, 1.0)
+    chans = [AnalogChannel(c, i, RegisterCodec(), p) for i, c in
+             enumerate(("position", "force", "muscle_pressure", "cylinder_pressure"))]
+    s = ModbusSampler(link, chans, RealClock(), allow_reduced_rate=allow_reduced)
+    script = itertools.cycle(reads_ms)
+
+    def read_values() -> dict[str, float]:
+        dt = next(script) * 1e-3
+        clock.t += dt
+        waited[0] += wait_share * dt
+        return {}
+
+    s.read_values = read_values  # type: ignore[method-assign]
+    return s
+
+
+#: a fast link on a busy computer: one read in ten gets a CPU at once (0.3 ms), the rest
+#: wait for one (4.5 ms): the median says 111 Hz, the link does 500 Hz
+FAST_LINK_BUSY = [0.3] + [4.5] * 9
+#: a link too slow for 500 Hz however idle the computer: no read under 4 ms (median 5.5)
+SLOW_LINK = [4.0, 5.5, 5.5, 6.0]
+
+
+def test_a_fast_link_on_a_busy_computer_is_not_blamed(monkeypatch):
+    s = scripted_sampler(monkeypatch, FAST_LINK_BUSY, 0.6, allow_reduced=False)
+    with pytest.raises(RigError) as ei:
+        s.check_rate(500.0, 100)
+    msg = str(ei.value)
+    assert "too busy to judge the link" in msg and "waited for a CPU 60 % of the time" in msg
+    assert "median" in msg and "the fastest took 0.30 ms" in msg
+    assert "faster link" not in msg and "\n" not in msg
+    assert s.last_probe is not None and s.last_probe.host_busy
+    assert s.last_probe.cpu_wait_share == pytest.approx(0.6)
+
+
+def test_the_same_reads_on_an_idle_computer_blame_the_link(monkeypatch):
+    s = scripted_sampler(monkeypatch, FAST_LINK_BUSY, 0.01, allow_reduced=False)
+    with pytest.raises(RigError, match=r"sustainable about 111 Hz < 500 Hz requested; use a "
+                       r"faster link or set allow_reduced_rate"):
+        s.check_rate(500.0, 100)
+    assert s.last_probe is not None and not s.last_probe.host_busy
+
+
+@pytest.mark.parametrize("wait_share", [0.01, 0.9])
+def test_a_slow_link_is_refused_as_slow_on_a_busy_computer_too(monkeypatch, wait_share):
+    s = scripted_sampler(monkeypatch, SLOW_LINK, wait_share, allow_reduced=False)
+    with pytest.raises(RigError, match=r"block reads take 5\.50 ms .*sustainable about 91 Hz "
+                       r"< 500 Hz requested; use a faster link"):
+        s.check_rate(500.0, 100)
+    assert s.last_probe is not None and s.last_probe.min_ms == pytest.approx(4.0)
+
+
+def test_reduced_rate_below_every_fallback_says_which(monkeypatch):
+    # reads of ~90 ms: 5.6 Hz, under the lowest fallback (10 Hz); on a busy computer whose
+    # fastest read took 3 ms that is the computer's doing, on an idle one the link's
+    reads = [3.0] + [90.0] * 9
+    s = scripted_sampler(monkeypatch, reads, 0.8, allow_reduced=True)
+    with pytest.raises(RigError, match=r"too busy to judge the link: .*CPU 80 % .*fastest "
+                       r"took 3\.00 ms; close other programs"):
+        s.check_rate(500.0, 100)
+    s = scripted_sampler(monkeypatch, reads, 0.0, allow_reduced=True)
+    with pytest.raises(RigError, match=r"sustainable rate 5\.6 Hz is too low to record"):
+        s.check_rate(500.0, 100)
+
+
+def test_a_reduced_rate_on_a_busy_computer_says_so(monkeypatch):
+    s = scripted_sampler(monkeypatch, FAST_LINK_BUSY, 0.5, allow_reduced=True)
+    res = s.check_rate(500.0, 100)
+    assert s.sample_rate_Hz == 100.0 and res.host_busy
+
+    timing = {**res.as_dict(), "host_busy": res.host_busy, "reduced": True}
+    rig = SimpleNamespace(sampler=s, info={"name": "T7", "timing": timing})
+    proto = SimpleNamespace(sample_rate_Hz=500.0, path=None, name="p", runs=[])
+    rate, warning = recording_rate(rig, proto)  # type: ignore[arg-type]
+    assert rate == 100.0 and warning is not None
+    assert "on this busy computer, sustained about 111 Hz" in warning
+    assert "waited for a CPU 50 % of the probe" in warning
+    # an idle computer's probe: the link is named as the limit, as before
+    timing["host_busy"] = False
+    _, warning = recording_rate(rig, proto)  # type: ignore[arg-type]
+    assert warning is not None and "(its link sustains about 111 Hz)" in warning
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux scheduler statistics")
+def test_cpu_wait_is_the_kernels_count_for_this_process():
+    a = cpu_wait_s()
+    x = sum(i * i for i in range(200_000))  # some work between the two reads
+    b = cpu_wait_s()
+    assert x > 0 and a is not None and b is not None
+    assert math.isfinite(a) and 0.0 <= a <= b
+    assert HOST_BUSY_SHARE < 1.0
