@@ -126,8 +126,9 @@ class ProbeResult:
 
     @property
     def host_busy(self) -> bool:
-        """The computer, not the link, made the reads slow: its threads waited for a CPU
-        more than :data:`HOST_BUSY_SHARE` of the probe."""
+        """The computer was busy during the probe: this process's threads waited for a CPU
+        more than :data:`HOST_BUSY_SHARE` of it (whether that, not the link, made the reads
+        slow: :func:`too_busy_to_judge`)."""
         return self.cpu_wait_share > HOST_BUSY_SHARE  # False for NaN
 
     def as_dict(self) -> dict[str, float]:
