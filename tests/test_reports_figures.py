@@ -355,3 +355,16 @@ def test_control_metrics_page_notes_keep_numbers_with_units():
         assert any("supply 0.6" in ln for ln in lines), lines
         for a, b in itertools.pairwise(lines):
             assert not (re.search(r"\d$", a) and unit.match(b)), (k, a, b)
+
+
+def test_a_cut_title_page_summary_keeps_numbers_with_units():
+    """The diagnosis summary on the title page is cut after three lines with '…': the cut
+    falls between words, never between a number and its unit (at every position)."""
+    import re
+
+    for k in range(210, 226):  # k one-letter words: '-117 N' ends up about the cut
+        summary = "w " * k + "mean -117 N at 2.5 Hz, " + "and more words after it " * 12
+        fig = F.title_page_figure(model="bouc-wen", summary=summary)
+        (last,) = [ln for t in fig.texts for ln in t.get_text().split("\n") if ln.endswith("…")]
+        assert not re.search(r"\d …$", last), (k, last)
+        assert len(last) <= 150 and " ".join(last[:-2].split()) in " ".join(summary.split())
