@@ -368,3 +368,23 @@ def test_a_cut_title_page_summary_keeps_numbers_with_units():
         (last,) = [ln for t in fig.texts for ln in t.get_text().split("\n") if ln.endswith("…")]
         assert not re.search(r"\d …$", last), (k, last)
         assert len(last) <= 150 and " ".join(last[:-2].split()) in " ".join(summary.split())
+
+
+def test_wrapped_page_text_keeps_compound_units_with_their_numbers():
+    """Compound units (a stiffness in N/mm, a drift in N/s or %/h, a damping in N·s/mm)
+    stay with their numbers as the simple ones do."""
+    import itertools
+    import re
+
+    from pmalab.reports.style import wrap
+
+    text = (
+        "k·x + c0 with k = 4.2 N/mm, c0 = 12.5 N; the zero drifts 8 N/s (3.1 %/h) and the "
+        "damping is 0.12 N·s/mm at 12 mm/s, the stiffness 0.8 N/mm² over the run"
+    )
+    unit = re.compile(r"(?:N|mm|%)(?:[/·][\w²%]+)*(?![\w/·²])")
+    for width in range(18, 70):
+        lines = wrap(text, width)
+        for a, b in itertools.pairwise(lines):
+            assert not (re.search(r"\d$", a) and unit.match(b)), (width, a, b)
+        assert " ".join(lines) == text
