@@ -305,8 +305,8 @@ class ModbusSampler(Sampler):
         where = self.link.name
         too_busy = (
             f"{where}: this computer was too busy to judge the link: during the rate probe "
-            f"the driver waited for a CPU {100 * res.cpu_wait_share:.0f} % of the time, and "
-            f"block reads took {res.p50_ms:.2f} ms (median) though the fastest took "
+            f"pmalab's threads, summed, waited for a CPU {100 * res.cpu_wait_share:.0f} % of "
+            f"the time, and block reads took {res.p50_ms:.2f} ms (median) though the fastest took "
             f"{res.min_ms:.2f} ms; close other programs and connect again"
         )
         if not self.allow_reduced_rate:
