@@ -164,6 +164,9 @@ def test_many_row_kernels_compile_no_error_message_code(tmp_path):
     assert "pmalab.identify.laws._slide.slide_h_many" in compiled
     shape_message = [c for c in compiled if "raise_with_shape_context" in c]
     assert not shape_message, shape_message
+    # one signature of each pmalab kernel (no literal index, no omitted argument)
+    ours = [c for c in compiled if c.startswith("pmalab.")]
+    assert len(ours) == len(set(ours)), sorted(ours)
 
 
 _LOADS = r"""

@@ -207,12 +207,12 @@ def bouc_wen_h1_many(x, P):
     out = np.empty((rows, x.shape[0]))
     if x.shape[0] == 0:
         return out
-    j = 0
-    while j + 1 < rows:
-        _bw1_pair(out, j, j + 1, x, P[j], P[j + 1])
-        j += 2
-    if j < rows:
-        _bw1_row(out, j, x, P[j])
+    # rows 2p and 2p + 1 side by side (indices from range: one compiled signature of the
+    # pair, never a literal first index)
+    for p in range(rows // 2):
+        _bw1_pair(out, 2 * p, 2 * p + 1, x, P[2 * p], P[2 * p + 1])
+    if rows % 2:
+        _bw1_row(out, rows - 1, x, P[rows - 1])
     return out
 
 
