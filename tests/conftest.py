@@ -26,11 +26,18 @@ os.environ.setdefault("PMALAB_JOBS", "1")
 #: long file handed out last would run alone at the end, on one core.  test_reports_laws
 #: is not here: it reads the laws test_laws_elements makes (tests/shared_work.py), so it
 #: comes later instead of waiting beside it for them; test_real_data reads what the docs
-#: build made (the import tutorial) and comes late for the same reason
+#: build made (the import tutorial) and comes late for the same reason.  test_wheel comes
+#: second, so the second worker starts with it: its commands run the installed wheel's
+#: code, whose compiled laws are cached apart from the checkout's (numba keys its cache by
+#: source file), while the docs build's first commands compile the checkout's into the
+#: empty shared cache (NUMBA_CACHE_DIR); with test_diagnosis_invariant there instead, both
+#: workers compiled the same laws and the simulator at once, each its own copy (~6 CPU-s
+#: of a cold run).  xdist hands the first worker a second file at once (the docs file
+#: holds two tests): test_diagnosis_invariant, after the docs build has cached them
 LONGEST_FIRST = (
     "test_docs_site.py",
-    "test_diagnosis_invariant.py",
     "test_wheel.py",
+    "test_diagnosis_invariant.py",
     "test_first_hour.py",
     "test_active.py",
     "test_static_identify.py",

@@ -12,15 +12,20 @@ import contextlib
 import fcntl
 import io
 import os
+import pickle
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 from sim_campaign import record_campaign
 
 from pmalab.cli import main as pmalab_main
 from pmalab.paths import TRUTH_DIR
+
+if TYPE_CHECKING:
+    from pmalab.identify.outputs import Identification
 
 
 def _session_dir(factory: pytest.TempPathFactory) -> Path:
@@ -64,13 +69,39 @@ def maxwell_slip_four_laws(factory: pytest.TempPathFactory) -> tuple[Path, Path,
     (data/truth/hysteresis-maxwell-slip.toml, sensor seed 7) and ``pmalab identify c.h5
     --model bouc-wen,duhem,prandtl-ishlinskii,maxwell-slip --out laws`` of it (its held-out
     runs validate): the campaign file, the laws directory and what identify printed."""
+    d = made_once(factory, "maxwell-slip-four-laws", _make_four_laws)
+    return d / "c.h5", d / "laws", (d / "identify.txt").read_text()
 
-    def make(d: Path) -> None:
-        record_campaign(TRUTH_DIR / "hysteresis-maxwell-slip.toml", d, 7, name="c.h5")
+
+def maxwell_slip_identifications(factory: pytest.TempPathFactory) -> dict[str, Identification]:
+    """The identifications :func:`maxwell_slip_four_laws`'s ``pmalab identify`` made, law by
+    law, as :func:`pmalab.identify.api.identify` returned them to the command (a fresh copy
+    per call: a test may change its own).  Each is ``identify(runs, law, validate=held_out)``
+    of the campaign's runs; its campaign fit is ``identify(identification_runs, law)``'s,
+    number for number (validation only reads the fit)."""
+    d = made_once(factory, "maxwell-slip-four-laws", _make_four_laws)
+    with open(d / "identifications.pickle", "rb") as f:
+        return pickle.load(f)
+
+
+def _make_four_laws(d: Path) -> None:
+    import pmalab.identify.api as api
+
+    record_campaign(TRUTH_DIR / "hysteresis-maxwell-slip.toml", d, 7, name="c.h5")
+    made: dict[str, Identification] = {}
+    identify = api.identify
+
+    def kept(runs, model, *args, **kwargs):  # the command's own call, its result kept
+        res = identify(runs, model, *args, **kwargs)
+        made[model] = res
+        return res
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(api, "identify", kept)
         rc, text = _cli(["identify", str(d / "c.h5"), "--model", ",".join(FOUR_LAWS), "--out",
                          str(d / "laws"), "--jobs", "1"])  # in process: a worker per core
-        assert rc == 0, text
-        (d / "identify.txt").write_text(text)
-
-    d = made_once(factory, "maxwell-slip-four-laws", make)
-    return d / "c.h5", d / "laws", (d / "identify.txt").read_text()
+    assert rc == 0, text
+    assert sorted(made) == sorted(FOUR_LAWS), sorted(made)
+    (d / "identify.txt").write_text(text)
+    with open(d / "identifications.pickle", "wb") as f:
+        pickle.dump(made, f)

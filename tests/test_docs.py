@@ -241,3 +241,36 @@ def test_a_unit_being_read_is_not_pruned_under_its_reader(tmp_path):
         assert (root / keys[0] / "done").exists()  # being read: kept
     show._prune(root, 3)
     assert sorted(p.name for p in root.iterdir() if p.is_dir()) == keys[1:]
+
+
+def test_the_code_hash_is_kept_per_state_of_the_files(tmp_path, monkeypatch):
+    """The code hash is computed once per state of the package's files and read back by
+    the next build or test (each a process of its own); a change of a module's code or of a
+    data file is a new state, a changed docstring a new state with the same hash."""
+    import shutil
+    import sys
+    from types import SimpleNamespace
+
+    pkg = tmp_path / "src" / "pmalab"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text('"""Doc."""\nX = 1\n')
+    (pkg / "rig.toml").write_text("a = 1\n")
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(cache))
+    monkeypatch.setitem(sys.modules, "pmalab", SimpleNamespace(__file__=str(pkg / "__init__.py")))
+    kept_dir = cache / "pmalab" / "docs" / "code-hash"
+    first = _show_hook().code_hash()
+    (kept,) = kept_dir.iterdir()
+    assert kept.read_text().strip() == first
+    kept.write_text("0123456789abcdef\n")  # what a later process gets is what was kept
+    assert _show_hook().code_hash() == "0123456789abcdef"
+    shutil.rmtree(kept_dir)
+    assert _show_hook().code_hash() == first  # computed again: the same
+    (pkg / "__init__.py").write_text('"""Another docstring."""\nX = 1\n')
+    assert _show_hook().code_hash() == first
+    (pkg / "__init__.py").write_text('"""Doc."""\nX = 12\n')
+    changed = _show_hook().code_hash()
+    assert changed != first
+    (pkg / "rig.toml").write_text("a = 12\n")
+    assert _show_hook().code_hash() not in (first, changed)
+    assert len(list(kept_dir.iterdir())) == 4  # one per state of the files

@@ -175,8 +175,19 @@ def test_control_cli_runs_the_joint_and_records_it(tmp_path, capsys):
     assert "needs a pair rig" in capsys.readouterr().err
 
 
-def test_the_report_draws_both_muscles(pair_file, tmp_path):
+@pytest.fixture(scope="module")
+def pair_report(pair_file, tmp_path_factory):
+    """``build_report`` of the pair file, its pages drawn in this process (``jobs=1``), with
+    its PNGs: the report's own test reads it, and the worker-processes test compares
+    against it (one rendering for both)."""
     from pmalab.reports.build import build_report
+
+    out, _ = pair_file
+    d = tmp_path_factory.mktemp("pair-report")
+    return build_report([out], d / "pair.pdf", png_dir=d / "png", jobs=1), d / "png"
+
+
+def test_the_report_draws_both_muscles(pair_file, pair_report):
     from pmalab.reports.pair import is_pair_file, load_pair_file, loops_figure
 
     out, _ = pair_file
@@ -186,14 +197,15 @@ def test_the_report_draws_both_muscles(pair_file, tmp_path):
     axes = fig.axes
     assert [len(ax.lines) for ax in axes] == [2, 2]  # each muscle: its two held runs
     assert axes[0].get_title().startswith("flexor") and axes[1].get_title().startswith("extensor")
-    pdf = build_report([out], tmp_path / "pair.pdf", png_dir=tmp_path / "png")
-    assert pdf.stat().st_size > 0 and len(list((tmp_path / "png").glob("*.png"))) == 5
+    pdf, png = pair_report
+    assert pdf.stat().st_size > 0 and len(list(png.glob("*.png"))) == 5
 
 
-def test_pair_pages_rendered_in_worker_processes_equal_one_process(pair_file, tmp_path):
+def test_pair_pages_rendered_in_worker_processes_equal_one_process(pair_file, pair_report,
+                                                                   tmp_path):
     from pmalab.reports.pair import build_pair_report
 
     out, _ = pair_file
-    one = build_pair_report([out], tmp_path / "one.pdf", jobs=1)
+    one, _ = pair_report  # drawn in one process
     two = build_pair_report([out], tmp_path / "two.pdf", jobs=2, start_method="spawn")
     assert assert_same_pages(one, two, at_least=5) == 5

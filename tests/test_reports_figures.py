@@ -324,3 +324,67 @@ def test_wrapped_page_text_never_splits_a_number_from_its_unit():
         for a, b in itertools.pairwise(lines):
             assert not (re.search(r"\d$", a) and b.split()[0] in units), (width, a, b)
         assert " ".join(lines) == text  # nothing lost or changed
+
+
+def test_control_metrics_page_notes_keep_numbers_with_units():
+    """The control metrics page's notes (the papers' figures) are wrapped as the rest of the
+    page text: a figure's number stays with its unit (at every length of the experiment's
+    title before them), and the lines stay on the page."""
+    import itertools
+    import re
+
+    from pmalab.reports.figures_control import ControlFileData, metrics_table_figure
+    from pmalab.reports.layout import text_problems
+
+    seeds = {
+        "Smith 2019, step response of the antagonistic pair": {
+            "classic_overshoot_pct": 31.0, "classic_rise_s": 0.42,
+            "sliding_mode_overshoot_pct": 4.5, "sliding_mode_rise_s": 0.61,
+            "tracking_error_mm": 0.35, "supply_MPa": 0.6, "hold_error_mm": 0.12,
+        }
+    }
+    unit = re.compile(r"(?:MPa|mm|s|%)(?![\w/])")  # a line that starts with a unit
+    for k in range(0, 40, 2):
+        f = ControlFileData("x.h5", f"Position square wave {'a' * k}", {"seeds": seeds}, [])
+        fig = metrics_table_figure([f], "Control experiments: metrics")
+        assert text_problems(fig) == [], k
+        lines = []
+        for t in fig.texts:
+            text = t._get_wrapped_text() if t.get_wrap() else t.get_text()  # as drawn
+            lines += text.split("\n")
+        assert any("supply 0.6" in ln for ln in lines), lines
+        for a, b in itertools.pairwise(lines):
+            assert not (re.search(r"\d$", a) and unit.match(b)), (k, a, b)
+
+
+def test_a_cut_title_page_summary_keeps_numbers_with_units():
+    """The diagnosis summary on the title page is cut after three lines with '…': the cut
+    falls between words, never between a number and its unit (at every position)."""
+    import re
+
+    for k in range(210, 226):  # k one-letter words: '-117 N' ends up about the cut
+        summary = "w " * k + "mean -117 N at 2.5 Hz, " + "and more words after it " * 12
+        fig = F.title_page_figure(model="bouc-wen", summary=summary)
+        (last,) = [ln for t in fig.texts for ln in t.get_text().split("\n") if ln.endswith("…")]
+        assert not re.search(r"\d …$", last), (k, last)
+        assert len(last) <= 150 and " ".join(last[:-2].split()) in " ".join(summary.split())
+
+
+def test_wrapped_page_text_keeps_compound_units_with_their_numbers():
+    """Compound units (a stiffness in N/mm, a drift in N/s or %/h, a damping in N·s/mm)
+    stay with their numbers as the simple ones do."""
+    import itertools
+    import re
+
+    from pmalab.reports.style import wrap
+
+    text = (
+        "k·x + c0 with k = 4.2 N/mm, c0 = 12.5 N; the zero drifts 8 N/s (3.1 %/h) and the "
+        "damping is 0.12 N·s/mm at 12 mm/s, the stiffness 0.8 N/mm² over the run"
+    )
+    unit = re.compile(r"(?:N|mm|%)(?:[/·][\w²%]+)*(?![\w/·²])")
+    for width in range(18, 70):
+        lines = wrap(text, width)
+        for a, b in itertools.pairwise(lines):
+            assert not (re.search(r"\d$", a) and unit.match(b)), (width, a, b)
+        assert " ".join(lines) == text

@@ -71,16 +71,31 @@ _dirs: dict[str, Path] = {}  # the units made for this process's build
 # --------------------------------------------------------------------------- the cache
 def code_hash() -> str:
     """The hash of pmalab's code as it runs: each module's syntax tree without its
-    docstrings (comments are not in it), and the package's data files byte for byte."""
+    docstrings (comments are not in it), and the package's data files byte for byte.
+
+    Parsing every module takes most of a CPU-second, and each process that asks (every
+    build, a test reading a unit) would pay it: the hash is kept in the cache under the
+    files' identity as the file system states it (path, size, inode, modification and
+    change times: a change of content changes the change time, which no tool sets back),
+    so a process whose files are those of an earlier one reads it instead."""
     if "code" in _state:
         return _state["code"]
     import pmalab
 
-    h = hashlib.sha256()
     src = Path(pmalab.__file__).parent
-    for p in sorted(src.rglob("*")):
-        if "__pycache__" in p.parts or not p.is_file():
-            continue
+    files = [p for p in sorted(src.rglob("*")) if "__pycache__" not in p.parts and p.is_file()]
+    stamp = hashlib.sha256(str(src).encode())
+    for p in files:
+        st = p.stat()
+        stamp.update(f"{p.relative_to(src)}\0{st.st_size} {st.st_ino} {st.st_mtime_ns} "
+                     f"{st.st_ctime_ns}\0".encode())
+    kept = _cache_root() / "code-hash" / stamp.hexdigest()[:32]
+    with contextlib.suppress(OSError):
+        _state["code"] = kept.read_text().strip()
+        if re.fullmatch(r"[0-9a-f]{16}", _state["code"]):
+            return _state["code"]
+    h = hashlib.sha256()
+    for p in files:
         if p.suffix == ".py":
             h.update(str(p.relative_to(src)).encode())
             h.update(_without_docstrings(p.read_text(encoding="utf-8")).encode())
@@ -88,7 +103,20 @@ def code_hash() -> str:
             h.update(str(p.relative_to(src)).encode())
             h.update(p.read_bytes())
     _state["code"] = h.hexdigest()[:16]
+    with contextlib.suppress(OSError):  # a cache that cannot be written: computed again
+        kept.parent.mkdir(parents=True, exist_ok=True)
+        tmp = kept.with_name(f"{kept.name}.{os.getpid()}")
+        tmp.write_text(_state["code"] + "\n")
+        os.replace(tmp, kept)
+        _prune_stamps(kept.parent, keep=20)
     return _state["code"]
+
+
+def _prune_stamps(root: Path, keep: int) -> None:
+    """Keep the ``keep`` newest code-hash entries (one per state of the files seen)."""
+    entries = sorted(root.iterdir(), key=lambda p: p.stat().st_mtime, reverse=True)
+    for old in entries[keep:]:
+        old.unlink(missing_ok=True)
 
 
 def _without_docstrings(text: str) -> str:

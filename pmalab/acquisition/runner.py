@@ -461,8 +461,8 @@ def recording_rate(rig: Rig, protocol: Protocol) -> tuple[float, str | None]:
     if why and isinstance(timing, dict) and timing.get("host_busy"):
         # the probe measured the busy computer too
         why = (
-            f" (its link, on this busy computer, sustained about {sustain:.0f} Hz: the driver "
-            f"waited for a CPU {100 * float(timing.get('cpu_wait_share', 0.0)):.0f} % of the probe)"
+            f" (its link, on this busy computer, sustained about {sustain:.0f} Hz: pmalab's "
+            f"threads, summed, waited for a CPU {100 * float(timing.get('cpu_wait_share', 0.0)):.0f} % of the probe)"
         )
     return rate, (
         f"pmalab: warning: {name}: recording at a reduced {rate:g} Hz instead of "

@@ -227,8 +227,11 @@ def identify(
     fixed, free
         Parameters held at a value, and parameters the law fixes by default set free.
     initial
-        How a validation run's start state is set: ``"estimate"`` (from the first 50 ms
-        of force), ``"burn-in"`` or ``"zero"``.
+        How a validation run's record parameters (start state, force zero) are set:
+        ``"estimate"`` (fitted on the run's first whole excitation cycles, about a third
+        of it, its error scored on the rest), ``"burn-in"`` (one period replayed before
+        the run) or ``"zero"``
+        (:func:`~pmalab.identify.estimation.records.predict_record`).
     progress
         Draw a progress bar on stderr.
     pressure_model

@@ -183,8 +183,10 @@ def _register_identify(sub: argparse._SubParsersAction) -> None:
         "--initial",
         default="estimate",
         choices=("estimate", "burn-in", "zero"),
-        help="start state of validation predictions (default: estimate from the "
-        "first 50 ms of force)",
+        help="record parameters of validation predictions (start state, force zero): "
+        "estimate (default: fitted on the record's first excitation cycle(s), about a "
+        "third of it, and the error scored on the rest), burn-in (one period replayed "
+        "before the run) or zero",
     )
     p.add_argument(
         "--output",

@@ -255,7 +255,9 @@ def metrics_table_figure(files: Sequence[ControlFileData], title: str) -> Figure
         "Papers' figures (measured on their rig; not the same manipulator):",
     ]
     notes += seed_rows(files) or ["(none stored with these experiments)"]
-    fig.text(0.03, 0.27, "\n".join(notes), va="top", fontsize=8, wrap=True)
+    # wrapped as every page's text (a number kept with its unit), to the page's width
+    lines = [w for note in notes for w in style.wrap(note, 185)]
+    fig.text(0.03, 0.27, "\n".join(lines), va="top", fontsize=8)
     return fig
 
 

@@ -217,7 +217,8 @@ def title_page_figure(
         wrapped = style.wrap(summary, 150)
         if len(wrapped) > TITLE_MAX_SUMMARY_LINES:
             wrapped = wrapped[:TITLE_MAX_SUMMARY_LINES]
-            wrapped[-1] = wrapped[-1][:146] + " …"
+            # cut between words, a number kept with its unit (as the lines were wrapped)
+            wrapped[-1] = style.wrap(wrapped[-1], 146)[0] + " …"
         block(wrapped)
     if entries:
         heading("Contents")

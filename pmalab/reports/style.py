@@ -244,8 +244,12 @@ def panel_axes(fig: Figure, n: int, nrows: int, ncols: int) -> list[Axes]:
     return axes[:n]
 
 
-#: a number and the unit after it (``-117 N``, ``2.5 Hz``, ``12 %``): one word when wrapped
-_NUMBER_UNIT = re.compile(r"(?<=\d) (?=(?:N|mm|mm/s|kPa|MPa|bar|Hz|s|ms|%|°C|x|×)(?![\w/]))")
+#: the units page text writes after a number, alone or compound (``N/mm``, ``N·s/mm``,
+#: ``%/h``, ``mm/s``)
+_UNIT = r"(?:N|mm|mm²|kPa|MPa|bar|Hz|s|ms|h|%|°C|x|×)"
+#: a number and the unit after it (``-117 N``, ``2.5 Hz``, ``12 %``, ``4.2 N/mm``): one word
+#: when wrapped
+_NUMBER_UNIT = re.compile(rf"(?<=\d) (?={_UNIT}(?:[/·]{_UNIT})*(?![\w/·²]))")
 
 
 def wrap(text: str, width: int, **kwargs: Any) -> list[str]:

@@ -207,6 +207,14 @@ def run_ladder(
     # one excitation frequency in the identification runs: rate-dependent effects are then
     # not identifiable apart (ranking.judge)
     single = one_frequency(train) is not None
+    if jobs > 1 and not scheduler:
+        # the workers start from this process (forked: they inherit the laws' compiled code
+        # loaded here; spawned: they load what this process compiled and cached) instead of
+        # each compiling the same kernels on a new numba cache
+        for name in dict.fromkeys((law, *laws)):
+            cls = LAWS.get(name)
+            if cls is not None:
+                cls().load_compiled()
     scorer = Scorer(train, held, jobs, progress, scheduler)
     try:
         base_spec = ModelSpec(law, (), files)

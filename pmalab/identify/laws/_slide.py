@@ -188,8 +188,15 @@ def slide_h_many(x, K, F, h0, reversed):
             out[j, q + 1] = ha
             out[j + 1, q + 1] = hb
         j += 2
-    if j < rows:  # an odd count's last row alone
-        out[j, :] = slide_h(x, K[j], F[j], h0[j], reversed[j])
+    if j < rows and n > 0:
+        # an odd count's last row alone: :func:`slide_h`'s steps from the start state set
+        # above, written sample by sample (a whole-row assignment's shape check would make
+        # numba compile its error-message code: about a second of a cold process's start)
+        z = Z[j]
+        k = K[j]
+        f = F[j]
+        for q in range(n - 1):
+            out[j, q + 1] = slide_segment(z, x[q + 1] - x[q], k, f)
     return out
 
 
@@ -236,7 +243,7 @@ def play_basis(x: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
     one = np.ones(1)
     for i, r in enumerate(thresholds):
         cols[:, i] = slide_h(
-            np.ascontiguousarray(x, dtype=np.float64), one, np.array([float(r)]), 0.0
+            np.ascontiguousarray(x, dtype=np.float64), one, np.array([float(r)]), 0.0, 0.0
         )
     return cols
 

@@ -298,6 +298,27 @@ class HysteresisLaw:
             out[j] = self.h(x, th, extras)
         return out
 
+    def load_compiled(self) -> None:
+        """Load this law's compiled code into this process now: :meth:`h` and
+        :meth:`h_many` evaluated at the parameters' start values (the law's default fixes
+        held) on a short path of the type a fit passes (float64, contiguous), so numba loads
+        the machine code a fit uses from its cache, or compiles and caches it once.
+
+        A process that then forks worker processes hands the code to them: without this
+        every worker compiled the same kernels side by side on a new numba cache (a fresh
+        install's first diagnosis: ~2.5 CPU-s once more), or loaded them each from the
+        cache.  Best effort: a law that cannot evaluate here raises nothing (its fits
+        report their own errors).
+        """
+        x = np.linspace(0.0, 1.0, 16)
+        theta = {p.name: float(p.init) for p in self.params}
+        theta.update({k: float(v) for k, v in self.default_fixed.items() if v is not None})
+        try:
+            self.h(x, theta)
+            self.h_many(x, [theta, theta])
+        except Exception:  # a warm-up only: the fits say what is wrong
+            pass
+
     def stepper(
         self, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
     ) -> Callable[[float, float, float], float]:

@@ -148,17 +148,96 @@ def bouc_wen_h1(x, A, beta, gamma, h0, psi_v=0.0, psi_h=0.0, psi_x=0.0, x_c=0.0,
 
 
 @njit(cache=True, fastmath=False)
+def _bw1_row(out, j, x, q):
+    """Row ``j`` of ``out``: :func:`bouc_wen_h1` along ``x`` with q = (A, beta, gamma, n,
+    h0, psi_v, psi_h, psi_x, x_c, psi_a), written in place (the same numbers)."""
+    hk = q[4]
+    out[j, 0] = hk
+    for k in range(x.shape[0] - 1):
+        hk = bw1_segment(hk, x[k], x[k + 1], q[0], q[1], q[2], q[5], q[6], q[7], q[8], q[9])
+        out[j, k + 1] = hk
+
+
+@njit(cache=True, fastmath=False)
+def _bw_row(out, j, x, q):
+    """Row ``j`` of ``out``: :func:`bouc_wen_h` along ``x`` (general n), in place."""
+    hk = q[4]
+    out[j, 0] = hk
+    for k in range(x.shape[0] - 1):
+        hk = bw_segment(hk, x[k], x[k + 1], q[0], q[1], q[2], q[3], q[5], q[6], q[7], q[8], q[9])
+        out[j, k + 1] = hk
+
+
+@njit(cache=True, fastmath=False)
+def _bw1_pair(out, i, j, x, a, b):
+    """Rows ``i`` and ``j`` of ``out`` (n = 1 both, parameters ``a`` and ``b``) advanced side
+    by side: each row the same operations in the same order as :func:`_bw1_row`, but the
+    two rows are independent chains the processor overlaps (each segment waits on an exp)."""
+    ha = a[4]
+    hb = b[4]
+    out[i, 0] = ha
+    out[j, 0] = hb
+    for k in range(x.shape[0] - 1):
+        x0 = x[k]
+        x1 = x[k + 1]
+        ha = bw1_segment(ha, x0, x1, a[0], a[1], a[2], a[5], a[6], a[7], a[8], a[9])
+        hb = bw1_segment(hb, x0, x1, b[0], b[1], b[2], b[5], b[6], b[7], b[8], b[9])
+        out[i, k + 1] = ha
+        out[j, k + 1] = hb
+
+
+@njit(cache=True, fastmath=False)
+def _bw1_rows(out, x, P, rows):
+    """The rows ``rows`` of ``out`` (each with n = 1): :func:`bouc_wen_h1` with the
+    parameters of that row of P, two at a time (:func:`_bw1_pair`)."""
+    m = rows.shape[0]
+    i = 0
+    while i + 1 < m:
+        _bw1_pair(out, rows[i], rows[i + 1], x, P[rows[i]], P[rows[i + 1]])
+        i += 2
+    if i < m:
+        _bw1_row(out, rows[i], x, P[rows[i]])
+
+
+@njit(cache=True, fastmath=False)
+def bouc_wen_h1_many(x, P):
+    """:func:`bouc_wen_h_many` when every row of P has n = 1 (the default law): the general
+    n's integrator is then neither called nor compiled."""
+    rows = P.shape[0]
+    out = np.empty((rows, x.shape[0]))
+    if x.shape[0] == 0:
+        return out
+    # rows 2p and 2p + 1 side by side (indices from range: one compiled signature of the
+    # pair, never a literal first index)
+    for p in range(rows // 2):
+        _bw1_pair(out, 2 * p, 2 * p + 1, x, P[2 * p], P[2 * p + 1])
+    if rows % 2:
+        _bw1_row(out, rows - 1, x, P[rows - 1])
+    return out
+
+
+@njit(cache=True, fastmath=False)
 def bouc_wen_h_many(x, P):
     """h along ``x`` for each row of P = (A, beta, gamma, n, h0, psi_v, psi_h, psi_x, x_c,
     psi_a): :func:`bouc_wen_h1` where n = 1, else :func:`bouc_wen_h` (one compiled call for
-    a Jacobian's columns; each row the same numbers as its own call)."""
-    out = np.empty((P.shape[0], x.shape[0]))
-    for j in range(P.shape[0]):
-        q = P[j]
-        if q[3] == 1.0:
-            out[j, :] = bouc_wen_h1(x, q[0], q[1], q[2], q[4], q[5], q[6], q[7], q[8], q[9])
+    a Jacobian's columns; each row the same numbers as its own call).
+
+    The rows with n = 1 are integrated two at a time (:func:`_bw1_pair`).  Every row is
+    written sample by sample: no whole-row assignment, whose shape check would make numba
+    compile its error-message code (about a second of a cold process's start)."""
+    rows = P.shape[0]
+    out = np.empty((rows, x.shape[0]))
+    if x.shape[0] == 0:
+        return out
+    ones = np.empty(rows, dtype=np.int64)
+    m = 0
+    for j in range(rows):
+        if P[j, 3] == 1.0:
+            ones[m] = j
+            m += 1
         else:
-            out[j, :] = bouc_wen_h(x, q[0], q[1], q[2], q[3], q[4], q[5], q[6], q[7], q[8], q[9])
+            _bw_row(out, j, x, P[j])
+    _bw1_rows(out, x, P, ones[:m])
     return out
 
 
@@ -244,7 +323,10 @@ class BoucWen(HysteresisLaw):
             A, beta, gamma, pv, ph, px, xc, pa = _args(th, extras)
             rows.append((A, beta, gamma, float(th["n"]), float(th["h0"]), pv, ph, px, xc, pa))
         P = np.array(rows, dtype=np.float64).reshape(len(rows), 10)
-        return bouc_wen_h_many(np.ascontiguousarray(x, dtype=np.float64), P)
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        if bool(np.all(P[:, 3] == 1.0)):
+            return bouc_wen_h1_many(x, P)
+        return bouc_wen_h_many(x, P)
 
     def kernel(self):
         return bw_kernel

@@ -65,9 +65,17 @@ def duhem_h_many(x, P):
     """:func:`duhem_h` along ``x`` for each row of P = (alpha, a, b, h0, psi_alpha, psi_b)
     (one compiled call for a Jacobian's columns; each row the same numbers as its own)."""
     out = np.empty((P.shape[0], x.shape[0]))
+    if x.shape[0] == 0:
+        return out
+    # written sample by sample (a whole-row assignment's shape check would make numba
+    # compile its error-message code: about a second of a cold process's start)
     for j in range(P.shape[0]):
         q = P[j]
-        out[j, :] = duhem_h(x, q[0], q[1], q[2], q[3], q[4], q[5])
+        hk = q[3]
+        out[j, 0] = hk
+        for k in range(x.shape[0] - 1):
+            hk = duhem_segment(hk, x[k], x[k + 1], q[0], q[1], q[2], q[4], q[5])
+            out[j, k + 1] = hk
     return out
 
 

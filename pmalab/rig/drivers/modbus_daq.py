@@ -19,8 +19,10 @@ with ``allow_reduced_rate``) lowers :attr:`sample_rate_Hz` to one it can.  A pro
 computer also measures the computer: every read waits until the scheduler gives the driver
 (and an emulator running in the same process) a CPU again.  The probe therefore records how
 long this process's threads waited for a CPU (:func:`cpu_wait_s`); when that is a large share
-of the probe and even the fastest read fits the sample period, the link is not blamed: the
-rig is refused with "too busy to judge the link" instead.
+of the probe and the link could still keep up (its fastest read fits the sample period's
+budget, and so do its reads on average with every CPU wait taken out:
+:func:`too_busy_to_judge`), the link is not blamed: the rig is refused with "too busy to
+judge the link" instead.
 """
 
 from __future__ import annotations
@@ -74,27 +76,33 @@ class AnalogChannel:
     raw_range: tuple[float, float] | None = None
 
 
-def cpu_wait_s() -> float | None:
+def cpu_wait_s(tasks: str = "/proc/self/task") -> float | None:
     """Seconds this process's threads have spent runnable but waiting for a CPU.
 
     Summed over the process's threads (a thread that ended is no longer counted), from the
-    Linux scheduler statistics (``/proc/self/task/<tid>/schedstat``, its second field, ns).
-    Returns None where the kernel does not report them (not Linux, or no ``/proc``).
+    Linux scheduler statistics (``<tasks>/<tid>/schedstat``: time on a CPU, time waiting
+    for one (ns), times scheduled).  Returns None where the kernel does not report them:
+    not Linux, no ``/proc``, or a kernel built without scheduler statistics (it writes
+    ``0 0 0`` for every thread, though the calling thread has certainly been scheduled:
+    no count, not a count of zero).
     """
     try:
-        tids = os.listdir("/proc/self/task")
+        tids = os.listdir(tasks)
     except OSError:
         return None
     total = 0
+    scheduled = 0
     for tid in tids:
         try:
-            with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
-                total += int(f.read().split()[1])
+            with open(f"{tasks}/{tid}/schedstat", "rb") as f:
+                fields = f.read().split()
+            total += int(fields[1])
+            scheduled += int(fields[2])
         except FileNotFoundError:  # the thread ended meanwhile
             continue
         except (OSError, ValueError, IndexError):
             return None
-    return total * 1e-9
+    return total * 1e-9 if scheduled > 0 else None
 
 
 @dataclass
@@ -118,12 +126,30 @@ class ProbeResult:
 
     @property
     def host_busy(self) -> bool:
-        """The computer, not the link, made the reads slow: its threads waited for a CPU
-        more than :data:`HOST_BUSY_SHARE` of the probe."""
+        """The computer was busy during the probe: this process's threads waited for a CPU
+        more than :data:`HOST_BUSY_SHARE` of it (whether that, not the link, made the reads
+        slow: :func:`too_busy_to_judge`)."""
         return self.cpu_wait_share > HOST_BUSY_SHARE  # False for NaN
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
+
+
+def too_busy_to_judge(res: ProbeResult, budget_ms: float) -> bool:
+    """Whether a probe whose reads miss ``budget_ms`` measured the busy computer rather than
+    the link (:attr:`ProbeResult.host_busy`), so the link may not be blamed for them.
+
+    A link that is too slow is too slow on a busy computer too.  It is judged slow when its
+    fastest read exceeds the budget, or when its reads exceed it on average even with all
+    the time this process's threads waited for a CPU taken out of them (mean read x (1 −
+    :attr:`ProbeResult.cpu_wait_share`): the waits, summed over the threads, overstate
+    what the reads waited (a thread that ended during the probe aside), so what is left is
+    no more than the link's own time).
+    """
+    if not res.host_busy:
+        return False
+    link_ms = res.mean_ms * (1.0 - res.cpu_wait_share)
+    return res.min_ms <= budget_ms and link_ms <= budget_ms
 
 
 class ModbusSampler(Sampler):
@@ -259,9 +285,9 @@ class ModbusSampler(Sampler):
         A probe that falls short is repeated once and the faster of the two kept.  Raises
         :class:`RigError` with one line when the link cannot sustain the rate and a
         reduced rate was not allowed, and when the computer was too busy to judge the link
-        (:attr:`ProbeResult.host_busy` while even the fastest read fits the sample period:
-        the reads were slow because the driver waited for a CPU, which says nothing about
-        the link).  Sets :attr:`sample_rate_Hz` to the rate to run at.
+        (:func:`too_busy_to_judge`: the reads may have been slow because the driver waited
+        for a CPU, which says nothing about the link).  Sets :attr:`sample_rate_Hz` to the
+        rate to run at.
         """
         rate = float(rate_Hz or self.requested_rate_Hz)
         res = self.probe_rate(n, rate)
@@ -277,18 +303,14 @@ class ModbusSampler(Sampler):
             self.sample_rate_Hz = rate
             return res
         where = self.link.name
-        budget_ms = PERIOD_BUDGET * 1e3 / rate
-        # a link that is too slow is too slow on a busy computer too: its fastest read
-        # already exceeds the budget; a fast read beside a slow median, while the process
-        # waited for a CPU, is the computer's doing
         too_busy = (
             f"{where}: this computer was too busy to judge the link: during the rate probe "
-            f"the driver waited for a CPU {100 * res.cpu_wait_share:.0f} % of the time, and "
-            f"block reads took {res.p50_ms:.2f} ms (median) though the fastest took "
+            f"pmalab's threads, summed, waited for a CPU {100 * res.cpu_wait_share:.0f} % of "
+            f"the time, and block reads took {res.p50_ms:.2f} ms (median) though the fastest took "
             f"{res.min_ms:.2f} ms; close other programs and connect again"
         )
         if not self.allow_reduced_rate:
-            if res.host_busy and res.min_ms <= budget_ms:
+            if too_busy_to_judge(res, PERIOD_BUDGET * 1e3 / rate):
                 raise RigError(too_busy)
             raise RigError(
                 f"{where}: block reads take {res.p50_ms:.2f} ms (median; p95 {res.p95_ms:.2f} ms), "
@@ -297,7 +319,7 @@ class ModbusSampler(Sampler):
             )
         fallback = [r for r in FALLBACK_RATES_HZ if r <= min(res.sustainable_Hz, rate)]
         if not fallback:
-            if res.host_busy and res.min_ms <= PERIOD_BUDGET * 1e3 / FALLBACK_RATES_HZ[-1]:
+            if too_busy_to_judge(res, PERIOD_BUDGET * 1e3 / FALLBACK_RATES_HZ[-1]):
                 raise RigError(too_busy)
             raise RigError(
                 f"{where}: sustainable rate {res.sustainable_Hz:.1f} Hz is too low to record"
