@@ -177,6 +177,12 @@ def test_itv_and_indicator_on_ptys_with_faults():
     with start_emulators(RIGS_DIR / "itv-serial.toml", tcp_port=0, make_links=False) as emus:
         spec = emus.rig_spec()
         spec.probe_samples = 0
+        # the ITV emulator answers from this process's threads: on a busy machine they may
+        # wait longer for a CPU than a real ITV takes to answer (the rig file's 0.2 s),
+        # which would add a timeout to the counts of the faults injected
+        for o in spec.outputs.values():
+            if o.type == "itv-serial":
+                o.timeout_s = 1.0
         rig = build_modbus_rig(spec)
         try:
             itv = rig.cylinder_regulator
