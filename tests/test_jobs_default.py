@@ -54,3 +54,30 @@ def test_a_bad_value_is_one_line_naming_the_variable_and_nothing_is_written(
         assert code != 0 and err.getvalue().count("\n") == 1, err.getvalue()
         assert f"PMALAB_JOBS={value}: give a whole number >= 1" in err.getvalue()
         assert "Traceback" not in err.getvalue() and not (tmp_path / "o").exists()
+
+
+def test_the_library_identify_follows_the_variable_and_an_explicit_jobs_wins(monkeypatch):
+    """``pmalab.identify.api.identify`` without ``jobs`` starts the workers the command line
+    would: ``$PMALAB_JOBS`` when set, else 2 (a notebook inside a parallel test suite, or on
+    a shared machine, no longer forks a pool the user's setting says not to)."""
+    import pmalab.identify.api as api
+
+    seen: list[int] = []
+
+    def fit_and_validate(*args, jobs, **kwargs):
+        seen.append(jobs)
+        raise RuntimeError("stop here: only the worker count is under test")
+
+    monkeypatch.setattr(api, "fit_and_validate", fit_and_validate)
+    run = make_run("bouc-wen", 0.4, n=2000)[0]
+    for env, given, want in ((None, None, 2), ("3", None, 3), ("3", 1, 1), ("1", None, 1)):
+        if env is None:
+            monkeypatch.delenv(JOBS_ENV, raising=False)
+        else:
+            monkeypatch.setenv(JOBS_ENV, env)
+        with pytest.raises(RuntimeError, match="stop here"):
+            api.identify(run, "bouc-wen", jobs=given)
+        assert seen[-1] == want, (env, given, seen)
+    monkeypatch.setenv(JOBS_ENV, "two")
+    with pytest.raises(PmalabError, match="PMALAB_JOBS=two"):
+        api.identify(run, "bouc-wen")

@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pmalab.arguments import DEFAULT_JOBS, default_jobs
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign import (
     ModelSpec,
     check_prediction,  # noqa: F401  (re-exported: the notebook API)
     fit_and_validate,
 )
-from pmalab.identify.campaign.batch import DEFAULT_JOBS
 from pmalab.identify.campaign.trajectory import run_trajectory
 from pmalab.identify.long_records import fit_part
 from pmalab.identify.messages import note
@@ -193,7 +193,7 @@ def identify(
     effects: Sequence[str] = (),
     effects_files: Sequence[str] = (),
     validate: Sequence[Run] | None = None,
-    jobs: int = DEFAULT_JOBS,
+    jobs: int | None = None,
     scheduler: str | None = None,
     fixed: Mapping[str, float | None] | None = None,
     free: Sequence[str] = (),
@@ -223,7 +223,9 @@ def identify(
     validate
         Held-out runs the pressure-law model predicts free-running.
     jobs, scheduler
-        Worker processes, or a Dask scheduler address (``tcp://host:port``).
+        Worker processes (default: ``$PMALAB_JOBS`` when set, else
+        :data:`~pmalab.arguments.DEFAULT_JOBS`, as the command line), or a Dask scheduler
+        address (``tcp://host:port``).
     fixed, free
         Parameters held at a value, and parameters the law fixes by default set free.
     initial
@@ -261,6 +263,7 @@ def identify(
     """
     if output not in ("force", "position"):
         raise PmalabError(f"output must be 'force' or 'position', not {output!r}")
+    jobs = default_jobs(DEFAULT_JOBS) if jobs is None else jobs
     runs_l = [runs] if isinstance(runs, Run) else list(runs)
     if not whole_run:
         runs_l = [r.steady() for r in runs_l]
