@@ -223,9 +223,8 @@ def identify(
     validate
         Held-out runs the pressure-law model predicts free-running.
     jobs, scheduler
-        Worker processes (default: ``$PMALAB_JOBS`` when set, else
-        :data:`~pmalab.arguments.DEFAULT_JOBS`, as the command line), or a Dask scheduler
-        address (``tcp://host:port``).
+        Worker processes (default: ``$PMALAB_JOBS`` when set, else 2, as the command
+        line), or a Dask scheduler address (``tcp://host:port``).
     fixed, free
         Parameters held at a value, and parameters the law fixes by default set free.
     initial
