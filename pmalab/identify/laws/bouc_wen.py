@@ -203,16 +203,9 @@ def _bw1_rows(out, x, P, rows):
 def bouc_wen_h1_many(x, P):
     """:func:`bouc_wen_h_many` when every row of P has n = 1 (the default law): the general
     n's integrator is then neither called nor compiled."""
-    rows = P.shape[0]
-    out = np.empty((rows, x.shape[0]))
-    if x.shape[0] == 0:
-        return out
-    # rows 2p and 2p + 1 side by side (indices from range: one compiled signature of the
-    # pair, never a literal first index)
-    for p in range(rows // 2):
-        _bw1_pair(out, 2 * p, 2 * p + 1, x, P[2 * p], P[2 * p + 1])
-    if rows % 2:
-        _bw1_row(out, rows - 1, x, P[rows - 1])
+    out = np.empty((P.shape[0], x.shape[0]))
+    if x.shape[0] > 0:
+        _bw1_rows(out, x, P, np.arange(P.shape[0]))
     return out
 
 
