@@ -7,6 +7,8 @@ import os
 import matplotlib
 import pytest
 
+from pmalab.lazy import gc_paused
+
 matplotlib.use("Agg")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "numba-cache"))
 # every command and report the suite runs (in process, and the docs build's commands in
@@ -58,3 +60,17 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     other file, the collection order (a stable sort: no test's order changes in its file)."""
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda it: rank.get(it.path.name, len(rank)))
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_collection(session: pytest.Session):
+    """Collection with the cyclic garbage collector paused, and what it made frozen.
+
+    Collecting imports every test module and with them NumPy, SciPy, numba, matplotlib and
+    all of pmalab: hundreds of thousands of long-lived objects, which the collector would
+    walk again and again while they pile up (about a third of collection's CPU in a
+    worker), and at every full collection of the tests after.  Frozen
+    (:func:`gc.freeze`, as ``pmalab identify`` does with its imports) no later collection
+    walks them; the tests' own garbage is collected as before."""
+    with gc_paused(freeze=True):
+        return (yield)
