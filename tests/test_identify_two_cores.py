@@ -116,6 +116,53 @@ def test_a_file_the_child_cannot_read_is_reported_as_reading_here_reports_it(cam
     assert not (tmp_path / "o2").exists() or not any((tmp_path / "o2").iterdir())
 
 
+def _diagnose(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    """``pmalab diagnose ARGS`` from a fresh interpreter; its stdout starts with whether the
+    command forked a reading child."""
+    env = shell_env("PYTHONPATH")
+    cli = textwrap.dedent("""
+        import sys
+        from pmalab.identify import reading
+        real = reading.start_reading
+        def spy(*a, **k):
+            got = real(*a, **k)
+            print("child" if got is not None else "no child", flush=True)
+            return got
+        reading.start_reading = spy
+        from pmalab.cli import main
+        sys.exit(main())
+    """)
+    cheap = ("--only", "viscous-friction", "--laws", "none", "--max-steps", "1")
+    return subprocess.run([sys.executable, "-c", cli, "diagnose", *args, *cheap], cwd=cwd,
+                          env=env, capture_output=True, text=True, timeout=300)
+
+
+def test_diagnose_reads_in_a_child_and_equals_one_process(campaign, tmp_path):
+    ident, val = campaign
+    args = [str(ident), "--validate", str(val), "--model", "duhem"]
+    two = _diagnose(tmp_path, *args, "--out", "two", "--jobs", "2")
+    one = _diagnose(tmp_path, *args, "--out", "one", "--jobs", "1")
+    assert two.returncode == 0 == one.returncode, two.stderr + one.stderr
+    assert two.stdout.startswith("child\n")  # --jobs 2: the files read while importing
+    assert "child" not in one.stdout  # --jobs 1: not even asked
+    docs = [(tmp_path / d / "diagnosis.json").read_bytes() for d in ("two", "one")]
+    assert docs[0] == docs[1]  # every byte
+    assert two.stdout.removeprefix("child\n").replace("two/", "one/") == one.stdout
+    assert two.stderr == one.stderr and "'cut'" in two.stderr  # the skipped run, once
+
+
+def test_diagnose_reports_a_file_the_child_cannot_read_as_reading_here_does(campaign, tmp_path):
+    ident, _ = campaign
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(b"not an HDF5 file" * 100)
+    runs = [_diagnose(tmp_path, str(ident), str(bad), "--model", "duhem", "--out", f"o{j}",
+                      "--jobs", j) for j in ("2", "1")]
+    assert runs[0].returncode == runs[1].returncode != 0
+    assert runs[0].stderr == runs[1].stderr and "Traceback" not in runs[0].stderr
+    warned, error = runs[0].stderr.strip().splitlines()
+    assert "'cut' skipped" in warned and "bad.h5" in error
+
+
 def test_no_child_once_numpy_is_loaded(campaign):
     # pytest has NumPy (and BLAS's threads) loaded: reading stays in this process
     ident, val = campaign

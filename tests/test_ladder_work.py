@@ -19,7 +19,8 @@ def _fake(table: dict[tuple[str, tuple[str, ...]], list[float]], calls: list):
     """A stand-in for ``score_all``: each spec's held-out nrmse per run from ``table``
     (default: a little worse than the base); records the batches it was asked for."""
 
-    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None):
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None,
+                  base_fits=None):
         calls.append(list(specs))
         base = table[("bouc-wen", ())]
         return [
@@ -106,7 +107,8 @@ def test_a_row_added_at_a_later_step_is_all_from_that_round(monkeypatch):
     }
     without = {("viscous-friction", "sensor-drift"): [0.015, 0.020]}
 
-    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None):
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None,
+                  base_fits=None):
         return [Scored(s.effects, nrmse[s.effects], without_last=without.get(s.effects))
                 for s in specs]
 

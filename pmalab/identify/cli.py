@@ -568,12 +568,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     """The ``pmalab diagnose`` command (see :func:`_register_diagnose`); 0 on success."""
     from pathlib import Path
 
-    with _fitting_code():
-        from pmalab.identify.diagnosis import diagnose, write_outputs
-        from pmalab.identify.headline import WORST_BY, worst_runs
-        from pmalab.identify.long_records import fit_part, long_runs
-        from pmalab.paths import check_output, prepare_output_dir
-        from pmalab.runfile import check_distinct, check_distinct_runs, read_many
+    from pmalab.paths import check_output, prepare_output_dir
 
     args.jobs = resolve_jobs(args.jobs)
     if args.max_steps < 0:
@@ -584,26 +579,38 @@ def diagnose_command(args: argparse.Namespace) -> int:
         plot_dir = Path(args.plot).resolve().parent
         if not plot_dir.is_dir() or not os.access(plot_dir, os.W_OK):
             raise PmalabError(f"--plot {args.plot}: cannot write there")
-    check_distinct(args.files, args.validate)
-    lr = long_runs()
     mus = args.muscle
-    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
-    runs = [
-        fit_part(r)
-        for r in read_many(
-            args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
+    # with a second core, a child reads the files while this process imports the fitting
+    # code (SciPy, numba), as `pmalab identify` does; --jobs 1 keeps everything here
+    reading = None
+    if args.jobs > 1:
+        from pmalab.identify.reading import start_reading
+
+        reading = start_reading(
+            args.files, args.validate or (), include_aborted=args.include_aborted, muscle=mus
         )
-    ]
-    val = (
-        [
-            fit_part(r)
-            for r in read_many(
-                args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus
-            )
-        ]
-        if args.validate
-        else []
-    )
+
+    with _fitting_code():
+        from pmalab.identify.diagnosis import diagnose, write_outputs
+        from pmalab.identify.headline import WORST_BY, worst_runs
+        from pmalab.identify.long_records import fit_part, long_runs
+        from pmalab.runfile import check_distinct, check_distinct_runs, read_many
+
+    read = reading.result() if reading is not None else None
+    if read is not None:
+        got, got_val = read
+    else:
+        check_distinct(args.files, args.validate)
+        lr = long_runs()
+        got = read_many(args.files, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+        got_val = (
+            read_many(args.validate, include_aborted=args.include_aborted, long_runs=lr, muscle=mus)
+            if args.validate
+            else []
+        )
+    # a long record is diagnosed on the cycles its run-level fit uses (its first ones)
+    runs = [fit_part(r) for r in got]
+    val = [fit_part(r) for r in got_val]
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
     laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]

@@ -23,6 +23,7 @@ simulation and the controllers integrate velocity as a state and differentiate n
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -122,6 +123,29 @@ def zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_Hz: float) -> np.nda
     return filtfilt2(b, a, y, padlen=min(3 * 50, y.shape[0] - 1))
 
 
+#: :meth:`Signals.from_run`'s signals of the runs :func:`keep_run_signals` named, by (id of
+#: the run, cut-off)
+_RUN_SIGNALS: dict[tuple[int, float | None], Signals] = {}
+#: the runs whose signals are kept (held here, so their ids stay theirs), by id
+_KEPT_RUNS: dict[int, Run] = {}
+
+
+def keep_run_signals(runs: Sequence[Run]) -> None:
+    """Keep the :meth:`Signals.from_run` of exactly these run objects in this process (the
+    signals of runs named before are forgotten unless named again; ``[]``: none).
+
+    For a worker process that fits many models to the same runs, which nobody changes (a
+    diagnosis's candidates: each would filter and differentiate the same identification
+    and held-out runs again).  A run changed in place would keep its old signals: never
+    for runs a user's code holds."""
+    ids = {id(r): r for r in runs}
+    if ids.keys() == _KEPT_RUNS.keys() and all(_KEPT_RUNS[i] is r for i, r in ids.items()):
+        return
+    _KEPT_RUNS.clear()
+    _KEPT_RUNS.update(ids)
+    _RUN_SIGNALS.clear()
+
+
 @dataclass(frozen=True)
 class Signals:
     """Inputs of a force law for one run.  Units: s, mm, mm/s, mm/s², MPa.
@@ -183,7 +207,16 @@ class Signals:
 
     @classmethod
     def from_run(cls, run: Run, cutoff_Hz: float | None = None) -> Signals:
-        return cls.from_arrays(
+        """The run's signals (filtered position and pressure, derivatives).
+
+        For the runs :func:`keep_run_signals` named, computed once and served again to
+        every later fit of the same run object (the same arrays, which no consumer writes
+        to)."""
+        kept = _KEPT_RUNS.get(id(run)) is run
+        key = (id(run), cutoff_Hz)
+        if kept and key in _RUN_SIGNALS:
+            return _RUN_SIGNALS[key]
+        sig = cls.from_arrays(
             run.time,
             run.position,
             run.muscle_pressure,
@@ -191,6 +224,9 @@ class Signals:
             frequency_Hz=filter_frequency_Hz(run),
             cutoff_Hz=cutoff_Hz,
         )
+        if kept:
+            _RUN_SIGNALS[key] = sig
+        return sig
 
     @property
     def mean_pressure(self) -> float:

@@ -116,6 +116,12 @@ def _init_pool_worker(left: Any, jobs: int, *context: Any) -> None:
     _POOL_STATE[:] = [left, jobs]
 
 
+def in_worker() -> bool:
+    """Whether this process is a worker of :func:`map_with_context` or a
+    :class:`ContextPool` (holding its context)."""
+    return bool(_WORKER_CONTEXT)
+
+
 def _call_in_pool(fn: Callable[[Any, Any], Any], task: Any) -> Any:
     """Run one task of a :class:`ContextPool` map in a worker; the task counts as finished
     when it returns or raises."""

@@ -158,6 +158,9 @@ class Scorer:
         self.count = 0
         #: local workers kept across the rounds (see :meth:`close`)
         self.pool = None if scheduler else ContextPool((self.train, self.held), jobs)
+        #: the base-law fits the workers made, handed to every later round's candidates
+        #: (:func:`~pmalab.identify.diagnosis.ranking.score_all`)
+        self.base_fits: dict = {}
 
     def close(self) -> None:
         """Shut the workers kept across the rounds down."""
@@ -176,6 +179,7 @@ class Scorer:
             desc,
             scheduler=self.scheduler,
             pool=self.pool,
+            base_fits=self.base_fits,
         )
         self.done.update(zip(order, outs))
         self.count += len(order)

@@ -323,7 +323,32 @@ def block_mse(run: Run, pred: np.ndarray, start: int = 0) -> np.ndarray:
 
 
 def _task(runs: tuple[list[Run], list[Run]], spec: ModelSpec) -> Scored:
+    from pmalab.identify.campaign.batch import in_worker
+
+    if in_worker():
+        # a worker's runs are its context's, the same objects for every candidate: their
+        # signals are filtered and differentiated once
+        from pmalab.identify.signals import keep_run_signals
+
+        keep_run_signals([*runs[0], *runs[1]])
     return score(runs[0], runs[1], spec)
+
+
+def _task_sharing(
+    runs: tuple[list[Run], list[Run]], task: tuple[ModelSpec, dict]
+) -> tuple[Scored, dict]:
+    """:func:`_task` in a kept pool's worker, which first takes the base-law fits the other
+    workers made (``task[1]``: each run's base law refined alone, where every model with
+    effects starts) and hands back those it made: each is computed once per diagnosis, not
+    once per worker.  A base fit is the same numbers whichever process made it."""
+    from pmalab.identify.campaign.fit import _remember_all
+    from pmalab.identify.estimation import single
+
+    spec, known = task
+    _remember_all(known)
+    before = set(single._BASE_FITS)
+    out = _task(runs, spec)
+    return out, {k: v for k, v in single._BASE_FITS.items() if k not in before}
 
 
 def score_all(
@@ -335,15 +360,25 @@ def score_all(
     desc: str = "candidates",
     scheduler: str | None = None,
     pool: ContextPool | None = None,
+    base_fits: dict | None = None,
 ) -> list[Scored]:
     """Score every model spec (in parallel over candidates: one identification each).
 
     Local worker processes receive the runs once each (as the pool's initializer argument,
     whatever the start method); on a Dask cluster (``scheduler``) each task carries them.
     ``pool``: workers already holding ``(train, held)`` as their context, kept across calls
-    (:class:`~pmalab.identify.campaign.batch.ContextPool`; the same scores)."""
+    (:class:`~pmalab.identify.campaign.batch.ContextPool`; the same scores).  ``base_fits``
+    (with ``pool``): the base-law fits the pool's workers made in earlier calls, shipped
+    with every task and extended with those made in this one (:func:`_task_sharing`)."""
     if pool is not None and not scheduler:
-        return pool.map(_task, list(specs), progress=progress, desc=desc)
+        if base_fits is None:
+            return pool.map(_task, list(specs), progress=progress, desc=desc)
+        known = dict(base_fits)
+        outs = pool.map(_task_sharing, [(s, known) for s in specs], progress=progress, desc=desc)
+        for _, made in outs:
+            for k, v in made.items():
+                base_fits.setdefault(k, v)
+        return [o for o, _ in outs]
     return map_with_context(
         _task,
         (list(train), list(held)),
