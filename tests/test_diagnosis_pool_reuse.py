@@ -101,3 +101,27 @@ def test_a_worker_keeps_the_memory_it_frees(tmp_path):
     """, tmp_path)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() in ("True", "not glibc")
+
+
+def _echo(context: float, task: tuple[int, int]) -> tuple[int, int]:
+    """(the task, how many results the parent had seen when it handed this task out)."""
+    import time
+
+    time.sleep(0.05)
+    return task
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_fed_map_hands_each_task_out_with_the_results_before_it(jobs, monkeypatch):
+    monkeypatch.setenv(START_METHOD_ENV, "spawn" if jobs > 1 else "fork")
+    seen: list[int] = []
+    with ContextPool(0.0, jobs=jobs) as pool:
+        out = pool.map(_echo, list(range(8)), fed=lambda t: (t, len(seen)),
+                       done=lambda r: seen.append(r[0]))
+    assert [t for t, _ in out] == list(range(8))  # task order
+    assert sorted(seen) == list(range(8))  # every result went to done, once
+    known = [k for _, k in out]
+    assert known == sorted(known)  # handed out in order, each knowing at least as much
+    # at most jobs + 1 out at once: the task handed out last knew of all but those
+    assert known[-1] >= 8 - 1 - jobs
+    assert known[0] == 0
