@@ -35,12 +35,6 @@ START_METHOD_ENV = "PMALAB_START_METHOD"
 #: the shared state of :func:`map_with_context` inside a worker process (set by the pool's
 #: initializer from arguments, never inherited from the parent: valid under every start method)
 _WORKER_CONTEXT: list[Any] = []
-#: inside a :class:`ContextPool`'s worker: (the pool's count of tasks not yet finished, a
-#: shared integer; the pool's worker count), set by the initializer — :func:`idle_core`
-_POOL_STATE: list[Any] = []
-#: this process is one side of a :func:`map_split` (its parent half or its child): the two
-#: cores are in use, nothing inside splits again
-_SPLITTING: list[bool] = [False]
 
 
 def _mp_context() -> Any:
@@ -109,81 +103,10 @@ def _call_in_context(fn: Callable[[Any, Any], Any], task: Any) -> Any:
     return fn(_WORKER_CONTEXT[0], task)
 
 
-def _init_pool_worker(left: Any, jobs: int, *context: Any) -> None:
-    """:class:`ContextPool`'s worker initializer: :func:`_init_worker`, and the pool's shared
-    count of unfinished tasks (:func:`idle_core`)."""
-    _init_worker(*context)
-    _POOL_STATE[:] = [left, jobs]
-
-
 def in_worker() -> bool:
     """Whether this process is a worker of :func:`map_with_context` or a
     :class:`ContextPool` (holding its context)."""
     return bool(_WORKER_CONTEXT)
-
-
-def _call_in_pool(fn: Callable[[Any, Any], Any], task: Any) -> Any:
-    """Run one task of a :class:`ContextPool` map in a worker; the task counts as finished
-    when it returns or raises."""
-    try:
-        return fn(_WORKER_CONTEXT[0], task)
-    finally:
-        left = _POOL_STATE[0]
-        with left.get_lock():
-            left.value -= 1
-
-
-def pool_worker_waiting() -> bool:
-    """Whether a worker of this process's :class:`ContextPool` has nothing left to do: the
-    pool's unfinished tasks (this one included) are fewer than its workers, so a worker
-    waits for the batch's last tasks.  False outside a pool's worker and inside either side
-    of a split."""
-    if not _POOL_STATE or _SPLITTING[0]:
-        return False
-    left, jobs = _POOL_STATE
-    return int(left.value) < int(jobs)
-
-
-def idle_core() -> bool:
-    """Whether this task may run its own independent parts on two cores
-    (:func:`map_split_when_idle`): a worker of its pool waits (:func:`pool_worker_waiting`)
-    and the machine has a core to spare (:func:`machine_has_idle_core`)."""
-    return pool_worker_waiting() and machine_has_idle_core()
-
-
-def machine_has_idle_core() -> bool:
-    """Whether fewer processes are running on this machine right now than this process may
-    use cores (Linux: the running count of ``/proc/loadavg``, this process included); True
-    where that cannot be read.  On a machine busy with other work a second core is not
-    idle even when this program's other worker is, and splitting a task there only adds
-    its fork and copies."""
-    try:
-        with open("/proc/loadavg", "rb") as f:
-            running = int(f.read().split()[3].split(b"/")[0])
-    except (OSError, ValueError, IndexError):
-        return True
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return running < (cores or 1)
-
-
-def idle_core_possible() -> bool:
-    """Whether this process is a :class:`ContextPool`'s worker outside a split: the only
-    place :func:`idle_core` can become True."""
-    return bool(_POOL_STATE) and not _SPLITTING[0]
-
-
-def map_split_when_idle(fn: Callable[[T], R], tasks: Sequence[T]) -> list[R]:
-    """``[fn(t) for t in tasks]``, in order; as soon as a core of the pool is idle
-    (:func:`idle_core`) and two tasks or more are left, the rest is shared with a forked
-    child (:func:`map_split`).  The results are the loop's, bit for bit: each task is the
-    same computation in either process, and the child's come back pickled."""
-    tasks = list(tasks)
-    out: list[R] = []
-    for i, t in enumerate(tasks):
-        if len(tasks) - i >= 2 and idle_core() and fork_is_safe():
-            return out + map_split(fn, tasks[i:], first_here=0)
-        out.append(fn(t))
-    return out
 
 
 def _pin_blas() -> None:
@@ -316,7 +239,6 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
     pid = os.fork()
     if pid == 0:  # the child: its half, sent back; never the parent's exit handlers
         code = 1
-        _SPLITTING[0] = True
         try:
             os.close(r)
             with warnings.catch_warnings(record=True) as caught:
@@ -332,13 +254,10 @@ def map_split(fn: Callable[[T], R], tasks: Sequence[T], first_here: int = 1) -> 
     os.close(w)
     reader = os.fdopen(r, "rb")
     data = b""
-    was = _SPLITTING[0]
-    _SPLITTING[0] = True
     try:
         out += [fn(t) for t in mine]
         data = reader.read()
     finally:
-        _SPLITTING[0] = was
         reader.close()  # a child still writing gets a broken pipe, and exits
         _, status = os.waitpid(pid, 0)
     if data and os.WIFEXITED(status) and os.WEXITSTATUS(status) == 0:
@@ -402,9 +321,6 @@ class ContextPool:
     def __init__(self, context: Any, jobs: int = DEFAULT_JOBS) -> None:
         self.context, self.jobs = context, jobs
         self._ex: Any = None
-        #: the tasks of the current map not yet finished, shared with the workers
-        #: (:func:`idle_core`)
-        self._left: Any = None
 
     def map(
         self,
@@ -419,24 +335,19 @@ class ContextPool:
         if self.jobs <= 1 or len(tasks) <= 1:
             return map_with_context(fn, self.context, tasks, jobs=1, progress=progress, desc=desc)
         if self._ex is None:
-            import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
-            ctx = _mp_context()
-            self._left = (ctx or multiprocessing).Value("i", 0)
             self._ex = ProcessPoolExecutor(
                 max_workers=self.jobs,
-                mp_context=ctx,
-                initializer=_init_pool_worker,
-                initargs=(self._left, self.jobs, self.context),
+                mp_context=_mp_context(),
+                initializer=_init_worker,
+                initargs=(self.context,),
             )
         from functools import partial
 
-        with self._left.get_lock():
-            self._left.value = len(tasks)
         bar = _bar(len(tasks), desc, progress)
         try:
-            return _collect(self._ex, partial(_call_in_pool, fn), tasks, bar)
+            return _collect(self._ex, partial(_call_in_context, fn), tasks, bar)
         finally:
             bar.close()
 

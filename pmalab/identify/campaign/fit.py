@@ -31,12 +31,7 @@ from typing import Any
 import numpy as np
 
 from pmalab.errors import PmalabError
-from pmalab.identify.campaign.batch import (
-    idle_core_possible,
-    map_split,
-    map_split_when_idle,
-    map_tasks,
-)
+from pmalab.identify.campaign.batch import map_split, map_tasks
 from pmalab.identify.campaign.pressure import PressureFit, fit_quadratic, weighted_r2
 from pmalab.identify.estimation.joint import JointFit, evaluate, prepare, refine, start_laws
 from pmalab.identify.estimation.output_error import (
@@ -338,13 +333,6 @@ def fit_runs(
                 out.append(res)
         else:
             out = map_tasks(_fit_task, tasks, jobs=1, progress=progress, desc="identify")
-    elif jobs <= 1 and not scheduler and not progress and idle_core_possible():
-        # one of a diagnosis pool's candidates: its runs go on two cores once the pool's
-        # other worker has nothing left (the batch's last candidate), the same fits
-        out = []
-        for res, remembered in map_split_when_idle(_fit_task_remembering, tasks):
-            _remember_all(remembered)
-            out.append(res)
     else:
         out = map_tasks(
             _fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress, desc="identify"

@@ -555,13 +555,11 @@ def _refine_all(tasks: Sequence[tuple], jobs: int) -> list:
     """:func:`_refine_start` on every task, on two cores when ``jobs`` > 1 (a forked child
     takes half: :func:`~pmalab.identify.campaign.batch.map_split`; it falls back to this
     process wherever forking is not safe or the child fails)."""
-    from pmalab.identify.campaign.batch import map_split, map_split_when_idle
+    from pmalab.identify.campaign.batch import map_split
 
     if jobs > 1 and len(tasks) > 1:
         return map_split(_refine_start, tasks, first_here=0)
-    # one of a diagnosis pool's candidates: on two cores once the pool's other worker has
-    # nothing left (a plain loop elsewhere)
-    return map_split_when_idle(_refine_start, tasks)
+    return [_refine_start(t) for t in tasks]
 
 
 def _refine_gated(
