@@ -9,21 +9,28 @@ STAMP := $(VENV)/.installed
 
 # The installer is uv (from PyPI, into the venv: it resolves, downloads and installs in
 # parallel, a few seconds where pip takes half a minute); where uv cannot be had or fails,
-# pip does it all as before.  The bytecode is compiled at install, as pip does (a process
+# pip does it all as before.  The venv starts without pip (ensurepip's install of it costs
+# 2-3 s): the interpreter's own pip puts uv into it (`pip --python`), else the venv's
+# ensurepip gives it a pip first; uv then installs pip with the project (the wheel test's
+# fresh environment uses it).  The bytecode is compiled at install, as pip does (a process
 # started with PYTHONDONTWRITEBYTECODE would otherwise compile every module it imports, every
 # time), except the libraries' own test suites, which nothing here imports: one compileall
 # per 500 files, as many at once as there are cores (`compileall -j0` hands the ~5,800
 # files to its workers one by one, and that traffic cost as much CPU as the compiling)
 $(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	@if $(BIN)/python -m pip install --quiet --disable-pip-version-check uv >/dev/null 2>&1 && \
-	  $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test]'; then \
+	test -x $(BIN)/python || $(PY) -m venv --without-pip $(VENV)
+	@if { test -x $(BIN)/uv || \
+	      $(PY) -m pip --python $(BIN)/python install --quiet --disable-pip-version-check uv >/dev/null 2>&1 || \
+	      { $(BIN)/python -m ensurepip --default-pip >/dev/null 2>&1 && \
+	        $(BIN)/python -m pip install --quiet --disable-pip-version-check uv >/dev/null 2>&1; }; } && \
+	  $(BIN)/uv pip install --quiet --python $(BIN)/python -e '.[test]' pip; then \
 	  echo "installed with uv; compiling the bytecode"; \
 	  find $(VENV)/lib -name '*.py' ! -path '*/site-packages/*/tests/*' -print0 | \
 	    xargs -0 -n 500 -P "$$(nproc 2>/dev/null || echo 2)" \
 	    $(BIN)/python -m compileall -q >/dev/null || true; \
 	else \
 	  echo "uv could not be had or failed: installing with pip"; \
+	  { $(BIN)/python -m pip --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --default-pip; } && \
 	  $(BIN)/python -m pip install --quiet --upgrade pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[test]'; \
 	fi
