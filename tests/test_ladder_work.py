@@ -138,3 +138,35 @@ def test_a_row_added_at_a_later_step_is_all_from_that_round(monkeypatch):
     assert drift["gain_carried_x_floor"] == pytest.approx((0.005 + 0.008) / 2 / FLOOR)
     first = rows["viscous-friction"]
     assert first["round"] == 1 and first["scored_against"] == "base"
+
+
+def test_the_ladders_runs_have_their_signals_kept_while_it_climbs(monkeypatch):
+    """Identifications made in the ladder's own process (one job) filter each run once: the
+    ladder's runs are kept (pmalab.identify.signals.keep_run_signals) while it climbs and
+    forgotten when it returns, also when a round raises."""
+    from pmalab.identify import signals
+
+    train = [SimpleNamespace(frequency=0.25)]
+    held = ["held-a", "held-b"]
+    seen: list = []
+    table = {("bouc-wen", ()): [0.040, 0.047]}
+    fake = _fake(table, [])
+
+    def recording(*a, **k):
+        kept = {id(r) for r in signals._KEPT_RUNS.values()}
+        seen.append(kept == {id(r) for r in [*train, *held]})
+        return fake(*a, **k)
+
+    monkeypatch.setattr(ladder, "score_all", recording)
+    monkeypatch.setattr(ladder, "heldout_floor", lambda r: FLOOR)
+    ladder.run_ladder(train, held, "bouc-wen", ["viscous-friction"])  # pyright: ignore[reportArgumentType]
+    assert seen and all(seen)
+    assert not signals._KEPT_RUNS and not signals._RUN_SIGNALS
+
+    def raising(*a, **k):
+        raise RuntimeError("a round failed")
+
+    monkeypatch.setattr(ladder, "score_all", raising)
+    with pytest.raises(RuntimeError):
+        ladder.run_ladder(train, held, "bouc-wen", ["viscous-friction"])  # pyright: ignore[reportArgumentType]
+    assert not signals._KEPT_RUNS

@@ -45,6 +45,7 @@ from pmalab.identify.diagnosis.ranking import (
     score_all,
 )
 from pmalab.identify.laws import LAWS
+from pmalab.identify.signals import keep_run_signals
 from pmalab.runfile import Run
 
 __all__ = ["AT_FLOOR_RATIO", "Ladder", "LadderError", "LadderStep", "Round", "run_ladder"]
@@ -227,6 +228,9 @@ def run_ladder(
             if cls is not None:
                 cls().load_compiled()
     scorer = Scorer(train, held, jobs, progress, scheduler)
+    # identifications made in this process (one job) filter and differentiate each run once,
+    # as a worker does (the runs are this ladder's own until it returns)
+    keep_run_signals([*scorer.train, *scorer.held])
     try:
         base_spec = ModelSpec(law, (), files)
         steps: list[LadderStep] = []
@@ -300,3 +304,4 @@ def run_ladder(
         return Ladder(steps, rounds, stop, scorer.count)
     finally:
         scorer.close()  # the workers kept across the rounds
+        keep_run_signals([])
