@@ -101,3 +101,62 @@ def test_a_worker_keeps_the_memory_it_frees(tmp_path):
     """, tmp_path)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() in ("True", "not glibc")
+
+
+def _echo(context: float, task: tuple[int, int]) -> tuple[int, int]:
+    """(the task, how many results the parent had seen when it handed this task out)."""
+    import time
+
+    time.sleep(0.05)
+    return task
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_fed_map_hands_each_task_out_with_the_results_before_it(jobs, monkeypatch):
+    monkeypatch.setenv(START_METHOD_ENV, "spawn" if jobs > 1 else "fork")
+    seen: list[int] = []
+    with ContextPool(0.0, jobs=jobs) as pool:
+        out = pool.map(_echo, list(range(8)), fed=lambda t: (t, len(seen)),
+                       done=lambda r: seen.append(r[0]))
+    assert [t for t, _ in out] == list(range(8))  # task order
+    assert sorted(seen) == list(range(8))  # every result went to done, once
+    known = [k for _, k in out]
+    assert known == sorted(known)  # handed out in order, each knowing at least as much
+    # at most jobs + 1 out at once: the task handed out last knew of all but those
+    assert known[-1] >= 8 - 1 - jobs
+    assert known[0] == 0
+
+
+def test_values_of_a_kept_runs_signals_are_derived_once_and_equal(tmp_path):
+    """The measured-side metrics and the loop direction of a kept run are computed once
+    (every later fit of the run takes them) and equal what each fit computed before."""
+    from pmalab.identify.metrics import loop_direction, measured_parts, metrics
+    from pmalab.identify.signals import Signals, keep_run_signals, kept_derived
+
+    a, _ = make_run("bouc-wen", 0.3, f=0.5, n=2000, seed=3, name="a")
+    b, _ = make_run("bouc-wen", 0.5, f=0.5, n=2000, seed=4, name="b")
+    calls: list[str] = []
+
+    def counted(name, fn):
+        def make():
+            calls.append(name)
+            return fn()
+        return make
+
+    try:
+        keep_run_signals([a])
+        sa, sb = Signals.from_run(a), Signals.from_run(b)
+        for _ in range(3):
+            got = kept_derived(sa, a.force, "ld", counted("a", lambda: loop_direction(a.force, sa.x)))
+            other = kept_derived(sb, b.force, "ld", counted("b", lambda: loop_direction(b.force, sb.x)))
+        assert calls == ["a", "b", "b", "b"]  # a's kept; b's (not named) every time
+        assert got == loop_direction(a.force, sa.x) and other == loop_direction(b.force, sb.x)
+        # another force with the same signals is another value
+        assert kept_derived(sa, a.force * 2, "ld", counted("a2", lambda: 0.0)) == 0.0
+        assert calls[-1] == "a2"
+    finally:
+        keep_run_signals([])
+    # the metrics with the measured parts handed in are the metrics, to the last bit
+    pred = a.force + np.sin(np.arange(len(a)) / 50.0)
+    parts = measured_parts(a.force, sa.x)
+    assert metrics(a.force, pred, sa.x, parts) == metrics(a.force, pred, sa.x)

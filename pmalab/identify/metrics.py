@@ -81,8 +81,28 @@ def _rms(e: np.ndarray) -> float:
     return float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
 
 
-def metrics(measured: np.ndarray, predicted: np.ndarray, x: np.ndarray) -> dict:
+def measured_parts(
+    measured: np.ndarray, x: np.ndarray
+) -> tuple[float, float, float, np.ndarray, np.ndarray]:
+    """What :func:`metrics` takes from the measurement alone: (std of the measured force (N),
+    its loop energy −∮F dx (N·mm) and the cycles of ``x`` (:func:`loop_energy`), and
+    :func:`branch_masks` of ``x``) — the same for every model predicting the same record."""
+    y = np.asarray(measured, dtype=np.float64)
+    w_meas, cycles = loop_energy(y, x)
+    stretch, release = branch_masks(x)
+    return float(np.std(y)), w_meas, cycles, stretch, release
+
+
+def metrics(
+    measured: np.ndarray,
+    predicted: np.ndarray,
+    x: np.ndarray,
+    parts: tuple[float, float, float, np.ndarray, np.ndarray] | None = None,
+) -> dict:
     """All validation metrics of ``predicted`` against ``measured`` force (N) along ``x`` (mm).
+
+    ``parts``: :func:`measured_parts` of ``measured`` and ``x``, when the caller keeps them
+    (default: computed here).
 
     Returns ``{"rmse", "nrmse", "fit_percent", "max_error", "energy_error_percent",
     "energy_measured_mJ_per_cycle", "energy_model_mJ_per_cycle", "branch_rmse":
@@ -96,16 +116,14 @@ def metrics(measured: np.ndarray, predicted: np.ndarray, x: np.ndarray) -> dict:
         )
     e = yh - y
     rmse = _rms(e)
-    sd = float(np.std(y))
+    sd, w_meas, cycles, stretch, release = parts if parts is not None else measured_parts(y, x)
     nrmse = rmse / sd if sd > 0 else float("nan")
-    w_meas, cycles = loop_energy(y, x)
     w_mod, _ = loop_energy(yh, x)
     if cycles > 0 and abs(w_meas) > 0:
         e_meas, e_mod = w_meas / cycles, w_mod / cycles
         eerr = 100.0 * (e_mod - e_meas) / abs(e_meas)
     else:
         e_meas = e_mod = eerr = float("nan")
-    stretch, release = branch_masks(x)
     return {
         "rmse": rmse,
         "nrmse": nrmse,

@@ -23,8 +23,9 @@ simulation and the controllers integrate velocity as a state and differentiate n
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -144,6 +145,28 @@ def keep_run_signals(runs: Sequence[Run]) -> None:
     _KEPT_RUNS.clear()
     _KEPT_RUNS.update(ids)
     _RUN_SIGNALS.clear()
+    _DERIVED.clear()
+
+
+#: values derived from a kept run's signals and force (:func:`kept_derived`), with the
+#: signals and force they came from
+_DERIVED: dict[tuple[int, int, str], tuple[Signals, np.ndarray, Any]] = {}
+
+
+def kept_derived(sig: Signals, force: np.ndarray, name: str, make: Callable[[], Any]) -> Any:
+    """``make()`` — a value that depends only on ``sig`` and ``force`` (``name`` says
+    which) — computed once for the signals of a run :func:`keep_run_signals` named (the
+    same objects for every fit of that run), every time for any other signals."""
+    kept = any(v is sig for v in _RUN_SIGNALS.values())
+    if not kept:
+        return make()
+    key = (id(sig), id(force), name)
+    got = _DERIVED.get(key)
+    if got is not None and got[0] is sig and got[1] is force:
+        return got[2]
+    value = make()
+    _DERIVED[key] = (sig, force, value)
+    return value
 
 
 @dataclass(frozen=True)

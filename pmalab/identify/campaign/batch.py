@@ -324,16 +324,65 @@ class ContextPool:
 
     def map(
         self,
-        fn: Callable[[Any, T], R],
+        fn: Callable[[Any, Any], R],
         tasks: Sequence[T],
         *,
         progress: bool = False,
         desc: str = "",
+        fed: Callable[[T], Any] | None = None,
+        done: Callable[[R], None] | None = None,
     ) -> list[R]:
-        """``[fn(context, t) for t in tasks]`` on the pool's workers, in task order."""
+        """``[fn(context, t) for t in tasks]`` on the pool's workers, in task order.
+
+        ``fed``: the tasks are handed out as workers become free (one queued ahead of the
+        workers), each as ``fed(t)`` made at that moment, and every result is passed to
+        ``done`` as it arrives — so a task can carry what the results before it made (the
+        results are the same: ``fed`` only adds what a task may reuse)."""
         tasks = list(tasks)
+        if fed is not None:
+            return self._map_fed(fn, tasks, fed, done, progress, desc)
         if self.jobs <= 1 or len(tasks) <= 1:
             return map_with_context(fn, self.context, tasks, jobs=1, progress=progress, desc=desc)
+        ex = self._executor()
+        from functools import partial
+
+        bar = _bar(len(tasks), desc, progress)
+        try:
+            return _collect(ex, partial(_call_in_context, fn), tasks, bar)
+        finally:
+            bar.close()
+
+    def _map_fed(
+        self,
+        fn: Callable[[Any, Any], R],
+        tasks: list[T],
+        fed: Callable[[T], Any],
+        done: Callable[[R], None] | None,
+        progress: bool,
+        desc: str,
+    ) -> list[R]:
+        """:meth:`map` with ``fed`` (see there)."""
+        from functools import partial
+
+        bar = _bar(len(tasks), desc, progress)
+        try:
+            if self.jobs <= 1 or len(tasks) <= 1:
+                out = []
+                for t in tasks:
+                    out.append(fn(self.context, fed(t)))
+                    if done is not None:
+                        done(out[-1])
+                    bar.update(1)
+                return out
+            ex = self._executor()
+            return _collect_fed(
+                ex, partial(_call_in_context, fn), tasks, fed, done, self.jobs + 1, bar
+            )
+        finally:
+            bar.close()
+
+    def _executor(self) -> Any:
+        """The pool's executor, its workers started on first use."""
         if self._ex is None:
             from concurrent.futures import ProcessPoolExecutor
 
@@ -343,13 +392,7 @@ class ContextPool:
                 initializer=_init_worker,
                 initargs=(self.context,),
             )
-        from functools import partial
-
-        bar = _bar(len(tasks), desc, progress)
-        try:
-            return _collect(self._ex, partial(_call_in_context, fn), tasks, bar)
-        finally:
-            bar.close()
+        return self._ex
 
     def close(self) -> None:
         """Shut the workers down (queued tasks cancelled)."""
@@ -389,6 +432,42 @@ def _collect(ex: Any, fn: Callable[[T], R], tasks: list[T], bar: Any) -> list[R]
             bar.update(1)
     except BaseException:
         for f in futs:
+            f.cancel()
+        raise
+    return out
+
+
+def _collect_fed(
+    ex: Any,
+    fn: Callable[[Any], R],
+    tasks: list[T],
+    fed: Callable[[T], Any],
+    done: Callable[[R], None] | None,
+    ahead: int,
+    bar: Any,
+) -> list[R]:
+    """Submit the tasks to the executor ``ex`` at most ``ahead`` at a time, each as
+    ``fed(t)`` made when it is submitted; each result goes to ``done`` as it arrives;
+    results in task order (a failure cancels the tasks not started and is re-raised)."""
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    out: list[Any] = [None] * len(tasks)
+    pending: dict[Any, int] = {}
+    nxt = 0
+    try:
+        while pending or nxt < len(tasks):
+            while nxt < len(tasks) and len(pending) < ahead:
+                pending[ex.submit(fn, fed(tasks[nxt]))] = nxt
+                nxt += 1
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for f in sorted(finished, key=pending.__getitem__):
+                i = pending.pop(f)
+                out[i] = f.result()
+                if done is not None:
+                    done(out[i])
+                bar.update(1)
+    except BaseException:
+        for f in pending:
             f.cancel()
         raise
     return out

@@ -20,9 +20,10 @@ This is the same threshold at which the summary calls the model "at the noise fl
 Work is not repeated: every identification is keyed by its model (law, effects), and a
 model scored in an earlier round (the other laws with the same effects, after a step that
 changed the law) is taken from there — the numbers are those of the same identification.
-The base model is identified together with the first round's candidates, and each round's
-identifications are started longest first (laws with pressure structures, then by number
-of effects), so two workers finish a round together.
+The base model is identified together with the first round's candidates, first (the base
+law's per-run fits it makes are handed to the candidates that start from them), and each
+round's other identifications are started longest first (laws with pressure structures,
+then by number of effects), so two workers finish a round together.
 """
 
 from __future__ import annotations
@@ -167,9 +168,15 @@ class Scorer:
         if self.pool is not None:
             self.pool.close()
 
-    def __call__(self, specs: Sequence[ModelSpec], desc: str) -> list[Scored]:
+    def __call__(
+        self, specs: Sequence[ModelSpec], desc: str, first: ModelSpec | None = None
+    ) -> list[Scored]:
         todo = list(dict.fromkeys(s for s in specs if s not in self.done))
         order = [todo[i] for i in cost_order(todo)]
+        if first in order:
+            # handed out before the rest (see run_ladder)
+            order.remove(first)
+            order.insert(0, first)
         outs = score_all(
             self.train,
             self.held,
@@ -243,10 +250,13 @@ def run_ladder(
             if max_steps >= 1:
                 specs = [ModelSpec(cur_law, (*current, e), files) for e in remaining]
                 specs += [ModelSpec(lw, current, files) for lw in others]
-            # the base model is identified with the first round (one batch for the workers)
+            # the base model is identified with the first round (one batch for the workers),
+            # first: its per-run fits of the base law are where every candidate with effects
+            # starts, and the candidates handed out after it get them (Scorer.base_fits)
             outs = scorer(
                 [*specs, *([] if steps else [base_spec])],
                 f"step {max(len(steps), 1)}: {len(remaining)} effects, {len(others)} laws",
+                first=None if steps else base_spec,
             )
             if not steps:
                 steps.append(LadderStep(0, [], None, outs.pop(), law))

@@ -368,16 +368,23 @@ def score_all(
     whatever the start method); on a Dask cluster (``scheduler``) each task carries them.
     ``pool``: workers already holding ``(train, held)`` as their context, kept across calls
     (:class:`~pmalab.identify.campaign.batch.ContextPool`; the same scores).  ``base_fits``
-    (with ``pool``): the base-law fits the pool's workers made in earlier calls, shipped
-    with every task and extended with those made in this one (:func:`_task_sharing`)."""
+    (with ``pool``): the base-law fits the pool's workers made, extended as their results
+    arrive; each candidate is handed out with those made so far (:func:`_task_sharing`)."""
     if pool is not None and not scheduler:
         if base_fits is None:
             return pool.map(_task, list(specs), progress=progress, desc=desc)
-        known = dict(base_fits)
-        outs = pool.map(_task_sharing, [(s, known) for s in specs], progress=progress, desc=desc)
-        for _, made in outs:
-            for k, v in made.items():
-                base_fits.setdefault(k, v)
+        shared = base_fits
+
+        def fed(spec: ModelSpec) -> tuple[ModelSpec, dict]:
+            return spec, dict(shared)  # what the workers made so far, as it is handed out
+
+        def done(out: tuple[Scored, dict]) -> None:
+            for k, v in out[1].items():
+                shared.setdefault(k, v)
+
+        outs = pool.map(
+            _task_sharing, list(specs), progress=progress, desc=desc, fed=fed, done=done
+        )
         return [o for o, _ in outs]
     return map_with_context(
         _task,

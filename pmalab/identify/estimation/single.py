@@ -52,10 +52,15 @@ from pmalab.identify.estimation.problem import Problem, Record
 from pmalab.identify.estimation.records import predict_record
 from pmalab.identify.estimation.solver import STDERR_METHOD, one_blas_thread, solve, uncertainty
 from pmalab.identify.messages import Message, detail, note, warn
-from pmalab.identify.metrics import information_criteria, loop_direction, metrics
+from pmalab.identify.metrics import (
+    information_criteria,
+    loop_direction,
+    measured_parts,
+    metrics,
+)
 from pmalab.identify.model import ForceModel
 from pmalab.identify.params import Param, Params
-from pmalab.identify.signals import Signals
+from pmalab.identify.signals import Signals, kept_derived
 from pmalab.runfile import Run
 
 RHO_LIMIT = 0.95
@@ -479,7 +484,8 @@ def _fit_run(
     def full(prob_: Problem, res_) -> tuple[np.ndarray, dict]:
         with np.errstate(all="ignore"):
             p_ = model.predict(sig, _theta(prob_, res_.x))
-        return p_, metrics(force, p_, sig.x)
+        parts = kept_derived(sig, force, "measured", lambda: measured_parts(force, sig.x))
+        return p_, metrics(force, p_, sig.x, parts)
 
     ps, prob, res = _fit_once(model, sig_f, force_f, fix, init)
     se, corr, cond, n_eff = _uncertainty(prob, res)
@@ -566,7 +572,7 @@ def _fit_run(
             p.stderr = None
     if not res.success:
         warnings.append(f"optimizer did not converge: {res.message}")
-    ld = loop_direction(force, sig.x)
+    ld = kept_derived(sig, force, "loop direction", lambda: loop_direction(force, sig.x))
     if ld < 0:
         warnings.append(
             f"measured loop runs anti-physically (tension {abs(ld):.3g} N lower while "
