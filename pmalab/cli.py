@@ -18,6 +18,7 @@ from typing import Any
 
 from pmalab import __version__
 from pmalab.errors import PmalabError, RunFileWarning
+from pmalab.lazy import one_blas_thread_from_the_start
 from pmalab.paths import missing_roots, remove_empty_dirs
 
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
@@ -146,6 +147,7 @@ OUTPUT_ARGS = ("out", "png", "svg", "plot")
 
 
 def main(argv: list[str] | None = None) -> int:
+    one_blas_thread_from_the_start()  # every verb: run from the shell, BLAS never spins
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)

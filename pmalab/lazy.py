@@ -3,14 +3,16 @@
 Every verb registers its options at start-up through its area's ``cli`` module, which
 imports the area's package; a package that re-exported its API eagerly would make every
 ``pmalab`` command pay for numpy, h5py, scipy or matplotlib before the chosen verb runs.
-The other start-up helpers: :func:`gc_paused` (imports without the cyclic collector) and
-:func:`with_stack_room` (a command's work without CPython's frame-stack chunk churn).
+The other start-up helpers: :func:`gc_paused` (imports without the cyclic collector),
+:func:`with_stack_room` (a command's work without CPython's frame-stack chunk churn) and
+:func:`one_blas_thread_from_the_start` (BLAS loaded without its spinning threads).
 """
 
 from __future__ import annotations
 
 import gc
 import importlib
+import os
 import sys
 import types
 from collections.abc import Callable, Iterator, Mapping
@@ -31,6 +33,26 @@ def lazy_exports(
         return getattr(importlib.import_module(mod), name)
 
     return __getattr__, sorted(table)
+
+
+def one_blas_thread_from_the_start() -> None:
+    """Load BLAS with one thread (``OPENBLAS_NUM_THREADS=1``) when this process has not
+    loaded NumPy yet (a command run from the shell) and the user has not chosen a count.
+
+    pmalab parallelises over runs and pages in processes, never inside BLAS: every fit
+    runs its linear algebra with one BLAS thread already
+    (:func:`pmalab.identify.estimation.solver.one_blas_thread`: tall-skinny problems are
+    slower threaded).  But OpenBLAS starts its threads when NumPy and SciPy load it (each
+    its own library) and again after a fork, and after each call a thread busy-waits for
+    work for about 0.1 s, on the core the command's other processes (forked children,
+    report pages, a second command) need: 0.4-0.5 s of CPU in one identification of a
+    small campaign, 2 of the demo's ~26 CPU-s, and on a loaded machine a call waits for a
+    descheduled thread.  Asking for one thread before the library loads starts none.  The
+    setting is inherited by the forked children and by any process this one starts; a
+    count the user set (``OPENBLAS_NUM_THREADS``) is kept.
+    """
+    if "numpy" not in sys.modules:
+        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 @contextmanager

@@ -6,6 +6,7 @@ import os
 
 import matplotlib
 import pytest
+from threadpoolctl import threadpool_limits
 
 from pmalab.lazy import gc_paused
 
@@ -20,6 +21,15 @@ os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.dirname(__file__),
 # what a user's shell gets (the wheel, the reading child, the active loop over the wire)
 # remove the variable from their subprocesses' environment (``user_shell.shell_env``)
 os.environ.setdefault("PMALAB_JOBS", "1")
+# for the same reason one BLAS thread, here and in the commands the tests start: a second
+# OpenBLAS thread buys nothing beside a busy second worker, and after each call it spins
+# for its next work on the core the other worker needs (``pmalab identify`` and
+# ``diagnose`` ask for one thread themselves; every fit runs on one already).  NumPy is
+# loaded already in this process, so its pool is limited here (threadpoolctl); commands
+# started with the suite's environment read the variable.  Tests of what a user's shell
+# gets do not have it (``user_shell.SUITE_ONLY``)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+threadpool_limits(limits=1, user_api="blas")
 
 #: the longest test files, longest first (summed test time per file of a whole-suite run;
 #: the docs site's cold build is one test of ~2 min).  ``make test`` runs the suite with

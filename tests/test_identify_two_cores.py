@@ -384,6 +384,25 @@ def test_identify_keeps_the_users_blas_thread_count(campaign, tmp_path):
     assert out[:2] == ["0", "[2]"], out
 
 
+def test_every_verb_loads_blas_with_one_thread(campaign, tmp_path):
+    # not the fitting verbs only: `pmalab check` (NumPy loaded by the verb, no fit) from the
+    # shell starts BLAS on one thread too (the pmalab command asks before any verb runs);
+    # a count the user set is kept
+    ident, _ = campaign
+    env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
+    code = textwrap.dedent(f"""
+        from pmalab.cli import main
+        rc = main(["check", {str(ident)!r}])
+        from threadpoolctl import threadpool_info
+        print(rc, sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}}))
+    """)
+    for extra, blas in (({}, "[1]"), ({"OPENBLAS_NUM_THREADS": "2"}, "[2]")):
+        p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env={**env, **extra},
+                           capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0, p.stderr
+        assert p.stdout.splitlines()[-1].split() == ["0", blas], (extra, p.stdout)
+
+
 def test_diagnose_loads_blas_with_one_thread_and_starts_no_thread(campaign, tmp_path):
     ident, _ = campaign
     verb = ("diagnose", "--only", "viscous-friction", "--laws", "none", "--max-steps", "0")

@@ -5,8 +5,9 @@ from __future__ import annotations
 import os
 
 #: variables the suite sets for itself (``conftest.py``: ``PMALAB_JOBS=1``, so commands run
-#: by pytest workers start no worker pools) — never in what a user's shell has
-SUITE_ONLY = ("PMALAB_JOBS",)
+#: by pytest workers start no worker pools, and ``OPENBLAS_NUM_THREADS=1``) — never in what
+#: a user's shell has
+SUITE_ONLY = ("PMALAB_JOBS", "OPENBLAS_NUM_THREADS")
 
 
 def shell_env(*drop: str) -> dict[str, str]:

@@ -23,7 +23,7 @@ from pmalab.console import (
     warning,
 )
 from pmalab.errors import PmalabError
-from pmalab.lazy import gc_paused, with_stack_room
+from pmalab.lazy import gc_paused, one_blas_thread_from_the_start, with_stack_room
 
 
 @contextmanager
@@ -37,24 +37,6 @@ def _fitting_code() -> Iterator[None]:
         from pmalab.identify.zero_phase import load_compiled
 
         load_compiled()
-
-
-def _one_blas_thread_from_the_start() -> None:
-    """Load BLAS with one thread (``OPENBLAS_NUM_THREADS=1``) when this process has not
-    loaded NumPy yet (a command run from the shell) and the user has not chosen a count.
-
-    Every fit runs its linear algebra with one BLAS thread already
-    (:func:`pmalab.identify.estimation.solver.one_blas_thread`: tall-skinny problems are
-    slower threaded); the runs go to several processes instead.  But OpenBLAS starts its
-    threads when NumPy and SciPy load it (each its own library) and again after a fork,
-    and a new thread busy-waits for work for about 0.1 s: 0.4-0.5 s of CPU in one
-    identification of a small campaign, on the core the forked children (reading, half the
-    fits) need.  Asking for one thread before the library loads starts
-    none.  The setting is inherited by the forked children and by any process this one
-    starts; a count the user set (``OPENBLAS_NUM_THREADS``) is kept.
-    """
-    if "numpy" not in sys.modules:
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def resolve_jobs(jobs: int | None) -> int:
@@ -325,10 +307,10 @@ def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[l
 
 def _from_the_shell(command: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
     """A fitting verb's ``command`` as the shell runs it: BLAS loaded on one thread
-    (:func:`_one_blas_thread_from_the_start`: every fit runs on one BLAS thread already) and
+    (:func:`pmalab.lazy.one_blas_thread_from_the_start`, as every verb) and
     the work with frame-stack room (:func:`pmalab.lazy.with_stack_room`: its imports and
     fits never map and unmap CPython's frame-stack chunks call after call)."""
-    _one_blas_thread_from_the_start()
+    one_blas_thread_from_the_start()
     return with_stack_room(command, args)
 
 
