@@ -38,7 +38,7 @@ def test_a_long_run_is_read_in_windows_decimated_as_its_attrs_state(tmp_path):
     path = write_runs(tmp_path / "r.h5", [long, short])
     got = {r.name: r for r in read_runs(path, long_runs=LongRuns(30_000, _small_blocks))}
     stride, cut = decimation_plan(FS, F)
-    assert stride == 5 and cut == pytest.approx(15.0)  # 200 samples a cycle, 30× f
+    assert stride == 5 and cut == pytest.approx(30.0)  # 200 samples a cycle, 60× f
     d = got["long"]
     assert len(d) == math.ceil(len(long) / 5)
     # time and force at the stride, untouched (force noise stays white)

@@ -11,7 +11,7 @@ of a motion at the excitation frequency f, and a hysteresis loop is drawn faithf
 
 * position and pressures — what drives the model — pass the zero-phase (forward and
   backward) 4th-order Butterworth low-pass every fit applies
-  (:func:`~pmalab.identify.signals.zero_phase_lowpass`, the fits' cut-off) before they are
+  (:func:`~pmalab.identify.signals.zero_phase_lowpass`, cut-off 60× f) before they are
   taken at the stride; the cut-off is held below :data:`ANTI_ALIAS_FRACTION` of the
   decimated Nyquist frequency, so nothing above it folds back into the loop.  Each block
   is filtered with a margin of samples either side that is then dropped, so the blocks
@@ -53,10 +53,9 @@ FILTERED = ("position", "muscle_pressure", "cylinder_pressure")
 
 def decimation_plan(sample_rate_Hz: float, frequency_Hz: float | None) -> tuple[int, float]:
     """``(stride, cut-off Hz)`` of a long run's decimation: the stride keeps at least
-    :data:`SAMPLES_PER_CYCLE` samples per cycle; the cut-off is the fits' own
-    (:func:`~pmalab.identify.signals.default_cutoff_Hz`) held below
-    :data:`ANTI_ALIAS_FRACTION` of the decimated Nyquist frequency.  Stride 1 when the
-    frequency is unknown."""
+    :data:`SAMPLES_PER_CYCLE` samples per cycle; the cut-off is the fits' own (60× f) held
+    below :data:`ANTI_ALIAS_FRACTION` of the decimated Nyquist frequency.  Stride 1 when
+    the frequency is unknown."""
     # the filter's module (numba) is imported when a long run is met: reading a
     # campaign of ordinary runs needs NumPy and h5py only (pmalab.identify.reading)
     from pmalab.identify.signals import default_cutoff_Hz

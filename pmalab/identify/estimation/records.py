@@ -13,17 +13,12 @@ pressure laws and the record parameters are set by ``initial``:
   *forward in time*): the record parameters are fitted by least squares on the *early part*
   of the predicted record (:func:`calibration_samples`: its first whole excitation cycles,
   about a third of it) with every muscle parameter held — a start from the first 50 ms
-  (h0 = median(F − F_model) there), then a few Gauss–Newton steps; then every record
-  parameter but h0 (the force zero, a drift rate) is refitted on the early part's samples
-  after the path has crossed its whole range once (:func:`forgotten_from`), where the start
-  state no longer matters, so a start that h0 cannot express (a ramp-in's minor loop) is
-  carried into none of them (unless that leaves under ``SETTLED_SHARE`` of the early part)
-  — and the model then predicts the whole record; its error is scored on the rest
-  (:func:`scored_from`).  A record parameter must therefore *predict* the rest of its
-  record, not absorb it: a drift rate fitted on the first cycle extrapolates a real linear
-  drift, but makes a decaying softening or a misfit of the loop's shape worse, and every
-  model — the null as much as a candidate with record nuisances — is scored on the same
-  samples.  Without the measured
+  (h0 = median(F − F_model) there), then a few Gauss–Newton steps — and the model then
+  predicts the whole record; its error is scored on the rest (:func:`scored_from`).  A
+  record parameter must therefore *predict* the rest of its record, not absorb it: a drift
+  rate fitted on the first cycle extrapolates a real linear drift, but makes a decaying
+  softening or a misfit of the loop's shape worse, and every model — the null as much as a
+  candidate with record nuisances — is scored on the same samples.  Without the measured
   force: ``"burn-in"``.
 * ``"burn-in"``: the first excitation period is replayed before the run, putting h on its
   periodic orbit (record parameters other than h0 at 0);
@@ -58,13 +53,6 @@ RECORD_NFEV = 12
 #: share of a predicted record (in whole excitation cycles, at least one) on which its
 #: record parameters are estimated under ``initial="estimate"``; the rest is scored
 CALIBRATION_FRACTION = 1.0 / 3.0
-#: how near an end of a record's range (share of the range) its path must come to count as
-#: having crossed it (:func:`forgotten_from`)
-FORGET_TOL = 0.01
-#: the least share of the early part after the start state is forgotten on which the record
-#: parameters other than h0 are refitted; an early part that leaves less keeps its first
-#: estimate (on the whole early part)
-SETTLED_SHARE = 0.25
 
 #: the note every prediction with a drifting-zero effect carries (JSON warnings)
 TARE_NOTE = (
@@ -156,7 +144,6 @@ def fit_record_params(
     z: np.ndarray,
     max_nfev: int = RECORD_NFEV,
     prior: Mapping[str, tuple[float, float]] | None = None,
-    skip: int = 0,
 ) -> np.ndarray:
     """z with every run's record parameters fitted, the shared parameters held.
 
@@ -191,18 +178,18 @@ def fit_record_params(
         for j, n in enumerate(prob.run_params):
             if n in prior:
                 rows.append((j, *prior[n]))
-    e0 = prob.residual(z)[skip:]
+    e0 = prob.residual(z)
     scale = float(np.sqrt(np.mean(e0**2))) if e0.size else 1.0
     scale = scale if np.isfinite(scale) and scale > 0 else 1.0
 
     def f(h: np.ndarray) -> np.ndarray:
-        e = prob.residual(np.concatenate([z[:k], h]))[skip:]
+        e = prob.residual(np.concatenate([z[:k], h]))
         if not rows:
             return e
         return np.concatenate([e, [scale * (h[j] - mu) / sd for j, mu, sd in rows]])
 
     def jf(h: np.ndarray) -> np.ndarray:
-        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[skip:, k:]
+        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
         if not rows:
             return J
         P = np.zeros((len(rows), J.shape[1]))
@@ -266,65 +253,8 @@ def estimate_record(
         c1, c2 = _cost(prob, z), _cost(prob2, z2)
         if c2 < (1.0 - BRANCH_GAIN) ** 2 * c1:
             alt.update({n: v[0] for n, v in prob2.run_values(z2).items()})
-            th = alt
-    rest = [n for n in names if n != "h0"]
-    w = forgotten_from(sig.x)
-    if rest and w > 0 and sig.t.shape[0] - w >= SETTLED_SHARE * sig.t.shape[0]:
-        # the start state is forgotten from sample w on: every other record parameter (the
-        # force zero, a drift rate) is refitted there, h0 and its branch held, so the
-        # start's misfit (which h0 could not express) is carried into none of them
-        prob3 = Problem(
-            model,
-            [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
-            free=[],
-            degree={},
-            constants={k: v for k, v in th.items() if k not in rest},
-            bounds=b,
-            run_params=rest,
-        )
-        z3 = fit_record_params(
-            prob3, prob3.z_from({}, {n: [th[n]] for n in rest}), prior=pr, skip=w
-        )
-        th.update({n: v[0] for n, v in prob3.run_values(z3).items()})
+            return alt
     return th
-
-
-def forgotten_from(x: np.ndarray, tol: float = FORGET_TOL) -> int:
-    """First sample of a record from which its start state is forgotten: the first by
-    which the contraction path has crossed its whole range once.
-
-    A rate-independent hysteresis forgets its start after one full excursion: an
-    elasto-slide element (Maxwell-slip, Prandtl-Ishlinskii) whose slip span 2·d is inside
-    the stroke slides along it and follows the path alone from then on, and one wider than
-    the stroke never slides, so its start shifts the force by a constant (a force zero);
-    a Bouc-Wen or Duhem state decays toward the branch along it.
-
-    Parameters
-    ----------
-    x : numpy.ndarray
-        Contraction (mm) of the record's samples.
-    tol : float
-        How near an end of the range (share of the range) counts as reaching it.
-
-    Returns
-    -------
-    int
-        The first sample within ``tol`` of the range's far end after the path has been
-        within ``tol`` of the other end (from the record's start on); 0 when it never
-        crosses (no motion, or fewer than three samples).
-    """
-    x = np.asarray(x, dtype=float)
-    if x.size < 3:
-        return 0
-    lo, hi = float(np.min(x)), float(np.max(x))
-    d = tol * (hi - lo)
-    if not d > 0:
-        return 0
-    at_lo = np.flatnonzero(x <= lo + d)
-    at_hi = np.flatnonzero(x >= hi - d)
-    first, other = (at_lo, at_hi) if at_lo[0] < at_hi[0] else (at_hi, at_lo)
-    after = other[other > first[0]]
-    return int(after[0]) if after.size else 0
 
 
 def _cost(prob: Problem, z: np.ndarray) -> float:
