@@ -147,7 +147,14 @@ OUTPUT_ARGS = ("out", "png", "svg", "plot")
 
 
 def main(argv: list[str] | None = None) -> int:
-    one_blas_thread_from_the_start()  # every verb: run from the shell, BLAS never spins
+    """Run one ``pmalab`` verb; the exit code.
+
+    ``argv``: the command's arguments; None (the ``pmalab`` command): ``sys.argv``, and
+    then BLAS is loaded on one thread for every verb
+    (:func:`pmalab.lazy.one_blas_thread_from_the_start`).  A user's own program calling
+    ``main([...])`` keeps its environment and its BLAS thread count."""
+    if argv is None:  # the pmalab command: this process is ours
+        one_blas_thread_from_the_start()
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)

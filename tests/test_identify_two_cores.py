@@ -358,8 +358,10 @@ def _blas_after_identify(
     env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
     code = textwrap.dedent(f"""
         import os
+        import sys
         from pmalab.cli import main
-        rc = main([*{verb!r}, {str(ident)!r}, "--model", "duhem", "--out", "o", "-q"])
+        sys.argv = ["pmalab", *{verb!r}, {str(ident)!r}, "--model", "duhem", "--out", "o", "-q"]
+        rc = main()  # as the pmalab command calls it
         from threadpoolctl import threadpool_info
         blas = sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}})
         print(rc, blas, len(os.listdir("/proc/self/task")))
@@ -391,8 +393,10 @@ def test_every_verb_loads_blas_with_one_thread(campaign, tmp_path):
     ident, _ = campaign
     env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
     code = textwrap.dedent(f"""
+        import sys
         from pmalab.cli import main
-        rc = main(["check", {str(ident)!r}])
+        sys.argv = ["pmalab", "check", {str(ident)!r}]
+        rc = main()  # as the pmalab command calls it
         from threadpoolctl import threadpool_info
         print(rc, sorted({{i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}}))
     """)
@@ -401,6 +405,24 @@ def test_every_verb_loads_blas_with_one_thread(campaign, tmp_path):
                            capture_output=True, text=True, timeout=300)
         assert p.returncode == 0, p.stderr
         assert p.stdout.splitlines()[-1].split() == ["0", blas], (extra, p.stdout)
+
+
+def test_main_called_from_python_leaves_the_users_blas_alone(campaign, tmp_path):
+    # pmalab.cli.main(argv) called by a user's own program (a notebook, a script) is not the
+    # pmalab command: it must not choose the BLAS thread count of the user's process, nor
+    # put OPENBLAS_NUM_THREADS into the environment of the processes the user starts later
+    ident, _ = campaign
+    env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
+    code = textwrap.dedent(f"""
+        import os
+        from pmalab.cli import main
+        rc = main(["check", {str(ident)!r}])
+        print(rc, os.environ.get("OPENBLAS_NUM_THREADS", "unset"))
+    """)
+    p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines()[-1].split() == ["0", "unset"], p.stdout
 
 
 def test_diagnose_loads_blas_with_one_thread_and_starts_no_thread(campaign, tmp_path):

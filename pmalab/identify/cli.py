@@ -23,7 +23,7 @@ from pmalab.console import (
     warning,
 )
 from pmalab.errors import PmalabError
-from pmalab.lazy import gc_paused, one_blas_thread_from_the_start, with_stack_room
+from pmalab.lazy import gc_paused, with_stack_room
 
 
 @contextmanager
@@ -306,11 +306,10 @@ def _pressure_labels(args: argparse.Namespace, runs: list, val: list) -> tuple[l
 
 
 def _from_the_shell(command: Callable[[argparse.Namespace], int], args: argparse.Namespace) -> int:
-    """A fitting verb's ``command`` as the shell runs it: BLAS loaded on one thread
-    (:func:`pmalab.lazy.one_blas_thread_from_the_start`, as every verb) and
-    the work with frame-stack room (:func:`pmalab.lazy.with_stack_room`: its imports and
-    fits never map and unmap CPython's frame-stack chunks call after call)."""
-    one_blas_thread_from_the_start()
+    """A fitting verb's ``command`` as the shell runs it (BLAS loaded on one thread by
+    :func:`pmalab.cli.main`, as for every verb) with frame-stack room
+    (:func:`pmalab.lazy.with_stack_room`: its imports and fits never map and unmap
+    CPython's frame-stack chunks call after call)."""
     return with_stack_room(command, args)
 
 
