@@ -18,7 +18,7 @@ from typing import Any
 
 from pmalab import __version__
 from pmalab.errors import PmalabError, RunFileWarning
-from pmalab.lazy import one_blas_thread_from_the_start
+from pmalab.lazy import the_command_starts
 from pmalab.paths import missing_roots, remove_empty_dirs
 
 #: modules that contribute verbs; each defines ``register(subparsers) -> None`` and sets
@@ -150,11 +150,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run one ``pmalab`` verb; the exit code.
 
     ``argv``: the command's arguments; None (the ``pmalab`` command): ``sys.argv``, and
-    then BLAS is loaded on one thread for every verb
-    (:func:`pmalab.lazy.one_blas_thread_from_the_start`).  A user's own program calling
-    ``main([...])`` keeps its environment and its BLAS thread count."""
+    then BLAS is loaded on one thread for every verb and the first imports' objects are
+    frozen (:func:`pmalab.lazy.the_command_starts`).  A user's own program calling
+    ``main([...])`` keeps its environment, its BLAS thread count and its collector."""
     if argv is None:  # the pmalab command: this process is ours
-        one_blas_thread_from_the_start()
+        the_command_starts()
     parser = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)

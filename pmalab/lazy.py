@@ -35,6 +35,25 @@ def lazy_exports(
     return __getattr__, sorted(table)
 
 
+#: whether this process is the ``pmalab`` command (:func:`the_command_starts`), not a user's
+#: program that imported pmalab: only then may start-up helpers change process-wide state
+_THE_COMMAND: list[bool] = [False]
+
+
+def the_command_starts() -> None:
+    """Mark this process as the ``pmalab`` command (:func:`pmalab.cli.main` run by the
+    console script) and load BLAS on one thread (:func:`one_blas_thread_from_the_start`)."""
+    _THE_COMMAND[0] = True
+    one_blas_thread_from_the_start()
+
+
+def is_the_command() -> bool:
+    """Whether this process is the ``pmalab`` command (:func:`the_command_starts`; its
+    forked children too), where freezing the first imports' objects
+    (:func:`gc_paused`) touches nothing of a user's program."""
+    return _THE_COMMAND[0]
+
+
 def one_blas_thread_from_the_start() -> None:
     """Load BLAS with one thread (``OPENBLAS_NUM_THREADS=1``) when this process has not
     loaded NumPy yet (a command run from the shell) and the user has not chosen a count.

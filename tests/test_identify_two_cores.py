@@ -425,6 +425,34 @@ def test_main_called_from_python_leaves_the_users_blas_alone(campaign, tmp_path)
     assert p.stdout.splitlines()[-1].split() == ["0", "unset"], p.stdout
 
 
+def test_main_called_from_python_freezes_none_of_the_users_objects(campaign, tmp_path):
+    # the pmalab command freezes what its first imports made (gc.freeze: never walked
+    # again); a user's program calling main([...]) keeps its collector as it was: frozen,
+    # its own objects (and its cyclic garbage of that moment) would never be collected
+    ident, _ = campaign
+    env = shell_env("PYTHONPATH", "OPENBLAS_NUM_THREADS")
+    for verb in ("identify", "report"):
+        code = textwrap.dedent(f"""
+            import gc, sys
+            from pmalab.cli import main
+            args = ["identify", {str(ident)!r}, "--model", "duhem", "--out", "o", "-q", "--force"]
+            if {verb!r} == "report":
+                main(args)  # its imports frozen? no: it is called from Python too
+                args = ["report", "o", "--out", "r.pdf", "-q", "--force"]
+            shell = len(sys.argv) > 1
+            if shell:
+                sys.argv = ["pmalab", *args]
+            rc = main() if shell else main(args)
+            print(rc, gc.get_freeze_count() > 0)
+        """)
+        for shell, frozen in ((False, "False"), (True, "True")):
+            argv = [sys.executable, "-c", code, *(["shell"] if shell else [])]
+            p = subprocess.run(argv, cwd=tmp_path, env=env, capture_output=True, text=True,
+                               timeout=300)
+            assert p.returncode == 0, p.stderr
+            assert p.stdout.splitlines()[-1].split() == ["0", frozen], (verb, shell, p.stdout)
+
+
 def test_diagnose_loads_blas_with_one_thread_and_starts_no_thread(campaign, tmp_path):
     ident, _ = campaign
     verb = ("diagnose", "--only", "viscous-friction", "--laws", "none", "--max-steps", "0")

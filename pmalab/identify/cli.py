@@ -23,16 +23,16 @@ from pmalab.console import (
     warning,
 )
 from pmalab.errors import PmalabError
-from pmalab.lazy import gc_paused, with_stack_room
+from pmalab.lazy import gc_paused, is_the_command, with_stack_room
 
 
 @contextmanager
 def _fitting_code() -> Iterator[None]:
     """The fitting code's imports (the block's) and numba's first load of compiled code,
     with the garbage collector paused: it would walk their objects again and again.  They
-    are frozen after when this is the process's first import of them (a command run from
-    the shell), so no later collection walks them either."""
-    with gc_paused(freeze="scipy" not in sys.modules):
+    are frozen after when this is the process's first import of them in the ``pmalab``
+    command (:func:`pmalab.lazy.is_the_command`), so no later collection walks them either."""
+    with gc_paused(freeze=is_the_command() and "scipy" not in sys.modules):
         yield
         from pmalab.identify.zero_phase import load_compiled
 

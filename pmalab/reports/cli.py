@@ -7,7 +7,7 @@ import argparse
 import sys
 
 from pmalab.console import VERBOSE, add_verbosity, show_progress, verbosity
-from pmalab.lazy import gc_paused
+from pmalab.lazy import gc_paused, is_the_command
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,8 +63,9 @@ def _jobs(text: str) -> int:
 def run_report(args: argparse.Namespace) -> int:
     # matplotlib's and the report code's objects, frozen when this process imports them
     # first (a report run from the shell): the collector would walk them at every full
-    # collection while the pages are drawn, about a tenth of a report's CPU
-    with gc_paused(freeze="matplotlib" not in sys.modules):
+    # collection while the pages are drawn, about a tenth of a report's CPU (the pmalab
+    # command only: a user's program calling it keeps its collector as it was)
+    with gc_paused(freeze=is_the_command() and "matplotlib" not in sys.modules):
         from pmalab.reports.build import build_report
 
     level = verbosity(args)
