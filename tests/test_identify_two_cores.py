@@ -163,6 +163,38 @@ def test_diagnose_reports_a_file_the_child_cannot_read_as_reading_here_does(camp
     assert "'cut' skipped" in warned and "bad.h5" in error
 
 
+@pytest.mark.parametrize("verb", ["identify", "diagnose"])
+def test_a_command_interrupted_while_importing_leaves_no_reading_child(campaign, tmp_path, verb):
+    # Ctrl-C while the fitting code imports (the reading child at work): one line, exit
+    # 130, and the child gone, reaped (not a zombie left in a user's long-lived process)
+    ident, _ = campaign
+    env = shell_env("PYTHONPATH")
+    code = textwrap.dedent(f"""
+        import os, time
+        from contextlib import contextmanager
+        from pmalab.identify import cli
+        @contextmanager
+        def interrupted():
+            time.sleep(0.2)  # the child is reading
+            raise KeyboardInterrupt
+            yield
+        cli._fitting_code = interrupted
+        from pmalab.cli import main
+        rc = main([{verb!r}, {str(ident)!r}, "--model", "duhem", "--out", "o", "--jobs", "2"])
+        time.sleep(0.5)  # the child has finished, whatever it was doing
+        try:
+            left = os.waitpid(-1, os.WNOHANG)[0] != 0 or "running"
+        except ChildProcessError:
+            left = "none"
+        print(rc, left, os.path.exists("o"))
+    """)
+    p = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, env=env,
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout.splitlines()[-1].split() == ["130", "none", "False"], p.stdout
+    assert p.stderr.strip() == f"pmalab {verb}: interrupted", p.stderr
+
+
 def test_no_child_once_numpy_is_loaded(campaign):
     # pytest has NumPy (and BLAS's threads) loaded: reading stays in this process
     ident, val = campaign

@@ -11,6 +11,7 @@ import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 from pmalab.arguments import DEFAULT_JOBS, JOBS_ENV, default_jobs, fixes
 from pmalab.console import (
@@ -25,6 +26,9 @@ from pmalab.console import (
 from pmalab.errors import PmalabError
 from pmalab.lazy import gc_paused, is_the_command, with_stack_room
 
+if TYPE_CHECKING:
+    from pmalab.identify.reading import Reading
+
 
 @contextmanager
 def _fitting_code() -> Iterator[None]:
@@ -37,6 +41,18 @@ def _fitting_code() -> Iterator[None]:
         from pmalab.identify.zero_phase import load_compiled
 
         load_compiled()
+
+
+@contextmanager
+def _discarded_on_failure(reading: Reading | None) -> Iterator[None]:
+    """The block, and the reading child stopped and reaped if the block fails (Ctrl-C while
+    importing): it would wait on its pipe as long as this process lives."""
+    try:
+        yield
+    except BaseException:
+        if reading is not None:
+            reading.discard()
+        raise
 
 
 def resolve_jobs(jobs: int | None) -> int:
@@ -350,7 +366,7 @@ def identify_command(args: argparse.Namespace) -> int:
             args.files, args.validate or (), include_aborted=args.include_aborted, muscle=m
         )
 
-    with _fitting_code():
+    with _discarded_on_failure(reading), _fitting_code():
         from pmalab.identify.api import RunList, identify, load
         from pmalab.identify.messages import sort_messages
         from pmalab.runfile import check_distinct, check_distinct_runs
@@ -571,7 +587,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
             args.files, args.validate or (), include_aborted=args.include_aborted, muscle=mus
         )
 
-    with _fitting_code():
+    with _discarded_on_failure(reading), _fitting_code():
         from pmalab.identify.diagnosis import diagnose, write_outputs
         from pmalab.identify.headline import WORST_BY, worst_runs
         from pmalab.identify.long_records import fit_part, long_runs

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import sys
 import threading
 import warnings
@@ -96,16 +97,31 @@ class Reading:
         self._pid = pid
         self._fd = fd
 
+    def discard(self) -> None:
+        """Stop the child and reap it, its runs not taken (the command gave up before it
+        asked for them: interrupted, or failing while it imported).  Otherwise the child
+        would wait, blocked on the full pipe, for as long as this process lives."""
+        if self._pid < 0:
+            return
+        pid, self._pid = self._pid, -1
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:  # pragma: no cover - a reaped child keeps its pid
+            pass
+        os.close(self._fd)
+        os.waitpid(pid, 0)
+
     def result(self) -> tuple[list[Run], list[Run]] | None:
         """``(runs, validation runs)``, or None when the child did not deliver them (read
         them in this process then: the same runs, the same errors).
 
         Waits for the child.  The warnings its reading raised are shown now, in order."""
+        pid, self._pid = self._pid, -1
         try:
             with os.fdopen(self._fd, "rb") as f:
                 data = f.read()
         finally:
-            _, status = os.waitpid(self._pid, 0)
+            _, status = os.waitpid(pid, 0)
         if not data or not os.WIFEXITED(status) or os.WEXITSTATUS(status) != 0:
             return None
         try:
