@@ -134,7 +134,10 @@ def test_a_raised_identification_is_failed_with_no_numbers_after_it():
 
 
 def test_a_base_model_that_raises_is_one_error_line(monkeypatch):
-    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None):
+    def score_all(
+        train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None,
+        base_fits=None,
+    ):
         return [
             Scored(s.effects, [float("nan")] * 2, error="ValueError: singular (law.py, line 3)")
             if not s.effects
