@@ -102,20 +102,6 @@ def test_identify_with_the_reading_child_equals_one_process(campaign, tmp_path):
     assert two.stderr == one.stderr and "'cut'" in two.stderr  # the skipped run, once
 
 
-def test_a_file_the_child_cannot_read_is_reported_as_reading_here_reports_it(campaign, tmp_path):
-    ident, _ = campaign
-    bad = tmp_path / "bad.h5"
-    bad.write_bytes(b"not an HDF5 file" * 100)
-    runs = [_identify(tmp_path, str(ident), str(bad), "--model", "duhem", "--out", f"o{j}",
-                      "--jobs", j) for j in ("2", "1")]
-    assert runs[0].returncode == runs[1].returncode != 0
-    assert runs[0].stderr == runs[1].stderr and "Traceback" not in runs[0].stderr
-    # the skipped run's warning, then the one-line error naming the file
-    warned, error = runs[0].stderr.strip().splitlines()
-    assert "'cut' skipped" in warned and "bad.h5" in error
-    assert not (tmp_path / "o2").exists() or not any((tmp_path / "o2").iterdir())
-
-
 def _diagnose(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     """``pmalab diagnose ARGS`` from a fresh interpreter; its stdout starts with whether the
     command forked a reading child."""
@@ -151,16 +137,22 @@ def test_diagnose_reads_in_a_child_and_equals_one_process(campaign, tmp_path):
     assert two.stderr == one.stderr and "'cut'" in two.stderr  # the skipped run, once
 
 
-def test_diagnose_reports_a_file_the_child_cannot_read_as_reading_here_does(campaign, tmp_path):
+@pytest.mark.parametrize("verb", ["identify", "diagnose"])
+def test_a_file_the_child_cannot_read_is_reported_as_reading_here_reports_it(
+    verb, campaign, tmp_path
+):
     ident, _ = campaign
     bad = tmp_path / "bad.h5"
     bad.write_bytes(b"not an HDF5 file" * 100)
-    runs = [_diagnose(tmp_path, str(ident), str(bad), "--model", "duhem", "--out", f"o{j}",
-                      "--jobs", j) for j in ("2", "1")]
+    command = _identify if verb == "identify" else _diagnose
+    runs = [command(tmp_path, str(ident), str(bad), "--model", "duhem", "--out", f"o{j}",
+                    "--jobs", j) for j in ("2", "1")]
     assert runs[0].returncode == runs[1].returncode != 0
     assert runs[0].stderr == runs[1].stderr and "Traceback" not in runs[0].stderr
+    # the skipped run's warning, then the one-line error naming the file
     warned, error = runs[0].stderr.strip().splitlines()
     assert "'cut' skipped" in warned and "bad.h5" in error
+    assert not (tmp_path / "o2").exists() or not any((tmp_path / "o2").iterdir())
 
 
 @pytest.mark.parametrize("verb", ["identify", "diagnose"])
