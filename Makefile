@@ -30,7 +30,8 @@ $(STAMP): pyproject.toml
 	    $(BIN)/python -m compileall -q >/dev/null || true; \
 	else \
 	  echo "uv could not be had or failed: installing with pip"; \
-	  { $(BIN)/python -m pip --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --default-pip; } && \
+	  { $(BIN)/python -m pip --version >/dev/null 2>&1 || $(BIN)/python -m ensurepip --default-pip >/dev/null 2>&1 || \
+	    { echo "cannot install: $(PY) has neither pip nor ensurepip (Debian/Ubuntu: apt install python3-venv)" >&2; exit 1; }; } && \
 	  $(BIN)/python -m pip install --quiet --upgrade pip && \
 	  $(BIN)/python -m pip install --quiet -e '.[test]'; \
 	fi
