@@ -55,6 +55,19 @@ def _discarded_on_failure(reading: Reading | None) -> Iterator[None]:
         raise
 
 
+def _reading_while_importing(args: argparse.Namespace, muscle: str | None) -> Reading | None:
+    """With more than one job, the command's files read in a forked child while this
+    process imports the fitting code (:func:`pmalab.identify.reading.start_reading`);
+    None with one job (everything in this process, nothing forked)."""
+    if args.jobs <= 1:
+        return None
+    from pmalab.identify.reading import start_reading
+
+    return start_reading(
+        args.files, args.validate or (), include_aborted=args.include_aborted, muscle=muscle
+    )
+
+
 def resolve_jobs(jobs: int | None) -> int:
     """``--jobs`` as given, else ``$PMALAB_JOBS``, else :data:`pmalab.arguments.DEFAULT_JOBS`.
 
@@ -358,13 +371,7 @@ def identify_command(args: argparse.Namespace) -> int:
     m = args.muscle
     # with a second core, a child reads the files while this process imports the fitting
     # code (SciPy, numba); --jobs 1 keeps everything in this one process
-    reading = None
-    if args.jobs > 1:
-        from pmalab.identify.reading import start_reading
-
-        reading = start_reading(
-            args.files, args.validate or (), include_aborted=args.include_aborted, muscle=m
-        )
+    reading = _reading_while_importing(args, m)
 
     with _discarded_on_failure(reading), _fitting_code():
         from pmalab.identify.api import RunList, identify, load
@@ -579,13 +586,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     mus = args.muscle
     # with a second core, a child reads the files while this process imports the fitting
     # code (SciPy, numba), as `pmalab identify` does; --jobs 1 keeps everything here
-    reading = None
-    if args.jobs > 1:
-        from pmalab.identify.reading import start_reading
-
-        reading = start_reading(
-            args.files, args.validate or (), include_aborted=args.include_aborted, muscle=mus
-        )
+    reading = _reading_while_importing(args, mus)
 
     with _discarded_on_failure(reading), _fitting_code():
         from pmalab.identify.diagnosis import diagnose, write_outputs
