@@ -420,35 +420,24 @@ def _map_pool(
 
 
 def _collect(ex: Any, fn: Callable[[T], R], tasks: list[T], bar: Any) -> list[R]:
-    """Submit every task to the executor ``ex``; results in task order (a failure cancels
-    the tasks not started and is re-raised)."""
-    from concurrent.futures import as_completed
-
-    out: list[Any] = [None] * len(tasks)
-    futs = {ex.submit(fn, t): i for i, t in enumerate(tasks)}
-    try:
-        for f in as_completed(futs):
-            out[futs[f]] = f.result()
-            bar.update(1)
-    except BaseException:
-        for f in futs:
-            f.cancel()
-        raise
-    return out
+    """Submit every task to the executor ``ex`` at once; results in task order (a failure
+    cancels the tasks not started and is re-raised)."""
+    return _collect_fed(ex, fn, tasks, None, None, max(len(tasks), 1), bar)
 
 
 def _collect_fed(
     ex: Any,
     fn: Callable[[Any], R],
     tasks: list[T],
-    fed: Callable[[T], Any],
+    fed: Callable[[T], Any] | None,
     done: Callable[[R], None] | None,
     ahead: int,
     bar: Any,
 ) -> list[R]:
     """Submit the tasks to the executor ``ex`` at most ``ahead`` at a time, each as
-    ``fed(t)`` made when it is submitted; each result goes to ``done`` as it arrives;
-    results in task order (a failure cancels the tasks not started and is re-raised)."""
+    ``fed(t)`` made when it is submitted (``t`` itself without ``fed``); each result goes
+    to ``done`` as it arrives; results in task order (a failure cancels the tasks not
+    started and is re-raised)."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     out: list[Any] = [None] * len(tasks)
@@ -457,7 +446,8 @@ def _collect_fed(
     try:
         while pending or nxt < len(tasks):
             while nxt < len(tasks) and len(pending) < ahead:
-                pending[ex.submit(fn, fed(tasks[nxt]))] = nxt
+                t = tasks[nxt]
+                pending[ex.submit(fn, t if fed is None else fed(t))] = nxt
                 nxt += 1
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for f in sorted(finished, key=pending.__getitem__):

@@ -40,7 +40,13 @@ from pmalab.identify.estimation.output_error import (
     position_data,
 )
 from pmalab.identify.estimation.records import TARE_NOTE, predict_record, scored_from
-from pmalab.identify.estimation.single import FitResult, default_fixed_notes, fit_run
+from pmalab.identify.estimation.single import (
+    FitResult,
+    default_fixed_notes,
+    fit_run,
+    remember_base_fits,
+    with_new_base_fits,
+)
 from pmalab.identify.messages import detail, note, prefixed
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
@@ -283,20 +289,7 @@ def _fit_task(args: tuple) -> FitResult:
 def _fit_task_remembering(args: tuple) -> tuple[FitResult, dict]:
     """:func:`_fit_task`, and the base fits it remembered (:func:`map_split`'s child hands
     them back, so the parent holds what fitting in process would hold)."""
-    from pmalab.identify.estimation import single
-
-    before = set(single._BASE_FITS)
-    res = _fit_task(args)
-    return res, {k: v for k, v in single._BASE_FITS.items() if k not in before}
-
-
-def _remember_all(entries: dict) -> None:
-    """Keep base fits a forked child remembered, in its order (those already kept stay)."""
-    from pmalab.identify.estimation import single
-
-    for k, v in entries.items():
-        if k not in single._BASE_FITS:
-            single._remember(k, v)
+    return with_new_base_fits(lambda: _fit_task(args))
 
 
 def _run_meta(run: Run) -> tuple[float, float | None, str]:
@@ -329,7 +322,7 @@ def fit_runs(
         if jobs > 1 and not progress:
             out = []
             for res, remembered in map_split(_fit_task_remembering, tasks):
-                _remember_all(remembered)
+                remember_base_fits(remembered)
                 out.append(res)
         else:
             out = map_tasks(_fit_task, tasks, jobs=1, progress=progress, desc="identify")

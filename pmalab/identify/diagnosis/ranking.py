@@ -341,14 +341,11 @@ def _task_sharing(
     workers made (``task[1]``: each run's base law refined alone, where every model with
     effects starts) and hands back those it made: each is computed once per diagnosis, not
     once per worker.  A base fit is the same numbers whichever process made it."""
-    from pmalab.identify.campaign.fit import _remember_all
-    from pmalab.identify.estimation import single
+    from pmalab.identify.estimation.single import remember_base_fits, with_new_base_fits
 
     spec, known = task
-    _remember_all(known)
-    before = set(single._BASE_FITS)
-    out = _task(runs, spec)
-    return out, {k: v for k, v in single._BASE_FITS.items() if k not in before}
+    remember_base_fits(known)
+    return with_new_base_fits(lambda: _task(runs, spec))
 
 
 def score_all(

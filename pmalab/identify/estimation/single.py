@@ -38,9 +38,9 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -348,6 +348,7 @@ def _flag_pairs(names: list[str], corr: np.ndarray) -> list[tuple[str, str, floa
 #: on one campaign (and an identify of the base model before) computes it once per run
 _BASE_FITS: dict[tuple, dict[str, float]] = {}
 _BASE_FITS_MAX = 512
+_R = TypeVar("_R")
 
 
 def _base_key(model: ForceModel, sig: Signals, force: np.ndarray, fixed: dict[str, float]) -> tuple:
@@ -361,6 +362,22 @@ def _remember(key: tuple, theta: dict[str, float]) -> None:
     if len(_BASE_FITS) >= _BASE_FITS_MAX:
         _BASE_FITS.pop(next(iter(_BASE_FITS)))
     _BASE_FITS[key] = dict(theta)
+
+
+def remember_base_fits(entries: dict) -> None:
+    """Keep base fits another process made (:func:`with_new_base_fits`), in their order;
+    those already kept stay."""
+    for k, v in entries.items():
+        if k not in _BASE_FITS:
+            _remember(k, v)
+
+
+def with_new_base_fits(fn: Callable[[], _R]) -> tuple[_R, dict]:
+    """``fn()``, and the base fits it remembered: what a worker or forked child hands back
+    so another process need not compute them again (the same numbers whoever made them)."""
+    before = set(_BASE_FITS)
+    out = fn()
+    return out, {k: v for k, v in _BASE_FITS.items() if k not in before}
 
 
 def _fit_once(
