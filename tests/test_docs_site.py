@@ -38,9 +38,20 @@ def _env() -> dict[str, str]:
 
 
 def _mkdocs(config: Path, site: Path) -> subprocess.CompletedProcess:
+    """``mkdocs build --strict``, run at the lowest priority (nice 19, with every command
+    it runs): the build makes its tutorial units several processes at once, and the suite
+    starts it beside the other worker's real-time and emulator tests (conftest's
+    ``LONGEST_FIRST``), which mostly wait.  At nice 19 the build takes the cores those
+    tests leave idle, and gives them back the moment a recording wakes up, so the
+    recordings run as on an idle machine.  The build's output is the same at any
+    priority."""
     return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
                            str(config), "-d", str(site)], cwd=ROOT, capture_output=True,
-                          text=True, env=_env(), timeout=1800)
+                          text=True, env=_env(), timeout=1800, preexec_fn=_lowest_priority)
+
+
+def _lowest_priority() -> None:
+    os.nice(19)
 
 
 def _tracked_state() -> str:
