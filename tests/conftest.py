@@ -39,8 +39,8 @@ threadpool_limits(limits=1, user_api="blas")
 #: end, on one core.  Three rules shape it:
 #:
 #: * **The docs build first** (the first worker): one test of ~2 min that makes its
-#:   tutorial units several processes at once, at the lowest priority (test_docs_site's
-#:   ``_mkdocs``).  xdist hands that worker a second file at once (the docs file holds two
+#:   tutorial units several processes at once, at a lower priority (nice 10: test_docs_site's
+#:   ``_lower_priority``).  xdist hands that worker a second file at once (the docs file holds two
 #:   tests), test_diagnosis_invariant, which it runs after the build.
 #: * **The wheel second**: the second worker starts with it.  Its commands run the
 #:   installed wheel's code, whose compiled laws are cached apart from the checkout's
@@ -50,8 +50,8 @@ threadpool_limits(limits=1, user_api="blas")
 #:   copy (~6 CPU-s of a cold run).
 #: * **Then the files that mostly wait** (:data:`WAITING`: real-time recordings against
 #:   emulated devices), on the second worker while the docs build still runs: they leave
-#:   most of their core idle, and the build, at nice 19, takes it and gives it back the
-#:   moment a recording wakes.  Beside a one-process file they idled ~40 core-s of the
+#:   most of their core idle, and the build, at nice 10, takes it and gives it back the
+#:   moment a recording or an emulator wakes.  Beside a one-process file they idled ~40 core-s of the
 #:   run; by then the simulator is in the cache (no recording waits for a compile).
 #:
 #: test_reports_laws is not listed: it reads the laws test_laws_elements makes
