@@ -47,6 +47,7 @@ when the identification runs share one frequency and both grow with the rate of 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -121,6 +122,9 @@ class Scored:
     #: predicting the identified model without its last effect (:attr:`without_last`)
     #: raised: what and where ("" when it did not); the fall cannot then be credited
     without_error: str = ""
+    #: CPU seconds the identification and its scoring took in the process that ran it (what
+    #: the ladder orders later rounds by; in no output)
+    seconds: float = field(default=0.0, repr=False, compare=False)
 
     @property
     def mean(self) -> float:
@@ -134,13 +138,19 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     leave-one-pressure-out algebra of the joint fit is small and slower threaded)."""
     from pmalab.identify.estimation.solver import one_blas_thread
 
+    start = time.process_time()
     with one_blas_thread():
         try:
             cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
         except MemoryError:
             raise
         except Exception as exc:  # a candidate that fails is that candidate's failure
-            return Scored(tuple(spec.effects), [math.nan] * len(held), error=raised(exc))
+            return Scored(
+                tuple(spec.effects),
+                [math.nan] * len(held),
+                error=raised(exc),
+                seconds=time.process_time() - start,
+            )
         try:
             without, without_error = _without_last(cf, spec, held), ""
         except MemoryError:
@@ -176,6 +186,7 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         None if getattr(cf, "structure", None) is None else dict(cf.structure.as_json()),
         without,
         without_error=without_error,
+        seconds=time.process_time() - start,
     )
 
 
