@@ -4,6 +4,7 @@ loop, and a diagnosis's scores stay those of one process, bit for bit."""
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import time
 import warnings
@@ -13,10 +14,11 @@ import pytest
 from identify_synth import make_run
 
 from pmalab.identify.campaign import ModelSpec, sharing
-from pmalab.identify.campaign.batch import ContextPool
+from pmalab.identify.campaign.batch import START_METHOD_ENV, ContextPool
 from pmalab.identify.diagnosis.ladder import cost_order
 from pmalab.identify.diagnosis.ranking import score_all
 
+METHODS = [m for m in ("fork", "forkserver", "spawn") if m in multiprocessing.get_all_start_methods()]
 #: tasks in the long batch (each sleeps, so a loaded machine still runs the helper in time)
 N_TASKS = 40
 
@@ -71,7 +73,11 @@ def test_outside_a_pool_it_is_the_plain_loop():
     assert [str(m.message) for m in caught] == ["task 1", "task 2", "task 3"]
 
 
-def test_an_idle_worker_takes_part_of_a_batch_with_the_same_results():
+@pytest.mark.parametrize("method", METHODS)
+def test_an_idle_worker_takes_part_of_a_batch_with_the_same_results(method, monkeypatch):
+    """Under every start method (the shared queues, pipes and counters travel to the
+    workers as the pool's initializer arguments)."""
+    monkeypatch.setenv(START_METHOD_ENV, method)
     with ContextPool(("context",), jobs=2) as pool:
         (got, seen, owner), (empty, _, _) = pool.map(_when_a_sibling_waits, [N_TASKS, 0])
         helped = pool.helped
