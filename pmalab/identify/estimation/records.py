@@ -134,6 +134,7 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
         a=cat(sig.a),
         p=cat(sig.p),
         x_raw=cat(sig.x_raw),
+        x_slide=None if sig.x_slide is None else cat(sig.x_slide),
         t_ref=sig.reference_time,
     )
     return aug, P
@@ -144,6 +145,7 @@ def fit_record_params(
     z: np.ndarray,
     max_nfev: int = RECORD_NFEV,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    rows_kept: np.ndarray | None = None,
 ) -> np.ndarray:
     """z with every run's record parameters fitted, the shared parameters held.
 
@@ -178,18 +180,19 @@ def fit_record_params(
         for j, n in enumerate(prob.run_params):
             if n in prior:
                 rows.append((j, *prior[n]))
-    e0 = prob.residual(z)
+    sel = slice(None) if rows_kept is None else rows_kept
+    e0 = prob.residual(z)[sel]
     scale = float(np.sqrt(np.mean(e0**2))) if e0.size else 1.0
     scale = scale if np.isfinite(scale) and scale > 0 else 1.0
 
     def f(h: np.ndarray) -> np.ndarray:
-        e = prob.residual(np.concatenate([z[:k], h]))
+        e = prob.residual(np.concatenate([z[:k], h]))[sel]
         if not rows:
             return e
         return np.concatenate([e, [scale * (h[j] - mu) / sd for j, mu, sd in rows]])
 
     def jf(h: np.ndarray) -> np.ndarray:
-        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[sel, k:]
         if not rows:
             return J
         P = np.zeros((len(rows), J.shape[1]))
@@ -211,6 +214,7 @@ def estimate_record(
     theta: Mapping[str, float],
     bounds: Mapping[str, tuple[float, float]] | None = None,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    rows_kept: np.ndarray | None = None,
 ) -> dict[str, float]:
     """``theta`` with the record parameters fitted on this record (muscle parameters held).
 
@@ -253,7 +257,22 @@ def estimate_record(
         c1, c2 = _cost(prob, z), _cost(prob2, z2)
         if c2 < (1.0 - BRANCH_GAIN) ** 2 * c1:
             alt.update({n: v[0] for n, v in prob2.run_values(z2).items()})
-            return alt
+            th = alt
+    rest = [n for n in names if n != "h0"]
+    if rest and rows_kept is not None:
+        prob3 = Problem(
+            model,
+            [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
+            free=[],
+            degree={},
+            constants={k: v for k, v in th.items() if k not in rest},
+            bounds=b,
+            run_params=rest,
+        )
+        z3 = fit_record_params(
+            prob3, prob3.z_from({}, {n: [th[n]] for n in rest}), prior=pr, rows_kept=rows_kept
+        )
+        th.update({n: v[0] for n, v in prob3.run_values(z3).items()})
     return th
 
 
@@ -312,4 +331,23 @@ def predict_record(
     assert force is not None  # "estimate" without a force became "burn-in" above
     m = calibration_samples(sig)
     f = np.asarray(force, dtype=np.float64)
-    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior))
+    keep = _w42_rows(model, sig, m)
+    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior, keep))
+
+
+def _w42_rows(model, sig, m):
+    import os
+
+    mode = os.environ.get("PMALAB_W42", "")
+    if not mode or m >= sig.t.shape[0]:
+        return None
+    if mode.startswith("elem") and model.law.state_size <= 1:
+        return None
+    xr = sig.x[m:]
+    lo, hi = float(np.min(xr)), float(np.max(xr))
+    tol = float(os.environ.get("PMALAB_W42_TOL", "0")) * (hi - lo)
+    x = sig.x[:m]
+    keep = np.flatnonzero((x >= lo - tol) & (x <= hi + tol))
+    if keep.size < float(os.environ.get("PMALAB_W42_MIN", "0.25")) * m or keep.size == m:
+        return None
+    return keep
