@@ -5,7 +5,10 @@ noise dominates the per-sample increments (at 0.15 Hz the true increment is a fe
 the accumulated |dx| is mostly noise and h is biased toward zero.  We therefore drive every
 law with a zero-phase (forward-backward Butterworth) filtered position whose cut-off sits
 well above the excitation frequency: the filter removes the noise without shifting the loop
-in time (no phase lag, so no fake loop width).
+in time (no phase lag, so no fake loop width).  The elasto-slide laws (Maxwell-slip,
+Prandtl-Ishlinskii) are driven by a narrower band (:func:`slide_cutoff_Hz`, ``x_slide``):
+their stiff small elements pass the position noise left in the wide band to the force
+through their stiffness while they stick.
 
 Velocity and acceleration come from ONE estimator (:func:`derivatives`), used by every
 effect that needs them (viscous friction, inertia, rate-dependent terms) in identification,
@@ -133,11 +136,8 @@ def slide_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
     turn 0.01 mm of position noise left in the 60× band into 1–3 N of force noise, as
     large as a load cell's.  A scalar-state law (Bouc-Wen, Duhem) saturates toward its
     branch and keeps the 60× band."""
-    import os
-
-    mult = float(os.environ.get("PMALAB_W42_SLIDE", SLIDE_CUTOFF_MULTIPLE))
     f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else 0.5
-    band = max(mult * f, min(CUTOFF_MULTIPLE * f, SLIDE_REVERSAL_HZ))
+    band = max(SLIDE_CUTOFF_MULTIPLE * f, min(CUTOFF_MULTIPLE * f, SLIDE_REVERSAL_HZ))
     return float(min(max(band, 5.0), sample_rate_Hz / 5.0, default_cutoff_Hz(sample_rate_Hz, f)))
 
 
