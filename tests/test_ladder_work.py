@@ -170,3 +170,42 @@ def test_the_ladders_runs_have_their_signals_kept_while_it_climbs(monkeypatch):
     with pytest.raises(RuntimeError):
         ladder.run_ladder(train, held, "bouc-wen", ["viscous-friction"])  # pyright: ignore[reportArgumentType]
     assert not signals._KEPT_RUNS
+
+
+def test_a_base_that_diverged_on_a_run_claims_nothing_there_and_says_so(monkeypatch):
+    # the base identification fails on the 2 Hz held-out run (its prediction diverges,
+    # counted at 10); inertia and the duhem law predict it and change the other run by
+    # 1-2 %: neither is claimed, the ladder's base step and the summary name the run
+    from pmalab.identify.diagnosis.diagnose import _summary
+
+    labels = ["hold-0.5Hz", "hold-2Hz"]
+    nrmse = {
+        ("bouc-wen", ()): ([0.130, 10.0], ["hold-2Hz"]),
+        ("bouc-wen", ("inertia",)): ([0.128, 0.05], []),
+        ("duhem", ()): ([0.129, 0.04], []),
+    }
+
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None,
+                  base_fits=None):
+        return [Scored(s.effects, nrmse[(s.law, s.effects)][0],
+                       diverged=nrmse[(s.law, s.effects)][1], labels=labels) for s in specs]
+
+    monkeypatch.setattr(ladder, "score_all", score_all)
+    monkeypatch.setattr(ladder, "heldout_floor", lambda r: 0.022)
+    climbed = ladder.run_ladder(
+        [SimpleNamespace(frequency=None)],  # pyright: ignore[reportArgumentType]
+        labels,  # pyright: ignore[reportArgumentType]  (never read)
+        "bouc-wen",
+        ["inertia"],
+        laws=["duhem"],
+    )
+    assert climbed.stop == "nothing significant" and len(climbed.steps) == 1
+    (r,) = climbed.rounds
+    assert not r.candidates[0].significant and not r.laws[0].significant
+    assert r.candidates[0].as_json()["left_out"] == ["hold-2Hz"]
+    base = climbed.steps[0].as_json()
+    assert base["diverged"] == ["hold-2Hz"]
+    text, verdict = _summary("bouc-wen", [base], [r.candidates[0].as_json()], [], 0.022, None,
+                             "", "given", [0.022, 0.022])
+    assert "diverged on hold-2Hz" in text and "no evidence for any candidate" in text
+    assert verdict == "unexplained"

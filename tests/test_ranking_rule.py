@@ -144,3 +144,45 @@ def test_an_effect_the_ladder_added_is_never_called_not_claimed():
     left_out = {**row, "significant": False, "ladder_step": None}
     (words,) = _not_carried([left_out])
     assert words.startswith("viscous-friction cut the validation error by 0.60 noise floors")
+
+
+def test_a_run_the_current_model_diverged_on_is_no_evidence_for_any_candidate():
+    # the break-away look-alike with a failed base fit: the base model predicts the 0.5 Hz
+    # run at 0.130 and diverges on the 2 Hz run (counted at DIVERGED_NRMSE = 10).  Any
+    # candidate that predicts the 2 Hz run at all then "falls" by ~10 there — credited as
+    # its own, that claimed inertia.  Judged on the run the base did predict, a 1 % change
+    # is no effect.
+    base = Scored(effects=(), nrmse=[0.130, 10.0], diverged=["hold-2Hz"],
+                  labels=["hold-0.5Hz", "hold-2Hz"])
+    mass = Scored(("inertia",), [0.1287, 0.05], labels=["hold-0.5Hz", "hold-2Hz"])
+    floors = [0.022, 0.022]
+    c = Candidate("inertia", base, mass, floors=floors)
+    assert c.evidence == [0] and c.left_out == ["hold-2Hz"]
+    assert c.nrmse_before == pytest.approx(0.130) and c.nrmse_after == pytest.approx(0.1287)
+    assert c.fall == pytest.approx(0.01, abs=1e-9)
+    assert c.gain_x_floor == pytest.approx(0.0013 / 0.022)
+    assert not judge([c])[0][0].significant
+    assert c.as_json()["left_out"] == ["hold-2Hz"]
+    # the same numbers with the base predicting the 2 Hz run (not diverged) are a claim:
+    # the rule itself is unchanged
+    fine = Scored(effects=(), nrmse=[0.130, 0.10], labels=["hold-0.5Hz", "hold-2Hz"])
+    d = Candidate("inertia", fine, mass, floors=floors)
+    assert d.evidence == [0, 1] and judge([d])[0][0].significant
+    assert "left_out" not in d.as_json()
+
+
+def test_a_real_fall_on_the_runs_the_base_predicted_is_still_claimed():
+    # three held-out runs, the base diverges on one: a candidate that falls well on both
+    # others is judged on those two, by the same rule
+    base = Scored(effects=(), nrmse=[0.040, 10.0, 0.047], diverged=["b"], labels=["a", "b", "c"])
+    good = Scored(("viscous-friction",), [0.020, 0.03, 0.024])
+    weak = Scored(("sensor-delay",), [0.021, 0.03, 0.048])  # rises on run c
+    floors = [0.0035] * 3
+    cands, _ = judge([Candidate(e.effects[0], base, e, floors=floors) for e in (good, weak)])
+    assert [c.effect for c in cands] == ["viscous-friction", "sensor-delay"]
+    assert cands[0].significant and not cands[1].significant
+    assert cands[0].fall == pytest.approx(1 - (0.020 + 0.024) / (0.040 + 0.047))
+    # a base that diverged on every held-out run leaves nothing to judge on
+    lost = Scored(effects=(), nrmse=[10.0, 10.0, 10.0], diverged=["a", "b", "c"])
+    c = Candidate("viscous-friction", lost, good, floors=floors)
+    assert c.evidence == [] and c.fall == 0.0 and not judge([c])[0][0].significant

@@ -403,6 +403,9 @@ class RankingEntry(TypedDict):
     per_run_before: NotRequired[list[float | None]]
     per_run_after: NotRequired[list[float | None] | None]
     diverged: NotRequired[list[Any]]
+    #: held-out runs left out of the evidence: the model scored against diverged there
+    #: (present only when there are such runs)
+    left_out: NotRequired[list[str]]
     title: NotRequired[str]
     explanation: NotRequired[str]
     signature: NotRequired[str]
@@ -432,6 +435,9 @@ class LadderEntry(TypedDict):
     switched_law: NotRequired[str | None]
     per_run: NotRequired[list[float | None]]
     model: NotRequired[str]
+    #: held-out runs on which the step's prediction diverged (present only when there are
+    #: such runs; they are no evidence for the next step's candidates)
+    diverged: NotRequired[list[str]]
 
 
 class LawEntry(TypedDict):
@@ -450,6 +456,8 @@ class LawEntry(TypedDict):
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
     per_run_after: NotRequired[list[float | None] | None]
+    #: held-out runs left out of the evidence (see ``RankingEntry.left_out``)
+    left_out: NotRequired[list[str]]
     #: the pressure structure the law's elements took (``free`` | ``scaled`` |
     #: ``scaled-thresholds``), chosen by leave-one-pressure-out held-out error; absent for
     #: a law without structures

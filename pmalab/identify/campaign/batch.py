@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from pmalab.arguments import DEFAULT_JOBS
@@ -96,6 +97,15 @@ def keep_freed_memory() -> bool:
     mallopt.argtypes = (ctypes.c_int, ctypes.c_int)
     mallopt.restype = ctypes.c_int
     return all(mallopt(p, v) == 1 for p, v in _KEEP_MALLOC)
+
+
+def _init_kept_worker(context: Any, sharing: Any) -> None:
+    """A :class:`ContextPool` worker's initializer: :func:`_init_worker`, and a slot among
+    the workers that share their batches (:func:`~pmalab.identify.campaign.sharing.attach`)."""
+    from pmalab.identify.campaign.sharing import attach
+
+    _init_worker(context)
+    attach(sharing, context)
 
 
 def _call_in_context(fn: Callable[[Any, Any], Any], task: Any) -> Any:
@@ -321,6 +331,8 @@ class ContextPool:
     def __init__(self, context: Any, jobs: int = DEFAULT_JOBS) -> None:
         self.context, self.jobs = context, jobs
         self._ex: Any = None
+        self._sharing: Any = None
+        self._lent: _Helpers | None = None
 
     def map(
         self,
@@ -348,7 +360,16 @@ class ContextPool:
 
         bar = _bar(len(tasks), desc, progress)
         try:
-            return _collect(ex, partial(_call_in_context, fn), tasks, bar)
+            return _collect_fed(
+                ex,
+                partial(_call_in_context, fn),
+                tasks,
+                None,
+                None,
+                len(tasks),
+                bar,
+                self._helpers(),
+            )
         finally:
             bar.close()
 
@@ -376,23 +397,55 @@ class ContextPool:
                 return out
             ex = self._executor()
             return _collect_fed(
-                ex, partial(_call_in_context, fn), tasks, fed, done, self.jobs + 1, bar
+                ex,
+                partial(_call_in_context, fn),
+                tasks,
+                fed,
+                done,
+                self.jobs + 1,
+                bar,
+                self._helpers(),
             )
         finally:
             bar.close()
 
     def _executor(self) -> Any:
-        """The pool's executor, its workers started on first use."""
+        """The pool's executor, its workers started on first use (each holding the context
+        and the objects through which it shares batches with an idle sibling,
+        :mod:`~pmalab.identify.campaign.sharing`)."""
         if self._ex is None:
+            import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
+            from pmalab.identify.campaign.sharing import new_sharing
+
+            ctx = _mp_context() or multiprocessing.get_context()
+            self._sharing = new_sharing(ctx, self.jobs)
             self._ex = ProcessPoolExecutor(
                 max_workers=self.jobs,
-                mp_context=_mp_context(),
-                initializer=_init_worker,
-                initargs=(self.context,),
+                mp_context=ctx,
+                initializer=_init_kept_worker,
+                initargs=(self.context, self._sharing),
             )
         return self._ex
+
+    def _helpers(self) -> _Helpers:
+        """How :func:`_collect_fed` puts this pool's idle workers to work on their
+        siblings' batches (the tasks they ran are added to :attr:`helped`)."""
+        from functools import partial
+
+        from pmalab.identify.campaign.sharing import help_siblings
+
+        self._lent = _Helpers(
+            self.jobs, partial(_call_in_context, help_siblings), self._sharing.stop
+        )
+        return self._lent
+
+    @property
+    def helped(self) -> int:
+        """Tasks of its batches a worker ran for a sibling in this pool's last map
+        (:mod:`~pmalab.identify.campaign.sharing`)."""
+        return self._lent.ran if self._lent is not None else 0
 
     def close(self) -> None:
         """Shut the workers down (queued tasks cancelled)."""
@@ -425,6 +478,19 @@ def _collect(ex: Any, fn: Callable[[T], R], tasks: list[T], bar: Any) -> list[R]
     return _collect_fed(ex, fn, tasks, None, None, max(len(tasks), 1), bar)
 
 
+@dataclass
+class _Helpers:
+    """A kept pool's way to lend its idle workers to their siblings' batches
+    (:mod:`~pmalab.identify.campaign.sharing`): ``workers`` processes; ``task`` the pool
+    task that makes a worker a helper (it returns how many tasks it ran); ``stop(n)``
+    stops ``n`` helpers; ``ran`` counts the tasks helpers ran."""
+
+    workers: int
+    task: Callable[[Any], int]
+    stop: Callable[[int], None]
+    ran: int = 0
+
+
 def _collect_fed(
     ex: Any,
     fn: Callable[[Any], R],
@@ -433,15 +499,20 @@ def _collect_fed(
     done: Callable[[R], None] | None,
     ahead: int,
     bar: Any,
+    helpers: _Helpers | None = None,
 ) -> list[R]:
     """Submit the tasks to the executor ``ex`` at most ``ahead`` at a time, each as
     ``fed(t)`` made when it is submitted (``t`` itself without ``fed``); each result goes
     to ``done`` as it arrives; results in task order (a failure cancels the tasks not
-    started and is re-raised)."""
+    started and is re-raised).
+
+    ``helpers``: once every task is handed out, each worker left without one is made a
+    helper of the others (they share their batches with it) until the tasks are done."""
     from concurrent.futures import FIRST_COMPLETED, wait
 
     out: list[Any] = [None] * len(tasks)
     pending: dict[Any, int] = {}
+    helping: list[Any] = []
     nxt = 0
     try:
         while pending or nxt < len(tasks):
@@ -449,6 +520,9 @@ def _collect_fed(
                 t = tasks[nxt]
                 pending[ex.submit(fn, t if fed is None else fed(t))] = nxt
                 nxt += 1
+            if helpers is not None and nxt == len(tasks):
+                while pending and len(pending) + len(helping) < helpers.workers:
+                    helping.append(ex.submit(helpers.task, None))
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for f in sorted(finished, key=pending.__getitem__):
                 i = pending.pop(f)
@@ -460,6 +534,11 @@ def _collect_fed(
         for f in pending:
             f.cancel()
         raise
+    finally:
+        if helpers is not None and helping:
+            helpers.stop(len(helping))
+            wait(helping)
+            helpers.ran += sum(f.result() for f in helping if not f.exception())
     return out
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign.batch import map_split, map_tasks
 from pmalab.identify.campaign.pressure import PressureFit, fit_quadratic, weighted_r2
+from pmalab.identify.campaign.sharing import map_shared, sharing_here
 from pmalab.identify.estimation.joint import JointFit, evaluate, prepare, refine, start_laws
 from pmalab.identify.estimation.output_error import (
     OutputErrorFit,
@@ -292,6 +293,19 @@ def _fit_task_remembering(args: tuple) -> tuple[FitResult, dict]:
     return with_new_base_fits(lambda: _fit_task(args))
 
 
+def _fit_here(tasks: list[tuple], progress: bool) -> list[FitResult]:
+    """:func:`_fit_task` on every task in this process — or, in a kept pool's worker whose
+    sibling waits for work, partly in that sibling (:func:`map_shared`: the same results,
+    and the base fits it made kept here as if made here)."""
+    if progress or not sharing_here():
+        return map_tasks(_fit_task, tasks, jobs=1, progress=progress, desc="identify")
+    out = []
+    for res, remembered in map_shared(_fit_task_remembering, tasks):
+        remember_base_fits(remembered)
+        out.append(res)
+    return out
+
+
 def _run_meta(run: Run) -> tuple[float, float | None, str]:
     return run.nominal_pressure, run.frequency, str(run.attrs.get("waveform", ""))
 
@@ -325,7 +339,9 @@ def fit_runs(
                 remember_base_fits(remembered)
                 out.append(res)
         else:
-            out = map_tasks(_fit_task, tasks, jobs=1, progress=progress, desc="identify")
+            out = _fit_here(tasks, progress)
+    elif jobs <= 1 and not scheduler:
+        out = _fit_here(tasks, progress)
     else:
         out = map_tasks(
             _fit_task, tasks, jobs=jobs, scheduler=scheduler, progress=progress, desc="identify"

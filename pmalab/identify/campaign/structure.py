@@ -554,12 +554,15 @@ def _refine_start(args: tuple):
 def _refine_all(tasks: Sequence[tuple], jobs: int) -> list:
     """:func:`_refine_start` on every task, on two cores when ``jobs`` > 1 (a forked child
     takes half: :func:`~pmalab.identify.campaign.batch.map_split`; it falls back to this
-    process wherever forking is not safe or the child fails)."""
+    process wherever forking is not safe or the child fails); with one job, in a kept
+    pool's worker, an idle sibling may take some
+    (:func:`~pmalab.identify.campaign.sharing.map_shared`; the same results)."""
     from pmalab.identify.campaign.batch import map_split
+    from pmalab.identify.campaign.sharing import map_shared
 
     if jobs > 1 and len(tasks) > 1:
         return map_split(_refine_start, tasks, first_here=0)
-    return [_refine_start(t) for t in tasks]
+    return map_shared(_refine_start, tasks)
 
 
 def _refine_gated(

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,6 +44,7 @@ from pmalab.identify.diagnosis.ladder import (
 )
 from pmalab.identify.diagnosis.ranking import (
     AMBIGUITY_RATIO,
+    DIVERGED_NRMSE,
     MIN_BLOCK_T,
     MIN_GAIN_X_FLOOR,
     alike,
@@ -493,8 +495,27 @@ def _summary(
         f"Base {model} model: validation nrmse {base['nrmse']:.4f} "
         f"({base['nrmse'] / floor:.1f}× the noise floor {floor:.4f}; {scheme})."
     ]
+    if div := base.get("diverged"):
+        every = len(div) == len(base.get("per_run") or div)
+        parts.append(
+            f"Its held-out prediction diverged on {', '.join(div)} (counted at nrmse "
+            f"{DIVERGED_NRMSE:g}): the {model} identification does not hold there, so "
+            + (
+                "no held-out run is left to judge a candidate on."
+                if every
+                else f"{'that run is' if len(div) == 1 else 'those runs are'} no evidence "
+                "for any candidate (each is judged on the other runs)."
+            )
+        )
     if len(ladder) == 1:
-        best = next((r for r in ranking if r.get("status") != "failed"), None)
+        best = next(
+            (
+                r
+                for r in ranking
+                if r.get("status") != "failed" and math.isfinite(r.get("nrmse_before", math.nan))
+            ),
+            None,
+        )
         parts.append(
             "No catalogue effect cuts the validation error significantly"
             + (
@@ -773,6 +794,7 @@ def diagnose(
             "runs_improved": None if c.after.error else float(c.runs_improved),
             "significant": bool(c.significant),
             "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
+            **({"left_out": c.left_out} if c.left_out else {}),
             # how the law's elements change with pressure, chosen by the identification's
             # own leave-one-pressure-out evidence (None: the law offers no structures)
             **_structure_keys(c.after.structure),

@@ -28,7 +28,7 @@ then by number of effects), so two workers finish a round together.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -92,6 +92,8 @@ class LadderStep:
             "fit_percent": float(self.fit_percent),
             "per_run": [float(v) for v in self.scored.nrmse],
             "model": "+".join(self.effects) or "base",
+            # runs its prediction diverged on: no evidence for the next step's candidates
+            **({"diverged": list(self.scored.diverged)} if self.scored.diverged else {}),
         }
 
 
@@ -131,13 +133,22 @@ def one_frequency(train: Sequence[Run]) -> float | None:
     return distinct.pop() if len(distinct) == 1 else None
 
 
-def cost_order(specs: Sequence[ModelSpec]) -> list[int]:
+def cost_order(specs: Sequence[ModelSpec], seconds: Mapping[str, float] | None = None) -> list[int]:
     """Indices of ``specs``, the dearest identification first: a law with pressure
-    structures (which fits each structure) before one without, then more effects first."""
+    structures (which fits each structure) before one without, then the dearer the
+    identification that last added the same effect (``seconds``: effect id → CPU seconds it
+    took, measured in an earlier round; a delay makes every fit dearer, whatever the law),
+    then more effects first."""
+    took = seconds or {}
 
-    def cost(i: int) -> tuple[int, int]:
+    def cost(i: int) -> tuple[int, float, int]:
         law = LAWS.get(specs[i].law)
-        return (1 if law is not None and law.structures else 0, len(specs[i].effects))
+        last = specs[i].effects[-1] if specs[i].effects else ""
+        return (
+            1 if law is not None and law.structures else 0,
+            took.get(last, 0.0),
+            len(specs[i].effects),
+        )
 
     return sorted(range(len(specs)), key=cost, reverse=True)
 
@@ -163,6 +174,9 @@ class Scorer:
         #: the base-law fits the workers made, handed to every later round's candidates
         #: (:func:`~pmalab.identify.diagnosis.ranking.score_all`)
         self.base_fits: dict = {}
+        #: effect id → CPU seconds of the latest identification whose last effect it is: a
+        #: later round starts the candidates adding the dearest effects first (cost_order)
+        self.seconds: dict[str, float] = {}
 
     def close(self) -> None:
         """Shut the workers kept across the rounds down."""
@@ -173,7 +187,7 @@ class Scorer:
         self, specs: Sequence[ModelSpec], desc: str, first: ModelSpec | None = None
     ) -> list[Scored]:
         todo = list(dict.fromkeys(s for s in specs if s not in self.done))
-        order = [todo[i] for i in cost_order(todo)]
+        order = [todo[i] for i in cost_order(todo, self.seconds)]
         if first in order:
             # handed out before the rest (see run_ladder)
             order.remove(first)
@@ -190,6 +204,7 @@ class Scorer:
             base_fits=self.base_fits,
         )
         self.done.update(zip(order, outs))
+        self.seconds.update((s.effects[-1], o.seconds) for s, o in zip(order, outs) if s.effects)
         self.count += len(order)
         return [self.done[s] for s in specs]
 

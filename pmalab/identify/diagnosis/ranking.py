@@ -20,7 +20,12 @@ A candidate whose identification *failed* — a held-out prediction diverged, th
 error rose by more than ``FAILED_FALL`` (a converged fit with more freedom cannot lose that
 much), the per-run ratios scatter more than the fall they average, or the new parameters
 sit on their bounds on most runs while the error rises — is listed as "fit failed: why",
-never ranked by its fall and never significant (:meth:`Candidate.failure`).
+never ranked by its fall and never significant (:meth:`Candidate.failure`).  A held-out run
+on which the *current* model's prediction diverged (or ran off to ``DIVERGED_NRMSE``) has no
+error to fall from: it is left out of every candidate's evidence (:attr:`Candidate.evidence`)
+— fall, gain, every-run and block tests are taken over the other runs — and named in the
+diagnosis; a candidate that merely predicts where a failed identification did not would
+otherwise be credited with a fall of ~``DIVERGED_NRMSE``.
 
 Significance is decided in the units of the held-out evidence itself (docs/explanation/
 significance.md): an effect is *significant* when the held-out error falls on every
@@ -47,6 +52,7 @@ when the identification runs share one frequency and both grow with the rate of 
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -121,6 +127,11 @@ class Scored:
     #: predicting the identified model without its last effect (:attr:`without_last`)
     #: raised: what and where ("" when it did not); the fall cannot then be credited
     without_error: str = ""
+    #: the held-out runs' labels, in their order (empty: not recorded)
+    labels: list[str] = field(default_factory=list)
+    #: CPU seconds the identification and its scoring took in the process that ran it (what
+    #: the ladder orders later rounds by; in no output)
+    seconds: float = field(default=0.0, repr=False, compare=False)
 
     @property
     def mean(self) -> float:
@@ -134,13 +145,20 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     leave-one-pressure-out algebra of the joint fit is small and slower threaded)."""
     from pmalab.identify.estimation.solver import one_blas_thread
 
+    start = time.process_time()
     with one_blas_thread():
         try:
             cf, vals, _ = fit_and_validate(list(train), spec, held, jobs=1, pressure_model="joint")
         except MemoryError:
             raise
         except Exception as exc:  # a candidate that fails is that candidate's failure
-            return Scored(tuple(spec.effects), [math.nan] * len(held), error=raised(exc))
+            return Scored(
+                tuple(spec.effects),
+                [math.nan] * len(held),
+                error=raised(exc),
+                labels=[r.label for r in held],
+                seconds=time.process_time() - start,
+            )
         try:
             without, without_error = _without_last(cf, spec, held), ""
         except MemoryError:
@@ -176,6 +194,8 @@ def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
         None if getattr(cf, "structure", None) is None else dict(cf.structure.as_json()),
         without,
         without_error=without_error,
+        labels=[r.label for r in held],
+        seconds=time.process_time() - start,
     )
 
 
@@ -406,35 +426,69 @@ class Candidate:
     floors: Sequence[float] = ()
 
     @property
+    def evidence(self) -> list[int]:
+        """The held-out runs (indices) that are evidence for or against this candidate:
+        those the current model predicted.  A run on which its prediction diverged or ran
+        off (nrmse not finite or ≥ ``DIVERGED_NRMSE``) has no error to fall from — any
+        candidate that predicts there at all would show a fall of ~``DIVERGED_NRMSE``, the
+        current model's failure and not the candidate's evidence — so it is left out of the
+        fall, the gain, the every-run and the block tests (module docstring)."""
+        return [
+            i for i, v in enumerate(self.before.nrmse) if math.isfinite(v) and v < DIVERGED_NRMSE
+        ]
+
+    @property
+    def left_out(self) -> list[str]:
+        """The held-out runs left out of the evidence (:attr:`evidence`), by label."""
+        kept = set(self.evidence)
+        names = self.before.labels or [
+            f"held-out run {i + 1}" for i in range(len(self.before.nrmse))
+        ]
+        return [n for i, n in enumerate(names) if i not in kept]
+
+    def _paired(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(before, after, floors) of the evidence runs; floors empty when not given."""
+        i = self.evidence
+        b = np.asarray(self.before.nrmse, float)[i]
+        a = np.asarray(self.after.nrmse, float)
+        a = a[i] if a.shape == (len(self.before.nrmse),) else a
+        f = np.asarray(self.floors, float)
+        f = f[i] if f.shape == (len(self.before.nrmse),) else f
+        return b, a, f
+
+    @property
     def nrmse_before(self) -> float:
-        return self.before.mean
+        """Mean held-out nrmse of the current model over the evidence runs."""
+        b, _, _ = self._paired()
+        return float(np.mean(b)) if b.size else float("nan")
 
     @property
     def nrmse_after(self) -> float:
-        return self.after.mean
+        """Mean held-out nrmse with the candidate over the evidence runs."""
+        _, a, _ = self._paired()
+        return float(np.mean(a)) if a.size else float("nan")
 
     @property
     def fall(self) -> float:
-        """1 − mean(after)/mean(before): the relative fall the user sees."""
+        """1 − mean(after)/mean(before) over the evidence runs: the relative fall the user
+        sees."""
         b = self.nrmse_before
         return 1.0 - self.nrmse_after / b if b > 0 else 0.0
 
     @property
     def fall_se(self) -> float:
         """Standard error of the fall from the spread of the per-run ratios."""
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
-        if b.size < 2 or np.any(b <= 0):
+        b, a, _ = self._paired()
+        if b.size < 2 or np.any(b <= 0) or a.shape != b.shape:
             return 0.0
         return float(np.std(a / b, ddof=1) / math.sqrt(b.size))
 
     @property
     def gain_x_floor(self) -> float:
         """Mean absolute fall of the held-out nrmse in units of the runs' noise floor."""
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
-        fl = float(np.mean(self.floors)) if len(self.floors) else float("nan")
-        return float(np.mean(b - a) / fl) if b.size and fl > 0 else 0.0
+        b, a, f = self._paired()
+        fl = float(np.mean(f)) if f.size else float("nan")
+        return float(np.mean(b - a) / fl) if b.size and a.shape == b.shape and fl > 0 else 0.0
 
     @property
     def carried(self) -> list[float] | None:
@@ -462,12 +516,11 @@ class Candidate:
         c = self.carried
         if c is None:
             return self.gain_x_floor
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
-        fl = float(np.mean(self.floors)) if len(self.floors) else float("nan")
+        b, a, f = self._paired()
+        fl = float(np.mean(f)) if f.size else float("nan")
         if not b.size or a.shape != b.shape or not fl > 0:
             return 0.0
-        return float(np.mean(np.minimum(b - a, np.asarray(c, float))) / fl)
+        return float(np.mean(np.minimum(b - a, np.asarray(c, float)[self.evidence])) / fl)
 
     @property
     def block_t(self) -> float:
@@ -481,8 +534,14 @@ class Candidate:
         evidence against the effect (that every run improves is checked apart)."""
         if not self.before.block_mse or len(self.before.block_mse) != len(self.after.block_mse):
             return math.nan
+        kept = self.evidence
+        if not kept:
+            return math.nan
         means, var = [], 0.0
-        for mb, ma, sd in zip(self.before.block_mse, self.after.block_mse, self.after.force_std):
+        for mb, ma, sd in (
+            (self.before.block_mse[i], self.after.block_mse[i], self.after.force_std[i])
+            for i in kept
+        ):
             if mb.shape != ma.shape or sd <= 0 or mb.size < MIN_BLOCKS:
                 return math.nan  # a run too short for blocks: the test is not made
             d = (np.sqrt(mb) - np.sqrt(ma)) / sd
@@ -542,17 +601,15 @@ class Candidate:
 
     @property
     def runs_improved(self) -> float:
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
-        return float(np.mean(a < b)) if b.size else 0.0
+        """Share of the evidence runs on which the held-out error fell."""
+        b, a, _ = self._paired()
+        return float(np.mean(a < b)) if b.size and a.shape == b.shape else 0.0
 
     @property
     def at_floor(self) -> list[bool]:
-        """Per held-out run: at its noise floor without and with the candidate (below
-        ``AT_FLOOR_RATIO``× its own floor both times)."""
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
-        f = np.asarray(self.floors, float)
+        """Per evidence run (:attr:`evidence`): at its noise floor without and with the
+        candidate (below ``AT_FLOOR_RATIO``× its own floor both times)."""
+        b, a, f = self._paired()
         if f.shape != b.shape or a.shape != b.shape:
             return [False] * b.size
         with np.errstate(invalid="ignore"):
@@ -560,15 +617,15 @@ class Candidate:
 
     @property
     def every_run(self) -> bool:
-        """The held-out error falls on every held-out run that is not at its noise floor
-        without and with the candidate (:attr:`at_floor`), and on at least one run.
+        """The held-out error falls on every evidence run (:attr:`evidence`) that is not at
+        its noise floor without and with the candidate (:attr:`at_floor`), and on at least
+        one run.
 
         A run at its floor both times cannot show a fall beyond noise: requiring it to
         improve would make the verdict a coin flip (a tared drift on a 1 s record scored on
         its last 0.5 s: 8 N/s moves the zero by less than the 4 N noise there).  The mean
         gain of ``MIN_GAIN_X_FLOOR`` floors is still taken over every run."""
-        b = np.asarray(self.before.nrmse, float)
-        a = np.asarray(self.after.nrmse, float)
+        b, a, _ = self._paired()
         if not b.size or a.shape != b.shape:
             return False
         fell = a < b
@@ -606,6 +663,8 @@ class Candidate:
             "per_run_before": [float(v) for v in self.before.nrmse],
             "per_run_after": [float(v) for v in self.after.nrmse],
             "diverged": list(self.after.diverged),
+            # held-out runs on which the current model's prediction diverged: no evidence
+            **({"left_out": self.left_out} if self.left_out else {}),
             "title": cls.title if cls else "",
             "explanation": cls.explanation if cls else "",
             "signature": cls.signature if cls else "",
