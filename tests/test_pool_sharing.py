@@ -18,7 +18,9 @@ from pmalab.identify.campaign.batch import START_METHOD_ENV, ContextPool
 from pmalab.identify.diagnosis.ladder import cost_order
 from pmalab.identify.diagnosis.ranking import score_all
 
-METHODS = [m for m in ("fork", "forkserver", "spawn") if m in multiprocessing.get_all_start_methods()]
+#: fork (the default on Linux before Python 3.14) and spawn (a worker inherits nothing: the
+#: most different; forkserver passes its arguments the same way)
+METHODS = [m for m in ("fork", "spawn") if m in multiprocessing.get_all_start_methods()]
 #: tasks in the long batch (each sleeps, so a loaded machine still runs the helper in time)
 N_TASKS = 40
 
