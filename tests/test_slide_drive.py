@@ -99,3 +99,16 @@ def test_the_slide_drive_follows_slices_and_a_delay() -> None:
     s = md.drive(sig, {**THETA, "delay_tau": 0.004})
     assert np.array_equal(s.x, shift_in_time(sig.t, xs, 0.004))
     assert not np.array_equal(s.x, xs)
+
+
+def test_the_slide_drive_is_made_once_and_not_pickled() -> None:
+    import pickle
+
+    t, x = _sine(2.0)
+    xn = x + POS_NOISE_MM * np.random.default_rng(3).standard_normal(t.size)
+    sig = Signals.from_arrays(t, xn, 0.45, p_nom=0.45, frequency_Hz=2.0)
+    d = sig.slide_drive()
+    assert sig.slide_drive() is d  # kept: a fit asks at every prediction
+    copy = pickle.loads(pickle.dumps(sig))
+    assert "_slide_drive" not in copy.__dict__  # a worker's copy makes its own
+    assert np.array_equal(copy.slide_drive().x, d.x) and copy.slide_drive().x_slide is None

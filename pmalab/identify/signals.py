@@ -226,10 +226,19 @@ class Signals:
 
     def slide_drive(self) -> Signals:
         """These signals with ``x_slide`` as the position ``x`` (itself when there is none):
-        what a model with an elasto-slide law is driven by."""
+        what a model with an elasto-slide law is driven by.  Made once per signals object
+        (a fit asks for it at every prediction) and kept beside it, never pickled."""
         if self.x_slide is None:
             return self
-        return replace(self, x=self.x_slide, x_slide=None)
+        got = self.__dict__.get("_slide_drive")
+        if got is None:
+            got = replace(self, x=self.x_slide, x_slide=None)
+            object.__setattr__(self, "_slide_drive", got)  # a cache, not a field
+        return got
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the kept slide drive is derived: a copy sent to a worker makes its own
+        return {k: v for k, v in self.__dict__.items() if k != "_slide_drive"}
 
     @classmethod
     def from_arrays(
