@@ -31,25 +31,46 @@ os.environ.setdefault("PMALAB_JOBS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 threadpool_limits(limits=1, user_api="blas")
 
-#: the longest test files, longest first (summed test time per file of a whole-suite run;
-#: the docs site's cold build is one test of ~2 min).  ``make test`` runs the suite with
-#: ``--dist loadfile --no-loadscope-reorder``: the files are handed to the workers in
-#: collection order, so these start first and the short files fill in around them; a
-#: long file handed out last would run alone at the end, on one core.  test_reports_laws
-#: is not here: it reads the laws test_laws_elements makes (tests/shared_work.py), so it
-#: comes later instead of waiting beside it for them; test_real_data reads what the docs
-#: build made (the import tutorial) and comes late for the same reason.  test_wheel comes
-#: second, so the second worker starts with it: its commands run the installed wheel's
-#: code, whose compiled laws are cached apart from the checkout's (numba keys its cache by
-#: source file), while the docs build's first commands compile the checkout's into the
-#: empty shared cache (NUMBA_CACHE_DIR); with test_diagnosis_invariant there instead, both
-#: workers compiled the same laws and the simulator at once, each its own copy (~6 CPU-s
-#: of a cold run).  xdist hands the first worker a second file at once (the docs file
-#: holds two tests): test_diagnosis_invariant, after the docs build has cached them
+#: the order the test files are handed out in (the rest follow in collection order).
+#: ``make test`` runs the suite with ``--dist loadfile --no-loadscope-reorder``: the files
+#: go to the workers in this order, the first to the first worker, the second to the
+#: second, and whichever worker frees up takes the next.  The long files come early, so
+#: the short ones fill in around them: a long file handed out last would run alone at the
+#: end, on one core.  Three rules shape it:
+#:
+#: * **The docs build first** (the first worker): one test of ~2 min that makes its
+#:   tutorial units several processes at once, at a lower priority (nice 10: test_docs_site's
+#:   ``_lower_priority``).  xdist hands that worker a second file at once (the docs file holds two
+#:   tests), test_diagnosis_invariant, which it runs after the build.
+#: * **The wheel second**: the second worker starts with it.  Its commands run the
+#:   installed wheel's code, whose compiled laws are cached apart from the checkout's
+#:   (numba keys its cache by source file), while the docs build's first commands compile
+#:   the checkout's laws and the simulator into the empty shared cache (NUMBA_CACHE_DIR);
+#:   any other file there would compile the same at the same moment, each process its own
+#:   copy (~6 CPU-s of a cold run).
+#: * **Then the files that mostly wait** (:data:`WAITING`: real-time recordings against
+#:   emulated devices), on the second worker while the docs build still runs: they leave
+#:   most of their core idle, and the build, at nice 10, takes it and gives it back the
+#:   moment a recording or an emulator wakes.  Beside a one-process file they idled ~40 core-s of the
+#:   run; by then the simulator is in the cache (no recording waits for a compile).
+#:
+#: test_reports_laws is not listed: it reads the laws test_laws_elements makes
+#: (tests/shared_work.py), so it comes later instead of waiting beside it for them;
+#: test_real_data reads what the docs build made (the import tutorial) and comes late for
+#: the same reason.
+WAITING = (
+    "test_rig_t7_stream.py",
+    "test_emulate_faults.py",
+    "test_emulate_reduced.py",
+    "test_emulate_run.py",
+    "test_rig_nidaqmx.py",
+    "test_live.py",
+)
 LONGEST_FIRST = (
     "test_docs_site.py",
     "test_wheel.py",
     "test_diagnosis_invariant.py",
+    *WAITING,
     "test_first_hour.py",
     "test_active.py",
     "test_static_identify.py",

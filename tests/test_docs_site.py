@@ -38,9 +38,23 @@ def _env() -> dict[str, str]:
 
 
 def _mkdocs(config: Path, site: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
-                           str(config), "-d", str(site)], cwd=ROOT, capture_output=True,
-                          text=True, env=_env(), timeout=1800)
+    return subprocess.run([*_lower_priority(), sys.executable, "-m", "mkdocs", "build",
+                           "--strict", "-f", str(config), "-d", str(site)], cwd=ROOT,
+                          capture_output=True, text=True, env=_env(), timeout=1800)
+
+
+def _lower_priority() -> list[str]:
+    """Under xdist, the build (and every command it runs) at nice 10.  The build makes its
+    tutorial units several processes at once, and the suite starts it beside the other
+    worker's emulator and real-time tests (conftest's ``WAITING``), which mostly wait: at
+    a lower priority the build takes the core they leave idle and gives it back as soon as
+    a recording or an emulator wakes up, so they keep running as on an idle machine.
+    Not 19: the build runs an emulated rig itself (the rig-file page), which must still
+    answer within its rig file's reply timeout when the other worker keeps both cores
+    busy.  Run alone, the build keeps the priority it was given.  The build's output is
+    the same at any priority."""
+    nice = shutil.which("nice")
+    return [nice, "-n", "10"] if nice and os.environ.get("PYTEST_XDIST_WORKER") else []
 
 
 def _tracked_state() -> str:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -29,6 +30,19 @@ from pmalab.runfile import decode_attr, read_runs
 RIG = RIGS_DIR / "labjack-t7-stream.toml"
 
 
+def _rig(tmp_path) -> Path:
+    """The shipped stream rig with a longer reply timeout: the emulator is a process (or
+    threads) on this machine, and when it is busy it may wait longer for a CPU than a T7
+    takes to answer (the rig file's 0.05 s).  The device's clock stamps the samples, so
+    a late reply changes no stamp, and the scans of a few late replies fit its buffer
+    (16384 samples: ~8 s of four-channel scans at 500 Hz)."""
+    text = RIG.read_text()
+    assert "timeout_s = 0.05 " in text
+    rig = tmp_path / "t7-stream.toml"
+    rig.write_text(text.replace("timeout_s = 0.05 ", "timeout_s = 0.5 "))
+    return rig
+
+
 def test_code_conversion_round_trips_within_one_lsb():
     v = np.linspace(-9.9, 9.9, 2001)
     back = codes_to_volts(volts_to_codes(v))
@@ -37,15 +51,16 @@ def test_code_conversion_round_trips_within_one_lsb():
 
 
 def test_stream_records_on_the_device_clock_with_nothing_missed(tmp_path):
+    rig = _rig(tmp_path)
     port = free_tcp_port()
-    proc = subprocess.Popen([sys.executable, "-m", "pmalab.cli", "emulate", "--rig", str(RIG),
+    proc = subprocess.Popen([sys.executable, "-m", "pmalab.cli", "emulate", "--rig", str(rig),
                              "--port", str(port)], stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
         while "Ctrl-C to stop" not in (line := proc.stdout.readline()):
             assert line, "pmalab emulate did not start"
         out = tmp_path / "x.h5"
-        p = subprocess.run([sys.executable, "-m", "pmalab.cli", "run", "--rig", str(RIG),
+        p = subprocess.run([sys.executable, "-m", "pmalab.cli", "run", "--rig", str(rig),
                             "--port", str(port), "--protocol", "quick", "--out", str(out)],
                            capture_output=True, text=True, timeout=120)
         assert p.returncode == 0, p.stderr
@@ -67,9 +82,9 @@ def test_stream_records_on_the_device_clock_with_nothing_missed(tmp_path):
 def test_an_overflow_in_the_device_is_a_recorded_gap_never_invented_samples(tmp_path):
     protocol = load_protocol("quick")
     out = tmp_path / "gap.h5"
-    with start_emulators(RIG, tcp_port=0, make_links=False) as emus:
+    with start_emulators(_rig(tmp_path), tcp_port=0, make_links=False) as emus:
         port = int(emus.endpoints()[0].rsplit(":", 1)[1])
-        rig = load_rig(RIG, port=port)
+        rig = load_rig(_rig(tmp_path), port=port)
         timer = threading.Timer(3.0, emus.faults.arm, ("stream_overflow", 1))
         timer.start()
         try:
