@@ -104,7 +104,10 @@ def _campaign(slip_exponent: float, kappa: np.ndarray = KAPPA) -> list[Run]:
 
 
 def test_slip_displacements_growing_with_pressure_choose_scaled_thresholds():
-    cf = fit_campaign(_campaign(1.0), "maxwell-slip")
+    # d ∝ p²: over 0.2–0.48 MPa the slip displacements grow 5.8-fold (d ∝ p leaves the three
+    # structures within 1 % of each other on these five two-cycle runs once the elements are
+    # driven by their own narrower position band: no evidence either way)
+    cf = fit_campaign(_campaign(2.0), "maxwell-slip")
     st = cf.structure
     assert st is not None and st.chosen == "scaled-thresholds", st and st.scores
     # the evidence: held-out error of the winner below the free structure's (which holds
@@ -188,7 +191,12 @@ def test_two_element_muscle_keeps_fewer_elements():
     and fewer than four are kept (within 1 % of the best held-out score: never worse)."""
     from pmalab.identify.campaign.structure import SIMPLER_WITHIN
 
-    cf = fit_campaign(_campaign(0.0, np.array([0.6, 0.0, 0.4, 0.0])), "maxwell-slip")
+    # the structure named (the truth's: a shared shape scaled with pressure): on these five
+    # runs the free laws score within 2 % of it, so "auto" may keep either; the element
+    # count is what is under test
+    cf = fit_campaign(
+        _campaign(0.0, np.array([0.6, 0.0, 0.4, 0.0])), "maxwell-slip", structure="scaled"
+    )
     st = cf.structure
     assert st is not None and st.chosen in st.elements, (st and st.chosen, st and st.elements)
     ec = st.elements[st.chosen]

@@ -226,3 +226,56 @@ def test_slide_h_many_rows_are_slide_h_bit_for_bit(rows):
     want = np.array([slide_h(x, K[j], F[j], h0[j], rev[j]) for j in range(rows)])
     assert H.shape == want.shape and H.tobytes() == want.tobytes()
     assert rows == 1 or not np.array_equal(H[0], H[1])
+
+
+def _reference_residual(prob: Problem, z: np.ndarray) -> np.ndarray:
+    """The residual written out plainly: (prediction − force)·w per run, a runaway clipped
+    to the cap (or to RUNAWAY_N without one), stacked."""
+    from pmalab.identify.estimation.problem import RUNAWAY_N
+
+    out = []
+    with np.errstate(all="ignore"):
+        for r, th in zip(prob.records, prob.thetas(z)):
+            e = (prob.model.predict(r.sig, th) - r.force) * r.weight
+            cap = RUNAWAY_N if prob.cap is None else prob.cap
+            if not float(np.abs(e).max()) <= cap:
+                e = np.clip(np.nan_to_num(e, nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+            out.append(e)
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("weight", [1.0, 0.37])
+@pytest.mark.parametrize(
+    ("law", "effects"),
+    [("maxwell-slip", ("viscous-friction",)), ("bouc-wen", ("asymmetric-hysteresis",))],
+)
+def test_one_run_problem_with_and_without_a_biting_cap_bit_for_bit(law, effects, weight):
+    # a single-run fit (unit weight: nothing multiplied) and a weighted one; with a cap that
+    # some of the law's perturbed columns exceed and some do not (the rows clipped one by
+    # one), and without a cap: residual and Jacobian equal the plain formula and the
+    # generic path, bit for bit
+    model = ForceModel(law, [EFFECTS[e]() for e in effects])
+    rec = _records(1)[0]
+    rec = Record(rec.label, rec.p_nom, rec.sig, rec.force, weight)
+    rng = np.random.default_rng(5)
+    base = _problem(model, [rec])
+    z = _z(base, model, rng)
+    e0 = np.abs(_reference_residual(base, z))
+    clipped_rows = 0
+    for cap in (None, float(np.quantile(e0, 0.999)), 1e6):
+        fast = _problem(model, [rec])
+        fast.cap = cap
+        slow = _problem(model, [rec])
+        slow.cap = cap
+        slow._reuse = {}
+        r = fast.residual(z)
+        assert r.tobytes() == _reference_residual(fast, z).tobytes()
+        assert r.tobytes() == slow.residual(z).tobytes()
+        Jf, Js = fast.jac(z), slow.jac(z)
+        assert Jf.tobytes() == Js.tobytes(), np.argwhere(Jf != Js)[:5]
+        if cap is not None and cap < 1e6:
+            # the cap bites: the residual is clipped somewhere, and a law column's
+            # perturbed prediction too (its difference quotient is then 0 there)
+            assert np.any(np.abs(r) == cap)
+            clipped_rows += int(np.any(Jf[np.abs(r) == cap] == 0.0))
+    assert clipped_rows

@@ -161,8 +161,9 @@ class ForceModel:
 
     def drive(self, sig: Signals, theta: Mapping[str, float]) -> Signals:
         """The signals the law and the force terms see (after the effects' transforms,
-        e.g. a channel delay); ∂F/∂k is this drive's position."""
-        s = sig
+        e.g. a channel delay); ∂F/∂k is this drive's position.  The law chooses the position
+        band first (:meth:`~pmalab.identify.laws.base.HysteresisLaw.drive_signals`)."""
+        s = self.law.drive_signals(sig)
         for e in self.effects:
             s = e.transform(s, theta)
         return s

@@ -5,7 +5,10 @@ noise dominates the per-sample increments (at 0.15 Hz the true increment is a fe
 the accumulated |dx| is mostly noise and h is biased toward zero.  We therefore drive every
 law with a zero-phase (forward-backward Butterworth) filtered position whose cut-off sits
 well above the excitation frequency: the filter removes the noise without shifting the loop
-in time (no phase lag, so no fake loop width).
+in time (no phase lag, so no fake loop width).  The elasto-slide laws (Maxwell-slip,
+Prandtl-Ishlinskii) are driven by a narrower band (:func:`slide_cutoff_Hz`, ``x_slide``):
+their stiff small elements pass the position noise left in the wide band to the force
+through their stiffness while they stick.
 
 Velocity and acceleration come from ONE estimator (:func:`derivatives`), used by every
 effect that needs them (viscous friction, inertia, rate-dependent terms) in identification,
@@ -115,6 +118,29 @@ def default_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> floa
     return float(min(max(CUTOFF_MULTIPLE * f, 5.0), sample_rate_Hz / 5.0))
 
 
+#: the elasto-slide laws' drive (Maxwell-slip, Prandtl-Ishlinskii): cut-off this multiple of
+#: the excitation, never below the reversals' band (:func:`slide_cutoff_Hz`)
+SLIDE_CUTOFF_MULTIPLE = 30.0
+#: ... the reversals' band: ``CUTOFF_MULTIPLE`` × the excitation up to this frequency (Hz)
+SLIDE_REVERSAL_HZ = 15.0
+
+
+def slide_cutoff_Hz(sample_rate_Hz: float, frequency_Hz: float | None) -> float:
+    """Cut-off (Hz) of the position that drives an elasto-slide law (Maxwell-slip,
+    Prandtl-Ishlinskii): ``SLIDE_CUTOFF_MULTIPLE`` × the excitation, never below the
+    reversals' band (``CUTOFF_MULTIPLE`` × the excitation up to ``SLIDE_REVERSAL_HZ``), at
+    least 5 Hz and at most fs/5 — never above :func:`default_cutoff_Hz`.
+
+    An element of stiffness k that sticks passes position noise to the force as k·δx: the
+    stiff small elements these laws fit (slip displacements of 0.1–0.3 mm, 100–300 N/mm)
+    turn 0.01 mm of position noise left in the 60× band into 1–3 N of force noise, as
+    large as a load cell's.  A scalar-state law (Bouc-Wen, Duhem) saturates toward its
+    branch and keeps the 60× band."""
+    f = frequency_Hz if frequency_Hz and frequency_Hz > 0 else 0.5
+    band = max(SLIDE_CUTOFF_MULTIPLE * f, min(CUTOFF_MULTIPLE * f, SLIDE_REVERSAL_HZ))
+    return float(min(max(band, 5.0), sample_rate_Hz / 5.0, default_cutoff_Hz(sample_rate_Hz, f)))
+
+
 def zero_phase_lowpass(t: np.ndarray, y: np.ndarray, cutoff_Hz: float) -> np.ndarray:
     """4th-order Butterworth, applied forward and backward (zero phase)."""
     fs = 1.0 / float(np.median(np.diff(t)))
@@ -194,6 +220,25 @@ class Signals:
     derivative_Hz: float = 5.0
     t_ref: float | None = None
     p_mean: float | None = None
+    #: the contraction (mm) that drives an elasto-slide law (:func:`slide_cutoff_Hz`); None:
+    #: ``x``
+    x_slide: np.ndarray | None = None
+
+    def slide_drive(self) -> Signals:
+        """These signals with ``x_slide`` as the position ``x`` (itself when there is none):
+        what a model with an elasto-slide law is driven by.  Made once per signals object
+        (a fit asks for it at every prediction) and kept beside it, never pickled."""
+        if self.x_slide is None:
+            return self
+        got = self.__dict__.get("_slide_drive")
+        if got is None:
+            got = replace(self, x=self.x_slide, x_slide=None)
+            object.__setattr__(self, "_slide_drive", got)  # a cache, not a field
+        return got
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the kept slide drive is derived: a copy sent to a worker makes its own
+        return {k: v for k, v in self.__dict__.items() if k != "_slide_drive"}
 
     @classmethod
     def from_arrays(
@@ -212,6 +257,9 @@ class Signals:
         fc = cutoff_Hz if cutoff_Hz is not None else default_cutoff_Hz(fs, frequency_Hz)
         xf = zero_phase_lowpass(t, x_raw, fc)
         pf = zero_phase_lowpass(t, p_arr, fc)
+        # the elasto-slide laws' drive: its own narrower band, unless a cut-off was asked for
+        fcs = slide_cutoff_Hz(fs, frequency_Hz) if cutoff_Hz is None else fc
+        xs = zero_phase_lowpass(t, x_raw, fcs) if fcs < fc else None
         v, a, fd = derivatives(t, x_raw, frequency_Hz)
         pn = float(np.mean(p_arr)) if p_nom is None else float(p_nom)
         return cls(
@@ -226,6 +274,7 @@ class Signals:
             cutoff_Hz=fc,
             derivative_Hz=fd,
             p_mean=float(np.mean(p_arr)),
+            x_slide=xs,
         )
 
     @classmethod
@@ -262,13 +311,18 @@ class Signals:
         return float(self.t_ref) if self.t_ref is not None else 0.5 * float(self.t[0] + self.t[-1])
 
     def with_position(
-        self, x: np.ndarray, v: np.ndarray | None = None, a: np.ndarray | None = None
+        self,
+        x: np.ndarray,
+        v: np.ndarray | None = None,
+        a: np.ndarray | None = None,
+        x_slide: np.ndarray | None = None,
     ) -> Signals:
         """A copy driven by another (already filtered) position; its derivatives ``v``, ``a``
-        (default: recomputed by :func:`derivatives` from ``x``)."""
+        (default: recomputed by :func:`derivatives` from ``x``) and the elasto-slide laws'
+        drive ``x_slide`` (default: ``x``)."""
         if v is None or a is None:
             v, a, _ = derivatives(self.t, x, self.frequency_Hz)
-        return replace(self, x=x, v=v, a=a)
+        return replace(self, x=x, v=v, a=a, x_slide=x_slide)
 
     def _sliced(self, s: slice) -> Signals:
         """The samples ``s`` of every per-sample array; the reference time of slow terms
@@ -283,6 +337,7 @@ class Signals:
             x_raw=self.x_raw[s],
             t_ref=self.reference_time,
             p_mean=self.mean_pressure,
+            x_slide=None if self.x_slide is None else self.x_slide[s],
         )
 
     def head(self, n: int) -> Signals:

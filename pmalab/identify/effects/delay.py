@@ -79,4 +79,5 @@ class SensorDelay(Effect):
             shift_in_time(sig.t, sig.x, tau),
             shift_in_time(sig.t, sig.v, tau),
             shift_in_time(sig.t, sig.a, tau),
+            None if sig.x_slide is None else shift_in_time(sig.t, sig.x_slide, tau),
         )

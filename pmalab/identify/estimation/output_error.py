@@ -356,5 +356,12 @@ def _head(sig: Signals, m: int) -> Signals:
     from dataclasses import replace
 
     return replace(
-        sig, t=sig.t[:m], x=sig.x[:m], v=sig.v[:m], a=sig.a[:m], p=sig.p[:m], x_raw=sig.x_raw[:m]
+        sig,
+        t=sig.t[:m],
+        x=sig.x[:m],
+        v=sig.v[:m],
+        a=sig.a[:m],
+        p=sig.p[:m],
+        x_raw=sig.x_raw[:m],
+        x_slide=None if sig.x_slide is None else sig.x_slide[:m],
     )

@@ -216,7 +216,11 @@ class Problem:
     def _weigh(self, i: int, out: np.ndarray) -> np.ndarray:
         """Run i's weighted residual of the output ``out``, a runaway clipped (see ``cap``)."""
         r = self.records[i]
-        e = (out - r.force) * r.weight
+        e = out - r.force
+        if r.weight != 1.0:
+            # in place: the same product as (out − force)·w (x·1.0 is x, so a unit weight
+            # is not multiplied at all)
+            np.multiply(e, r.weight, out=e)
         # one reduction: the largest |e| is NaN (a NaN anywhere) or inf (an inf anywhere),
         # and `not (m <= cap)` is then True, as it is for a finite m above the cap
         m = float(np.abs(e).max())
@@ -248,14 +252,14 @@ class Problem:
                 # numbers as output(): predict is parts + assemble)
                 m = self.model
                 parts = [m.parts(r.sig, th) for r, th in zip(self.records, ths)]
-                e = np.concatenate(
-                    [
-                        self._weigh(i, m.assemble(s, lin, h, th))
-                        for i, ((s, _, lin, h), th) in enumerate(zip(parts, ths))
-                    ]
-                )
+                es = [
+                    self._weigh(i, m.assemble(s, lin, h, th))
+                    for i, ((s, _, lin, h), th) in enumerate(zip(parts, ths))
+                ]
             else:
-                e = np.concatenate([self._run_residual(i, th) for i, th in enumerate(ths)])
+                es = [self._run_residual(i, th) for i, th in enumerate(ths)]
+        # one run: its residual is a new array already (no copy to stack)
+        e = es[0] if len(es) == 1 else np.concatenate(es)
         self._cache = (key, e, parts, RAW, ths)
         return e
 
@@ -373,11 +377,20 @@ class Problem:
             th2s.append(th2)
         H = self.model.law.h_many(s.x, th2s, extras)
         r = self.records[i]
-        E = (self.model.assemble_many(s, lin, H, th) - r.force) * r.weight
+        # a new array (lin + H): the residual's operations done in place, the same numbers
+        E = self.model.assemble_many(s, lin, H, th)
+        np.subtract(E, r.force, out=E)
+        if r.weight != 1.0:
+            np.multiply(E, r.weight, out=E)
         cap = RUNAWAY_N if self.cap is None else self.cap
-        for k in np.flatnonzero(~(np.abs(E).max(axis=1) <= cap)):
-            E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
-        return (E - r0[self.rows[i]]) / steps[:, None]
+        # no row beyond the cap (max and min propagate a NaN): nothing to clip; else the
+        # rows that are, each as :meth:`_weigh` clips it
+        if not (E.max() <= cap and E.min() >= -cap):
+            for k in np.flatnonzero(~(np.abs(E).max(axis=1) <= cap)):
+                E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+        np.subtract(E, r0[self.rows[i]], out=E)
+        np.divide(E, steps[:, None], out=E)
+        return E
 
     def dresid(
         self,
@@ -414,7 +427,10 @@ class Problem:
             if kind == "law":
                 hy = np.asarray(self.model.law.h(s.x, th2, extras), dtype=np.float64)
             e = self._weigh(i, self.model.assemble(s, lin, hy, th2))
-        return (e - r0[self.rows[i]]) / h
+        # e is a new array (:meth:`_weigh`'s): the difference quotient in place
+        np.subtract(e, r0[self.rows[i]], out=e)
+        np.divide(e, h, out=e)
+        return e
 
     # ------------------------------------------------------------------ summaries
     def per_run_rmse(self, z: np.ndarray) -> list[float]:

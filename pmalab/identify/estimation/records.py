@@ -14,12 +14,15 @@ pressure laws and the record parameters are set by ``initial``:
   of the predicted record (:func:`calibration_samples`: its first whole excitation cycles,
   about a third of it) with every muscle parameter held — a start from the first 50 ms
   (h0 = median(F − F_model) there), then a few Gauss–Newton steps — and the model then
-  predicts the whole record; its error is scored on the rest (:func:`scored_from`).  A
-  record parameter must therefore *predict* the rest of its record, not absorb it: a drift
+  predicts the whole record; its error is scored on the rest (:func:`scored_from`).
+  A record parameter must therefore *predict* the rest of its record, not absorb it: a drift
   rate fitted on the first cycle extrapolates a real linear drift, but makes a decaying
   softening or a misfit of the loop's shape worse, and every model — the null as much as a
-  candidate with record nuisances — is scored on the same samples.  Without the measured
-  force: ``"burn-in"``.
+  candidate with record nuisances — is scored on the same samples.  An elasto-slide law
+  (Maxwell-slip, Prandtl-Ishlinskii) whose record's early part leaves the range the rest
+  covers (a ramp-in's overshoot) then refits its force zero on the early samples within
+  that range, h0 held (:func:`within_range`): its one-number start state cannot say what
+  the excursion left in its large elements.  Without the measured force: ``"burn-in"``.
 * ``"burn-in"``: the first excitation period is replayed before the run, putting h on its
   periodic orbit (record parameters other than h0 at 0);
 * ``"zero"``: every record parameter 0 (a virgin state, no drift).
@@ -53,6 +56,11 @@ RECORD_NFEV = 12
 #: share of a predicted record (in whole excitation cycles, at least one) on which its
 #: record parameters are estimated under ``initial="estimate"``; the rest is scored
 CALIBRATION_FRACTION = 1.0 / 3.0
+
+#: the least share of a predicted record's early part that its force zero is refitted on
+#: when an elasto-slide law's record leaves the range it then cycles over
+#: (:func:`within_range`); an early part that leaves less keeps its first estimate
+WITHIN_RANGE_SHARE = 0.25
 
 #: the note every prediction with a drifting-zero effect carries (JSON warnings)
 TARE_NOTE = (
@@ -134,6 +142,7 @@ def burn_in_signals(sig: Signals) -> tuple[Signals, int]:
         a=cat(sig.a),
         p=cat(sig.p),
         x_raw=cat(sig.x_raw),
+        x_slide=None if sig.x_slide is None else cat(sig.x_slide),
         t_ref=sig.reference_time,
     )
     return aug, P
@@ -144,6 +153,7 @@ def fit_record_params(
     z: np.ndarray,
     max_nfev: int = RECORD_NFEV,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    rows_kept: np.ndarray | None = None,
 ) -> np.ndarray:
     """z with every run's record parameters fitted, the shared parameters held.
 
@@ -151,6 +161,8 @@ def fit_record_params(
     h0 = 0; other record parameters keep their values in ``z``); then a few Gauss–Newton
     steps on the record parameters alone (never worse than the start).  The one record
     estimate of the engine: the joint fit's start states and every predicted record use it.
+    ``rows_kept``: the residual rows (samples of a one-record problem) the steps fit; None:
+    all.
     """
     z = np.array(z, dtype=float)
     if not prob.run_params:
@@ -178,18 +190,19 @@ def fit_record_params(
         for j, n in enumerate(prob.run_params):
             if n in prior:
                 rows.append((j, *prior[n]))
-    e0 = prob.residual(z)
+    sel = slice(None) if rows_kept is None else rows_kept
+    e0 = prob.residual(z)[sel]
     scale = float(np.sqrt(np.mean(e0**2))) if e0.size else 1.0
     scale = scale if np.isfinite(scale) and scale > 0 else 1.0
 
     def f(h: np.ndarray) -> np.ndarray:
-        e = prob.residual(np.concatenate([z[:k], h]))
+        e = prob.residual(np.concatenate([z[:k], h]))[sel]
         if not rows:
             return e
         return np.concatenate([e, [scale * (h[j] - mu) / sd for j, mu, sd in rows]])
 
     def jf(h: np.ndarray) -> np.ndarray:
-        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[:, k:]
+        J = prob.jac(np.concatenate([z[:k], h]), run_only=True)[sel, k:]
         if not rows:
             return J
         P = np.zeros((len(rows), J.shape[1]))
@@ -211,6 +224,7 @@ def estimate_record(
     theta: Mapping[str, float],
     bounds: Mapping[str, tuple[float, float]] | None = None,
     prior: Mapping[str, tuple[float, float]] | None = None,
+    rows_kept: np.ndarray | None = None,
 ) -> dict[str, float]:
     """``theta`` with the record parameters fitted on this record (muscle parameters held).
 
@@ -218,7 +232,11 @@ def estimate_record(
     (:meth:`~pmalab.identify.campaign.fit.CampaignFit.record_prior`): the estimate starts at
     the mean and is pulled toward it by a Gaussian prior, so a rate that the record's early
     part cannot tell from the start state's transient (one short cycle) keeps the campaign's
-    value instead of extrapolating a confusion."""
+    value instead of extrapolating a confusion.
+
+    ``rows_kept``: indices of the samples the record parameters other than h0 (the force
+    zero, a drift rate) are refitted on once h0 and its branch are set
+    (:func:`within_range`); None: the whole early part sets them all."""
     th = dict(theta)
     names = [n for n in record_names(model) if n in th]
     if not names:
@@ -253,7 +271,24 @@ def estimate_record(
         c1, c2 = _cost(prob, z), _cost(prob2, z2)
         if c2 < (1.0 - BRANCH_GAIN) ** 2 * c1:
             alt.update({n: v[0] for n, v in prob2.run_values(z2).items()})
-            return alt
+            th = alt
+    rest = [n for n in names if n != "h0"]
+    if rest and rows_kept is not None:
+        # the force zero (and any drift rate) refitted where the record revisits, h0 and its
+        # branch held: the excursion's misfit is carried into none of them
+        prob3 = Problem(
+            model,
+            [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
+            free=[],
+            degree={},
+            constants={k: v for k, v in th.items() if k not in rest},
+            bounds=b,
+            run_params=rest,
+        )
+        z3 = fit_record_params(
+            prob3, prob3.z_from({}, {n: [th[n]] for n in rest}), prior=pr, rows_kept=rows_kept
+        )
+        th.update({n: v[0] for n, v in prob3.run_values(z3).items()})
     return th
 
 
@@ -312,4 +347,42 @@ def predict_record(
     assert force is not None  # "estimate" without a force became "burn-in" above
     m = calibration_samples(sig)
     f = np.asarray(force, dtype=np.float64)
-    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior))
+    keep = within_range(sig.x, m) if model.law.state_size > 1 else None
+    return model.predict(sig, estimate_record(model, sig.head(m), f[:m], th, bounds, prior, keep))
+
+
+def within_range(x: np.ndarray, m: int, least: float = WITHIN_RANGE_SHARE) -> np.ndarray | None:
+    """Samples of a record's early part (its first ``m``) whose contraction lies within the
+    range the rest of the record covers, or None when that is all of them or fewer than
+    ``least`` of them.
+
+    A recorded run starts after its ramp-in, which may carry the path beyond the range it
+    then cycles over (an overshoot before the first reversal).  There an elasto-slide law's
+    start state — one number on a branch — says least about the elements' real forces: the
+    large elements still hold what the ramp-in left, and the loop beyond the range is one
+    the identification runs never repeated.  The record's force zero is fitted on the
+    samples the record revisits.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Contraction (mm) of the whole record.
+    m : int
+        Samples of the early part (:func:`calibration_samples`).
+    least : float
+        The least share of the early part kept; below it, the early part as a whole.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Indices into the early part, ascending.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if m >= x.shape[0] or m < 1:
+        return None
+    lo, hi = float(np.min(x[m:])), float(np.max(x[m:]))
+    head = x[:m]
+    keep = np.flatnonzero((head >= lo) & (head <= hi))
+    if keep.size == m or keep.size < least * m:
+        return None
+    return keep

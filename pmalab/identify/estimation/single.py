@@ -187,6 +187,7 @@ def _grid_starts(
 ) -> list[dict[str, float]]:
     """Stage 1 + 2: the best grid points with (k, c0, scale) solved linearly, best first."""
     law = model.law
+    sig = law.drive_signals(sig)  # the path the law is driven by (and k·x with it)
     base = {p.name: p.value for p in ps}
     g = law.guess(sig.x, force, sig.v, fixed=fixed)
     base.update({k: v for k, v in g.items() if k in base})

@@ -37,11 +37,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from pmalab.registry import Registry
+
+if TYPE_CHECKING:
+    from pmalab.identify.signals import Signals
 
 
 @dataclass(frozen=True)
@@ -244,6 +247,24 @@ class HysteresisLaw:
         return dict(theta)
 
     # ------------------------------------------------------------------ evaluation
+    def drive_signals(self, sig: Signals) -> Signals:
+        """The record's signals as a model with this law is driven by them: ``sig`` itself
+        (its position ``x`` filtered in the 60× band); an elasto-slide law overrides it with
+        its narrower band (:meth:`pmalab.identify.signals.Signals.slide_drive`).  The linear
+        term k·x and the effects see the same position as the law.
+
+        Parameters
+        ----------
+        sig
+            The record's signals.
+
+        Returns
+        -------
+        Signals
+            The signals the model's force is computed from.
+        """
+        return sig
+
     def h(
         self, x: np.ndarray, theta: Mapping[str, float], extras: Mapping[str, float] | None = None
     ) -> np.ndarray:

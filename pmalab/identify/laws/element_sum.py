@@ -18,6 +18,7 @@ import numpy as np
 
 from pmalab.identify.laws._slide import branch, slide_h, slide_start, slide_stepper
 from pmalab.identify.laws.base import HysteresisLaw
+from pmalab.identify.signals import Signals
 
 
 class ElementSum(HysteresisLaw):
@@ -27,6 +28,12 @@ class ElementSum(HysteresisLaw):
     def _kf(self, theta: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """Each element's stiffness k_i (N/mm) and slip force f_i (N) at ``theta``."""
         raise NotImplementedError
+
+    def drive_signals(self, sig: Signals) -> Signals:
+        """``sig`` driven by its narrower-band position
+        (:func:`pmalab.identify.signals.slide_cutoff_Hz`): a sticking element passes position
+        noise to the force through its stiffness."""
+        return sig.slide_drive()
 
     def h(self, x, theta, extras=None):
         k, f = self._kf(theta)
