@@ -39,8 +39,8 @@ threadpool_limits(limits=1, user_api="blas")
 #: end, on one core.  Three rules shape it:
 #:
 #: * **The docs build first** (the first worker): one test of ~2 min that makes its
-#:   tutorial units several processes at once, at a lower priority (nice 10: test_docs_site's
-#:   ``_lower_priority``).  xdist hands that worker a second file at once (the docs file holds two
+#:   tutorial units several processes at once, at a lower priority on an otherwise idle
+#:   machine (nice 10: test_docs_site's ``_lower_priority``).  xdist hands that worker a second file at once (the docs file holds two
 #:   tests), test_diagnosis_invariant, which it runs after the build.
 #: * **The wheel second**: the second worker starts with it.  Its commands run the
 #:   installed wheel's code, whose compiled laws are cached apart from the checkout's

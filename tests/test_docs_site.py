@@ -44,17 +44,26 @@ def _mkdocs(config: Path, site: Path) -> subprocess.CompletedProcess:
 
 
 def _lower_priority() -> list[str]:
-    """Under xdist, the build (and every command it runs) at nice 10.  The build makes its
-    tutorial units several processes at once, and the suite starts it beside the other
-    worker's emulator and real-time tests (conftest's ``WAITING``), which mostly wait: at
-    a lower priority the build takes the core they leave idle and gives it back as soon as
-    a recording or an emulator wakes up, so they keep running as on an idle machine.
-    Not 19: the build runs an emulated rig itself (the rig-file page), which must still
-    answer within its rig file's reply timeout when the other worker keeps both cores
-    busy.  Run alone, the build keeps the priority it was given.  The build's output is
-    the same at any priority."""
+    """Under xdist on an otherwise idle machine, the build (and every command it runs) at
+    nice 10.  The build makes its tutorial units several processes at once, and the suite
+    starts it beside the other worker's emulator and real-time tests (conftest's
+    ``WAITING``), which mostly wait: at a lower priority the build takes the core they leave
+    idle and gives it back as soon as a recording or an emulator wakes up, so they keep
+    running as on an idle machine.  Not 19: the build runs an emulated rig itself (the
+    rig-file page), which must still answer within its rig file's reply timeout when the
+    other worker keeps both cores busy.  Not on a machine already busy with other work
+    (load average at or above the cores + 1): there no core is idle to fill, and a lower
+    priority only hands the build's share to that work (a build so starved at load 15 took
+    over 18 minutes).  Run alone, the build keeps the priority it was given.  The build's
+    output is the same at any priority."""
     nice = shutil.which("nice")
-    return [nice, "-n", "10"] if nice and os.environ.get("PYTEST_XDIST_WORKER") else []
+    if not nice or not os.environ.get("PYTEST_XDIST_WORKER"):
+        return []
+    try:
+        idle = os.getloadavg()[0] < (os.cpu_count() or 1) + 1
+    except OSError:  # no load average here
+        idle = False
+    return [nice, "-n", "10"] if idle else []
 
 
 def _tracked_state() -> str:
