@@ -189,3 +189,20 @@ def test_a_forked_child_of_a_worker_does_not_share_its_slot(attached, monkeypatc
     assert not sharing.sharing_here()
     assert sharing.map_shared(_inner, [1, 2, 3]) == [1, 4, 9]
     assert attached.idle.value == 1 and attached.offers.empty()
+
+
+def _warns_then_fails(x: int) -> int:
+    warnings.warn(f"task {x}", UserWarning, stacklevel=1)
+    raise ValueError(f"task {x} failed")
+
+
+def test_a_task_that_failed_in_the_helper_warns_once():
+    # the helper ran task 0, which warned and then raised: the owner runs it again, and the
+    # run again warns as the plain loop would, once (the helper's record of it is dropped)
+    caught_there = [(UserWarning("task 0"), UserWarning, __file__, 1)]
+    done = {0: (False, False, None, caught_there)}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="task 0 failed"):
+            sharing._in_order(_warns_then_fails, [0], done, 1)  # pyright: ignore[reportArgumentType]
+    assert [str(m.message) for m in caught] == ["task 0"]

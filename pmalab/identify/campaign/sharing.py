@@ -282,13 +282,14 @@ def _in_order(fn: Callable[[T], R], tasks: list[T], done: dict[int, _Done], take
     out: list[R] = []
     for i in range(taken):
         here, ok, value, caught = done[i]
-        for m in caught:
-            replay_warning(warnings.WarningMessage(*m))
         if ok:
+            for m in caught:
+                replay_warning(warnings.WarningMessage(*m))
             out.append(value)
         elif here:
             raise value
         else:  # failed in the helper: run again here, where it raises with this traceback
+            # (and raises its warnings again: the helper's record of them is not replayed)
             out.append(fn(tasks[i]))
     if taken < len(tasks):  # pragma: no cover - only after a failure, raised above
         raise RuntimeError("a shared batch stopped without a failure")
