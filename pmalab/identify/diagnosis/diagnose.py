@@ -504,7 +504,8 @@ def _summary(
                 "no held-out run is left to judge a candidate on."
                 if every
                 else f"{'that run is' if len(div) == 1 else 'those runs are'} no evidence "
-                "for any candidate (each is judged on the other runs)."
+                "for any candidate: each is judged on the other runs, and one whose own "
+                "prediction diverges there too is a failed fit."
             )
         )
     if len(ladder) == 1:
