@@ -319,7 +319,8 @@ class Problem:
                 # per parameter (which writes J column by column: slower on many runs)
                 shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
                 where, rep, b = self._basis_layout(i, tuple(n for n, _ in shared))
-                D = np.array([d for _, d in shared])[rep].T  # (samples, columns)
+                # (samples, columns): each column's d stacked once, in J's column order
+                D = np.array([shared[k][1] for k in rep]).T
                 if isinstance(where, slice):
                     np.multiply(D, b, out=J[rows, where])
                 else:
@@ -342,7 +343,7 @@ class Problem:
 
     def _basis_layout(
         self, i: int, names: tuple[str, ...]
-    ) -> tuple[slice | np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray]:
         """Where run i's Jacobian entries of the shared parameters ``names`` go: (their
         columns of J — a slice when they are adjacent —, for each column the index of its
         parameter in ``names``, and the basis value B_n(p_i) of each column)."""
@@ -352,7 +353,7 @@ class Problem:
             cols = np.concatenate(
                 [np.arange(self.slices[n].start, self.slices[n].stop) for n in names]
             )
-            rep = np.repeat(np.arange(len(names)), [self.degree[n] + 1 for n in names])
+            rep = tuple(k for k, n in enumerate(names) for _ in range(self.degree[n] + 1))
             b = np.concatenate([np.asarray(self.B[n][i], dtype=np.float64) for n in names])
             adjacent = bool(np.all(np.diff(cols) == 1))
             where = slice(int(cols[0]), int(cols[-1]) + 1) if adjacent else cols
