@@ -209,3 +209,20 @@ def test_a_base_that_diverged_on_a_run_claims_nothing_there_and_says_so(monkeypa
                              "", "given", [0.022, 0.022])
     assert "diverged on hold-2Hz" in text and "no evidence for any candidate" in text
     assert verdict == "unexplained"
+
+
+def test_the_summary_says_a_candidate_diverging_where_the_base_did_is_a_failed_fit():
+    # the left-out run is no evidence, but a candidate whose own prediction diverges there
+    # as well is listed as a failed fit (not judged on the other runs): the summary says so
+    from pmalab.identify.diagnosis.diagnose import _summary
+    from pmalab.identify.diagnosis.ranking import Candidate
+
+    labels = ["hold-0.5Hz", "hold-2Hz"]
+    base = Scored((), [0.130, 10.0], diverged=["hold-2Hz"], labels=labels)
+    mass = Scored(("inertia",), [0.100, 10.0], diverged=["hold-2Hz"], labels=labels)
+    c = Candidate("inertia", base, mass, floors=[0.022, 0.022])
+    assert c.failed and c.left_out == ["hold-2Hz"]
+    step = {"nrmse": 5.065, "per_run": [0.130, 10.0], "diverged": ["hold-2Hz"]}
+    text, _ = _summary("bouc-wen", [step], [c.as_json()], [], 0.022, None, "", "given")
+    assert "Fit failed (not ranked): inertia: the held-out prediction diverged on hold-2Hz" in text
+    assert "one whose own prediction diverges there too is a failed fit" in text

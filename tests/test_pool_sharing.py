@@ -138,3 +138,71 @@ def test_later_rounds_start_the_dearest_effects_first():
     # a law with structures still goes before one without, whatever was measured
     mixed = [ModelSpec("bouc-wen", ("sensor-delay",)), ModelSpec("maxwell-slip", ("inertia",))]
     assert cost_order(mixed, took) == [1, 0]
+
+
+def _inner(x: int) -> int:
+    return x * x
+
+
+def _outer(x: int) -> int:
+    """A task that runs a batch of its own through map_shared (a nested batch)."""
+    return sum(sharing.map_shared(_inner, [x, x + 1, x + 2]))
+
+
+@pytest.fixture
+def attached(monkeypatch):
+    """This process as a kept pool's worker (slot 0 of 2) whose siblings' helpers are
+    said to wait (``idle``), none of them running: every task it offers runs here."""
+    import signal
+
+    s = sharing.new_sharing(multiprocessing.get_context("fork"), 2)
+    sharing.attach(s, ("context",))
+
+    def too_long(*_):
+        raise TimeoutError("the batch waited for results no helper was running")
+
+    old = signal.signal(signal.SIGALRM, too_long)
+    signal.alarm(10)
+    try:
+        yield s
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+        sharing._MINE[:] = []
+
+
+def test_a_batch_inside_a_shared_batch_runs_here(attached):
+    # the inner batch must not take the slot the outer batch is shared through: it runs
+    # as the plain loop, and the outer batch's results are all there
+    attached.idle.value = 2
+    got = sharing.map_shared(_outer, [0, 1, 2, 3])
+    assert got == [sum(_inner(x + i) for i in range(3)) for x in range(4)]
+
+
+def test_a_forked_child_of_a_worker_does_not_share_its_slot(attached, monkeypatch):
+    # a process forked from a worker inherits its slot: it must not offer batches in it
+    # (the worker may be sharing through it at the same moment)
+    attached.idle.value = 1
+    assert sharing.sharing_here()
+    real = os.getpid()
+    monkeypatch.setattr(os, "getpid", lambda: real + 1)
+    assert not sharing.sharing_here()
+    assert sharing.map_shared(_inner, [1, 2, 3]) == [1, 4, 9]
+    assert attached.idle.value == 1 and attached.offers.empty()
+
+
+def _warns_then_fails(x: int) -> int:
+    warnings.warn(f"task {x}", UserWarning, stacklevel=1)
+    raise ValueError(f"task {x} failed")
+
+
+def test_a_task_that_failed_in_the_helper_warns_once():
+    # the helper ran task 0, which warned and then raised: the owner runs it again, and the
+    # run again warns as the plain loop would, once (the helper's record of it is dropped)
+    caught_there = [(UserWarning("task 0"), UserWarning, __file__, 1)]
+    done = {0: (False, False, None, caught_there)}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(ValueError, match="task 0 failed"):
+            sharing._in_order(_warns_then_fails, [0], done, 1)  # pyright: ignore[reportArgumentType]
+    assert [str(m.message) for m in caught] == ["task 0"]

@@ -186,3 +186,40 @@ def test_a_real_fall_on_the_runs_the_base_predicted_is_still_claimed():
     lost = Scored(effects=(), nrmse=[10.0, 10.0, 10.0], diverged=["a", "b", "c"])
     c = Candidate("viscous-friction", lost, good, floors=floors)
     assert c.evidence == [] and c.fall == 0.0 and not judge([c])[0][0].significant
+
+
+def test_a_base_that_diverged_on_every_held_out_run_writes_null_not_nan(tmp_path):
+    # no evidence run is left: a candidate's mean held-out nrmse over them is undefined.
+    # diagnosis.json is written with allow_nan=False, so it must be null there (not NaN,
+    # which made writing the diagnosis raise), and every reader of the row must take it
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pmalab.identify.diagnosis.diagnose import Diagnosis, _summary, closest_law_phrase
+    from pmalab.reports.figures_diagnosis import plot_ranking
+
+    base = Scored(effects=(), nrmse=[10.0, 10.0], diverged=["a", "b"], labels=["a", "b"])
+    good = Scored(("viscous-friction",), [0.020, 0.024], labels=["a", "b"])
+    c = Candidate("viscous-friction", base, good, floors=[0.0035, 0.0035])
+    row = c.as_json()
+    json.dumps(row, allow_nan=False)
+    assert row["nrmse_before"] is None and row["nrmse_after"] is None
+    assert row["left_out"] == ["a", "b"] and not row["significant"]
+    law = {"law": "duhem", "status": "ok", "nrmse_before": None, "nrmse_after": None,
+           "fall_percent": 0.0, "gain_x_floor": 0.0, "significant": False}
+    assert closest_law_phrase("bouc-wen", [law]) == ""
+    step = {"step": 0, "effects": [], "added": None, "nrmse": 10.0, "fit_percent": -900.0,
+            "per_run": [10.0, 10.0], "diverged": ["a", "b"]}
+    text, _ = _summary("bouc-wen", [step], [row], [], 0.0035, None, "", "given", laws=[law])
+    assert "no held-out run is left to judge a candidate on" in text
+    d = Diagnosis("bouc-wen", [row], [], "", [step], {}, {}, text, laws=[law])
+    assert "viscous-friction" in d.ranking_table()
+    fig, ax = plt.subplots()
+    plot_ranking(ax, [row])
+    fig.savefig(tmp_path / "ranking.png")
+    d.plot(tmp_path / "plot.png")
+    plt.close("all")

@@ -662,7 +662,8 @@ def diagnose_command(args: argparse.Namespace) -> int:
                 + [
                     (
                         lw["law"],
-                        f"{lw['nrmse_before']:.4f}",
+                        # null: no held-out run left to judge on
+                        "—" if lw["nrmse_before"] is None else f"{lw['nrmse_before']:.4f}",
                         # null: the law's identification raised
                         "—" if lw["nrmse_after"] is None else f"{lw['nrmse_after']:.4f}",
                         "—" if lw["fall_percent"] is None else f"{lw['fall_percent']:+.1f}",

@@ -377,7 +377,9 @@ class RankingEntry(TypedDict):
     """One candidate effect scored by the held-out nrmse (``ranking[i]``, best first)."""
 
     effect: str
-    nrmse_before: float
+    #: mean held-out nrmse of the model it is added to, over the runs that are evidence
+    #: (``left_out``: the rest); null when none is
+    nrmse_before: float | None
     #: null when the identification with the effect raised (``status`` "failed")
     nrmse_after: float | None
     #: the ladder added it (significant at its step)
@@ -444,7 +446,8 @@ class LawEntry(TypedDict):
     """Another hysteresis law scored against the base model (``laws[i]``, best first)."""
 
     law: str
-    nrmse_before: float
+    #: as ``RankingEntry.nrmse_before``
+    nrmse_before: float | None
     #: null when the law's identification raised
     nrmse_after: float | None
     #: null when the law's fit failed (``status`` "failed", ``reason``)

@@ -241,9 +241,12 @@ def plot_ranking(
     each effect (green if significant, grey otherwise). Returns (before, after) bars."""
     n = len(ranking)
     y = np.arange(n)[::-1].astype(float)
-    before = [float(r["nrmse_before"]) for r in ranking]
+    # null: no held-out run left to judge on (no bar)
+    before = [float(r["nrmse_before"] or 0.0) for r in ranking]
     # a failed fit has no after-value worth a bar (its number is not a fall): none drawn
-    after = [0.0 if r.get("status") == "failed" else float(r["nrmse_after"]) for r in ranking]
+    after = [
+        0.0 if r.get("status") == "failed" else float(r["nrmse_after"] or 0.0) for r in ranking
+    ]
     colours = [style.SIGNIFICANT if r["significant"] else style.NOT_SIGNIFICANT for r in ranking]
     h = 0.38
     b0 = ax.barh(y + h / 2, before, height=h, color="white", edgecolor="0.3", label="before")

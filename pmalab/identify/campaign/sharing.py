@@ -24,6 +24,7 @@ again in the owner if the helper ran it (its traceback is then the owner's own).
 from __future__ import annotations
 
 import io
+import os
 import pickle
 import warnings
 from collections.abc import Callable, Sequence
@@ -80,6 +81,10 @@ class Sharing:
 
 #: this worker's :class:`Sharing` (empty outside a kept pool's worker)
 _MINE: list[Sharing] = []
+#: the process that attached :data:`_MINE` (a child forked from a worker inherits the
+#: worker's slot, which the worker may be sharing through at the same moment), and whether
+#: a shared batch runs in it now (a batch inside it would reopen the slot's counters)
+_OWNER = {"pid": -1, "busy": False}
 
 
 def new_sharing(ctx: Any, workers: int) -> Sharing:
@@ -115,11 +120,21 @@ def attach(sharing: Sharing, context: Any) -> None:
     sharing.objects = objects
     sharing.places = {id(o): i for i, o in enumerate(objects)}
     _MINE[:] = [sharing]
+    _OWNER.update(pid=os.getpid(), busy=False)
+
+
+def _mine() -> Sharing | None:
+    """This worker's :class:`Sharing`, or None: outside a kept pool's worker, in a child
+    forked from one, or inside a batch this worker shares or helps with (a task that runs
+    a batch of its own runs it as the plain loop)."""
+    if not _MINE or _OWNER["busy"] or _OWNER["pid"] != os.getpid():
+        return None
+    return _MINE[0]
 
 
 def sharing_here() -> bool:
     """Whether this process is a kept pool's worker that can share its batches."""
-    return bool(_MINE)
+    return _mine() is not None
 
 
 class _Pickler(pickle.Pickler):
@@ -159,9 +174,10 @@ def map_shared(fn: Callable[[T], R], tasks: Sequence[T]) -> list[R]:
     left when a sibling is waiting for work are shared with it (module docstring).
 
     ``fn`` must be a module-level function; tasks and results must pickle (a task that does
-    not is run here)."""
+    not is run here).  A batch that a shared task runs, or that a child forked from the
+    worker runs, is the plain loop (the worker's slot is taken by the batch it shares)."""
     tasks = list(tasks)
-    s = _MINE[0] if _MINE else None
+    s = _mine()
     out: list[R] = []
     for i, t in enumerate(tasks):
         if s is not None and len(tasks) - i >= 2 and s.idle.value > 0:
@@ -223,6 +239,15 @@ def _share(s: Sharing, fn: Callable[[T], R], tasks: list[T]) -> list[R] | None:
         return None
     if not _take_helper(s):
         return None
+    _OWNER["busy"] = True
+    try:
+        return _shared(s, fn, tasks, payload)
+    finally:
+        _OWNER["busy"] = False
+
+
+def _shared(s: Sharing, fn: Callable[[T], R], tasks: list[T], payload: bytes) -> list[R]:
+    """:func:`_share` once a helper is taken: offer the batch, run it, gather it."""
     batch = _open_batch(s, len(tasks))
     s.offers.put((s.slot, batch, payload))
     done: dict[int, _Done] = {}
@@ -257,13 +282,14 @@ def _in_order(fn: Callable[[T], R], tasks: list[T], done: dict[int, _Done], take
     out: list[R] = []
     for i in range(taken):
         here, ok, value, caught = done[i]
-        for m in caught:
-            replay_warning(warnings.WarningMessage(*m))
         if ok:
+            for m in caught:
+                replay_warning(warnings.WarningMessage(*m))
             out.append(value)
         elif here:
             raise value
         else:  # failed in the helper: run again here, where it raises with this traceback
+            # (and raises its warnings again: the helper's record of them is not replayed)
             out.append(fn(tasks[i]))
     if taken < len(tasks):  # pragma: no cover - only after a failure, raised above
         raise RuntimeError("a shared batch stopped without a failure")
@@ -273,7 +299,7 @@ def _in_order(fn: Callable[[T], R], tasks: list[T], done: dict[int, _Done], take
 def help_siblings(_context: Any = None, _task: Any = None) -> int:
     """A pool task for a worker left without one: wait for the siblings' offers and run
     their tasks (:func:`map_shared`) until stopped; returns how many tasks it ran."""
-    s = _MINE[0] if _MINE else None
+    s = _mine()
     if s is None:
         return 0
     ran = 0
@@ -285,7 +311,11 @@ def help_siblings(_context: Any = None, _task: Any = None) -> int:
             with s.idle.get_lock():
                 s.idle.value -= 1
             return ran
-        ran += _run_offer(s, *offer)
+        _OWNER["busy"] = True
+        try:
+            ran += _run_offer(s, *offer)
+        finally:
+            _OWNER["busy"] = False
         with s.idle.get_lock():  # waiting again (the offer's owner took this helper)
             s.idle.value += 1
 

@@ -18,7 +18,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,6 +47,7 @@ from pmalab.identify.diagnosis.ranking import (
     MIN_BLOCK_T,
     MIN_GAIN_X_FLOOR,
     alike,
+    finite_or_none,
     heldout_floor,
     rate_dependent,
     scored_part,
@@ -164,8 +164,8 @@ class Diagnosis:
                 rows.append(
                     (
                         r["effect"],
-                        f"{r['nrmse_before']:.4f}",
-                        "—" if after is None else f"{after:.4f}",
+                        _f4(r["nrmse_before"]),
+                        _f4(after),
                         "—",
                         "—",
                         "—" if k is None else str(k),
@@ -176,8 +176,8 @@ class Diagnosis:
             rows.append(
                 (
                     r["effect"],
-                    f"{r['nrmse_before']:.4f}",
-                    f"{r['nrmse_after']:.4f}",
+                    _f4(r["nrmse_before"]),
+                    _f4(r["nrmse_after"]),
                     f"{r['fall_percent']:+.1f}",
                     f"{2 * r['fall_se_percent']:.1f}",
                     str(r["n_params"]),
@@ -212,7 +212,8 @@ class Diagnosis:
 
         fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
         names = [r["effect"] for r in self.ranking][::-1]
-        before = [r["nrmse_before"] for r in self.ranking][::-1]
+        # null: no held-out run left to judge on (or, after, the identification raised)
+        before = [r["nrmse_before"] or 0.0 for r in self.ranking][::-1]
         after = [r["nrmse_after"] or 0.0 for r in self.ranking][::-1]  # null: it raised
         y = np.arange(len(names))
         a1.barh(y + 0.2, before, 0.4, color="0.7", label="without")
@@ -245,6 +246,11 @@ class Diagnosis:
         if path is not None:
             fig.savefig(path)
         return fig
+
+
+def _f4(v: float | None) -> str:
+    """A held-out nrmse for a table: four decimals, "—" when null."""
+    return "—" if v is None else f"{v:.4f}"
 
 
 def _json_default(o: Any) -> Any:
@@ -358,6 +364,8 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
         for lw in laws
         if lw.get("status") != "failed"
         and lw.get("gain_x_floor") is not None
+        and lw["nrmse_after"] is not None
+        and lw["nrmse_before"] is not None
         and lw["nrmse_after"] < lw["nrmse_before"]
     ]
     if not ok:
@@ -504,7 +512,8 @@ def _summary(
                 "no held-out run is left to judge a candidate on."
                 if every
                 else f"{'that run is' if len(div) == 1 else 'those runs are'} no evidence "
-                "for any candidate (each is judged on the other runs)."
+                "for any candidate: each is judged on the other runs, and one whose own "
+                "prediction diverges there too is a failed fit."
             )
         )
     if len(ladder) == 1:
@@ -512,7 +521,9 @@ def _summary(
             (
                 r
                 for r in ranking
-                if r.get("status") != "failed" and math.isfinite(r.get("nrmse_before", math.nan))
+                if r.get("status") != "failed"
+                and r.get("nrmse_before") is not None
+                and r.get("nrmse_after") is not None
             ),
             None,
         )
@@ -650,7 +661,11 @@ def pressure_sentence(
             " The identification with each run at its measured mean (pressure-offset) "
             "failed (above): compare with --pressure measured."
         )
-    fall = f" ({row['nrmse_before']:.4f} → {row['nrmse_after']:.4f})"
+    fall = (
+        ""
+        if row["nrmse_before"] is None or row["nrmse_after"] is None
+        else f" ({row['nrmse_before']:.4f} → {row['nrmse_after']:.4f})"
+    )
     return head + (
         f" Taking each run at its measured mean (pressure-offset) does not cut the validation "
         f"error significantly{fall}: the offsets do not matter to this model."
@@ -785,9 +800,10 @@ def diagnose(
             "law": c.effect,
             "status": "failed" if c.failed else "ok",
             **({"reason": c.failure()} if c.failed else {}),
-            "nrmse_before": float(c.nrmse_before),
+            # null when no held-out run is left to judge on (Candidate.evidence)
+            "nrmse_before": finite_or_none(c.nrmse_before),
             # an identification that raised has no error after it
-            "nrmse_after": None if c.after.error else float(c.nrmse_after),
+            "nrmse_after": None if c.after.error else finite_or_none(c.nrmse_after),
             "fall_percent": None if c.failed else float(100.0 * c.fall),
             "gain_x_floor": None if c.failed else float(c.gain_x_floor),
             "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),

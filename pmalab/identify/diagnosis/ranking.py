@@ -642,8 +642,9 @@ class Candidate:
             "effect": self.effect,
             "status": "failed" if why else "ok",
             **({"reason": why} if why else {}),
-            "nrmse_before": float(self.nrmse_before),
-            "nrmse_after": float(self.nrmse_after),
+            # null when no held-out run is left to judge on (:attr:`evidence`)
+            "nrmse_before": finite_or_none(self.nrmse_before),
+            "nrmse_after": finite_or_none(self.nrmse_after),
             "fall_percent": None if why else float(100.0 * self.fall),
             "fall_se_percent": None if why else float(100.0 * self.fall_se),
             "significant": bool(self.significant),
@@ -674,6 +675,12 @@ class Candidate:
                 ("nrmse_after", "n_params", "runs_improved", "runs_at_floor", "per_run_after")
             )
         return out
+
+
+def finite_or_none(v: float) -> float | None:
+    """``v`` as a float, or None when it is not finite (a mean over no evidence run: JSON
+    has no NaN)."""
+    return float(v) if math.isfinite(v) else None
 
 
 def judge(

@@ -110,6 +110,7 @@ class Problem:
         #: each free parameter's bounds (θ is clipped into them)
         b = np.array([self.bounds.get(n, (-np.inf, np.inf)) for n in self.free], dtype=float)
         self._lo, self._hi = b.reshape(len(self.free), 2).T
+        self._lo_col, self._hi_col = self._lo[:, None], self._hi[:, None]
         #: the last residual: (z's bytes, residual, each run's model parts or None, and
         #: :meth:`_at` at z) — the Jacobian at the same z starts from them
         self._cache: _Cache | None = None
@@ -179,12 +180,15 @@ class Problem:
     def _at(self, z: np.ndarray) -> tuple[np.ndarray, list[dict[str, float]]]:
         """(the unclipped θ of every free parameter at every run, shape (free, runs); the
         full parameter set of every run)."""
-        raw = self.raw(z)
+        z = np.asarray(z, dtype=float)
         R = len(self.records)
-        RAW = np.array([raw[n] for n in self.free], dtype=float).reshape(len(self.free), R)
+        # :meth:`raw`'s products, each written straight into its row (the same matmul)
+        RAW = np.empty((len(self.free), R))
+        for j, n in enumerate(self.free):
+            np.matmul(self.B[n], z[self.slices[n]], out=RAW[j])
         # each law clipped to its bounds at every run at once (np.clip: the same min/max)
-        free = np.clip(RAW, self._lo[:, None], self._hi[:, None]).T.tolist()
-        per_run = np.asarray(z, dtype=float)[self.n_coef :].reshape(-1, R).T.tolist()
+        free = np.clip(RAW, self._lo_col, self._hi_col).T.tolist()
+        per_run = z[self.n_coef :].reshape(-1, R).T.tolist()
         out = []
         for i in range(R):
             th = dict(self.constants)
@@ -285,16 +289,16 @@ class Problem:
         else:
             parts, (RAW, ths) = None, self._at(z)
         # a clipped θ does not move with z at that run: no column there
-        inside = ((self._lo[:, None] <= RAW) & (RAW <= self._hi[:, None])).T.tolist()
-        law = {n for n, k in self._reuse.items() if k == "law"} if parts else set()
+        inside = ((self._lo_col <= RAW) & (RAW <= self._hi_col)).T.tolist()
+        law = self._law_names() if parts else set()
+        starts = [self.block(j).start for j in range(len(self.run_params))]
         for i, th in enumerate(ths):
             rows = self.rows[i]
             # (parameter, its column for a per-run parameter; None: through the basis)
             cols: list[tuple[str, int | None]] = []
             if not run_only:
                 cols += [(n, None) for n, ok in zip(self.free, inside[i]) if ok]
-            for j, rn in enumerate(self.run_params):
-                cols.append((rn, self.block(j).start + i))
+            cols += [(rn, b + i) for rn, b in zip(self.run_params, starts)]
             batch = [nc for nc in cols if nc[0] in law]
             if len(batch) > 1 and parts:
                 D = self._law_columns(i, th, [n for n, _ in batch], r0, parts[i])
@@ -315,7 +319,8 @@ class Problem:
                 # per parameter (which writes J column by column: slower on many runs)
                 shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
                 where, rep, b = self._basis_layout(i, tuple(n for n, _ in shared))
-                D = np.array([d for _, d in shared])[rep].T  # (samples, columns)
+                # (samples, columns): each column's d stacked once, in J's column order
+                D = np.array([shared[k][1] for k in rep]).T
                 if isinstance(where, slice):
                     np.multiply(D, b, out=J[rows, where])
                 else:
@@ -328,9 +333,17 @@ class Problem:
                 if col is not None:
                     J[rows, col] = d
 
+    def _law_names(self) -> set[str]:
+        """The law's parameters among the reused parts (:attr:`_reuse`), kept until it is
+        replaced."""
+        got = self.__dict__.get("_law_of")
+        if got is None or got[0] is not self._reuse:
+            got = self._law_of = (self._reuse, {n for n, k in self._reuse.items() if k == "law"})
+        return got[1]
+
     def _basis_layout(
         self, i: int, names: tuple[str, ...]
-    ) -> tuple[slice | np.ndarray, np.ndarray, np.ndarray]:
+    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray]:
         """Where run i's Jacobian entries of the shared parameters ``names`` go: (their
         columns of J — a slice when they are adjacent —, for each column the index of its
         parameter in ``names``, and the basis value B_n(p_i) of each column)."""
@@ -340,7 +353,7 @@ class Problem:
             cols = np.concatenate(
                 [np.arange(self.slices[n].start, self.slices[n].stop) for n in names]
             )
-            rep = np.repeat(np.arange(len(names)), [self.degree[n] + 1 for n in names])
+            rep = tuple(k for k, n in enumerate(names) for _ in range(self.degree[n] + 1))
             b = np.concatenate([np.asarray(self.B[n][i], dtype=np.float64) for n in names])
             adjacent = bool(np.all(np.diff(cols) == 1))
             where = slice(int(cols[0]), int(cols[-1]) + 1) if adjacent else cols
