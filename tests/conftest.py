@@ -40,8 +40,11 @@ threadpool_limits(limits=1, user_api="blas")
 #:
 #: * **The docs build first** (the first worker): one test of ~2 min that makes its
 #:   tutorial units several processes at once, at a lower priority on an otherwise idle
-#:   machine (nice 10: test_docs_site's ``_lower_priority``).  xdist hands that worker a second file at once (the docs file holds two
-#:   tests), test_diagnosis_invariant, which it runs after the build.
+#:   machine (nice 10: test_docs_site's ``_lower_priority``).  xdist hands that worker a
+#:   second file at once (the docs file holds two tests), which it runs only after the
+#:   build: a short one (test_acq_fakes), so that no long file waits behind a build that
+#:   takes longer than planned (at load 15: 18 minutes, then test_diagnosis_invariant
+#:   alone on one core for 3.5 more while the other worker had finished).
 #: * **The wheel second**: the second worker starts with it.  Its commands run the
 #:   installed wheel's code, whose compiled laws are cached apart from the checkout's
 #:   (numba keys its cache by source file), while the docs build's first commands compile
@@ -51,8 +54,10 @@ threadpool_limits(limits=1, user_api="blas")
 #: * **Then the files that mostly wait** (:data:`WAITING`: real-time recordings against
 #:   emulated devices), on the second worker while the docs build still runs: they leave
 #:   most of their core idle, and the build, at nice 10, takes it and gives it back the
-#:   moment a recording or an emulator wakes.  Beside a one-process file they idled ~40 core-s of the
-#:   run; by then the simulator is in the cache (no recording waits for a compile).
+#:   moment a recording or an emulator wakes.  Beside a one-process file they idled ~40
+#:   core-s of the run; by then the simulator is in the cache (no recording waits for a
+#:   compile).  test_diagnosis_invariant follows them, by then with the laws the docs
+#:   build's first commands compiled in the cache.
 #:
 #: test_reports_laws is not listed: it reads the laws test_laws_elements makes
 #: (tests/shared_work.py), so it comes later instead of waiting beside it for them;
@@ -69,8 +74,9 @@ WAITING = (
 LONGEST_FIRST = (
     "test_docs_site.py",
     "test_wheel.py",
-    "test_diagnosis_invariant.py",
+    "test_acq_fakes.py",
     *WAITING,
+    "test_diagnosis_invariant.py",
     "test_first_hour.py",
     "test_active.py",
     "test_static_identify.py",
