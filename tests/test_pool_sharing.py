@@ -112,7 +112,10 @@ def test_context_runs_travel_as_their_place_in_the_context():
 
 def test_a_round_with_a_helper_scores_as_one_process_bit_for_bit():
     """A long candidate (an element law choosing its structure) beside a short one: the
-    worker done first helps the other, and every score is the one-process score."""
+    worker done first may help the other — whether it gets there in time depends on the
+    machine's scheduling (on a loaded machine it may not; the batches that it helps with are
+    tested above with a helper made to wait) — and every score is the one-process score
+    either way."""
     train = [make_run("bouc-wen", p, f=0.5, n=1200, seed=i, name=f"id{i}")[0]
              for i, p in enumerate((0.3, 0.45, 0.6))]
     held = [make_run("bouc-wen", 0.4, f=0.4, n=1200, seed=9, name="held")[0]]
@@ -120,8 +123,6 @@ def test_a_round_with_a_helper_scores_as_one_process_bit_for_bit():
     alone = score_all(train, held, specs, jobs=1)
     with ContextPool((train, held), jobs=2) as pool:
         par = score_all(train, held, specs, jobs=2, pool=pool, base_fits={})
-        helped = pool.helped
-    assert helped > 0
     for a, b in zip(par, alone, strict=True):
         assert a.nrmse == b.nrmse and a.n_params == b.n_params
         for x, y in zip(a.predictions, b.predictions, strict=True):
