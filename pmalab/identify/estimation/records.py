@@ -244,15 +244,7 @@ def estimate_record(
     b = dict(bounds or {})
     for n in names:
         b.setdefault(n, (-np.inf, np.inf))
-    prob = Problem(
-        model,
-        [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
-        free=[],
-        degree={},
-        constants={k: v for k, v in th.items() if k not in names},
-        bounds=b,
-        run_params=names,
-    )
+    prob = _record_problem(model, sig, force, th, b, names)
     # start: the pressure law's c0 (a drifting zero), every other record parameter at 0
     pr = dict(prior or {})
     start = {n: [th[n] if n == "c0" else pr[n][0] if n in pr else 0.0] for n in names}
@@ -276,20 +268,33 @@ def estimate_record(
     if rest and rows_kept is not None:
         # the force zero (and any drift rate) refitted where the record revisits, h0 and its
         # branch held: the excursion's misfit is carried into none of them
-        prob3 = Problem(
-            model,
-            [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
-            free=[],
-            degree={},
-            constants={k: v for k, v in th.items() if k not in rest},
-            bounds=b,
-            run_params=rest,
-        )
+        prob3 = _record_problem(model, sig, force, th, b, rest)
         z3 = fit_record_params(
             prob3, prob3.z_from({}, {n: [th[n]] for n in rest}), prior=pr, rows_kept=rows_kept
         )
         th.update({n: v[0] for n, v in prob3.run_values(z3).items()})
     return th
+
+
+def _record_problem(
+    model: ForceModel,
+    sig: Signals,
+    force: np.ndarray,
+    theta: Mapping[str, float],
+    bounds: dict[str, tuple[float, float]],
+    names: list[str],
+) -> Problem:
+    """The one-record problem whose free parameters are the record parameters ``names``,
+    every other parameter of ``theta`` held."""
+    return Problem(
+        model,
+        [Record("", sig.p_nom, sig, np.asarray(force, dtype=np.float64))],
+        free=[],
+        degree={},
+        constants={k: v for k, v in theta.items() if k not in names},
+        bounds=bounds,
+        run_params=names,
+    )
 
 
 def _cost(prob: Problem, z: np.ndarray) -> float:
