@@ -207,8 +207,20 @@ def test_a_base_that_diverged_on_a_run_claims_nothing_there_and_says_so(monkeypa
     assert base["diverged"] == ["hold-2Hz"]
     text, verdict = _summary("bouc-wen", [base], [r.candidates[0].as_json()], [], 0.022, None,
                              "", "given", [0.022, 0.022])
-    assert "diverged on hold-2Hz" in text and "no evidence for any candidate" in text
+    assert "diverged or ran off on hold-2Hz" in text and "no evidence for any candidate" in text
     assert verdict == "unexplained"
+
+
+def test_a_run_the_base_ran_off_on_with_a_finite_prediction_is_named():
+    # a finite held-out prediction at nrmse >= DIVERGED_NRMSE (12.5, counted at 10) is left
+    # out of every candidate's evidence like a diverged one; the ladder step names it too
+    labels = ["hold-0.5Hz", "hold-2Hz"]
+    scored = Scored((), [0.130, 10.0], labels=labels)  # 10.0: capped, not diverged
+    assert scored.diverged == [] and scored.unjudged == ["hold-2Hz"]
+    step = ladder.LadderStep(0, [], None, scored, law="bouc-wen").as_json()
+    assert step["diverged"] == ["hold-2Hz"]
+    fine = ladder.LadderStep(0, [], None, Scored((), [0.130, 9.9], labels=labels)).as_json()
+    assert "diverged" not in fine
 
 
 def test_the_summary_says_a_candidate_diverging_where_the_base_did_is_a_failed_fit():

@@ -437,8 +437,9 @@ class LadderEntry(TypedDict):
     switched_law: NotRequired[str | None]
     per_run: NotRequired[list[float | None]]
     model: NotRequired[str]
-    #: held-out runs on which the step's prediction diverged (present only when there are
-    #: such runs; they are no evidence for the next step's candidates)
+    #: held-out runs on which the step's prediction diverged or ran off to nrmse ≥ 10
+    #: (present only when there are such runs; they are no evidence for the next step's
+    #: candidates)
     diverged: NotRequired[list[str]]
 
 
@@ -458,7 +459,11 @@ class LawEntry(TypedDict):
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
+    #: per held-out run: the base model's nrmse (every law is scored against it)
+    per_run_before: NotRequired[list[float]]
     per_run_after: NotRequired[list[float | None] | None]
+    #: held-out runs at their noise floor with the base model and with the law
+    runs_at_floor: NotRequired[int]
     #: held-out runs left out of the evidence (see ``RankingEntry.left_out``)
     left_out: NotRequired[list[str]]
     #: the pressure structure the law's elements took (``free`` | ``scaled`` |

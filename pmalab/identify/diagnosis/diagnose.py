@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -388,17 +389,26 @@ def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
         return f"the gain over the {model} model is within what noise gives"
     before, after = row.get("per_run_before"), row.get("per_run_after")
     if before and after and len(before) == len(after):
-        fell = sum(a < b for a, b in zip(after, before))
+        judged = _judged(before)
+        fell = sum(after[i] < before[i] for i in judged)
         at_floor = int(row.get("runs_at_floor") or 0)
-        if fell + at_floor < len(after):
+        if fell + at_floor < len(judged):
             return (
-                f"it lowers the error on only {fell} of {len(after)} held-out runs (the rule "
+                f"it lowers the error on only {fell} of {len(judged)} held-out runs (the rule "
                 "asks for every run not at its noise floor)"
             )
     t = row.get("block_t")
     if t is not None and t < MIN_BLOCK_T:
         return f"its fall is not consistent cycle by cycle (block t {t:.1f} < {MIN_BLOCK_T:g})"
     return "it does not pass the significance rule"
+
+
+def _judged(before: Sequence[float | None]) -> list[int]:
+    """The held-out runs (indices) a row's ``per_run_before`` shows the current model
+    predicted: finite and below ``DIVERGED_NRMSE`` (``Candidate.evidence``)."""
+    return [
+        i for i, v in enumerate(before) if v is not None and math.isfinite(v) and v < DIVERGED_NRMSE
+    ]
 
 
 def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -419,16 +429,20 @@ def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
     if len(ok) < 2:
         return []
     best = max(ok, key=lambda lw: lw["fall_percent"])
+    # the runs the base model predicted (every law row is scored against the same base): a
+    # run it diverged on is no evidence, and both laws "fall" ~DIVERGED_NRMSE there
+    before = best.get("per_run_before")
+    judged = _judged(before) if before else range(len(best["per_run_after"]))
+
+    def runs(lw: Mapping[str, Any]) -> list[float]:
+        r = lw["per_run_after"]
+        return [r[i] for i in judged] if len(r) == len(best["per_run_after"]) else list(r)
+
     same = [
         lw["law"]
         for lw in sorted(ok, key=lambda lw: -lw["fall_percent"])
         if lw is not best
-        and alike(
-            best["fall_percent"] / 100.0,
-            best["per_run_after"],
-            lw["fall_percent"] / 100.0,
-            lw["per_run_after"],
-        )
+        and alike(best["fall_percent"] / 100.0, runs(best), lw["fall_percent"] / 100.0, runs(lw))
     ]
     return [best["law"], *same] if same else []
 
@@ -506,8 +520,8 @@ def _summary(
     if div := base.get("diverged"):
         every = len(div) == len(base.get("per_run") or div)
         parts.append(
-            f"Its held-out prediction diverged on {', '.join(div)} (counted at nrmse "
-            f"{DIVERGED_NRMSE:g}): the {model} identification does not hold there, so "
+            f"Its held-out prediction diverged or ran off on {', '.join(div)} (counted at "
+            f"nrmse {DIVERGED_NRMSE:g}): the {model} identification does not hold there, so "
             + (
                 "no held-out run is left to judge a candidate on."
                 if every
@@ -809,7 +823,9 @@ def diagnose(
             "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
             "runs_improved": None if c.after.error else float(c.runs_improved),
             "significant": bool(c.significant),
+            "per_run_before": [float(v) for v in c.before.nrmse],
             "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
+            "runs_at_floor": int(sum(c.at_floor)),
             **({"left_out": c.left_out} if c.left_out else {}),
             # how the law's elements change with pressure, chosen by the identification's
             # own leave-one-pressure-out evidence (None: the law offers no structures)
