@@ -453,7 +453,21 @@ class LawEntry(TypedDict):
     nrmse_after: float | None
     #: null when the law's fit failed (``status`` "failed", ``reason``)
     fall_percent: float | None
+    #: the ladder switched to this law (as ``RankingEntry.significant``: only a law the
+    #: ladder took is claimed)
     significant: bool
+    #: round 1's verdict: the law against the base model alone
+    significant_alone: NotRequired[bool]
+    #: the verdict against the final model, where the ladder scored the law against it;
+    #: null when it stopped first (step limit, noise floor); absent when the ladder took no
+    #: step or took this law
+    significant_last: NotRequired[bool | None]
+    #: the step that switched to this law (null if none)
+    ladder_step: NotRequired[int | None]
+    #: the round the row's numbers come from (``rounds[round - 1].laws``)
+    round: NotRequired[int]
+    #: the model the law was scored against (``"base"`` or the effects of that step)
+    scored_against: NotRequired[str]
     status: NotRequired[str]
     reason: NotRequired[str]
     gain_x_floor: NotRequired[float | None]
@@ -561,6 +575,9 @@ class RoundEntry(TypedDict):
     step: int
     ambiguous: NotRequired[list[str]]
     candidates: NotRequired[list[dict[str, Any]]]
+    #: the other laws scored in this round, against the same model (as ``laws`` rows,
+    #: without the ladder's keys)
+    laws: NotRequired[list[dict[str, Any]]]
 
 
 class ActiveRoundEntry(TypedDict):
