@@ -444,7 +444,8 @@ class LadderEntry(TypedDict):
 
 
 class LawEntry(TypedDict):
-    """Another hysteresis law scored against the base model (``laws[i]``, best first)."""
+    """Another hysteresis law scored like an effect (``laws[i]``, best first): against the
+    base model, or, for a law the ladder switched to, against the model of the step before."""
 
     law: str
     #: as ``RankingEntry.nrmse_before``
@@ -464,7 +465,8 @@ class LawEntry(TypedDict):
     significant_last: NotRequired[bool | None]
     #: the step that switched to this law (null if none)
     ladder_step: NotRequired[int | None]
-    #: the round the row's numbers come from (``rounds[round - 1].laws``)
+    #: the round the row's numbers come from (``rounds[round - 1].laws``;
+    #: ``settings.ladder_rounds`` after active identification)
     round: NotRequired[int]
     #: the model the law was scored against (``"base"`` or the effects of that step)
     scored_against: NotRequired[str]
@@ -473,7 +475,8 @@ class LawEntry(TypedDict):
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
-    #: per held-out run: the base model's nrmse (every law is scored against it)
+    #: per held-out run: the nrmse of the model the law was scored against
+    #: (``scored_against``: the base model unless the ladder switched to the law)
     per_run_before: NotRequired[list[float]]
     per_run_after: NotRequired[list[float | None] | None]
     #: held-out runs at their noise floor with the base model and with the law
@@ -617,7 +620,8 @@ class DiagnosisDoc(TypedDict):
     final_law: NotRequired[str]
     laws: NotRequired[list[LawEntry]]
     #: the laws that predict the held-out runs about equally well as the best law, best
-    #: first (empty: one stands out, or fewer than two cut the base model's error)
+    #: first, among the laws of one round (empty: one stands out, or fewer than two cut
+    #: the error of the model they were scored against)
     laws_alike: NotRequired[list[str]]
     residual: NotRequired[Residual]
     settings: NotRequired[dict[str, Any]]

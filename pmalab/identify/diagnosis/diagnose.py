@@ -119,7 +119,8 @@ class Diagnosis:
     #: per run: (run, base model force at full rate, final model force at full rate)
     traces: list[tuple[Run, np.ndarray, np.ndarray]] = field(default_factory=list, repr=False)
     final_effects: list[str] = field(default_factory=list)
-    #: the other laws scored against the base model (``identify --model X``), best first
+    #: the other laws scored like effects (``identify --model X``), best first: against the
+    #: base model, a law the ladder switched to against the model of the step before
     laws: list[dict[str, Any]] = field(default_factory=list)
     #: the law of the final ladder model (the base law unless a step changed it)
     final_law: str = ""
@@ -524,7 +525,8 @@ def _judged(before: Sequence[float | None]) -> list[int]:
 
 def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
     """The laws that predict the held-out runs about equally well as the best one (the
-    best first), or ``[]``: among the laws that cut the base model's error, those whose
+    best first), or ``[]``: among the laws (of one round: their rows scored against one
+    model) that cut that model's error, those whose
     fall is ≥ ``AMBIGUITY_RATIO`` of the best's and which the best does not beat run by run
     beyond chance (:func:`~pmalab.identify.diagnosis.ranking.alike` — the rule that makes
     two significant effects ambiguous).  A statement of what the runs can tell apart, not a
