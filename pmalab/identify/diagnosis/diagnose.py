@@ -18,7 +18,6 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +50,7 @@ from pmalab.identify.diagnosis.ranking import (
     alike,
     finite_or_none,
     heldout_floor,
+    judged_runs,
     rate_dependent,
     scored_part,
 )
@@ -501,7 +501,7 @@ def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
         return f"the gain over the {model} model is within what noise gives"
     before, after = row.get("per_run_before"), row.get("per_run_after")
     if before and after and len(before) == len(after):
-        judged = _judged(before)
+        judged = judged_runs(before)
         fell = sum(after[i] < before[i] for i in judged)
         at_floor = int(row.get("runs_at_floor") or 0)
         if fell + at_floor < len(judged):
@@ -513,14 +513,6 @@ def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
     if t is not None and t < MIN_BLOCK_T:
         return f"its fall is not consistent cycle by cycle (block t {t:.1f} < {MIN_BLOCK_T:g})"
     return "it does not pass the significance rule"
-
-
-def _judged(before: Sequence[float | None]) -> list[int]:
-    """The held-out runs (indices) a row's ``per_run_before`` shows the current model
-    predicted: finite and below ``DIVERGED_NRMSE`` (``Candidate.evidence``)."""
-    return [
-        i for i, v in enumerate(before) if v is not None and math.isfinite(v) and v < DIVERGED_NRMSE
-    ]
 
 
 def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -545,7 +537,7 @@ def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
     # the runs the base model predicted (every law row is scored against the same base): a
     # run it diverged on is no evidence, and both laws "fall" ~DIVERGED_NRMSE there
     before = best.get("per_run_before")
-    judged = _judged(before) if before else range(len(best["per_run_after"]))
+    judged = judged_runs(before) if before else range(len(best["per_run_after"]))
 
     def runs(lw: Mapping[str, Any]) -> list[float]:
         r = lw["per_run_after"]

@@ -139,10 +139,10 @@ class Scored:
 
     @property
     def judged(self) -> list[int]:
-        """The held-out runs (indices) this model predicted: nrmse finite and below
-        ``DIVERGED_NRMSE``.  On the others its prediction diverged or ran off; they are no
-        evidence for a candidate scored against it (:attr:`Candidate.evidence`)."""
-        return [i for i, v in enumerate(self.nrmse) if math.isfinite(v) and v < DIVERGED_NRMSE]
+        """The held-out runs (indices) this model predicted (:func:`judged_runs`).  On the
+        others its prediction diverged or ran off; they are no evidence for a candidate
+        scored against it (:attr:`Candidate.evidence`)."""
+        return judged_runs(self.nrmse)
 
     @property
     def unjudged(self) -> list[str]:
@@ -151,6 +151,14 @@ class Scored:
         kept = set(self.judged)
         names = self.labels or [f"held-out run {i + 1}" for i in range(len(self.nrmse))]
         return [n for i, n in enumerate(names) if i not in kept]
+
+
+def judged_runs(nrmse: Sequence[float | None]) -> list[int]:
+    """The held-out runs (indices) a model's per-run nrmse shows it predicted: finite and
+    below ``DIVERGED_NRMSE`` (None, as diagnosis.json writes a missing value, is not)."""
+    return [
+        i for i, v in enumerate(nrmse) if v is not None and math.isfinite(v) and v < DIVERGED_NRMSE
+    ]
 
 
 def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
