@@ -278,3 +278,23 @@ def test_why_a_law_is_not_claimed_counts_the_runs_the_base_predicted():
            "per_run_after": [0.020, 0.024, 0.046, 0.025, 0.3], "runs_at_floor": 0}
     text = closest_law_phrase("bouc-wen", [law])
     assert "it lowers the error on only 3 of 4 held-out runs" in text
+
+
+def test_why_a_law_is_not_claimed_names_the_run_it_rose_on_beside_runs_at_their_floor():
+    # two runs at their noise floor that fell too, one run that fell, one (not at its floor)
+    # on which the law's error rose: the rule fails on that run, and the summary says so —
+    # a run at its floor that fell is counted once, not as fallen and again as at its floor
+    from pmalab.identify.diagnosis.diagnose import _law_row, _summary
+
+    labels = ["a", "b", "c", "d"]
+    floors = [0.02] * 4
+    base = Scored((), [0.024, 0.024, 0.060, 0.050], labels=labels)
+    law = Scored((), [0.021, 0.022, 0.040, 0.052], labels=labels)
+    c = Candidate("maxwell-slip", base, law, floors=floors)
+    assert not c.every_run and c.gain_x_floor >= 0.25 and not c.significant
+    row = {**_law_row(c), "significant_alone": False, "block_t": 1.0}
+    step = {"step": 0, "effects": [], "added": None, "nrmse": base.mean, "fit_percent": 0.0,
+            "per_run": base.nrmse}
+    text, _ = _summary("bouc-wen", [step], [], [], 0.02, None, "", "given", floors, laws=[row])
+    assert "it lowers the error on only 3 of 4 held-out runs" in text, text
+    assert "not consistent cycle by cycle" not in text

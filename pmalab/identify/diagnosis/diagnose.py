@@ -436,12 +436,15 @@ def _structure_keys(js: Mapping[str, Any] | None) -> dict[str, Any]:
     }
 
 
-def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
+def closest_law_phrase(
+    model: str, laws: Sequence[Mapping[str, Any]], floors: Sequence[float] = ()
+) -> str:
     """What the laws say when none is significant: the law that predicts best, if it beats
     the base model at all, with its gain against the rule's threshold — so a user whose loop
     has that law's shape is told, and told which part of the rule it fails (the gain within
     what noise gives, a held-out run it does not improve, or cycles that do not agree);
-    ``""`` when no law predicts better than the base model."""
+    ``""`` when no law predicts better than the base model.  ``floors``: the held-out runs'
+    noise floors (nrmse), to tell which runs are at their floor (:func:`_why_not_claimed`)."""
     ok = [
         lw
         for lw in laws
@@ -459,7 +462,8 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
         f"Of the hysteresis laws, {b['law']}{structure_phrase(b)} predicts best: "
         f"{b['nrmse_before']:.4f} → {b['nrmse_after']:.4f} (−{fall:.0f} %, "
         f"{b['gain_x_floor']:.2f} noise floors; a claim needs ≥ {MIN_GAIN_X_FLOOR:g}): the "
-        f"loop may have its shape, but {_why_not_claimed(b, model)}, so it is not claimed."
+        f"loop may have its shape, but {_why_not_claimed(b, model, floors)}, so it is not "
+        "claimed."
     )
 
 
@@ -493,18 +497,27 @@ def _absorbed_law_phrase(
     )
 
 
-def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
+def _why_not_claimed(row: Mapping[str, Any], model: str, floors: Sequence[float] = ()) -> str:
     """The part of the significance rule a not-significant law row fails, in words (the
     first that fails, in the rule's order: the mean gain, every held-out run, cycle by
-    cycle)."""
+    cycle).  With the held-out runs' noise floors (``floors``) a run is exempt from falling
+    where it is at its floor without and with the law (``Candidate.at_floor``); without them
+    only the count ``runs_at_floor`` is known, and a run that rose shows only when more runs
+    rose than are at their floor."""
     if row["gain_x_floor"] < MIN_GAIN_X_FLOOR:
         return f"the gain over the {model} model is within what noise gives"
     before, after = row.get("per_run_before"), row.get("per_run_after")
     if before and after and len(before) == len(after):
         judged = judged_runs(before)
         fell = sum(after[i] < before[i] for i in judged)
-        at_floor = int(row.get("runs_at_floor") or 0)
-        if fell + at_floor < len(judged):
+        if len(floors) == len(before):
+            held = sum(
+                after[i] < before[i] or max(before[i], after[i]) < AT_FLOOR_RATIO * floors[i]
+                for i in judged
+            )
+        else:
+            held = fell + int(row.get("runs_at_floor") or 0)
+        if held < len(judged):
             return (
                 f"it lowers the error on only {fell} of {len(judged)} held-out runs (the rule "
                 "asks for every run not at its noise floor)"
@@ -705,7 +718,7 @@ def _summary(
                 f"`--model {b['law']}`: {b['nrmse_before']:.4f} → "
                 f"{b['nrmse_after']:.4f} (−{b['fall_percent']:.0f} %)."
             )
-        elif closest := closest_law_phrase(model, laws):
+        elif closest := closest_law_phrase(model, laws, run_floors):
             parts.append(closest)
     if same := alike_phrase(laws_alike(laws if alike_rows is None else alike_rows)):
         parts.append(same)
