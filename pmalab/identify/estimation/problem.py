@@ -313,19 +313,24 @@ class Problem:
                 if n not in done
             ]
             shared = [(n, d) for (n, col), d in pairs if col is None]
-            if len(shared) > 1 and len(ths) > 1:
-                # every shared column of run i in one product, written row by row: J =
+            if len(shared) > 1:
+                # every shared column of run i at once, written row by row: J =
                 # ∂r/∂θ_n · B_n(p_i), the same single multiplication per entry as a product
                 # per parameter (which writes J column by column: slower on many runs)
                 shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
-                where, rep, b = self._basis_layout(i, tuple(n for n, _ in shared))
-                # (samples, columns): each column's d stacked once, in J's column order
-                D = np.array([shared[k][1] for k in rep]).T
-                if isinstance(where, slice):
-                    np.multiply(D, b, out=J[rows, where])
-                else:
-                    J[rows, where] = D * b
-                shared = []
+                where, rep, b, unit = self._basis_layout(i, tuple(n for n, _ in shared))
+                if unit or len(ths) > 1:
+                    # (samples, columns): each column's d stacked once, in J's column order
+                    D = np.array([shared[k][1] for k in rep]).T
+                    if unit:
+                        # every B_n(p_i) is 1 (order 0: a single run's fit): d·1 is d, bit
+                        # for bit, so the entries are copied, not multiplied
+                        J[rows, where] = D
+                    elif isinstance(where, slice):
+                        np.multiply(D, b, out=J[rows, where])
+                    else:
+                        J[rows, where] = D * b
+                    shared = []
             for n, d in shared:
                 # np.outer's products, written straight into J (no temporary)
                 np.multiply(d[:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
@@ -343,10 +348,11 @@ class Problem:
 
     def _basis_layout(
         self, i: int, names: tuple[str, ...]
-    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray]:
+    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray, bool]:
         """Where run i's Jacobian entries of the shared parameters ``names`` go: (their
         columns of J — a slice when they are adjacent —, for each column the index of its
-        parameter in ``names``, and the basis value B_n(p_i) of each column)."""
+        parameter in ``names``, the basis value B_n(p_i) of each column, and whether every
+        one of those values is exactly 1)."""
         key = (i, names)
         got = self._layouts.get(key)
         if got is None:
@@ -357,7 +363,7 @@ class Problem:
             b = np.concatenate([np.asarray(self.B[n][i], dtype=np.float64) for n in names])
             adjacent = bool(np.all(np.diff(cols) == 1))
             where = slice(int(cols[0]), int(cols[-1]) + 1) if adjacent else cols
-            got = self._layouts[key] = (where, rep, b[None, :])
+            got = self._layouts[key] = (where, rep, b[None, :], bool(np.all(b == 1.0)))
         return got
 
     def _step(self, name: str, v: float) -> float:

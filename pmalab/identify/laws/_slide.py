@@ -76,8 +76,12 @@ def slide_start(k, f, h0, s=1.0):
         mid = 0.5 * (lo + hi)
         hm = _branch(k, f, s, mid, z)
         if (hm - target) * s > 0.0:
+            if mid == lo:
+                break  # (lo, hi) unchanged: every step left would be this one again
             lo = mid
         else:
+            if mid == hi:
+                break
             hi = mid
     _branch(k, f, s, 0.5 * (lo + hi), z)
     return z
