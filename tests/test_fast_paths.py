@@ -164,3 +164,31 @@ def test_one_run_jacobian_entries_are_the_products_bit_for_bit(law, effects):
         ref[rows, prob.block(j).start] = prob.dresid(0, th, rn, r0)
     assert J.tobytes() == ref.tobytes(), np.argwhere(J != ref)[:5]
     assert np.all(np.any(J != 0.0, axis=0))  # every column written
+
+
+@pytest.mark.parametrize("runs", [1, 3])
+def test_order0_laws_are_the_basis_products_bit_for_bit(runs):
+    # every law of order 0: θ at each run is taken from z without the products; it must be
+    # B·z's numbers, a −0.0 coefficient becoming +0.0 as the product makes it, NaN kept
+    model = ForceModel("bouc-wen", [EFFECTS["viscous-friction"]()])
+    base = _one_run_problem(model)
+    rec = base.records[0]
+    recs = [Record(f"r{i}", 0.2 + 0.15 * i, rec.sig, rec.force) for i in range(runs)]
+    prob = Problem(model, recs, free=base.free, degree=dict.fromkeys(base.free, 0),
+                   constants=base.constants, bounds=base.bounds, run_params=base.run_params)
+    assert prob._order0
+    z = np.linspace(-3.0, 4.0, prob.n_var)
+    z[0], z[1], z[2] = -0.0, np.nan, 1e308
+    RAW, ths = prob._at(z)
+    want = np.empty((len(prob.free), runs))
+    for j, n in enumerate(prob.free):
+        np.matmul(prob.B[n], z[prob.slices[n]], out=want[j])
+    assert RAW.shape == want.shape and RAW.tobytes() == want.tobytes()
+    assert not np.signbit(RAW[0]).any()
+    for i, th in enumerate(ths):
+        for j, n in enumerate(prob.free):
+            lo, hi = prob.bounds.get(n, (-np.inf, np.inf))
+            assert np.array(th[n]).tobytes() == np.clip(want[j, i], lo, hi).tobytes()
+    deg1 = Problem(model, recs, free=base.free, degree=dict.fromkeys(base.free, 1),
+                   constants=base.constants, bounds=base.bounds, run_params=base.run_params)
+    assert not deg1._order0

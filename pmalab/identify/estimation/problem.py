@@ -97,6 +97,11 @@ class Problem:
         self.basis = basis or PressureBasis.over([r.p_nom for r in self.records])
         ps = [r.p_nom for r in self.records]
         self.B = {n: self.basis.matrix(ps, self.degree[n]) for n in self.free}
+        #: every free parameter of order 0 with its basis 1 at every run (a single run's
+        #: fit): θ_n is then z_n itself at every run (:meth:`_at`)
+        self._order0 = all(
+            self.degree[n] == 0 and bool(np.all(self.B[n] == 1.0)) for n in self.free
+        )
         self.slices: dict[str, slice] = {}
         i = 0
         for n in self.free:
@@ -182,10 +187,17 @@ class Problem:
         full parameter set of every run)."""
         z = np.asarray(z, dtype=float)
         R = len(self.records)
-        # :meth:`raw`'s products, each written straight into its row (the same matmul)
-        RAW = np.empty((len(self.free), R))
-        for j, n in enumerate(self.free):
-            np.matmul(self.B[n], z[self.slices[n]], out=RAW[j])
+        if self._order0:
+            # B_n·c_n at every run is 0 + 1·c_n: c_n itself, a −0.0 made +0.0 (the matmul's
+            # numbers, NaN and inf as they are)
+            RAW = np.add(z[: self.n_coef], 0.0)[:, None]
+            if R != 1:
+                RAW = np.repeat(RAW, R, axis=1)
+        else:
+            # :meth:`raw`'s products, each written straight into its row (the same matmul)
+            RAW = np.empty((len(self.free), R))
+            for j, n in enumerate(self.free):
+                np.matmul(self.B[n], z[self.slices[n]], out=RAW[j])
         # each law clipped to its bounds at every run at once (np.clip: the same min/max)
         free = np.clip(RAW, self._lo_col, self._hi_col).T.tolist()
         per_run = z[self.n_coef :].reshape(-1, R).T.tolist()
