@@ -192,3 +192,14 @@ def test_order0_laws_are_the_basis_products_bit_for_bit(runs):
     deg1 = Problem(model, recs, free=base.free, degree=dict.fromkeys(base.free, 1),
                    constants=base.constants, bounds=base.bounds, run_params=base.run_params)
     assert not deg1._order0
+
+
+def test_column_is_float_of_each_value_bit_for_bit():
+    from pmalab.identify.laws._slide import column
+
+    thetas = [{"a": 1, "b": np.float32(0.1), "c": -0.0, "d": float("nan"), "e": 2**60 + 1},
+              {"a": True, "b": np.float64(3.5), "c": 7.25, "d": -np.inf, "e": 1e-320}]
+    for names in (("a", "b", "c", "d", "e"), ("c",), ("d", "a"), ()):
+        want = np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64)
+        got = column(thetas, names)
+        assert got.shape == (2, len(names)) and got.tobytes() == want.reshape(2, -1).tobytes()
