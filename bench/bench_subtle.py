@@ -109,8 +109,12 @@ def diagnose_verdict(ident: Path, val: Path, out: Path) -> tuple[str, bool, floa
           "--quiet", "--jobs", "1", "--max-steps", "2"])
     doc = json.loads((out / "diagnosis.json").read_text())
     top = doc["ranking"][0]
-    return (top["effect"], bool(top["significant"]), float(top["nrmse_before"]),
-            float(top["nrmse_after"]), ", ".join(e for e in doc.get("ambiguous", [])
+    # nrmse_before/after are null when no held-out run was left to judge on
+    def num(v: float | None) -> float:
+        return float("nan") if v is None else float(v)
+
+    return (top["effect"], bool(top["significant"]), num(top["nrmse_before"]),
+            num(top["nrmse_after"]), ", ".join(e for e in doc.get("ambiguous", [])
                                                  if e != top["effect"]) or "—")
 
 

@@ -60,7 +60,9 @@ def _lower_priority() -> list[str]:
     if not nice or not os.environ.get("PYTEST_XDIST_WORKER"):
         return []
     try:
-        idle = os.getloadavg()[0] < (os.cpu_count() or 1) + 1
+        # the cores this process may run on (a container's cgroup/affinity, not the host's)
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+        idle = os.getloadavg()[0] < (cores or os.cpu_count() or 1) + 1
     except OSError:  # no load average here
         idle = False
     return [nice, "-n", "10"] if idle else []

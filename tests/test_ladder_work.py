@@ -207,8 +207,20 @@ def test_a_base_that_diverged_on_a_run_claims_nothing_there_and_says_so(monkeypa
     assert base["diverged"] == ["hold-2Hz"]
     text, verdict = _summary("bouc-wen", [base], [r.candidates[0].as_json()], [], 0.022, None,
                              "", "given", [0.022, 0.022])
-    assert "diverged on hold-2Hz" in text and "no evidence for any candidate" in text
+    assert "diverged or ran off on hold-2Hz" in text and "no evidence for any candidate" in text
     assert verdict == "unexplained"
+
+
+def test_a_run_the_base_ran_off_on_with_a_finite_prediction_is_named():
+    # a finite held-out prediction at nrmse >= DIVERGED_NRMSE (12.5, counted at 10) is left
+    # out of every candidate's evidence like a diverged one; the ladder step names it too
+    labels = ["hold-0.5Hz", "hold-2Hz"]
+    scored = Scored((), [0.130, 10.0], labels=labels)  # 10.0: capped, not diverged
+    assert scored.diverged == [] and scored.unjudged == ["hold-2Hz"]
+    step = ladder.LadderStep(0, [], None, scored, law="bouc-wen").as_json()
+    assert step["diverged"] == ["hold-2Hz"]
+    fine = ladder.LadderStep(0, [], None, Scored((), [0.130, 9.9], labels=labels)).as_json()
+    assert "diverged" not in fine
 
 
 def test_the_summary_says_a_candidate_diverging_where_the_base_did_is_a_failed_fit():
@@ -226,3 +238,69 @@ def test_the_summary_says_a_candidate_diverging_where_the_base_did_is_a_failed_f
     text, _ = _summary("bouc-wen", [step], [c.as_json()], [], 0.022, None, "", "given")
     assert "Fit failed (not ranked): inertia: the held-out prediction diverged on hold-2Hz" in text
     assert "one whose own prediction diverges there too is a failed fit" in text
+
+
+def _climb(monkeypatch, nrmse, effects, laws, labels):
+    def score_all(train, held, specs, jobs=1, progress=False, desc="", scheduler=None, pool=None,
+                  base_fits=None):
+        return [Scored(s.effects, nrmse[(s.law, s.effects)], labels=labels) for s in specs]
+
+    monkeypatch.setattr(ladder, "score_all", score_all)
+    monkeypatch.setattr(ladder, "heldout_floor", lambda r: 0.02)
+    return ladder.run_ladder(
+        [SimpleNamespace(frequency=None)],  # pyright: ignore[reportArgumentType]
+        labels,  # pyright: ignore[reportArgumentType]  (never read)
+        "bouc-wen",
+        effects,
+        laws=laws,
+    )
+
+
+def test_a_law_significant_only_against_the_base_model_is_not_claimed(monkeypatch):
+    # a true sensor drift on the held-out records: against the base model alone any law's
+    # refit lowers the error (the drift-linear look-alike: Maxwell-slip -37 %), but the drift
+    # explains that fall; once the ladder has added it the law gains nothing.  Judged as the
+    # effects are, the law is not claimed, and the summary says why
+    from pmalab.identify.diagnosis.diagnose import _laws_json, _summary
+
+    labels = ["a", "b", "c", "d"]
+    nrmse = {
+        ("bouc-wen", ()): [0.090, 0.100, 0.095, 0.092],
+        ("bouc-wen", ("sensor-drift",)): [0.040, 0.042, 0.041, 0.040],
+        ("maxwell-slip", ()): [0.060, 0.065, 0.062, 0.060],
+        ("maxwell-slip", ("sensor-drift",)): [0.039, 0.043, 0.040, 0.040],
+    }
+    climbed = _climb(monkeypatch, nrmse, ["sensor-drift"], ["maxwell-slip"], labels)
+    assert [s.added for s in climbed.steps] == [None, "sensor-drift"]
+    assert climbed.stop == "nothing significant"
+    assert climbed.rounds[0].laws[0].significant  # alone, against the base model
+    assert not climbed.rounds[1].laws[0].significant  # against base + drift
+    (row,) = _laws_json(climbed.rounds, climbed.steps)
+    assert not row["significant"] and row["significant_alone"]
+    assert row["significant_last"] is False and row["round"] == 1
+    ladder_json = [s.as_json() for s in climbed.steps]
+    text, _ = _summary("bouc-wen", ladder_json, [], [], 0.02, None, "", "given", laws=[row],
+                       stop=climbed.stop)
+    assert "Also significant" not in text
+    assert "but not against the model with sensor-drift" in text and "not claimed" in text
+
+
+def test_a_law_the_ladder_switched_to_is_claimed_from_the_round_it_won(monkeypatch):
+    # the law wins round 2 (against base + viscous friction): its row is that round's, as an
+    # effect's row is the round that added it; round 1's verdict stays as significant_alone
+    from pmalab.identify.diagnosis.diagnose import _laws_json
+
+    labels = ["a", "b", "c", "d"]
+    nrmse = {
+        ("bouc-wen", ()): [0.090, 0.100, 0.095, 0.092],
+        ("bouc-wen", ("viscous-friction",)): [0.060, 0.062, 0.061, 0.060],
+        ("maxwell-slip", ()): [0.085, 0.099, 0.094, 0.091],
+        ("maxwell-slip", ("viscous-friction",)): [0.030, 0.031, 0.030, 0.032],
+    }
+    climbed = _climb(monkeypatch, nrmse, ["viscous-friction"], ["maxwell-slip"], labels)
+    assert [s.switched for s in climbed.steps] == [None, None, "maxwell-slip"]
+    (row,) = _laws_json(climbed.rounds, climbed.steps)
+    assert row["significant"] and not row["significant_alone"]
+    assert row["ladder_step"] == 2 and row["round"] == 2
+    assert row["scored_against"] == "viscous-friction"
+    assert row["nrmse_before"] == pytest.approx(0.06075)

@@ -223,3 +223,58 @@ def test_a_base_that_diverged_on_every_held_out_run_writes_null_not_nan(tmp_path
     fig.savefig(tmp_path / "ranking.png")
     d.plot(tmp_path / "plot.png")
     plt.close("all")
+
+
+def test_a_run_the_base_diverged_on_does_not_decide_between_two_candidates():
+    # two significant effects, the winner lower on each of the four runs the base predicted
+    # (a sign test: clearly better, not ambiguous).  On the run the base diverged on, the
+    # other one happens to predict better: compared there too, the winner would no longer be
+    # clearly better and the two would be called ambiguous — on the base's failure
+    labels = ["a", "b", "c", "d", "e"]
+    base = Scored((), [0.040, 0.047, 0.045, 0.050, 10.0], diverged=["e"], labels=labels)
+    x = Scored(("viscous-friction",), [0.020, 0.024, 0.022, 0.025, 0.300], labels=labels)
+    y = Scored(("sensor-delay",), [0.022, 0.026, 0.024, 0.027, 0.295], labels=labels)
+    floors = [0.0035] * 5
+    cands, amb = judge([Candidate(s.effects[0], base, s, floors=floors) for s in (x, y)])
+    assert [c.significant for c in cands] == [True, True]
+    assert cands[1].fall >= 0.85 * cands[0].fall
+    assert amb == []
+    # the same numbers with the base predicting run e: compared over all five runs, the
+    # winner is not clearly lower there, so the two are ambiguous (the rule is unchanged)
+    fine = Scored((), [0.040, 0.047, 0.045, 0.050, 0.6], labels=labels)
+    cands, amb = judge([Candidate(s.effects[0], fine, s, floors=floors) for s in (x, y)])
+    assert cands[0].effect == "viscous-friction"
+    assert amb == ["viscous-friction", "sensor-delay"]
+
+
+def test_laws_alike_compares_laws_on_the_runs_the_base_predicted():
+    # the laws rows carry the base's per-run nrmse: a run it diverged on (10) is no
+    # evidence for telling two laws apart either
+    from pmalab.identify.diagnosis.diagnose import laws_alike
+
+    before = [0.040, 0.047, 0.045, 0.050, 10.0]
+
+    def row(law: str, after: list[float]) -> dict:
+        b = sum(before[:4]) / 4
+        return {"law": law, "status": "ok", "significant": True, "per_run_before": before,
+                "per_run_after": after, "fall_percent": 100 * (1 - sum(after[:4]) / 4 / b)}
+
+    best = row("maxwell-slip", [0.020, 0.024, 0.022, 0.025, 0.300])
+    other = row("prandtl-ishlinskii", [0.022, 0.026, 0.024, 0.027, 0.295])
+    assert laws_alike([best, other]) == []
+    # with the base predicting run e the five runs cannot tell them apart
+    seen = [{**r, "per_run_before": [*before[:4], 0.6]} for r in (best, other)]
+    assert laws_alike(seen) == ["maxwell-slip", "prandtl-ishlinskii"]
+
+
+def test_why_a_law_is_not_claimed_counts_the_runs_the_base_predicted():
+    # a law row that rises on one of the four runs the base predicted: the summary says
+    # "3 of 4"; the run the base diverged on (its fall of ~10 is no evidence) is not counted
+    from pmalab.identify.diagnosis.diagnose import closest_law_phrase
+
+    law = {"law": "maxwell-slip", "status": "ok", "significant": False, "gain_x_floor": 1.2,
+           "nrmse_before": 0.0455, "nrmse_after": 0.02875, "fall_percent": 36.8,
+           "per_run_before": [0.040, 0.047, 0.045, 0.050, 10.0],
+           "per_run_after": [0.020, 0.024, 0.046, 0.025, 0.3], "runs_at_floor": 0}
+    text = closest_law_phrase("bouc-wen", [law])
+    assert "it lowers the error on only 3 of 4 held-out runs" in text

@@ -670,7 +670,12 @@ def diagnose_command(args: argparse.Namespace) -> int:
                         "—" if lw["gain_x_floor"] is None else f"{lw['gain_x_floor']:+.2f}",
                         "fit failed"
                         if lw.get("status") == "failed"
-                        else ("yes" if lw["significant"] else "no"),
+                        else (
+                            "yes"
+                            if lw["significant"]
+                            # significant against the base model alone, not taken
+                            else ("alone only" if lw.get("significant_alone") else "no")
+                        ),
                         lw.get("structure") or "-",
                     )
                     for lw in d.laws

@@ -437,8 +437,9 @@ class LadderEntry(TypedDict):
     switched_law: NotRequired[str | None]
     per_run: NotRequired[list[float | None]]
     model: NotRequired[str]
-    #: held-out runs on which the step's prediction diverged (present only when there are
-    #: such runs; they are no evidence for the next step's candidates)
+    #: held-out runs on which the step's prediction diverged or ran off to nrmse ≥ 10
+    #: (present only when there are such runs; they are no evidence for the next step's
+    #: candidates)
     diverged: NotRequired[list[str]]
 
 
@@ -452,13 +453,31 @@ class LawEntry(TypedDict):
     nrmse_after: float | None
     #: null when the law's fit failed (``status`` "failed", ``reason``)
     fall_percent: float | None
+    #: the ladder switched to this law (as ``RankingEntry.significant``: only a law the
+    #: ladder took is claimed)
     significant: bool
+    #: round 1's verdict: the law against the base model alone
+    significant_alone: NotRequired[bool]
+    #: the verdict against the final model, where the ladder scored the law against it;
+    #: null when it stopped first (step limit, noise floor); absent when the ladder took no
+    #: step or took this law
+    significant_last: NotRequired[bool | None]
+    #: the step that switched to this law (null if none)
+    ladder_step: NotRequired[int | None]
+    #: the round the row's numbers come from (``rounds[round - 1].laws``)
+    round: NotRequired[int]
+    #: the model the law was scored against (``"base"`` or the effects of that step)
+    scored_against: NotRequired[str]
     status: NotRequired[str]
     reason: NotRequired[str]
     gain_x_floor: NotRequired[float | None]
     block_t: NotRequired[float | None]
     runs_improved: NotRequired[float | None]
+    #: per held-out run: the base model's nrmse (every law is scored against it)
+    per_run_before: NotRequired[list[float]]
     per_run_after: NotRequired[list[float | None] | None]
+    #: held-out runs at their noise floor with the base model and with the law
+    runs_at_floor: NotRequired[int]
     #: held-out runs left out of the evidence (see ``RankingEntry.left_out``)
     left_out: NotRequired[list[str]]
     #: the pressure structure the law's elements took (``free`` | ``scaled`` |
@@ -556,6 +575,9 @@ class RoundEntry(TypedDict):
     step: int
     ambiguous: NotRequired[list[str]]
     candidates: NotRequired[list[dict[str, Any]]]
+    #: the other laws scored in this round, against the same model (as ``laws`` rows,
+    #: without the ladder's keys)
+    laws: NotRequired[list[dict[str, Any]]]
 
 
 class ActiveRoundEntry(TypedDict):

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ from pmalab.identify.diagnosis.ranking import (
     DIVERGED_NRMSE,
     MIN_BLOCK_T,
     MIN_GAIN_X_FLOOR,
+    Candidate,
     alike,
     finite_or_none,
     heldout_floor,
@@ -325,6 +327,76 @@ def _ranking_json(
     return out
 
 
+def _law_row(c: Candidate) -> dict[str, Any]:
+    """A law scored like an effect (``Candidate.effect`` is the law's id), as a ``laws`` row."""
+    return {
+        "law": c.effect,
+        "status": "failed" if c.failed else "ok",
+        **({"reason": c.failure()} if c.failed else {}),
+        # null when no held-out run is left to judge on (Candidate.evidence)
+        "nrmse_before": finite_or_none(c.nrmse_before),
+        # an identification that raised has no error after it
+        "nrmse_after": None if c.after.error else finite_or_none(c.nrmse_after),
+        "fall_percent": None if c.failed else float(100.0 * c.fall),
+        "gain_x_floor": None if c.failed else float(c.gain_x_floor),
+        "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
+        "runs_improved": None if c.after.error else float(c.runs_improved),
+        "significant": bool(c.significant),
+        "per_run_before": [float(v) for v in c.before.nrmse],
+        "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
+        "runs_at_floor": int(sum(c.at_floor)),
+        **({"left_out": c.left_out} if c.left_out else {}),
+        # how the law's elements change with pressure, chosen by the identification's
+        # own leave-one-pressure-out evidence (None: the law offers no structures)
+        **_structure_keys(c.after.structure),
+    }
+
+
+def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dict[str, Any]]:
+    """The other laws, best first, judged as the effects are (:func:`_ranking_json`):
+    *significant* only where the ladder switched to the law.
+
+    A law the ladder switched to at step k is shown from round k (against the model of step
+    k − 1); every other law from round 1, against the base model.  ``significant_alone`` is
+    round 1's verdict; ``significant_last`` the verdict against the final model, where the
+    ladder scored the law against it (its last round; null when it stopped before, at its
+    step limit or at the noise floor; absent when the ladder took no step or took this law).  A law significant against the base model alone that
+    the ladder did not take has absorbed what the effects it added explain — the same
+    evidence effects are held to (a sensor drift on the held-out records lets any law's
+    refit lower the base model's error)."""
+    if not rounds:
+        return []
+    switched = {s.switched: s.step for s in steps[1:] if s.switched}
+    # the round scored against the final model (none when the ladder stopped at its limit)
+    last = rounds[-1] if rounds[-1].step == len(steps) else None
+    out = []
+    for c in rounds[0].laws:
+        k = switched.get(c.effect)
+        at = c if k is None else next(x for x in rounds[k - 1].laws if x.effect == c.effect)
+        d = _law_row(at)
+        d["significant_alone"] = bool(c.significant)
+        d["significant"] = k is not None
+        d["ladder_step"] = k
+        d["round"] = k or 1
+        d["scored_against"] = "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1])
+        if k is None and last is not None and last is not rounds[0]:
+            now = next((x for x in last.laws if x.effect == c.effect), None)
+            d["significant_last"] = None if now is None else bool(now.significant)
+        elif k is None and len(steps) > 1:
+            d["significant_last"] = None  # the ladder stopped before scoring it again
+        out.append(d)
+    # best first: the ladder's, then by their held-out fall; failed fits last
+    out.sort(
+        key=lambda d: (
+            d["ladder_step"] is None,
+            d["ladder_step"] or 0,
+            d["status"] == "failed",
+            -(d["fall_percent"] or 0.0),
+        )
+    )
+    return out
+
+
 def _model_words(base: LadderStep, step: LadderStep) -> str:
     """The model of a ladder ``step`` as its effects joined by "+", led by its law when a
     step changed the law from the ``base`` step's."""
@@ -380,6 +452,36 @@ def closest_law_phrase(model: str, laws: Sequence[Mapping[str, Any]]) -> str:
     )
 
 
+def _absorbed_law_phrase(
+    row: Mapping[str, Any], ladder: Sequence[Mapping[str, Any]], stop: str = ""
+) -> str:
+    """Why a law significant against the base model alone (``significant_alone``) is not
+    claimed once the ladder added effects: against the final model it was not significant
+    (``significant_last`` false), or it was not scored against it (the ladder stopped at its
+    step limit)."""
+    added = [s["added"] for s in ladder[1:] if s.get("added")]
+    what = " and ".join(added) or "the ladder's steps"
+    head = (
+        f"Against the base model alone the {row['law']} law cut the validation error "
+        f"{row['nrmse_before']:.4f} → {row['nrmse_after']:.4f} "
+        f"(−{row['fall_percent']:.0f} %), "
+    )
+    if row.get("significant_last") is False:
+        return (
+            head + f"but not against the model with {what}: its fall there was part of what "
+            f"{what} explain{'s' if len(added) == 1 else ''}, so it is not claimed."
+        )
+    why = {
+        "max steps": "at its step limit (raise --max-steps to judge it)",
+        "at the noise floor": "at the noise floor, where no law has a claim's gain left",
+        "every candidate in": "with every candidate in the model",
+    }.get(stop, stop or "first")
+    return (
+        head + f"but it was not scored against the model with {what} (the ladder stopped "
+        f"{why}), so it is not claimed."
+    )
+
+
 def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
     """The part of the significance rule a not-significant law row fails, in words (the
     first that fails, in the rule's order: the mean gain, every held-out run, cycle by
@@ -388,17 +490,26 @@ def _why_not_claimed(row: Mapping[str, Any], model: str) -> str:
         return f"the gain over the {model} model is within what noise gives"
     before, after = row.get("per_run_before"), row.get("per_run_after")
     if before and after and len(before) == len(after):
-        fell = sum(a < b for a, b in zip(after, before))
+        judged = _judged(before)
+        fell = sum(after[i] < before[i] for i in judged)
         at_floor = int(row.get("runs_at_floor") or 0)
-        if fell + at_floor < len(after):
+        if fell + at_floor < len(judged):
             return (
-                f"it lowers the error on only {fell} of {len(after)} held-out runs (the rule "
+                f"it lowers the error on only {fell} of {len(judged)} held-out runs (the rule "
                 "asks for every run not at its noise floor)"
             )
     t = row.get("block_t")
     if t is not None and t < MIN_BLOCK_T:
         return f"its fall is not consistent cycle by cycle (block t {t:.1f} < {MIN_BLOCK_T:g})"
     return "it does not pass the significance rule"
+
+
+def _judged(before: Sequence[float | None]) -> list[int]:
+    """The held-out runs (indices) a row's ``per_run_before`` shows the current model
+    predicted: finite and below ``DIVERGED_NRMSE`` (``Candidate.evidence``)."""
+    return [
+        i for i, v in enumerate(before) if v is not None and math.isfinite(v) and v < DIVERGED_NRMSE
+    ]
 
 
 def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
@@ -419,16 +530,20 @@ def laws_alike(laws: Sequence[Mapping[str, Any]]) -> list[str]:
     if len(ok) < 2:
         return []
     best = max(ok, key=lambda lw: lw["fall_percent"])
+    # the runs the base model predicted (every law row is scored against the same base): a
+    # run it diverged on is no evidence, and both laws "fall" ~DIVERGED_NRMSE there
+    before = best.get("per_run_before")
+    judged = _judged(before) if before else range(len(best["per_run_after"]))
+
+    def runs(lw: Mapping[str, Any]) -> list[float]:
+        r = lw["per_run_after"]
+        return [r[i] for i in judged] if len(r) == len(best["per_run_after"]) else list(r)
+
     same = [
         lw["law"]
         for lw in sorted(ok, key=lambda lw: -lw["fall_percent"])
         if lw is not best
-        and alike(
-            best["fall_percent"] / 100.0,
-            best["per_run_after"],
-            lw["fall_percent"] / 100.0,
-            lw["per_run_after"],
-        )
+        and alike(best["fall_percent"] / 100.0, runs(best), lw["fall_percent"] / 100.0, runs(lw))
     ]
     return [best["law"], *same] if same else []
 
@@ -495,6 +610,8 @@ def _summary(
     laws: Sequence[dict] = (),
     rest: dict | None = None,
     single_frequency: float | None = None,
+    stop: str = "",
+    alike_rows: Sequence[dict] | None = None,
 ) -> tuple[str, str]:
     """(summary sentence, verdict).  Every number is the held-out (validation) nrmse of an
     identification, i.e. what ``pmalab identify [--add ...]`` reports on the same runs."""
@@ -506,8 +623,8 @@ def _summary(
     if div := base.get("diverged"):
         every = len(div) == len(base.get("per_run") or div)
         parts.append(
-            f"Its held-out prediction diverged on {', '.join(div)} (counted at nrmse "
-            f"{DIVERGED_NRMSE:g}): the {model} identification does not hold there, so "
+            f"Its held-out prediction diverged or ran off on {', '.join(div)} (counted at "
+            f"nrmse {DIVERGED_NRMSE:g}): the {model} identification does not hold there, so "
             + (
                 "no held-out run is left to judge a candidate on."
                 if every
@@ -572,9 +689,11 @@ def _summary(
             f"(−{fall:.0f} %)."
         )
     else:
-        better = [lw for lw in laws if lw["significant"]]
-        if better:
-            b = better[0]
+        alone = [lw for lw in laws if lw.get("significant_alone") and not lw["significant"]]
+        if alone and len(ladder) > 1:
+            parts.append(_absorbed_law_phrase(alone[0], ladder, stop))
+        elif alone:  # round 1 is the ladder's only round: nothing else to weigh it against
+            b = alone[0]
             parts.append(
                 f"Also significant: the {b['law']} law{structure_phrase(b)}: try "
                 f"`--model {b['law']}`: {b['nrmse_before']:.4f} → "
@@ -582,7 +701,7 @@ def _summary(
             )
         elif closest := closest_law_phrase(model, laws):
             parts.append(closest)
-    if same := alike_phrase(laws_alike(laws)):
+    if same := alike_phrase(laws_alike(laws if alike_rows is None else alike_rows)):
         parts.append(same)
     ratio = last["nrmse"] / floor if floor > 0 else float("inf")
     if ratio < UNEXPLAINED_RATIO:
@@ -795,32 +914,11 @@ def diagnose(
             str(run_diagnostics(Signals.from_run(run), run.force, ff).get("worst_region", "")),
         )
     ladder = [s.as_json() for s in steps]
-    laws_json = [
-        {
-            "law": c.effect,
-            "status": "failed" if c.failed else "ok",
-            **({"reason": c.failure()} if c.failed else {}),
-            # null when no held-out run is left to judge on (Candidate.evidence)
-            "nrmse_before": finite_or_none(c.nrmse_before),
-            # an identification that raised has no error after it
-            "nrmse_after": None if c.after.error else finite_or_none(c.nrmse_after),
-            "fall_percent": None if c.failed else float(100.0 * c.fall),
-            "gain_x_floor": None if c.failed else float(c.gain_x_floor),
-            "block_t": None if c.block_t != c.block_t else float(min(c.block_t, 1e6)),
-            "runs_improved": None if c.after.error else float(c.runs_improved),
-            "significant": bool(c.significant),
-            "per_run_after": None if c.after.error else [float(v) for v in c.after.nrmse],
-            **({"left_out": c.left_out} if c.left_out else {}),
-            # how the law's elements change with pressure, chosen by the identification's
-            # own leave-one-pressure-out evidence (None: the law offers no structures)
-            **_structure_keys(c.after.structure),
-        }
-        for c in (rounds[0].laws if rounds else [])
-    ]
-    # best first; failed fits last
-    laws_json.sort(
-        key=lambda d: (not d["significant"], d["status"] == "failed", -(d["fall_percent"] or 0.0))
-    )
+    laws_json = _laws_json(rounds, steps)
+    # which laws the runs cannot tell apart: among the laws of one round (their rows are
+    # scored against one model) — the round the ladder switched the law in, else round 1
+    k = next((s.step for s in steps[1:] if s.switched), 1)
+    alike_rows = [_law_row(c) for c in rounds[k - 1].laws] if rounds else []
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     rest = residual_next_step([d["residual_shares"] for d in diagnostics.values()])
@@ -837,6 +935,8 @@ def diagnose(
         laws_json,
         rest,
         single_frequency=one_frequency(split.train),
+        stop=climbed.stop,
+        alike_rows=alike_rows,
     )
     summary += pressure_sentence(label_checks, steps, ranking, climbed.stop)
     campaign = campaign_diagnostics(camp_items)
@@ -845,6 +945,7 @@ def diagnose(
             "step": r.step,
             "ambiguous": r.ambiguous,
             "candidates": [c.as_json() for c in r.candidates],
+            "laws": [_law_row(c) for c in r.laws],
         }
         for r in rounds
     ]
@@ -887,7 +988,7 @@ def diagnose(
         final_effects=list(final),
         laws=laws_json,
         final_law=final_law,
-        laws_alike=laws_alike(laws_json),
+        laws_alike=laws_alike(alike_rows),
         residual=rest,
     )
 

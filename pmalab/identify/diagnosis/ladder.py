@@ -92,8 +92,9 @@ class LadderStep:
             "fit_percent": float(self.fit_percent),
             "per_run": [float(v) for v in self.scored.nrmse],
             "model": "+".join(self.effects) or "base",
-            # runs its prediction diverged on: no evidence for the next step's candidates
-            **({"diverged": list(self.scored.diverged)} if self.scored.diverged else {}),
+            # runs its prediction diverged or ran off (nrmse ≥ DIVERGED_NRMSE) on: no
+            # evidence for the next step's candidates
+            **({"diverged": self.scored.unjudged} if self.scored.unjudged else {}),
         }
 
 

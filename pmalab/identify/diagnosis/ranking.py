@@ -137,6 +137,21 @@ class Scored:
     def mean(self) -> float:
         return float(np.mean(self.nrmse)) if self.nrmse else float("nan")
 
+    @property
+    def judged(self) -> list[int]:
+        """The held-out runs (indices) this model predicted: nrmse finite and below
+        ``DIVERGED_NRMSE``.  On the others its prediction diverged or ran off; they are no
+        evidence for a candidate scored against it (:attr:`Candidate.evidence`)."""
+        return [i for i, v in enumerate(self.nrmse) if math.isfinite(v) and v < DIVERGED_NRMSE]
+
+    @property
+    def unjudged(self) -> list[str]:
+        """The labels of the held-out runs not in :attr:`judged` (diverged, or ran off to
+        nrmse ≥ ``DIVERGED_NRMSE`` with a finite prediction), in their order."""
+        kept = set(self.judged)
+        names = self.labels or [f"held-out run {i + 1}" for i in range(len(self.nrmse))]
+        return [n for i, n in enumerate(names) if i not in kept]
+
 
 def score(train: Sequence[Run], held: Sequence[Run], spec: ModelSpec) -> Scored:
     """Identify ``spec`` on ``train`` and validate on ``held`` — ``pmalab identify``'s path.
@@ -433,18 +448,12 @@ class Candidate:
         candidate that predicts there at all would show a fall of ~``DIVERGED_NRMSE``, the
         current model's failure and not the candidate's evidence — so it is left out of the
         fall, the gain, the every-run and the block tests (module docstring)."""
-        return [
-            i for i, v in enumerate(self.before.nrmse) if math.isfinite(v) and v < DIVERGED_NRMSE
-        ]
+        return self.before.judged
 
     @property
     def left_out(self) -> list[str]:
         """The held-out runs left out of the evidence (:attr:`evidence`), by label."""
-        kept = set(self.evidence)
-        names = self.before.labels or [
-            f"held-out run {i + 1}" for i in range(len(self.before.nrmse))
-        ]
-        return [n for i, n in enumerate(names) if i not in kept]
+        return self.before.unjudged
 
     def _paired(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(before, after, floors) of the evidence runs; floors empty when not given."""
@@ -760,9 +769,15 @@ def clearly_better(a: Candidate, b: Candidate) -> bool:
     d_i = nrmse_after(b)_i − nrmse_after(a)_i over the held-out runs: ``a`` is clearly better
     when d_i > 0 on every one of ≥ ``MIN_PAIRED_RUNS`` runs (a sign test: p ≤ 1/16), or when
     mean(d) exceeds two standard errors on ≥ 3 runs.  Two runs never decide (p = 1/4): two
-    effects that explain the residual about equally there stay ambiguous.
+    effects that explain the residual about equally there stay ambiguous.  Only the runs that
+    are evidence for both (:attr:`Candidate.evidence`) are compared: on a run where the
+    current model diverged, both fall by ~``DIVERGED_NRMSE`` and the difference says nothing.
     """
-    return clearly_lower(a.after.nrmse, b.after.nrmse)
+    both = set(b.evidence)
+    i = [k for k in a.evidence if k in both]
+    if len(i) == len(a.after.nrmse) == len(b.after.nrmse):
+        return clearly_lower(a.after.nrmse, b.after.nrmse)
+    return clearly_lower([a.after.nrmse[k] for k in i], [b.after.nrmse[k] for k in i])
 
 
 def clearly_lower(a: Sequence[float], b: Sequence[float]) -> bool:
