@@ -5,7 +5,8 @@ law first; within 1.10× the noise floor on the project's own law-shaped muscles
 the independent ones) sit a few hundredths of a floor from the figures, and the held-out runs
 of these protocols are two cycles long, one of which sets the record's start state: a
 two-seed verdict there is partly a draw.  This section records every case of
-:data:`bench.bench_laws.CASES` on ``PMALAB_BENCH_SEEDS`` seeds (default 12, from 7) and
+:data:`bench.bench_laws.CASES` on ``PMALAB_BENCH_SEEDS`` seeds (default 12) from
+``PMALAB_BENCH_SEED0`` (default 7; 19 measures the seeds beyond the bench's own) and
 prints, per case, the matching law's × floor (median, worst), on how many seeds it is first
 and within its bound, and the seeds it misses on.
 
@@ -40,7 +41,9 @@ headroom is below the threshold no law can be named, however well it predicts.
 Laws: Bouc-Wen (the diagnosis's base), Maxwell-slip and Prandtl-Ishlinskii (Duhem is never
 first on these cases: ``bench laws``).  ``python -m bench law_seeds``;
 ``PMALAB_LAWS_PROTOCOL=laws-strokes.toml`` records the independent cases with that protocol
-instead of ``laws-pressure.toml`` (the same runs plus seven at half the stroke).
+instead of ``laws-pressure.toml`` (the same runs plus seven at half the stroke);
+``PMALAB_BENCH_CASES=hysteresis-`` records only the cases whose truth file's name contains one
+of these comma-separated parts (here: the project's own muscles).
 """
 
 from __future__ import annotations
@@ -67,11 +70,15 @@ def main() -> None:
 
     n = int(os.environ.get("PMALAB_BENCH_SEEDS", "12"))
     independent = os.environ.get("PMALAB_LAWS_PROTOCOL", "laws-pressure.toml")
-    seeds = list(range(7, 7 + n))
+    seed0 = int(os.environ.get("PMALAB_BENCH_SEED0", "7"))
+    parts = [c for c in os.environ.get("PMALAB_BENCH_CASES", "").split(",") if c]
+    seeds = list(range(seed0, seed0 + n))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for truth_name, proto, law in CASES:
+            if parts and not any(c in truth_name for c in parts):
+                continue
             own = not truth_name.startswith("laws/")
             bound = BOUND_OWN if own else BOUND_INDEPENDENT
             proto = proto if own else independent

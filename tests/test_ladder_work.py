@@ -304,3 +304,36 @@ def test_a_law_the_ladder_switched_to_is_claimed_from_the_round_it_won(monkeypat
     assert row["ladder_step"] == 2 and row["round"] == 2
     assert row["scored_against"] == "viscous-friction"
     assert row["nrmse_before"] == pytest.approx(0.06075)
+
+
+def test_a_law_the_ladder_switched_away_from_is_not_the_one_the_summary_recommends(monkeypatch):
+    # step 1 switches to Maxwell-slip, step 2 adds viscous friction, step 3 switches again,
+    # to Prandtl-Ishlinskii (it beats maxwell-slip+viscous-friction on every run): the final
+    # model's law is prandtl-ishlinskii, and that is the law the summary recommends; the
+    # laws the runs cannot tell apart are those of the round it won (duhem there)
+    from pmalab.identify.diagnosis.diagnose import _alike_rows, _laws_json, _summary, laws_alike
+
+    labels = ["a", "b", "c", "d"]
+    nrmse = {
+        ("bouc-wen", ()): [0.200, 0.210, 0.205, 0.202],
+        ("bouc-wen", ("viscous-friction",)): [0.150, 0.155, 0.152, 0.151],
+        ("maxwell-slip", ()): [0.120, 0.125, 0.122, 0.121],
+        ("maxwell-slip", ("viscous-friction",)): [0.060, 0.062, 0.061, 0.060],
+        ("prandtl-ishlinskii", ()): [0.130, 0.135, 0.132, 0.131],
+        ("prandtl-ishlinskii", ("viscous-friction",)): [0.040, 0.041, 0.040, 0.041],
+        ("duhem", ()): [0.190, 0.200, 0.195, 0.192],
+        ("duhem", ("viscous-friction",)): [0.041, 0.040, 0.041, 0.040],
+    }
+    climbed = _climb(monkeypatch, nrmse, ["viscous-friction"],
+                     ["maxwell-slip", "prandtl-ishlinskii", "duhem"], labels)
+    assert [s.switched for s in climbed.steps] == [None, "maxwell-slip", None,
+                                                   "prandtl-ishlinskii"]
+    assert climbed.steps[-1].law == "prandtl-ishlinskii"
+    rows = _laws_json(climbed.rounds, climbed.steps)
+    ladder_json = [s.as_json() for s in climbed.steps]
+    text, _ = _summary("bouc-wen", ladder_json, [], [], 0.02, None, "", "given", laws=rows,
+                       stop=climbed.stop)
+    assert "try `--model prandtl-ishlinskii`" in text, text
+    assert "try `--model maxwell-slip`" not in text, text
+    assert laws_alike(_alike_rows(climbed.rounds, climbed.steps)) == ["prandtl-ishlinskii",
+                                                                      "duhem"]

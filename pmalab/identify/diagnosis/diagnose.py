@@ -397,6 +397,16 @@ def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dic
     return out
 
 
+def _alike_rows(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dict[str, Any]]:
+    """The law rows :func:`laws_alike` compares: the laws of one round (their rows are scored
+    against one model) — the round in which the ladder switched to the final model's law,
+    else round 1."""
+    if not rounds:
+        return []
+    k = next((s.step for s in reversed(steps[1:]) if s.switched), 1)
+    return [_law_row(c) for c in rounds[k - 1].laws]
+
+
 def _model_words(base: LadderStep, step: LadderStep) -> str:
     """The model of a ladder ``step`` as its effects joined by "+", led by its law when a
     step changed the law from the ``base`` step's."""
@@ -677,7 +687,9 @@ def _summary(
             + "; ".join(f"{r.get('effect') or r.get('law')}: {r['reason']}" for r in failed)
             + "."
         )
-    switch = next((s for s in ladder[1:] if s.get("switched_law")), None)
+    # the law of the final model: the last step that switched it (a later switch replaces
+    # an earlier one's law)
+    switch = next((s for s in reversed(ladder[1:]) if s.get("switched_law")), None)
     if switch is not None:
         prev = ladder[switch["step"] - 1]
         fall = 100.0 * (1.0 - switch["nrmse"] / prev["nrmse"]) if prev["nrmse"] > 0 else 0.0
@@ -915,10 +927,7 @@ def diagnose(
         )
     ladder = [s.as_json() for s in steps]
     laws_json = _laws_json(rounds, steps)
-    # which laws the runs cannot tell apart: among the laws of one round (their rows are
-    # scored against one model) — the round the ladder switched the law in, else round 1
-    k = next((s.step for s in steps[1:] if s.switched), 1)
-    alike_rows = [_law_row(c) for c in rounds[k - 1].laws] if rounds else []
+    alike_rows = _alike_rows(rounds, steps)
     final_law = steps[-1].law or model
     ranking = _ranking_json(rounds, steps, amb)
     rest = residual_next_step([d["residual_shares"] for d in diagnostics.values()])
