@@ -9,10 +9,11 @@ x_model(t) = x_rec(t + τ) (τ > 0: the position channel lags the force).  The d
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import ClassVar
 
 import numpy as np
+from numba import njit
 
 from pmalab.identify.effects.base import Effect
 from pmalab.identify.params import Param
@@ -24,6 +25,72 @@ def shift_in_time(t: np.ndarray, y: np.ndarray, tau: float) -> np.ndarray:
     if tau == 0.0:
         return y
     return np.interp(t + tau, t, y)
+
+
+def shift_all_in_time(t: np.ndarray, ys: Sequence[np.ndarray], tau: float) -> list[np.ndarray]:
+    """Every y of ``ys`` evaluated at t + tau: :func:`shift_in_time` of each, the same numbers
+    bit for bit, with the interval of each t + tau looked up once for all of them
+    (:func:`_shift_rows`); each result is a row of one new array.  Where the time stamps do
+    not rise strictly (or are fewer than two), :func:`shift_in_time` of each."""
+    if tau == 0.0:
+        return list(ys)
+    n = int(np.shape(t)[0])
+    if n >= 2 and ys:
+        tc = np.ascontiguousarray(t, dtype=np.float64)
+        Y = np.empty((len(ys), n))
+        for r, y in enumerate(ys):
+            Y[r] = y
+        out = np.empty((len(ys), n))
+        if _shift_rows(tc, float(tau), Y, out):
+            return list(out)
+    return [shift_in_time(t, y, tau) for y in ys]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _shift_rows(t, tau, Y, out):  # pragma: no cover - compiled (tested against np.interp)
+    """Row r of ``out`` := ``np.interp(t + tau, t, Y[r])`` for every row, the same
+    operations as NumPy's (q = t_i + τ; below t_0 the first value, above t_(n−1) the last,
+    on a sample its value, else slope·(q − t_j) + y_j with slope = (y_(j+1) − y_j) /
+    (t_(j+1) − t_j), the other end tried where that is NaN); returns False, writing
+    nothing, unless the time stamps rise strictly."""
+    n = t.shape[0]
+    for i in range(n - 1):
+        if not t[i + 1] > t[i]:
+            return False
+    rows = Y.shape[0]
+    t0 = t[0]
+    tn = t[n - 1]
+    j = 0
+    for i in range(n):
+        q = t[i] + tau
+        if not q >= t0:  # below the first stamp, or NaN
+            for r in range(rows):
+                out[r, i] = q if q != q else Y[r, 0]
+            continue
+        if q > tn:
+            for r in range(rows):
+                out[r, i] = Y[r, n - 1]
+            continue
+        while j + 1 < n and t[j + 1] <= q:  # the q rise with i: t_j <= q < t_(j+1)
+            j += 1
+        tj = t[j]
+        if j == n - 1 or tj == q:
+            for r in range(rows):
+                out[r, i] = Y[r, j]
+            continue
+        d = t[j + 1] - tj
+        u = q - tj
+        for r in range(rows):
+            a = Y[r, j]
+            b = Y[r, j + 1]
+            slope = (b - a) / d
+            v = slope * u + a
+            if v != v:
+                v = slope * (q - t[j + 1]) + b
+                if v != v and a == b:
+                    v = a
+            out[r, i] = v
+    return True
 
 
 class SensorDelay(Effect):
@@ -75,9 +142,6 @@ class SensorDelay(Effect):
         if tau == 0.0:
             return sig
         # the derivatives shift with the position (the one estimator's, not re-derived)
-        return sig.with_position(
-            shift_in_time(sig.t, sig.x, tau),
-            shift_in_time(sig.t, sig.v, tau),
-            shift_in_time(sig.t, sig.a, tau),
-            None if sig.x_slide is None else shift_in_time(sig.t, sig.x_slide, tau),
-        )
+        ys = [sig.x, sig.v, sig.a] if sig.x_slide is None else [sig.x, sig.v, sig.a, sig.x_slide]
+        got = shift_all_in_time(sig.t, ys, tau)
+        return sig.with_position(got[0], got[1], got[2], got[3] if len(got) > 3 else None)

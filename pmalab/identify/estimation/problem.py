@@ -97,6 +97,11 @@ class Problem:
         self.basis = basis or PressureBasis.over([r.p_nom for r in self.records])
         ps = [r.p_nom for r in self.records]
         self.B = {n: self.basis.matrix(ps, self.degree[n]) for n in self.free}
+        #: every free parameter of order 0 with its basis 1 at every run (a single run's
+        #: fit): θ_n is then z_n itself at every run (:meth:`_at`)
+        self._order0 = all(
+            self.degree[n] == 0 and bool(np.all(self.B[n] == 1.0)) for n in self.free
+        )
         self.slices: dict[str, slice] = {}
         i = 0
         for n in self.free:
@@ -182,10 +187,17 @@ class Problem:
         full parameter set of every run)."""
         z = np.asarray(z, dtype=float)
         R = len(self.records)
-        # :meth:`raw`'s products, each written straight into its row (the same matmul)
-        RAW = np.empty((len(self.free), R))
-        for j, n in enumerate(self.free):
-            np.matmul(self.B[n], z[self.slices[n]], out=RAW[j])
+        if self._order0:
+            # B_n·c_n at every run is 0 + 1·c_n: c_n itself, a −0.0 made +0.0 (the matmul's
+            # numbers, NaN and inf as they are)
+            RAW = np.add(z[: self.n_coef], 0.0)[:, None]
+            if R != 1:
+                RAW = np.repeat(RAW, R, axis=1)
+        else:
+            # :meth:`raw`'s products, each written straight into its row (the same matmul)
+            RAW = np.empty((len(self.free), R))
+            for j, n in enumerate(self.free):
+                np.matmul(self.B[n], z[self.slices[n]], out=RAW[j])
         # each law clipped to its bounds at every run at once (np.clip: the same min/max)
         free = np.clip(RAW, self._lo_col, self._hi_col).T.tolist()
         per_run = z[self.n_coef :].reshape(-1, R).T.tolist()
@@ -313,19 +325,24 @@ class Problem:
                 if n not in done
             ]
             shared = [(n, d) for (n, col), d in pairs if col is None]
-            if len(shared) > 1 and len(ths) > 1:
-                # every shared column of run i in one product, written row by row: J =
+            if len(shared) > 1:
+                # every shared column of run i at once, written row by row: J =
                 # ∂r/∂θ_n · B_n(p_i), the same single multiplication per entry as a product
                 # per parameter (which writes J column by column: slower on many runs)
                 shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
-                where, rep, b = self._basis_layout(i, tuple(n for n, _ in shared))
-                # (samples, columns): each column's d stacked once, in J's column order
-                D = np.array([shared[k][1] for k in rep]).T
-                if isinstance(where, slice):
-                    np.multiply(D, b, out=J[rows, where])
-                else:
-                    J[rows, where] = D * b
-                shared = []
+                where, rep, b, unit = self._basis_layout(i, tuple(n for n, _ in shared))
+                if unit or len(ths) > 1:
+                    # (samples, columns): each column's d stacked once, in J's column order
+                    D = np.array([shared[k][1] for k in rep]).T
+                    if unit:
+                        # every B_n(p_i) is 1 (order 0: a single run's fit): d·1 is d, bit
+                        # for bit, so the entries are copied, not multiplied
+                        J[rows, where] = D
+                    elif isinstance(where, slice):
+                        np.multiply(D, b, out=J[rows, where])
+                    else:
+                        J[rows, where] = D * b
+                    shared = []
             for n, d in shared:
                 # np.outer's products, written straight into J (no temporary)
                 np.multiply(d[:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
@@ -343,10 +360,11 @@ class Problem:
 
     def _basis_layout(
         self, i: int, names: tuple[str, ...]
-    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray]:
+    ) -> tuple[slice | np.ndarray, tuple[int, ...], np.ndarray, bool]:
         """Where run i's Jacobian entries of the shared parameters ``names`` go: (their
         columns of J — a slice when they are adjacent —, for each column the index of its
-        parameter in ``names``, and the basis value B_n(p_i) of each column)."""
+        parameter in ``names``, the basis value B_n(p_i) of each column, and whether every
+        one of those values is exactly 1)."""
         key = (i, names)
         got = self._layouts.get(key)
         if got is None:
@@ -357,7 +375,7 @@ class Problem:
             b = np.concatenate([np.asarray(self.B[n][i], dtype=np.float64) for n in names])
             adjacent = bool(np.all(np.diff(cols) == 1))
             where = slice(int(cols[0]), int(cols[-1]) + 1) if adjacent else cols
-            got = self._layouts[key] = (where, rep, b[None, :])
+            got = self._layouts[key] = (where, rep, b[None, :], bool(np.all(b == 1.0)))
         return got
 
     def _step(self, name: str, v: float) -> float:

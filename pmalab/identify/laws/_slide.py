@@ -24,6 +24,8 @@ prediction of a record tries both and keeps the one its early part says
 
 from __future__ import annotations
 
+from operator import itemgetter
+
 import numpy as np
 from numba import njit
 
@@ -76,8 +78,12 @@ def slide_start(k, f, h0, s=1.0):
         mid = 0.5 * (lo + hi)
         hm = _branch(k, f, s, mid, z)
         if (hm - target) * s > 0.0:
+            if mid == lo:
+                break  # (lo, hi) unchanged: every step left would be this one again
             lo = mid
         else:
+            if mid == hi:
+                break
             hi = mid
     _branch(k, f, s, 0.5 * (lo + hi), z)
     return z
@@ -217,10 +223,14 @@ def nonneg(a: np.ndarray) -> np.ndarray:
 
 
 def column(thetas, names) -> np.ndarray:
-    """The values of ``names`` in every parameter set, shape (len(thetas), len(names))."""
-    return np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64).reshape(
-        len(thetas), len(names)
-    )
+    """The values of ``names`` in every parameter set, shape (len(thetas), len(names)),
+    each converted to float64 as ``float`` converts it."""
+    if len(names) < 2:  # itemgetter of one name gives the value, not a tuple
+        return np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64).reshape(
+            len(thetas), len(names)
+        )
+    get = itemgetter(*names)
+    return np.array([get(th) for th in thetas], dtype=np.float64).reshape(len(thetas), len(names))
 
 
 def slide_stepper(k: np.ndarray, f: np.ndarray):
