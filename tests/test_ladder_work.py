@@ -335,5 +335,9 @@ def test_a_law_the_ladder_switched_away_from_is_not_the_one_the_summary_recommen
                        stop=climbed.stop)
     assert "try `--model prandtl-ishlinskii`" in text, text
     assert "try `--model maxwell-slip`" not in text, text
+    # the law the ladder took and then replaced is not claimed (the final model's law is)
+    claimed = {r["law"]: (r["significant"], r["ladder_step"]) for r in rows}
+    assert claimed == {"maxwell-slip": (False, 1), "prandtl-ishlinskii": (True, 3),
+                       "duhem": (False, None)}
     assert laws_alike(_alike_rows(climbed.rounds, climbed.steps)) == ["prandtl-ishlinskii",
                                                                       "duhem"]

@@ -673,6 +673,9 @@ def diagnose_command(args: argparse.Namespace) -> int:
                         else (
                             "yes"
                             if lw["significant"]
+                            # taken by the ladder, then replaced by another law
+                            else "replaced"
+                            if lw.get("ladder_step") is not None
                             # significant against the base model alone, not taken
                             else ("alone only" if lw.get("significant_alone") else "no")
                         ),

@@ -454,8 +454,9 @@ class LawEntry(TypedDict):
     nrmse_after: float | None
     #: null when the law's fit failed (``status`` "failed", ``reason``)
     fall_percent: float | None
-    #: the ladder switched to this law (as ``RankingEntry.significant``: only a law the
-    #: ladder took is claimed)
+    #: the ladder switched to this law and it is the final model's (as
+    #: ``RankingEntry.significant``: only a law the ladder took, and no later step replaced,
+    #: is claimed)
     significant: bool
     #: round 1's verdict: the law against the base model alone
     significant_alone: NotRequired[bool]
@@ -463,7 +464,8 @@ class LawEntry(TypedDict):
     #: null when it stopped first (step limit, noise floor); absent when the ladder took no
     #: step or took this law
     significant_last: NotRequired[bool | None]
-    #: the step that switched to this law (null if none)
+    #: the step that switched to this law (null if none; set also when a later step
+    #: replaced it)
     ladder_step: NotRequired[int | None]
     #: the round the row's numbers come from (``rounds[round - 1].laws``;
     #: ``settings.ladder_rounds`` after active identification)

@@ -355,7 +355,8 @@ def _law_row(c: Candidate) -> dict[str, Any]:
 
 def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dict[str, Any]]:
     """The other laws, best first, judged as the effects are (:func:`_ranking_json`):
-    *significant* only where the ladder switched to the law.
+    *significant* only where the ladder switched to the law and no later step replaced it
+    (the final model's law; a replaced law keeps its ``ladder_step``).
 
     A law the ladder switched to at step k is shown from round k (against the model of step
     k − 1); every other law from round 1, against the base model.  ``significant_alone`` is
@@ -368,6 +369,8 @@ def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dic
     if not rounds:
         return []
     switched = {s.switched: s.step for s in steps[1:] if s.switched}
+    # the final model's law: a law a later step replaced is no longer claimed
+    final = steps[-1].law
     # the round scored against the final model (none when the ladder stopped at its limit)
     last = rounds[-1] if rounds[-1].step == len(steps) else None
     out = []
@@ -376,7 +379,7 @@ def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dic
         at = c if k is None else next(x for x in rounds[k - 1].laws if x.effect == c.effect)
         d = _law_row(at)
         d["significant_alone"] = bool(c.significant)
-        d["significant"] = k is not None
+        d["significant"] = k is not None and c.effect == final
         d["ladder_step"] = k
         d["round"] = k or 1
         d["scored_against"] = "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1])
