@@ -221,6 +221,12 @@ def test_bad_use_is_one_line(delay_campaign, tmp_path):
         (["--run-suggested"], "needs --rig"),
         (["--rig", str(rig)], "only used with --run-suggested"),
         (["--rig", str(rig), "--run-suggested", "--budget", "-5"], "--budget"),
+        # a plain diagnosis's option the loop cannot honour is refused, never ignored
+        (["--rig", str(rig), "--run-suggested", "--pressure", "measured"],
+         "--pressure measured cannot be used with it"),
+        (["--rig", str(rig), "--run-suggested", "--include-aborted"],
+         "--include-aborted cannot be used with it"),
+        (["--rig", str(rig), "--run-suggested", "--max-steps", "-1"], "--max-steps -1"),
     ):
         rc, _, err = _run(["diagnose", str(camp), "--model", "bouc-wen", "--out",
                            str(tmp_path / "o"), *argv])
@@ -249,3 +255,30 @@ def test_design_pieces():
     with pytest.raises(PmalabError):
         raise RoundAborted("x", None, Path("f"))  # type: ignore[arg-type]
     assert candidate_experiments([]) and all(len(c) == 3 for c in candidate_experiments([]))
+
+
+def test_run_suggested_diagnoses_with_the_options_given(delay_campaign, tmp_path, monkeypatch):
+    # --laws, --max-steps, --effects and --whole-run reach every diagnosis the loop makes
+    # (they were silently dropped: the loop diagnosed with every law and three steps)
+    import pmalab.active.loop as loop
+
+    rig, camp = delay_campaign
+    seen: list[dict] = []
+
+    class Stop(Exception):
+        pass
+
+    def fake(runs, model, **kw):
+        seen.append(kw)
+        raise Stop
+
+    monkeypatch.setattr(loop, "diagnose", fake)
+    user = tmp_path / "my_effects.py"
+    user.write_text("")
+    with pytest.raises(Stop):
+        pmalab_main(["diagnose", str(camp), "--model", "bouc-wen", "--rig", str(rig),
+                     "--run-suggested", "--yes", "--laws", "none", "--max-steps", "1",
+                     "--effects", str(user), "--whole-run", "--out", str(tmp_path / "o")])
+    (kw,) = seen
+    assert kw["laws"] == [] and kw["max_steps"] == 1 and kw["whole_run"] is True
+    assert [str(f) for f in kw["effects_files"]] == [str(user)]

@@ -89,6 +89,27 @@ def run_active(args: argparse.Namespace) -> int:
             "--run-suggested: tag held-out runs with role 'validation' in the "
             "campaign instead of --validate (new runs are appended to it)"
         )
+    # the options a plain diagnosis takes that the loop cannot honour: refused, never ignored
+    unsupported = [
+        flag
+        for flag, on in (
+            ("--scheduler", getattr(args, "scheduler", None)),
+            ("--static", getattr(args, "static", False)),
+            ("--muscle", getattr(args, "muscle", None)),
+            ("--include-aborted", getattr(args, "include_aborted", False)),
+            ("--plot", getattr(args, "plot", None)),
+            ("--pressure measured", getattr(args, "pressure", "nominal") == "measured"),
+        )
+        if on
+    ]
+    if unsupported:
+        raise PmalabError(
+            f"--run-suggested: {', '.join(unsupported)} cannot be used with it (the loop "
+            "diagnoses the whole campaign file locally after every round)"
+        )
+    if args.max_steps < 0:
+        raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
+    laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
     jobs = resolve_jobs(args.jobs)  # --jobs, else $PMALAB_JOBS, else 2
     if args.budget <= 0:
         raise PmalabError(f"--budget {args.budget:g}: must be a positive number of seconds")
@@ -129,6 +150,13 @@ def run_active(args: argparse.Namespace) -> int:
             effects=args.only,
             jobs=jobs,
             protocol_duration=protocol_duration,
+            # the plain diagnosis's own settings, for the first diagnosis and every round's
+            options={
+                "laws": laws,
+                "max_steps": args.max_steps,
+                "effects_files": args.effects,
+                "whole_run": args.whole_run,
+            },
         )
     except RoundAborted as exc:
         _write(exc.partial, out, args.force, write_outputs)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -173,6 +173,7 @@ def diagnose_active(
     jobs: int = 1,
     log: Callable[[str], None] | None = None,
     protocol_duration: Callable[[str], float] | None = None,
+    options: Mapping[str, Any] | None = None,
 ) -> ActiveResult:
     """Diagnose ``campaign`` and run the experiments that decide (module doc).
 
@@ -181,13 +182,17 @@ def diagnose_active(
     after venting); :func:`rig_recorder` builds one from a rig spec.  ``confirm(experiment,
     protocol_toml) -> bool`` is asked before every round (None: run without asking).
     ``protocol_duration(toml) -> s``: rig time of a protocol (for the budget).
+    ``options``: the diagnosis's other settings (``laws``, ``max_steps``, ``effects_files``,
+    ``whole_run``: :func:`~pmalab.identify.diagnosis.diagnose`'s keywords), used for the
+    first diagnosis and for every round's.
     """
+    opts = dict(options or {})
     path = Path(campaign)
     say = log or (lambda s: print(s, file=sys.stderr))
     if budget_s <= 0 or not math.isfinite(budget_s):
         raise ActiveError(f"--budget: must be a positive number of seconds, got {budget_s:g}")
     runs = [fit_part(r) for r in read_runs(path, skip_incomplete=True, long_runs=long_runs())]
-    d = diagnose(runs, model, effects=effects, jobs=jobs)
+    d = diagnose(runs, model, effects=effects, jobs=jobs, **opts)
     initial = verdict_of(d)
     rounds: list[ActiveRound] = []
     spent = 0.0
@@ -243,7 +248,7 @@ def diagnose_active(
         # only the round's runs are read: the campaign's were read before
         new_runs = read_runs(path, added, long_runs=long_runs()) if added else []
         runs = [*runs, *(fit_part(r) for r in new_runs)]
-        d = diagnose(runs, model, effects=effects, jobs=jobs)
+        d = diagnose(runs, model, effects=effects, jobs=jobs, **opts)
         rounds.append(
             ActiveRound(
                 round=i,
