@@ -282,3 +282,32 @@ def test_run_suggested_diagnoses_with_the_options_given(delay_campaign, tmp_path
     (kw,) = seen
     assert kw["laws"] == [] and kw["max_steps"] == 1 and kw["whole_run"] is True
     assert [str(f) for f in kw["effects_files"]] == [str(user)]
+
+
+def test_the_experiment_is_designed_for_the_law_the_ladder_ended_with(delay_campaign,
+                                                                      monkeypatch):
+    # the ladder switched the law (bouc-wen -> maxwell-slip): the candidate models the round's
+    # experiment is designed on are the final model's law plus each ambiguous effect, and
+    # they are built with the user effect files the diagnosis was given
+    from types import SimpleNamespace
+
+    import pmalab.active.loop as loop
+
+    _, camp = delay_campaign
+    d = SimpleNamespace(ranking=[], settings={"held_out": []}, ladder=[], model="bouc-wen",
+                        final_law="maxwell-slip", final_effects=["viscous-friction"],
+                        ambiguous=["sensor-delay", "inertia"], verdict="unexplained",
+                        noise_floor={"per_run": {}})
+    seen: list = []
+
+    def design(runs, law, base, ambiguous, floors, **kw):
+        seen.append((law, list(base), kw.get("effects_files")))
+        return None, [], []
+
+    monkeypatch.setattr(loop, "diagnose", lambda runs, model, **kw: d)
+    monkeypatch.setattr(loop, "design", design)
+    res = loop.diagnose_active(camp, lambda *a: [], options={"effects_files": ["my.py"]},
+                               log=lambda s: None)
+    assert res.stop_reason == "no-experiment"
+    assert seen == [("maxwell-slip", ["viscous-friction"], ["my.py"])]
+    assert res.initial_verdict["final_model"] == "maxwell-slip+viscous-friction"

@@ -142,7 +142,7 @@ def verdict_of(d: Any) -> dict[str, Any]:
         "first": first.get("effect"),
         "significant": bool(first.get("significant")),
         "ambiguous": list(d.ambiguous),
-        "final_model": "+".join([d.model, *d.final_effects]),
+        "final_model": "+".join([d.final_law or d.model, *d.final_effects]),
         "verdict": d.verdict,
         "ranking": [
             {
@@ -205,13 +205,15 @@ def diagnose_active(
         dur = _duration_fn(protocol_duration)
         best, _scored, _models = design(
             runs,
-            model,
+            # the final model's law (the ladder may have switched it) and its effects
+            d.final_law or model,
             d.final_effects,
             d.ambiguous,
             d.noise_floor.get("per_run", {}),
             budget_s=left,
             round_index=i,
             duration_of=dur,
+            effects_files=opts.get("effects_files") or (),
         )
         if best is None:
             stop = "budget" if spent > 0 else "no-experiment"
