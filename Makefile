@@ -53,7 +53,7 @@ test: $(STAMP) chromium
 	@# PYTHONDONTWRITEBYTECODE set, every process the suite starts (commands in
 	@# subprocesses, the docs build's, pool workers) would compile every pmalab module it imports
 	$(BIN)/python -m compileall -q -j0 pmalab tests bench docs >/dev/null
-	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~5 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
+	@echo "pytest: the whole suite in parallel (pytest-xdist, one worker per core, a test file per worker), basedpyright beside it: ~5-6 min on 2 idle cores (longer under load); the 10 slowest tests are listed at the end"
 	@nice -n 19 $(BIN)/basedpyright > $(VENV)/basedpyright.log 2>&1 & typing=$$!; \
 	trap 'kill $$typing 2>/dev/null' INT TERM; \
 	$(BIN)/python -m pytest -n auto --dist loadfile --no-loadscope-reorder -q --durations=10; tests=$$?; \
