@@ -341,3 +341,27 @@ def test_a_law_the_ladder_switched_away_from_is_not_the_one_the_summary_recommen
                        "duhem": (False, None)}
     assert laws_alike(_alike_rows(climbed.rounds, climbed.steps)) == ["prandtl-ishlinskii",
                                                                       "duhem"]
+
+
+def test_laws_alike_is_judged_against_the_final_model_not_one_the_ladder_moved_past(monkeypatch):
+    # two laws about equally good against the base model alone; the ladder adds a drift and
+    # stops at the noise floor without scoring the laws again: "these runs cannot tell them
+    # apart" would be a statement about a model the diagnosis no longer recommends
+    from pmalab.identify.diagnosis.diagnose import _alike_rows, laws_alike
+
+    labels = ["a", "b", "c", "d"]
+    nrmse = {
+        ("bouc-wen", ()): [0.090, 0.100, 0.095, 0.092],
+        ("bouc-wen", ("sensor-drift",)): [0.024, 0.024, 0.024, 0.024],
+        ("maxwell-slip", ()): [0.060, 0.065, 0.062, 0.060],
+        ("prandtl-ishlinskii", ()): [0.061, 0.064, 0.063, 0.060],
+    }
+    climbed = _climb(monkeypatch, nrmse, ["sensor-drift"], ["maxwell-slip", "prandtl-ishlinskii"],
+                     labels)
+    assert climbed.stop == "at the noise floor" and len(climbed.rounds) == 1
+    from pmalab.identify.diagnosis.diagnose import _law_row
+
+    round1 = [_law_row(c) for c in climbed.rounds[0].laws]
+    assert laws_alike(round1) == ["maxwell-slip", "prandtl-ishlinskii"]  # round 1 alone
+    assert _alike_rows(climbed.rounds, climbed.steps) == []
+    assert laws_alike(_alike_rows(climbed.rounds, climbed.steps)) == []

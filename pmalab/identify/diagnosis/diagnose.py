@@ -403,12 +403,19 @@ def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dic
 
 def _alike_rows(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dict[str, Any]]:
     """The law rows :func:`laws_alike` compares: the laws of one round (their rows are scored
-    against one model) — the round in which the ladder switched to the final model's law,
-    else round 1."""
+    against one model) — the round in which the ladder switched to the final model's law;
+    without a switch, the round scored against the final model (round 1 when the ladder
+    took no step; none when it added effects and stopped before scoring the laws again: a
+    comparison against a model it moved past says nothing about the final one)."""
     if not rounds:
         return []
-    k = next((s.step for s in reversed(steps[1:]) if s.switched), 1)
-    return [_law_row(c) for c in rounds[k - 1].laws]
+    k = next((s.step for s in reversed(steps[1:]) if s.switched), None)
+    if k is not None:
+        return [_law_row(c) for c in rounds[k - 1].laws]
+    last = rounds[-1]
+    if last.step != len(steps):  # the ladder stopped before scoring against its final model
+        return []
+    return [_law_row(c) for c in last.laws]
 
 
 def _model_words(base: LadderStep, step: LadderStep) -> str:
