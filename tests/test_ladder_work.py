@@ -365,3 +365,26 @@ def test_laws_alike_is_judged_against_the_final_model_not_one_the_ladder_moved_p
     assert laws_alike(round1) == ["maxwell-slip", "prandtl-ishlinskii"]  # round 1 alone
     assert _alike_rows(climbed.rounds, climbed.steps) == []
     assert laws_alike(_alike_rows(climbed.rounds, climbed.steps)) == []
+
+
+def test_the_tables_say_what_each_row_was_scored_against():
+    # the CLI's ranking and laws tables mix rows from different rounds (an effect or law
+    # the ladder took is shown from the round it won): the "against" column names the model
+    from pmalab.identify.diagnosis.diagnose import against_words
+
+    assert against_words("base") == "base" and against_words(None) == "base"
+    assert against_words("viscous-friction") == "base+viscous-friction"
+    assert against_words("viscous-friction+sensor-drift") == "base+viscous-friction+sensor-drift"
+    assert against_words("maxwell-slip+viscous-friction") == "maxwell-slip+viscous-friction"
+    from pmalab.identify.diagnosis.diagnose import Diagnosis
+
+    rows = [{"effect": "viscous-friction", "scored_against": "base", "status": "ok",
+             "nrmse_before": 0.2, "nrmse_after": 0.02, "fall_percent": 90.0,
+             "fall_se_percent": 1.0, "n_params": 1, "significant": True},
+            {"effect": "sensor-drift", "scored_against": "viscous-friction", "status": "ok",
+             "nrmse_before": 0.02, "nrmse_after": 0.015, "fall_percent": 25.0,
+             "fall_se_percent": 1.0, "n_params": 1, "significant": True}]
+    table = Diagnosis("bouc-wen", rows, [], "", [], {}, {}, "").ranking_table().splitlines()
+    assert table[0].split()[:2] == ["effect", "against"]
+    assert table[2].split()[:2] == ["viscous-friction", "base"]
+    assert table[3].split()[:2] == ["sensor-drift", "base+viscous-friction"]

@@ -590,6 +590,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
 
     with _discarded_on_failure(reading), _fitting_code():
         from pmalab.identify.diagnosis import diagnose, write_outputs
+        from pmalab.identify.diagnosis.diagnose import against_words
         from pmalab.identify.headline import WORST_BY, worst_runs
         from pmalab.identify.long_records import fit_part, long_runs
         from pmalab.runfile import check_distinct, check_distinct_runs, read_many
@@ -651,6 +652,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
                 [
                     (
                         "law",
+                        "against",
                         "nrmse before",
                         "nrmse after",
                         "fall %",
@@ -662,6 +664,9 @@ def diagnose_command(args: argparse.Namespace) -> int:
                 + [
                     (
                         lw["law"],
+                        # the model the row was scored against: the base, or for the law
+                        # the ladder switched to, the model of the step before
+                        against_words(lw.get("scored_against")),
                         # null: no held-out run left to judge on
                         "—" if lw["nrmse_before"] is None else f"{lw['nrmse_before']:.4f}",
                         # null: the law's identification raised

@@ -160,13 +160,28 @@ class Diagnosis:
 
     def ranking_table(self) -> str:
         """The ranking as a fixed-width text table."""
-        rows = [("effect", "nrmse before", "nrmse after", "fall %", "± (2 se)", "k", "significant")]
+        # "before" is the model a row was scored against (``scored_against``): the base
+        # model, or for an effect the ladder added, the model of the step before
+        rows = [
+            (
+                "effect",
+                "against",
+                "nrmse before",
+                "nrmse after",
+                "fall %",
+                "± (2 se)",
+                "k",
+                "significant",
+            )
+        ]
         for r in self.ranking:
+            against = against_words(r.get("scored_against"))
             if r.get("status") == "failed":
                 after, k = r["nrmse_after"], r["n_params"]  # null: the identification raised
                 rows.append(
                     (
                         r["effect"],
+                        against,
                         _f4(r["nrmse_before"]),
                         _f4(after),
                         "—",
@@ -179,6 +194,7 @@ class Diagnosis:
             rows.append(
                 (
                     r["effect"],
+                    against,
                     _f4(r["nrmse_before"]),
                     _f4(r["nrmse_after"]),
                     f"{r['fall_percent']:+.1f}",
@@ -416,6 +432,16 @@ def _alike_rows(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[di
     if last.step != len(steps):  # the ladder stopped before scoring against its final model
         return []
     return [_law_row(c) for c in last.laws]
+
+
+def against_words(scored_against: str | None) -> str:
+    """A row's ``scored_against`` for a table: ``base``, or the model of that step as the
+    base law plus its effects (``base+viscous-friction``), or its own law when a step changed
+    it (``maxwell-slip+viscous-friction``)."""
+    if not scored_against or scored_against == "base":
+        return "base"
+    first = scored_against.split("+", 1)[0]
+    return scored_against if first in LAWS else f"base+{scored_against}"
 
 
 def _model_words(base: LadderStep, step: LadderStep) -> str:
