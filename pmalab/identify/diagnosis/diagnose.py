@@ -324,24 +324,40 @@ def _ranking_json(
     for c in rounds[0].candidates:
         k = added.index(c.effect) + 1 if c.effect in added else None
         at = c if k is None else next(x for x in rounds[k - 1].candidates if x.effect == c.effect)
-        d = at.as_json()
-        d["significant_alone"] = bool(c.significant)
+        d = at.as_json() | _round_keys(c, k, steps)
         d["significant"] = k is not None
-        d["ladder_step"] = k
-        d["round"] = k or 1
-        d["scored_against"] = "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1])
         out.append(d)
-    # best first: ladder order, then the rest by their held-out fall (ranking.Candidate.fall)
-    # failed fits last (they carry no fall)
-    out.sort(
-        key=lambda d: (
-            d["ladder_step"] is None,
-            d["ladder_step"] or 0,
-            d.get("status") == "failed",
-            -(d["fall_percent"] or 0.0),
-        )
-    )
+    out.sort(key=_ladder_order)
     return out
+
+
+def _round_keys(first: Candidate, k: int | None, steps: Sequence[LadderStep]) -> dict[str, Any]:
+    """The keys that say which round a ``ranking`` or ``laws`` row comes from: the step
+    ``k`` that took the candidate (None: not taken; its row is round 1's), round 1's verdict
+    (``first``, against the base model alone) and the model the row was scored against."""
+    return {
+        "significant_alone": bool(first.significant),
+        "ladder_step": k,
+        "round": k or 1,
+        "scored_against": "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1]),
+    }
+
+
+def _ladder_order(d: Mapping[str, Any]) -> tuple:
+    """Best first: the ladder's order, then the rest by their held-out fall
+    (ranking.Candidate.fall); failed fits last (they carry no fall)."""
+    return (
+        d["ladder_step"] is None,
+        d["ladder_step"] or 0,
+        d.get("status") == "failed",
+        -(d["fall_percent"] or 0.0),
+    )
+
+
+def _final_round(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> Round | None:
+    """The round scored against the final model, or None when the ladder stopped before
+    scoring one (at its step limit or at the noise floor)."""
+    return rounds[-1] if rounds and rounds[-1].step == len(steps) else None
 
 
 def _law_row(c: Candidate) -> dict[str, Any]:
@@ -378,42 +394,30 @@ def _laws_json(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[dic
     k − 1); every other law from round 1, against the base model.  ``significant_alone`` is
     round 1's verdict; ``significant_last`` the verdict against the final model, where the
     ladder scored the law against it (its last round; null when it stopped before, at its
-    step limit or at the noise floor; absent when the ladder took no step or took this law).  A law significant against the base model alone that
-    the ladder did not take has absorbed what the effects it added explain — the same
-    evidence effects are held to (a sensor drift on the held-out records lets any law's
-    refit lower the base model's error)."""
+    step limit or at the noise floor; absent when the ladder took no step or took this law).
+    A law significant against the base model alone that the ladder did not take has
+    absorbed what the effects it added explain — the same evidence effects are held to (a
+    sensor drift on the held-out records lets any law's refit lower the base model's
+    error)."""
     if not rounds:
         return []
     switched = {s.switched: s.step for s in steps[1:] if s.switched}
     # the final model's law: a law a later step replaced is no longer claimed
     final = steps[-1].law
-    # the round scored against the final model (none when the ladder stopped at its limit)
-    last = rounds[-1] if rounds[-1].step == len(steps) else None
+    last = _final_round(rounds, steps)
     out = []
     for c in rounds[0].laws:
         k = switched.get(c.effect)
         at = c if k is None else next(x for x in rounds[k - 1].laws if x.effect == c.effect)
-        d = _law_row(at)
-        d["significant_alone"] = bool(c.significant)
+        d = _law_row(at) | _round_keys(c, k, steps)
         d["significant"] = k is not None and c.effect == final
-        d["ladder_step"] = k
-        d["round"] = k or 1
-        d["scored_against"] = "base" if not k or k == 1 else _model_words(steps[0], steps[k - 1])
         if k is None and last is not None and last is not rounds[0]:
             now = next((x for x in last.laws if x.effect == c.effect), None)
             d["significant_last"] = None if now is None else bool(now.significant)
         elif k is None and len(steps) > 1:
             d["significant_last"] = None  # the ladder stopped before scoring it again
         out.append(d)
-    # best first: the ladder's, then by their held-out fall; failed fits last
-    out.sort(
-        key=lambda d: (
-            d["ladder_step"] is None,
-            d["ladder_step"] or 0,
-            d["status"] == "failed",
-            -(d["fall_percent"] or 0.0),
-        )
-    )
+    out.sort(key=_ladder_order)
     return out
 
 
@@ -428,10 +432,8 @@ def _alike_rows(rounds: Sequence[Round], steps: Sequence[LadderStep]) -> list[di
     k = next((s.step for s in reversed(steps[1:]) if s.switched), None)
     if k is not None:
         return [_law_row(c) for c in rounds[k - 1].laws]
-    last = rounds[-1]
-    if last.step != len(steps):  # the ladder stopped before scoring against its final model
-        return []
-    return [_law_row(c) for c in last.laws]
+    last = _final_round(rounds, steps)
+    return [] if last is None else [_law_row(c) for c in last.laws]
 
 
 def against_words(scored_against: str | None) -> str:

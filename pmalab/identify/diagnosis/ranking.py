@@ -781,10 +781,10 @@ def clearly_better(a: Candidate, b: Candidate) -> bool:
     are evidence for both (:attr:`Candidate.evidence`) are compared: on a run where the
     current model diverged, both fall by ~``DIVERGED_NRMSE`` and the difference says nothing.
     """
+    if len(a.after.nrmse) != len(b.after.nrmse):
+        return False
     both = set(b.evidence)
     i = [k for k in a.evidence if k in both]
-    if len(i) == len(a.after.nrmse) == len(b.after.nrmse):
-        return clearly_lower(a.after.nrmse, b.after.nrmse)
     return clearly_lower([a.after.nrmse[k] for k in i], [b.after.nrmse[k] for k in i])
 
 
