@@ -29,8 +29,8 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from numpy.linalg import norm
-from scipy.linalg import lapack, svd
+from numpy.linalg import LinAlgError, norm
+from scipy.linalg import lapack
 from scipy.optimize import OptimizeResult, least_squares
 
 try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
@@ -60,7 +60,9 @@ MESSAGES = {
     4: "Both `ftol` and `xtol` termination conditions are satisfied.",
 }
 
-_GEQRF, _ORMQR = lapack.get_lapack_funcs(("geqrf", "ormqr"), (np.zeros((2, 2)),))
+#: LAPACK's QR, Qᵀ·c and divide-and-conquer SVD (SciPy's default driver), called directly:
+#: SciPy's wrappers check and look up the same routines at every call, ~50 µs a step
+_GEQRF, _ORMQR, _GESDD = lapack.get_lapack_funcs(("geqrf", "ormqr", "gesdd"), (np.zeros((2, 2)),))
 
 
 def reduced_svd_uf(A: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -78,7 +80,11 @@ def reduced_svd_uf(A: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray
     qtf, _, info = _ORMQR("L", "T", qr, tau, f.reshape(-1, 1), max(64, n))
     if info != 0:  # pragma: no cover
         raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
-    ur, s, vt = svd(r, full_matrices=False, check_finite=False)
+    ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
+    if info > 0:
+        raise LinAlgError("SVD did not converge")
+    if info < 0:  # pragma: no cover
+        raise ValueError(f"SVD failed (LAPACK info {info})")
     return s, vt.T, ur.T.dot(qtf[:n, 0])
 
 
@@ -181,8 +187,8 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         g_h = d * g
 
         f_augmented[:m] = f
-        J_augmented[:m] = J * d
         J_h = J_augmented[:m]  # a view
+        np.multiply(J, d, out=J_h)  # J·d written in place (no temporary)
         J_augmented[m:] = np.diag(diag_h**0.5)
         s, V, uf = reduced_svd_uf(J_augmented, f_augmented)
 
