@@ -103,3 +103,96 @@ def test_refusals_match_scipys():
         least_squares_trf(
             fun, lambda z: jac(z) * np.nan, [1.0, 1.0, 0.0], lo, hi, ftol=1e-8, xtol=1e-8, gtol=1e-8, max_nfev=10
         )
+
+
+def _rosenbrock(nan_below: float | None = None):
+    """Rosenbrock's valley as two residuals: a path with rejected steps; with ``nan_below``,
+    residuals that are NaN where z[1] < nan_below (a step there is retried smaller)."""
+
+    def fun(z):
+        r = np.array([10.0 * (z[1] - z[0] ** 2), 1.0 - z[0]])
+        return r * np.nan if nan_below is not None and z[1] < nan_below else r
+
+    def jac(z):
+        return np.array([[-20.0 * z[0], 10.0], [-1.0, 0.0]])
+
+    return fun, jac
+
+
+def _path(solve, fun):
+    """The points ``solve`` evaluates ``fun`` at, and its result."""
+    xs = []
+
+    def logged(z):
+        xs.append(np.array(z, dtype=float))
+        return fun(z)
+
+    res = solve(logged)
+    return np.array(xs), res
+
+
+@pytest.mark.parametrize(
+    ("nan_below", "z0", "lo", "hi"),
+    [
+        (None, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),  # optimum inside, rejected steps
+        (None, [-1.9, 0.5], [-2.0, -1.0], [0.8, 1.5]),  # optimum on a bound
+        (-0.3, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),  # a step into NaN retried smaller
+    ],
+)
+def test_step_for_step_scipys_path(nan_below, z0, lo, hi):
+    """Not only the optimum: every evaluated point, the evaluation counts and the status are
+    SciPy's (the SVD's round-off apart)."""
+    fun, jac = _rosenbrock(nan_below)
+    z0, lo, hi = np.array(z0), np.array(lo), np.array(hi)
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
+    xs, ours = _path(lambda f: least_squares_trf(f, jac, z0, lo, hi, **kw), fun)
+    xr, ref = _path(
+        lambda f: least_squares(f, z0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac", **kw),
+        fun,
+    )
+    assert (ours.nfev, ours.njev, ours.status) == (ref.nfev, ref.njev, ref.status)
+    assert ours.nfev > ours.njev + 1  # the path has steps not taken, to compare
+    assert xs.shape == xr.shape
+    np.testing.assert_allclose(xs, xr, rtol=1e-9, atol=1e-12)
+    if nan_below is not None:  # the NaN branch was taken
+        assert (xs[:, 1] < nan_below).any()
+
+
+@pytest.mark.timeout(20)
+@pytest.mark.parametrize("max_nfev", [0, -1])
+def test_a_budget_of_no_evaluations_is_refused_as_scipy_refuses_it(max_nfev):
+    """(It looped for ever: the inner loop never ran and the outer one never stopped.)"""
+    fun, jac = _rosenbrock()
+    lo, hi = np.array([-2.0, -1.0]), np.array([2.0, 1.5])
+    with pytest.raises(ValueError, match="max_nfev"):
+        least_squares(fun, [-1.9, 1.4], jac=jac, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev)
+    with pytest.raises(ValueError, match="max_nfev"):
+        least_squares_trf(fun, jac, [-1.9, 1.4], lo, hi, ftol=1e-8, xtol=1e-8, gtol=1e-8,
+                          max_nfev=max_nfev)
+
+
+def test_no_budget_is_scipys_default_and_zero_tolerances_are_refused():
+    fun, jac = _rosenbrock()
+    lo, hi = np.array([-2.0, -1.0]), np.array([2.0, 1.5])
+    kw = dict(ftol=1e-12, xtol=1e-12, gtol=1e-12, max_nfev=None)
+    ours = least_squares_trf(fun, jac, [-1.9, 1.4], lo, hi, **kw)
+    ref = least_squares(fun, [-1.9, 1.4], jac=jac, bounds=(lo, hi), x_scale="jac", **kw)
+    assert (ours.nfev, ours.status) == (ref.nfev, ref.status)
+    with pytest.raises(ValueError, match="tolerances"):
+        least_squares_trf(fun, jac, [-1.9, 1.4], lo, hi, ftol=0.0, xtol=0.0, gtol=0.0, max_nfev=10)
+
+
+def test_without_scipys_step_helpers_it_is_scipys_least_squares(monkeypatch):
+    """The fallback for a SciPy that moved its private helpers: SciPy's own solver, bit for
+    bit, with the same arguments."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    monkeypatch.setattr(tr, "_HAVE_STEP_HELPERS", False)
+    fun, jac = _decay_problem(7)
+    lo, hi = np.array([0.0, 0.05, -5.0]), np.array([2.5, 10.0, 5.0])
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=200)
+    ours = tr.least_squares_trf(fun, jac, [1.0, 2.0, 0.0], lo, hi, **kw)
+    ref = least_squares(fun, [1.0, 2.0, 0.0], jac=jac, bounds=(lo, hi), method="trf",
+                        x_scale="jac", **kw)
+    assert ours.x.tobytes() == ref.x.tobytes()
+    assert (ours.nfev, ours.njev, ours.status, ours.message) == (ref.nfev, ref.njev, ref.status, ref.message)

@@ -310,9 +310,11 @@ def _grid_picks(th: dict[str, float], name: str, values: Sequence[float]) -> lis
     a lag lies, so it is not computed.  Against refining from every value, on those
     campaigns' 346 multi-started fits: 48 % of the residual evaluations; the same optimum
     within 0.1 % on 331, a worse one on 12 (by 0.1–17 %: a farther start had reached a
-    better minimum), a better one on 3.  A lag beyond the nearest value is still found
-    from it (tests/test_identify_recovery.py: 70 and 90 ms on a triangle, where a descent
-    from τ = 0 ends at −41 or 0 ms)."""
+    better minimum), a better one on 3.  A lag beyond the nearest value can still be found
+    from it (tests/test_identify_recovery.py: 70 and 90 ms on a triangle, where the descent
+    from τ = 0 ends at −39 or 0 ms, so the starts are ±40 ms), but not always: 80 ms at
+    4 Hz (seed 1), descent −35 ms, is reached only from 80 ms (the +40 ms start stops at
+    70 ms, dearer than the descent's minimum)."""
     lo = [v for v in values if v < th[name]]
     hi = [v for v in values if v > th[name]]
     return [

@@ -51,6 +51,8 @@ try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
 except ImportError:  # pragma: no cover - a SciPy that moved them: its own least_squares
     _HAVE_STEP_HELPERS = False
 
+EPS = np.finfo(float).eps  # SciPy's ``_lsq.common.EPS``
+
 #: SciPy's messages for the same termination statuses
 MESSAGES = {
     0: "The maximum number of function evaluations is exceeded.",
@@ -98,16 +100,24 @@ def least_squares_trf(
     ftol: float,
     xtol: float,
     gtol: float,
-    max_nfev: int,
+    max_nfev: int | None,
 ) -> OptimizeResult:
     """Minimise ½‖fun(x)‖² over ``lb ≤ x ≤ ub`` (see the module docstring).
 
-    ``x0`` must lie inside the bounds; ``jac(x)`` returns the dense m × n Jacobian.  The
-    result has SciPy's fields: ``x``, ``cost``, ``fun``, ``jac``, ``grad``, ``optimality``,
+    ``x0`` must lie inside the bounds; ``jac(x)`` returns the dense m × n Jacobian;
+    ``max_nfev`` ``None`` is SciPy's default, 100 evaluations per variable.  The result has
+    SciPy's fields: ``x``, ``cost``, ``fun``, ``jac``, ``grad``, ``optimality``,
     ``active_mask``, ``nfev``, ``njev``, ``status``, ``message``, ``success``."""
+    # SciPy's refusals of the arguments (a budget of 0 evaluations would never stop)
+    if max_nfev is not None and max_nfev <= 0:
+        raise ValueError("`max_nfev` must be None or positive integer.")
+    if ftol < EPS and xtol < EPS and gtol < EPS:
+        raise ValueError(
+            f"At least one of the tolerances must be higher than machine epsilon ({EPS:.2e})."
+        )
     lb = np.asarray(lb, dtype=float)
     ub = np.asarray(ub, dtype=float)
-    if not _HAVE_STEP_HELPERS:  # pragma: no cover
+    if not _HAVE_STEP_HELPERS:  # SciPy moved its helpers: its own least_squares
         return least_squares(
             fun,
             x0,
@@ -139,6 +149,8 @@ def least_squares_trf(
             f"The return value of `jac` has wrong shape: expected {(f0.size, x0.size)}, "
             f"actual {J0.shape}."
         )
+    if max_nfev is None:
+        max_nfev = x0.size * 100
     res = _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev)
     res.message = MESSAGES[res.status]
     res.success = res.status > 0
