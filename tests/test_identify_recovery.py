@@ -143,3 +143,23 @@ def test_multistart_finds_a_lag_a_descent_from_zero_misses(f: float, tau: float)
     res = fit_run(run, ForceModel("bouc-wen", [get_effect("sensor-delay")]))
     assert res.values["delay_tau"] == pytest.approx(tau, abs=0.002)
     assert res.nrmse < 0.02  # 0.004–0.013 here; 0.19–0.28 in the other minima
+
+
+def test_an_effect_with_an_empty_multistart_grid_is_fitted_as_one_without_a_grid() -> None:
+    """(``min()`` of no tries raised: a user effect declaring ``multistart = {name: ()}``
+    failed every fit of a model with it.)"""
+    from typing import ClassVar
+
+    from pmalab.identify.effects.delay import SensorDelay
+
+    class EmptyGrid(SensorDelay):
+        multistart: ClassVar[dict[str, tuple[float, ...]]] = {"delay_tau": ()}
+
+    class NoGrid(SensorDelay):
+        multistart: ClassVar[dict[str, tuple[float, ...]]] = {}
+
+    run, _ = make_run("bouc-wen", 0.4, f=2.0, n=500, waveform="triangle", seed=1)
+    a = fit_run(run, ForceModel("bouc-wen", [EmptyGrid()]))
+    b = fit_run(run, ForceModel("bouc-wen", [NoGrid()]))
+    assert a.values == b.values
+    assert a.nrmse < 0.01  # no lag in the data: the 1 N noise alone

@@ -314,7 +314,7 @@ def _refine_starts(
         if best is None or res.cost < best[1].cost:
             best = (xv, res)
     assert best is not None
-    grid = {n: v for n, v in prob.model.multistart.items() if n in prob.free}
+    grid = {n: v for n, v in prob.model.multistart.items() if n in prob.free and len(v)}
     if grid:
         th_best = _theta(prob, best[0])
         short = max(10, NFEV_PER_PARAM * (prob.n_var + 1) // 4)
