@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from pmalab.identify.effects import get_effect
 from pmalab.identify.model import ForceModel
 from pmalab.identify.signals import Signals
 from pmalab.runfile import Run
@@ -35,8 +36,9 @@ TRUTH = {"bouc-wen": bw_truth, "duhem": duhem_truth}
 def make_run(law: str, p: float, *, theta: dict[str, float] | None = None, f: float = 0.15,
              n: int = 20000, fs: float = 500.0, seed: int = 0, amp: float = 9.0,
              mean: float = 12.0, waveform: str = "sine", noise: bool = True,
-             name: str | None = None) -> tuple[Run, np.ndarray]:
-    """(run, clean force): an isobaric run of ``law`` at nominal pressure ``p`` (MPa)."""
+             name: str | None = None, effects: tuple[str, ...] = ()) -> tuple[Run, np.ndarray]:
+    """(run, clean force): an isobaric run of ``law`` (with ``effects``, their parameters in
+    ``theta``) at nominal pressure ``p`` (MPa)."""
     rng = np.random.default_rng(seed)
     t = (np.arange(n) + 0.05 * rng.uniform(-1, 1, n)) / fs  # measured stamps with jitter
     ph = 2 * np.pi * f * t - np.pi / 2
@@ -56,7 +58,7 @@ def make_run(law: str, p: float, *, theta: dict[str, float] | None = None, f: fl
         x = mean + amp * np.sin(ph)
     th = theta if theta is not None else TRUTH[law](p)
     sig = Signals.from_arrays(t, x, p, p_nom=p, frequency_Hz=f, cutoff_Hz=1e9)
-    F = ForceModel(law).predict(sig, th)
+    F = ForceModel(law, [get_effect(e) for e in effects]).predict(sig, th)
     xn = x + (POS_NOISE_MM * rng.standard_normal(n) if noise else 0.0)
     Fn = F + (FORCE_NOISE_N * rng.standard_normal(n) if noise else 0.0)
     pm = p + (0.001 * rng.standard_normal(n) if noise else 0.0)

@@ -1,8 +1,10 @@
 """The one solver and the one uncertainty estimate of every fit pmalab makes.
 
-:func:`solve` is ``scipy.optimize.least_squares`` (trust-region reflective, bounds,
-``x_scale='jac'``) started strictly inside the bounds, with BLAS single-threaded (tall-skinny
-Jacobian products are slower threaded; batches parallelise across runs instead).
+:func:`solve` is SciPy's trust-region reflective least squares (bounds, ``x_scale='jac'``;
+:mod:`~pmalab.identify.estimation.trust_region`: the same method with each step's SVD taken
+on the Jacobian's triangular factor) started strictly inside the bounds, with BLAS
+single-threaded (tall-skinny Jacobian products are slower threaded; batches parallelise
+across runs instead).
 
 :func:`uncertainty`: covariance s²·(JᵀJ)⁻¹ at the optimum, computed on the column-scaled
 Jacobian (pseudo-inverse, so a degenerate direction gives large errors instead of a crash),
@@ -19,9 +21,10 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import OptimizeResult, least_squares
+from scipy.optimize import OptimizeResult
 from threadpoolctl import ThreadpoolController
 
+from pmalab.identify.estimation.trust_region import least_squares_trf
 from pmalab.identify.metrics import information_criteria
 
 STDERR_METHOD = (
@@ -74,13 +77,12 @@ def solve(
 ) -> OptimizeResult:
     """Bounded nonlinear least squares from ``z0`` (see the module docstring)."""
     with one_blas_thread():
-        return least_squares(
+        return least_squares_trf(
             residual,
+            jac,
             inside(np.asarray(z0, float), lo, hi),
-            jac=jac,  # pyright: ignore[reportArgumentType]  (scipy's stubs: str only)
-            bounds=(lo, hi),
-            method="trf",
-            x_scale="jac",
+            lo,
+            hi,
             ftol=tol,
             xtol=tol,
             gtol=tol,
