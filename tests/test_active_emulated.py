@@ -53,7 +53,10 @@ def test_killing_the_emulator_mid_round_reports_the_vent_truthfully(delay_campai
     emu = start_emulate_process(rig, port)
     try:
         proc = subprocess.Popen(
+            # the two look-alikes the round separates are the only candidates: the round and
+            # its vent are what is checked here, not the ranking (test_active's)
             [sys.executable, "-m", "pmalab.cli", "diagnose", str(camp), "--model", "bouc-wen",
+             "--only", "sensor-delay", "--only", "viscous-friction",
              "--rig", str(rig), "--run-suggested", "--yes", "--out", str(tmp_path / "d"), "-q"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             env=shell_env(),  # the shell's

@@ -63,9 +63,12 @@ def cluster(tmp_path_factory):
             time.sleep(0.5)
         yield addr
     finally:
+        # the worker first, while its scheduler still answers: stopped together, the
+        # worker's nanny sometimes waits out its reports to a scheduler already gone
+        # (8 s of an idle core in the suite; 0.5 s this way)
         worker.terminate()
-        sched.terminate()
         worker.wait(20)
+        sched.terminate()
         sched.wait(20)
 
 

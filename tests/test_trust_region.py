@@ -28,6 +28,34 @@ def test_reduced_svd_gives_the_full_svds_values_vectors_and_projection(m, n):
     np.testing.assert_allclose(x, np.linalg.lstsq(A, f, rcond=None)[0], rtol=1e-8, atol=1e-14)
 
 
+def test_reduced_svd_refuses_a_wide_matrix_by_name():
+    """(LAPACK's Qᵀ·c refused it with an f2py message about ``tau``.)  The solver never
+    passes one: its augmented Jacobian has m + n rows, tall even with fewer residuals than
+    parameters (test_fewer_residuals_than_parameters)."""
+    with pytest.raises(ValueError, match="rows >= columns"):
+        reduced_svd_uf(np.ones((3, 6)), np.ones(3))
+
+
+def test_fewer_residuals_than_parameters():
+    """m < n (SciPy's 'trf' allows it, 'lm' refuses): the same optimum as SciPy's."""
+    rng = np.random.default_rng(0)
+    A, b = rng.standard_normal((3, 6)), rng.standard_normal(3)
+
+    def fun(z):
+        return A @ np.sin(z) - b
+
+    def jac(z):
+        return A * np.cos(z)
+
+    lo, hi = -2.0 * np.ones(6), 2.0 * np.ones(6)
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=500)
+    ours = least_squares_trf(fun, jac, np.full(6, 0.1), lo, hi, **kw)
+    ref = least_squares(fun, np.full(6, 0.1), jac=jac, bounds=(lo, hi), x_scale="jac", **kw)
+    assert ours.success and ref.success
+    np.testing.assert_allclose(ours.x, ref.x, rtol=1e-6)
+    assert ours.cost < 1e-20  # an exact fit: more unknowns than equations
+
+
 def test_reduced_svd_refuses_a_non_finite_matrix():
     A = np.ones((10, 2))
     A[3, 1] = np.nan

@@ -100,8 +100,8 @@ class Effect:
     tare: ClassVar[bool] = False
 
     #: multi-start values of parameters whose cost is multi-modal (e.g. a channel delay: a
-    #: local minimum wherever a shift lines up one feature of the loop); the fitter starts
-    #: from the value nearest its optimum on either side and keeps the best
+    #: local minimum wherever a shift lines up one feature of the loop); the fitter tries
+    #: each value as a start and keeps the best
     multistart: ClassVar[dict[str, tuple[float, ...]]] = {}
     #: parameters that describe the rig, not the muscle (e.g. a channel skew): one value for
     #: every run of a campaign (pressure order 0 in the joint fit)

@@ -15,8 +15,8 @@ measured, zero-phase filtered position only, never by the measured force):
    :class:`~pmalab.identify.estimation.problem.Problem` (every parameter order 0 in
    pressure, h0 the per-run block) solved by :func:`~pmalab.identify.estimation.solver.solve`.
    Effects start from their own data-sized defaults on top of the fitted base law; an
-   effect's multi-modal parameter (``Effect.multistart``) is also started from its grid
-   values nearest the optimum's on either side and the best optimum kept.
+   effect's multi-modal parameter (``Effect.multistart``) is also started from each of its
+   grid values and the best optimum kept.
 
 Uncertainty: :func:`~pmalab.identify.estimation.solver.uncertainty` (s²·(JᵀJ)⁻¹ inflated by
 N/N_eff, the AR(1) effective sample size); ``stderr_method`` says so in every result.
@@ -298,32 +298,6 @@ def _refine(prob: Problem, start: dict[str, float], max_nfev: int | None = None)
     return res.x, res
 
 
-def _grid_picks(th: dict[str, float], name: str, values: Sequence[float]) -> list[dict[str, float]]:
-    """The multi-start points of ``name`` refined from ``th`` (the descent's optimum): the
-    grid value nearest ``th[name]`` on each side of it, the other parameters held.
-
-    Refining from every grid value cost a model with a delay about twice its descent, and
-    tries from values on one side mostly end in the same minimum.  Ranking a side's values
-    by their cost with the other parameters held (one residual each) picked the nearest on
-    all 692 sides of four simulated campaigns (tutorial, hidden and subtle sensor delay,
-    three modest effects): the held cost measures how far a shift moves the loop, not where
-    a lag lies, so it is not computed.  Against refining from every value, on those
-    campaigns' 346 multi-started fits: 48 % of the residual evaluations; the same optimum
-    within 0.1 % on 331, a worse one on 12 (by 0.1–17 %: a farther start had reached a
-    better minimum), a better one on 3.  A lag beyond the nearest value can still be found
-    from it (tests/test_identify_recovery.py: 70 and 90 ms on a triangle, where the descent
-    from τ = 0 ends at −39 or 0 ms, so the starts are ±40 ms), but not always: 80 ms at
-    4 Hz (seed 1), descent −35 ms, is reached only from 80 ms (the +40 ms start stops at
-    70 ms, dearer than the descent's minimum)."""
-    lo = [v for v in values if v < th[name]]
-    hi = [v for v in values if v > th[name]]
-    return [
-        {**th, name: float(v)}
-        for v in (max(lo, default=None), min(hi, default=None))
-        if v is not None
-    ]
-
-
 def _refine_starts(
     prob: Problem, starts: list[dict[str, float]]
 ) -> tuple[np.ndarray, OptimizeResult]:
@@ -340,17 +314,21 @@ def _refine_starts(
         if best is None or res.cost < best[1].cost:
             best = (xv, res)
     assert best is not None
-    grid = {n: v for n, v in prob.model.multistart.items() if n in prob.free}
+    grid = {n: v for n, v in prob.model.multistart.items() if n in prob.free and len(v)}
     if grid:
         th_best = _theta(prob, best[0])
         short = max(10, NFEV_PER_PARAM * (prob.n_var + 1) // 4)
+        # every grid value, not only the nearest on each side of the descent's τ: that
+        # halved the grid's cost (the tries from one side mostly meet) but lost real lags —
+        # on 2 and 4 Hz triangles with lags of ±40–90 ms (48 fits), 13 missed by > 5 ms
+        # against 5 from every value, the 8 more at 4 Hz (a farther start reached a minimum
+        # the nearer did not); a screen by the cost at each τ with the rest held picks the
+        # nearest anyway (on 692 of 692 sides in four simulated campaigns)
         tries = [
-            _refine(prob, st, short)
-            for n, vals in grid.items()
-            for st in _grid_picks(th_best, n, vals)
+            _refine(prob, {**th_best, n: float(v)}, short) for n, vals in grid.items() for v in vals
         ]
-        cand = min(tries, key=lambda t: t[1].cost, default=None)
-        if cand is not None and cand[1].cost < best[1].cost:
+        cand = min(tries, key=lambda t: t[1].cost)
+        if cand[1].cost < best[1].cost:
             polished = _refine(prob, _theta(prob, cand[0]))
             best = polished if polished[1].cost <= cand[1].cost else cand
     return best

@@ -71,10 +71,13 @@ def reduced_svd_uf(A: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray
     """``(s, V, Uᵀ f)`` of the thin SVD ``A = U diag(s) Vᵀ`` of a tall matrix (rows ≥
     columns), by QR first: ``A = Q R``, ``R = U_R diag(s) Vᵀ``, ``Uᵀ f = U_Rᵀ Qᵀ f``.
 
-    Raises ``ValueError`` when ``A`` holds a NaN or an infinity (as SciPy's SVD does)."""
+    Raises ``ValueError`` when ``A`` holds a NaN or an infinity (as SciPy's SVD does), or is
+    wide (the trust-region step's augmented Jacobian, m + n rows, never is: m < n is fine)."""
     if not np.isfinite(A).all():
         raise ValueError("array must not contain infs or NaNs")
     n = A.shape[1]
+    if A.shape[0] < n:
+        raise ValueError(f"reduced_svd_uf needs rows >= columns, got {A.shape}")
     qr, tau, _, info = _GEQRF(A)
     if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
         raise ValueError(f"QR factorisation failed (LAPACK info {info})")
