@@ -196,6 +196,10 @@ class SerialAdapter(Adapter):
         self.stopbits = stopbits
         self.name = f"serial://{port}@{baudrate}"
         self._ser: serial.Serial | None = None
+        #: the start of a line whose rest had not arrived when :meth:`read_until` timed out:
+        #: the next call continues it (a line split across a read's deadline is one line,
+        #: not a lost line and a garbled tail)
+        self._partial = bytearray()
 
     def open(self) -> None:
         self.close()
@@ -222,6 +226,7 @@ class SerialAdapter(Adapter):
             except (OSError, serial.SerialException):
                 pass
         self._ser = None
+        self._partial.clear()
 
     @property
     def is_open(self) -> bool:
@@ -257,13 +262,16 @@ class SerialAdapter(Adapter):
         return bytes(out)
 
     def read_until(self, terminator: bytes, timeout: float) -> bytes:
+        """Bytes up to and including ``terminator``; on a timeout the bytes of the
+        unfinished line are kept and the next call continues that line."""
         ser = self._require()
         deadline = time.perf_counter() + timeout
-        out = bytearray()
+        out, self._partial = self._partial, bytearray()
         try:
             while not out.endswith(terminator):
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0:
+                    self._partial = out
                     raise TransportTimeout(f"{self.name}: no complete line")
                 ser.timeout = remaining
                 out += ser.read_until(terminator)
@@ -273,6 +281,7 @@ class SerialAdapter(Adapter):
         return bytes(out)
 
     def discard_input(self) -> None:
+        self._partial.clear()
         if self._ser is not None:
             try:
                 self._ser.reset_input_buffer()
