@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from pmalab.rig.drivers.adapters import SerialAdapter, TransportTimeout
+from pmalab.rig.drivers.adapters import MAX_PARTIAL_LINE, SerialAdapter, TransportTimeout
 from tests.pty_support import needs_pty
 
 
@@ -52,3 +52,18 @@ def test_discarding_the_input_drops_a_partial_line_too(pty_link):
     time.sleep(0.01)
     os.write(master, b"OK\r\n")
     assert adapter.read_until(b"\r\n", 1.0) == b"OK\r\n"
+
+
+@needs_pty
+def test_a_device_that_never_ends_its_lines_does_not_grow_the_kept_start(pty_link):
+    # a wrong line ending (``\r`` only): the kept start is dropped once it is longer than
+    # any line, so the reader's memory stays bounded whatever the device sends
+    master, adapter = pty_link
+    for _ in range(3):
+        os.write(master, b"ST,GS,+0012.34kg\r" * 40)
+        with pytest.raises(TransportTimeout):
+            adapter.read_until(b"\n", 0.1)
+    assert len(adapter._partial) <= MAX_PARTIAL_LINE  # pyright: ignore[reportPrivateUsage]
+    adapter.discard_input()
+    os.write(master, b"ST,GS,+0001.00kg\r\n")
+    assert adapter.read_until(b"\n", 1.0) == b"ST,GS,+0001.00kg\r\n"

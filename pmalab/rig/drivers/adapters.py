@@ -178,6 +178,11 @@ class SocketAdapter(Adapter):
                 self._sock.setblocking(True)
 
 
+#: the longest unfinished line :class:`SerialAdapter` keeps across a read's deadline (bytes;
+#: a weight line is ~18, an ITV reply ~10, a Modbus ASCII frame at most 513)
+MAX_PARTIAL_LINE = 1024
+
+
 class SerialAdapter(Adapter):
     """A serial port through pyserial (RS-232/RS-485, or a pty for the emulators)."""
 
@@ -271,7 +276,9 @@ class SerialAdapter(Adapter):
             while not out.endswith(terminator):
                 remaining = deadline - time.perf_counter()
                 if remaining <= 0:
-                    self._partial = out
+                    # kept only while it can still be the start of one line: a device that
+                    # never sends the terminator (a wrong line ending) must not grow it
+                    self._partial = out if len(out) <= MAX_PARTIAL_LINE else bytearray()
                     raise TransportTimeout(f"{self.name}: no complete line")
                 ser.timeout = remaining
                 out += ser.read_until(terminator)
