@@ -120,9 +120,9 @@ class SensorDelay(Effect):
     #: τ = 0 can stop short of the real lag.
     multistart: ClassVar[dict[str, tuple[float, ...]]] = {"delay_tau": (-0.08, -0.04, 0.04, 0.08)}
     #: τ is a property of the rig's sensor paths, not of the muscle: one value for every run
-    #: of a campaign (diagnosis fits it per pressure group, pools the estimates and refits
-    #: every group with the pooled τ).  This is what separates a delay from viscous
-    #: friction, whose coefficient is free to change with pressure.
+    #: of a campaign (pressure order 0 in the campaign's joint fit, whatever the other
+    #: parameters' orders).  This is what separates a delay from viscous friction, whose
+    #: coefficient is free to change with pressure.
     campaign_shared: ClassVar[tuple[str, ...]] = ("delay_tau",)
 
     def params(self, sig: Signals, force_scale: float) -> list[Param]:
