@@ -101,3 +101,16 @@ def fixes(items: Iterable[str]) -> dict[str, float]:
             raise PmalabError(f"--fix {it!r}: the value must be a finite number")
         out[name.strip()] = v
     return out
+
+
+def law_names(text: str | None) -> list[str] | None:
+    """``diagnose --laws``: the comma-separated law ids (``none`` and empty items dropped:
+    ``--laws none`` scores no other law); None when the option is not given (every law)."""
+    return None if text is None else [x for x in text.split(",") if x and x != "none"]
+
+
+def check_max_steps(n: int) -> int:
+    """``diagnose --max-steps``: ``n`` when ≥ 0, else one line naming the option."""
+    if n < 0:
+        raise PmalabError(f"--max-steps {n}: must be ≥ 0")
+    return n

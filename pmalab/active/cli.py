@@ -13,6 +13,7 @@ import signal
 import sys
 from pathlib import Path
 
+from pmalab.arguments import check_max_steps, law_names
 from pmalab.arguments import seed as seed_arg
 from pmalab.errors import PmalabError
 
@@ -107,9 +108,7 @@ def run_active(args: argparse.Namespace) -> int:
             f"--run-suggested: {', '.join(unsupported)} cannot be used with it (the loop "
             "diagnoses the whole campaign file locally after every round)"
         )
-    if args.max_steps < 0:
-        raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
-    laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    check_max_steps(args.max_steps)
     jobs = resolve_jobs(args.jobs)  # --jobs, else $PMALAB_JOBS, else 2
     if args.budget <= 0:
         raise PmalabError(f"--budget {args.budget:g}: must be a positive number of seconds")
@@ -152,7 +151,7 @@ def run_active(args: argparse.Namespace) -> int:
             protocol_duration=protocol_duration,
             # the plain diagnosis's own settings, for the first diagnosis and every round's
             options={
-                "laws": laws,
+                "laws": law_names(args.laws),
                 "max_steps": args.max_steps,
                 "effects_files": args.effects,
                 "whole_run": args.whole_run,

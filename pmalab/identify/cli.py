@@ -13,7 +13,14 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING
 
-from pmalab.arguments import DEFAULT_JOBS, JOBS_ENV, default_jobs, fixes
+from pmalab.arguments import (
+    DEFAULT_JOBS,
+    JOBS_ENV,
+    check_max_steps,
+    default_jobs,
+    fixes,
+    law_names,
+)
 from pmalab.console import (
     VERBOSE,
     add_verbosity,
@@ -575,8 +582,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     from pmalab.paths import check_output, prepare_output_dir
 
     args.jobs = resolve_jobs(args.jobs)
-    if args.max_steps < 0:
-        raise PmalabError(f"--max-steps {args.max_steps}: must be ≥ 0")
+    check_max_steps(args.max_steps)
     out = prepare_output_dir(args.out, ("diagnosis.json", "predictions.h5"), args.force)
     if args.plot:
         check_output(args.plot, args.force)
@@ -612,7 +618,7 @@ def diagnose_command(args: argparse.Namespace) -> int:
     val = [fit_part(r) for r in got_val]
     check_distinct_runs([*runs, *val])
     runs, val = _pressure_labels(args, runs, val)
-    laws = None if args.laws is None else [x for x in args.laws.split(",") if x and x != "none"]
+    laws = law_names(args.laws)
     if args.static or any(r.test_type != "isobaric" for r in runs):
         from pmalab.identify.static.cli import run_static_diagnose
 
