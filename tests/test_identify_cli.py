@@ -56,6 +56,8 @@ def test_identify_writes_the_contract(files, capsys) -> None:
     doc = json.loads((out / "identification.json").read_text())
     assert TOP_KEYS <= set(doc)
     assert doc["model"] == "duhem" and doc["effects"] == []
+    # the method block names the solver that ran (pmalab's trf loop, not SciPy's least_squares)
+    assert "pmalab.identify.estimation.trust_region" in doc["method"]["fit"]
     assert len(doc["runs"]) == 3 and len(doc["validation"]) == 2
     for r in doc["runs"]:
         assert RUN_KEYS <= set(r) and r["role"] == "identification"

@@ -315,3 +315,51 @@ def test_a_first_start_as_good_as_the_data_allow_is_refined_once(monkeypatch):
     # the two candidates' gates come first: both skipped
     assert gates[:2] == [False, False], gates
     assert len(refines) == len(gates) + sum(gates) < 2 * len(gates)
+
+
+def test_per_run_laws_hold_a_campaign_wide_delay_at_the_joint_fits_value(monkeypatch):
+    """A sensor delay's τ is one value for the whole campaign (order 0 in every joint fit):
+    the structured candidates' per-run fits hold it at the free joint fit's value instead of
+    fitting it (with its multi-start grid) on every run again; every other parameter they
+    fit as before (the campaign's constants held, the profile's corrections at 1).  The
+    per-run fits are stand-ins: only what they are asked to hold is under test."""
+    from types import SimpleNamespace
+
+    import pmalab.identify.campaign.fit as fitmod
+    from pmalab.identify.campaign.fit import ModelSpec
+    from pmalab.identify.campaign.structure import per_run_laws
+
+    model = ModelSpec("maxwell-slip", ("viscous-friction", "sensor-delay")).build()
+    runs = _campaign(0.0)[:3]
+    ps = [model.params(Signals.from_run(r), np.asarray(r.force)) for r in runs]
+    tau = 0.0123
+    joint = SimpleNamespace(
+        constants={"visc_c": 0.5},
+        theta=lambda p: {"k": -30.0, "c0": 200.0 + p, "delay_tau": tau, "visc_c": 0.5},
+    )
+    cf = SimpleNamespace(
+        model=model,
+        joint=joint,
+        runs=[
+            SimpleNamespace(p_nom=r.nominal_pressure, result=SimpleNamespace(params=p))
+            for r, p in zip(runs, ps)
+        ],
+    )
+    asked: list[dict] = []
+
+    def fit_runs(rs, m, *, jobs=1, scheduler=None, fixed=None):
+        asked.append(dict(fixed or {}))
+        return [SimpleNamespace(values={"s": 100.0, "t": 1.0}, nrmse=0.01) for _ in rs]
+
+    monkeypatch.setattr(fitmod, "fit_runs", fit_runs)
+    base = get_law("maxwell-slip")
+    models = {
+        s: ForceModel(structured_law(base, s, KAPPA, DELTA), model.effects)
+        for s in ("scaled", "scaled-thresholds")
+    }
+    out = per_run_laws(cf, runs, models)
+    assert set(out) == set(models) and len(asked) == 2
+    for fx, m in zip(asked, models.values()):
+        assert fx["delay_tau"] == tau, fx
+        # the rest as before: the joint's constants and the profile held, nothing else
+        assert fx == {"visc_c": 0.5, "delay_tau": tau, **dict.fromkeys(m.law.shared_shape, 1.0)}

@@ -52,7 +52,7 @@ from pmalab import __version__
 from pmalab.errors import PmalabError
 from pmalab.identify.campaign import CampaignFit, ModelSpec, Validation, validate_runs
 from pmalab.identify.estimation.joint import joint_stride
-from pmalab.identify.estimation.solver import STDERR_METHOD
+from pmalab.identify.estimation.solver import SOLVER_METHOD, STDERR_METHOD
 from pmalab.identify.messages import as_message
 from pmalab.identify.metrics import metrics
 from pmalab.identify.model import ForceModel
@@ -280,7 +280,7 @@ def identification_dict(res: Identification) -> IdentificationDoc:
         "messages": [as_message(m).to_dict() for m in [*res.notes, *res.warnings]],
         "method": {
             "fit": "two-stage (linear LS for k, c0; grid over hysteresis shape with linear "
-            "scale) then joint scipy least_squares (trf, bounds) on free-run error",
+            f"scale) then joint least squares on free-run error by {SOLVER_METHOD}",
             "drive": "zero-phase Butterworth-filtered measured position, measured time stamps",
             "derivatives": derivatives_method(),
             "validation_scoring": (

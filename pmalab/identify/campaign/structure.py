@@ -412,7 +412,9 @@ def per_run_laws(
 ) -> dict[str, PerRunLaws]:
     """Every structured candidate's law fitted on every identification run on its own: s, t
     and h0 free (with k, c0 and the effects' parameters, as the campaign's own per-run fits),
-    the profile's corrections held at 1 and the campaign's fixes held.
+    the profile's corrections held at 1, the campaign's fixes held and every campaign-wide
+    parameter (``Effect.campaign_shared``: a sensor delay's τ) held at the free joint fit's
+    value.
 
     The joint fit's first start holds every slip displacement where the free laws put them
     (t = 1); a muscle whose slip displacements grow with pressure is then reached, if at all,
@@ -447,6 +449,12 @@ def per_run_laws(
     own = {p.name for p in base.params}
     shared = {p.name for p in cf.runs[0].result.params} - elem - own
     held = {n: float(v) for n, v in cf.joint.constants.items() if n in shared}
+    # a campaign-wide parameter (a sensor delay's τ) is one value for every run, in the
+    # structured candidates' joint fits too (order 0): held at the free joint fit's value
+    # here, not fitted again on every run (with its multi-start grid, the dearest part of
+    # these fits on a model with a delay)
+    th = cf.joint.theta(cf.runs[0].p_nom)
+    held |= {n: float(th[n]) for n in cf.model.campaign_shared if n in shared and n in th}
     p = np.array([rf.p_nom for rf in cf.runs], dtype=np.float64)
     # peak-to-peak contraction (a gap in a record is NaN: not a stroke)
     stroke = np.array(

@@ -32,6 +32,14 @@ STDERR_METHOD = (
     "from the lag-1 residual autocorrelation r1 of each run (AR(1) effective sample size)"
 )
 
+#: what :func:`solve` is, for the method block of an identification file (files written
+#: before the solver was re-hosted say "scipy least_squares (trf, bounds)", true for them)
+SOLVER_METHOD = (
+    "SciPy's trust-region reflective method (trf, bounds, x_scale='jac') in "
+    "pmalab.identify.estimation.trust_region: SciPy's step helpers, each step's SVD taken on "
+    "the Jacobian's QR factor (SciPy's least_squares itself where the helpers are missing)"
+)
+
 
 _BLAS: ThreadpoolController | None = None
 _BLAS_DEPTH = 0
