@@ -224,3 +224,92 @@ def test_without_scipys_step_helpers_it_is_scipys_least_squares(monkeypatch):
                         x_scale="jac", **kw)
     assert ours.x.tobytes() == ref.x.tobytes()
     assert (ours.nfev, ours.njev, ours.status, ours.message) == (ref.nfev, ref.njev, ref.status, ref.message)
+
+
+def _scipy_trf_bounds_on_the_qr_factor(monkeypatch, fun, jac, x0, f0, J0, lo, hi, kw):
+    """SciPy's own ``trf_bounds`` (its helpers, its loop) with its SVD step replaced by the
+    QR-factor one, LAPACK call for LAPACK call as :func:`reduced_svd_uf` makes them: the
+    reference our solver must equal bit for bit."""
+    import scipy.optimize._lsq.trf as scipy_trf
+
+    import pmalab.identify.estimation.trust_region as tr
+
+    class _UT:  # stands for Uᵀ: SciPy only ever computes U.T.dot(f_augmented)
+        def __init__(self, qr, tau, ur):
+            self.qr, self.tau, self.ur = qr, tau, ur
+            self.T = self
+
+        def dot(self, f):
+            n = self.ur.shape[0]
+            qtf, _, _ = tr._ORMQR("L", "T", self.qr, self.tau, f.reshape(-1, 1), max(64, n))
+            return self.ur.T.dot(qtf[:n, 0])
+
+    def svd(A, full_matrices=False):
+        assert not full_matrices and np.isfinite(A).all()
+        n = A.shape[1]
+        qr, tau, _, _ = tr._GEQRF(A)
+        ur, s, vt, _ = tr._GESDD(np.triu(qr[:n]), compute_uv=1, full_matrices=0, overwrite_a=1)
+        return _UT(qr, tau, ur), s, vt
+
+    monkeypatch.setattr(scipy_trf, "svd", svd)
+    return scipy_trf.trf_bounds(
+        fun, jac, x0.copy(), f0.copy(), J0.copy(), lo, hi, kw["ftol"], kw["xtol"], kw["gtol"],
+        kw["max_nfev"], "jac", None, "exact", {}, 0,
+    )
+
+
+def _bitwise_problems():
+    """Paths through every branch of the step: rejected steps, a step into NaN, reflected
+    and gradient steps at a bound, an optimum on a bound, an infinite bound, fewer
+    residuals than parameters (no Gauss-Newton step), an exhausted budget."""
+    rng = np.random.default_rng(11)
+    out = []
+    for nan_below, z0, lo, hi in [
+        (None, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),
+        (None, [-1.9, 0.5], [-2.0, -1.0], [0.8, 1.5]),
+        (-0.3, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),
+        (None, [-1.9, 1.4], [-np.inf, -1.0], [np.inf, 1.2]),
+    ]:
+        fun, jac = _rosenbrock(nan_below)
+        out.append((fun, jac, np.array(z0), np.array(lo), np.array(hi), 500))
+    for seed, hi_a in [(1, 10.0), (2, 2.5), (3, 1.0)]:
+        fun, jac = _decay_problem(seed)
+        out.append((fun, jac, np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, -5.0]),
+                    np.array([hi_a, 10.0, 5.0]), 200))
+    fun, jac = _decay_problem(4)
+    out.append((fun, jac, np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, -5.0]),
+                np.array([10.0, 10.0, 5.0]), 3))
+    for m, n in [(300, 8), (3, 6), (60, 13)]:
+        A, b = rng.standard_normal((m, n)), rng.standard_normal(m)
+
+        def fun(z, A=A, b=b):
+            return A @ np.sin(z) + 0.3 * np.sum(z**2) - b
+
+        def jac(z, A=A):  # a column slice of a wider array, as the models return it
+            big = np.zeros((A.shape[0], z.size + 5))
+            big[:, 2 : 2 + z.size] = A * np.cos(z) + 0.6 * z
+            return big[:, 2 : 2 + z.size]
+
+        lo, hi = np.full(n, -0.4), np.full(n, 0.5)
+        lo[0] = -np.inf
+        out.append((fun, jac, np.full(n, 0.1), lo, hi, 400))
+    return out
+
+
+@pytest.mark.parametrize("k", range(len(_bitwise_problems())))
+def test_bit_for_bit_scipys_trf_bounds_on_the_qr_factor(monkeypatch, k):
+    """Our loop writes SciPy's step helpers out in line: every evaluated point, the result's
+    every field and the counts are SciPy's ``trf_bounds`` (given the same SVD) to the bit."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    fun, jac, z0, lo, hi, max_nfev = _bitwise_problems()[k]
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+    z0 = tr.make_strictly_feasible(z0, lo, hi)
+    f0, J0 = fun(z0), jac(z0).copy()
+    xs, ours = _path(lambda f: tr._trf_bounds(f, jac, z0, f0, J0, lo, hi, kw["ftol"], kw["xtol"],
+                                               kw["gtol"], kw["max_nfev"]), fun)
+    xr, ref = _path(lambda f: _scipy_trf_bounds_on_the_qr_factor(monkeypatch, f, jac, z0, f0, J0, lo,
+                                                                  hi, kw), fun)
+    assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
+    for key in ("x", "cost", "fun", "jac", "grad", "optimality", "active_mask", "nfev", "njev", "status"):
+        assert np.asarray(ours[key]).tobytes() == np.asarray(ref[key]).tobytes(), key

@@ -17,7 +17,11 @@ not bit for bit.
 
 The helpers of the step (subproblem, reflection, radius update, termination) are SciPy's
 own (``scipy.optimize._lsq``), so the method is theirs; where a SciPy release no longer
-has them, :func:`least_squares_trf` is ``scipy.optimize.least_squares`` itself.
+has them, :func:`least_squares_trf` is ``scipy.optimize.least_squares`` itself.  The
+small ones are written out in the loop with the same floating-point operations in the
+same order (on vectors of a few to tens of parameters their calls cost more than their
+arithmetic), and the loop's evaluated points are those of SciPy's
+``trf_bounds`` given the same SVD, bit for bit (tests/test_trust_region.py checks it).
 
 Adapted from SciPy's ``scipy/optimize/_lsq/trf.py`` (``trf_bounds``), Copyright (c)
 2001-2002 Enthought, Inc. and 2003-2024 SciPy Developers, BSD 3-Clause licence (the text
@@ -27,6 +31,7 @@ is in ``LICENSES/scipy.txt``).
 from __future__ import annotations
 
 from collections.abc import Callable
+from math import sqrt
 
 import numpy as np
 from numpy.linalg import LinAlgError, norm
@@ -36,14 +41,11 @@ from scipy.optimize import OptimizeResult, least_squares
 try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
     from scipy.optimize._lsq.common import (
         CL_scaling_vector,
-        check_termination,
         compute_grad,
         compute_jac_scale,
         find_active_constraints,
         in_bounds,
         make_strictly_feasible,
-        solve_lsq_trust_region,
-        update_tr_radius,
     )
     from scipy.optimize._lsq.trf import select_step
 
@@ -160,9 +162,26 @@ def least_squares_trf(
     return res
 
 
+def _norm(x: np.ndarray) -> np.float64:
+    """``numpy.linalg.norm(x)`` of a 1-D float vector, bit for bit: NumPy computes it as
+    ``sqrt(x.dot(x))`` (its fast path for ``ord=None``), and both square roots are IEEE's
+    correctly rounded one; a NumPy scalar, as ``norm`` returns, so the arithmetic that
+    follows is NumPy's (a division by a zero norm gives ``inf``, not an exception)."""
+    return np.float64(sqrt(x.dot(x)))
+
+
 def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> OptimizeResult:
     """SciPy's ``trf_bounds`` for a linear loss, ``x_scale='jac'`` and the exact
-    subproblem, the SVD taken by :func:`reduced_svd_uf` (the only change)."""
+    subproblem, the SVD taken on the QR factor (:func:`reduced_svd_uf`).
+
+    SciPy's per-step helpers (``CL_scaling_vector``, ``solve_lsq_trust_region``, the
+    interior branch of ``select_step``, ``make_strictly_feasible``, ``update_tr_radius``,
+    ``check_termination``, ``compute_grad``, ``compute_jac_scale``) are written out in
+    line with the same floating-point operations in the same order, and what does not
+    change between the tries of one iteration is computed once (the Gauss-Newton step,
+    the norms of ``s·Uᵀf`` and of ``x``, ``s²``): the evaluated points are SciPy's bit for
+    bit (tests/test_trust_region.py replays SciPy's ``trf_bounds`` to compare).  A step
+    that leaves the box still goes through SciPy's ``select_step``."""
     x = x0.copy()
     f = f0
     f_true = f.copy()
@@ -183,60 +202,160 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 
     g_norm = norm(g * v, ord=np.inf)
     f_augmented = np.zeros(m + n)
-    J_augmented = np.empty((m + n, n))
+    J_augmented = np.zeros((m + n, n))  # the lower n × n block: diagonal, zeros elsewhere
+    J_h = J_augmented[:m]  # a view
+    diag_aug = J_augmented.reshape(-1)[m * n :: n + 1]  # the lower block's diagonal, a view
+    f_aug_col = f_augmented.reshape(-1, 1)
+    lower = np.tril_indices(n, -1)
+    lwork = max(64, n)
+    lb_finite = np.isfinite(lb)
+    ub_finite = np.isfinite(ub)
+    rank_threshold = EPS * m  # times s[0]: SciPy's full-rank test
+    x_norm = norm(x)
     alpha = 0.0  # the Levenberg-Marquardt parameter
     termination_status = None
 
     while True:
-        v, dv = CL_scaling_vector(x, g, lb, ub)
-        g_norm = norm(g * v, ord=np.inf)
+        # CL_scaling_vector(x, g, lb, ub)
+        lower_mask = (g > 0) & lb_finite
+        upper_mask = (g < 0) & ub_finite
+        v = np.where(lower_mask, x - lb, np.where(upper_mask, ub - x, 1.0))
+        dv = np.zeros_like(x)
+        dv[upper_mask] = -1
+        dv[lower_mask] = 1
+        g_norm = np.abs(g * v).max()  # norm(g * v, ord=np.inf)
         if g_norm < gtol:
             termination_status = 1
         if termination_status is not None or nfev == max_nfev:
             break
 
         # the "hat" variables: x_scale first, then the Coleman-Li scaling
-        v[dv != 0] *= scale_inv[dv != 0]
+        v = np.where(dv != 0, v * scale_inv, v)
         d = v**0.5 * scale
         diag_h = g * dv * scale
         g_h = d * g
 
         f_augmented[:m] = f
-        J_h = J_augmented[:m]  # a view
         np.multiply(J, d, out=J_h)  # J·d written in place (no temporary)
-        J_augmented[m:] = np.diag(diag_h**0.5)
-        s, V, uf = reduced_svd_uf(J_augmented, f_augmented)
+        diag_aug[:] = diag_h**0.5
+        # reduced_svd_uf(J_augmented, f_augmented)
+        if not np.isfinite(J_augmented).all():
+            raise ValueError("array must not contain infs or NaNs")
+        qr, tau, _, info = _GEQRF(J_augmented)
+        if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
+            raise ValueError(f"QR factorisation failed (LAPACK info {info})")
+        r = qr[:n].copy(order="F")
+        r[lower] = 0.0
+        qtf, _, info = _ORMQR("L", "T", qr, tau, f_aug_col, lwork)
+        if info != 0:  # pragma: no cover
+            raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
+        ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
+        if info > 0:
+            raise LinAlgError("SVD did not converge")
+        if info < 0:  # pragma: no cover
+            raise ValueError(f"SVD failed (LAPACK info {info})")
+        V = vt.T
+        uf = ur.T.dot(qtf[:n, 0])
+
+        # solve_lsq_trust_region's parts that do not depend on Delta or alpha
+        suf = s * uf
+        s2 = s**2
+        suf2 = suf**2
+        suf_norm = _norm(suf)
+        full_rank = m >= n and s[-1] > rank_threshold * s[0]
+        if full_rank:
+            p_gn = -V.dot(uf / s)  # the Gauss-Newton step
+            p_gn_norm = _norm(p_gn)
+            # phi_and_derivative(0.0, ...): denom = s**2 + 0.0 is s**2
+            t = suf / s2
+            p_norm0 = _norm(t)
+            dphi0 = -np.sum(suf2 / s2**3) / p_norm0
 
         # theta: how far a step stays back from the bounds
         theta = max(0.995, 1 - g_norm)
 
         actual_reduction = -1
         while actual_reduction <= 0 and nfev < max_nfev:
-            p_h, alpha, _ = solve_lsq_trust_region(n, m, uf, s, V, Delta, initial_alpha=alpha)
+            # solve_lsq_trust_region(n, m, uf, s, V, Delta, initial_alpha=alpha)
+            if full_rank and p_gn_norm <= Delta:
+                p_h = p_gn.copy()
+                alpha = 0.0
+            else:
+                alpha_upper = suf_norm / Delta
+                if full_rank:
+                    phi = p_norm0 - Delta
+                    alpha_lower = -phi / dphi0
+                else:
+                    alpha_lower = 0.0
+                if not full_rank and alpha == 0:
+                    alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+                for _ in range(10):
+                    if alpha < alpha_lower or alpha > alpha_upper:
+                        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+                    # phi_and_derivative(alpha, suf, s, Delta)
+                    denom = s2 + alpha
+                    t = suf / denom
+                    p_norm = _norm(t)
+                    phi = p_norm - Delta
+                    phi_prime = -np.sum(suf2 / denom**3) / p_norm
+                    if phi < 0:
+                        alpha_upper = alpha
+                    ratio = phi / phi_prime
+                    alpha_lower = max(alpha_lower, alpha - ratio)
+                    alpha -= (phi + Delta) * ratio / Delta
+                    if np.abs(phi) < 0.01 * Delta:
+                        break
+                p_h = -V.dot(suf / (s2 + alpha))
+                p_h *= Delta / _norm(p_h)
+
             p = d * p_h  # the trust-region step in the original variables
-            step, step_h, predicted_reduction = select_step(
-                x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta
-            )
-            x_new = make_strictly_feasible(x + step, lb, ub, rstep=0)
+            x_p = x + p
+            if np.all((x_p >= lb) & (x_p <= ub)):
+                # select_step's first branch: evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+                Js = J_h.dot(p_h)
+                q = np.dot(Js, Js)
+                q += np.dot(p_h * diag_h, p_h)
+                step, step_h, predicted_reduction = p, p_h, -(0.5 * q + np.dot(p_h, g_h))
+                x_new = x_p
+            else:
+                step, step_h, predicted_reduction = select_step(
+                    x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta
+                )
+                x_new = x + step
+            # make_strictly_feasible(x_new, lb, ub, rstep=0): a point strictly inside is kept
+            if not np.all((x_new > lb) & (x_new < ub)):
+                x_new = make_strictly_feasible(x_new, lb, ub, rstep=0)
             f_new = np.atleast_1d(np.asarray(fun(x_new.copy()), dtype=float))
             nfev += 1
-            step_h_norm = norm(step_h)
-            if not np.all(np.isfinite(f_new)):
+            step_h_norm = _norm(step_h)
+            cost_new = 0.5 * np.dot(f_new, f_new)  # finite when every residual is
+            if not np.isfinite(cost_new) and not np.all(np.isfinite(f_new)):
                 Delta = 0.25 * step_h_norm
                 continue
-            cost_new = 0.5 * np.dot(f_new, f_new)
             actual_reduction = cost - cost_new
-            Delta_new, ratio = update_tr_radius(
-                Delta,
-                actual_reduction,
-                predicted_reduction,
-                step_h_norm,
-                step_h_norm > 0.95 * Delta,
-            )
-            step_norm = norm(step)
-            termination_status = check_termination(
-                actual_reduction, cost, step_norm, norm(x), ratio, ftol, xtol
-            )
+            # update_tr_radius(Delta, actual_reduction, predicted_reduction, step_h_norm,
+            # step_h_norm > 0.95 * Delta)
+            if predicted_reduction > 0:
+                ratio = actual_reduction / predicted_reduction
+            elif predicted_reduction == actual_reduction == 0:
+                ratio = 1
+            else:
+                ratio = 0
+            if ratio < 0.25:
+                Delta_new = 0.25 * step_h_norm
+            elif ratio > 0.75 and step_h_norm > 0.95 * Delta:
+                Delta_new = Delta * 2.0
+            else:
+                Delta_new = Delta
+            # check_termination(actual_reduction, cost, norm(step), norm(x), ratio, ftol, xtol)
+            ftol_satisfied = actual_reduction < ftol * cost and ratio > 0.25
+            xtol_satisfied = _norm(step) < xtol * (xtol + x_norm)
+            if ftol_satisfied and xtol_satisfied:
+                termination_status = 4
+            elif ftol_satisfied:
+                termination_status = 2
+            elif xtol_satisfied:
+                termination_status = 3
             if termination_status is not None:
                 break
             alpha *= Delta / Delta_new
@@ -244,13 +363,16 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 
         if actual_reduction > 0:
             x = x_new
+            x_norm = norm(x)
             f = f_new
             f_true = f.copy()
             cost = cost_new
             J = np.atleast_2d(np.asarray(jac(x.copy()), dtype=float))
             njev += 1
-            g = compute_grad(J, f)
-            scale, scale_inv = compute_jac_scale(J, scale_inv)
+            g = J.T.dot(f)  # compute_grad(J, f)
+            # compute_jac_scale(J, scale_inv)
+            scale_inv = np.maximum(np.sum(J**2, axis=0) ** 0.5, scale_inv)
+            scale = 1 / scale_inv
 
     if termination_status is None:
         termination_status = 0
