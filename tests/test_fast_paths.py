@@ -203,3 +203,48 @@ def test_column_is_float_of_each_value_bit_for_bit():
         want = np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64)
         got = column(thetas, names)
         assert got.shape == (2, len(names)) and got.tobytes() == want.reshape(2, -1).tobytes()
+
+
+def test_with_position_is_dataclasses_replace_field_for_field():
+    # a delayed drive is a copy made without the frozen __init__: every field must be
+    # replace()'s, the slide drive kept for the old position must not come along, and the
+    # copy must stay frozen
+    import dataclasses
+
+    run, _ = make_run("bouc-wen", 0.35, n=400, seed=4, f=0.8)
+    sig = Signals.from_run(run)
+    old_drive = sig.slide_drive()
+    assert old_drive is not sig  # kept beside sig now
+    x, v, a = sig.x + 0.5, sig.v * 1.5, sig.a - 2.0
+    got = sig.with_position(x, v, a, sig.x_slide + 0.25)
+    want = dataclasses.replace(sig, x=x, v=v, a=a, x_slide=sig.x_slide + 0.25)
+    assert type(got) is type(want)
+    for f in dataclasses.fields(Signals):
+        g, w = getattr(got, f.name), getattr(want, f.name)
+        assert np.asarray(g).tobytes() == np.asarray(w).tobytes(), f.name
+    assert "_slide_drive" not in vars(got)
+    assert got.slide_drive().x.tobytes() == (sig.x_slide + 0.25).tobytes()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got.x = x  # type: ignore[misc]
+
+
+def test_assemble_adds_each_term_in_order_and_leaves_its_inputs():
+    # the terms are added into the new sum in place: the numbers of (lin + h) + t1 + t2,
+    # each addition once, and neither lin nor h touched; the many-row assembly likewise
+    model = ForceModel("bouc-wen", [EFFECTS["viscous-friction"](), EFFECTS["nonlinear-stiffness"]()])
+    run, _ = make_run("bouc-wen", 0.35, n=500, seed=5, f=0.8)
+    sig = Signals.from_run(run)
+    th = {"k": -31.0, "c0": 80.0, "A": -40.0, "beta": 0.3, "gamma": 0.05, "n": 1.0, "h0": 0.7,
+          "visc_c": 0.37, "stiff_k2": 0.013, "stiff_k3": -0.0007}
+    s, _, lin, h = model.parts(sig, th)
+    lin0, h0 = lin.copy(), h.copy()
+    t1 = model.effects[0].force(s, h, th)
+    t2 = model.effects[1].force(s, h, th)
+    want = ((lin + h) + t1) + t2
+    assert model.assemble(s, lin, h, th).tobytes() == want.tobytes()
+    assert lin.tobytes() == lin0.tobytes() and h.tobytes() == h0.tobytes()
+    H = np.stack([h, h * 0.5, -h])
+    got = model.assemble_many(s, lin, H, th)
+    for j in range(3):
+        assert got[j].tobytes() == model.assemble(s, lin, H[j], th).tobytes()
+    assert lin.tobytes() == lin0.tobytes()

@@ -294,61 +294,100 @@ class Problem:
         With the model's parts at z kept by :meth:`residual`, the columns of the law's
         parameters on one run are evaluated together (:meth:`_law_columns`); every other
         column one by one (:meth:`dresid`).  Each column is the same forward difference
-        either way."""
+        either way.  Which columns a run has and where they go in J depend only on the run,
+        the parameters clipped there and ``run_only``: :meth:`_plan`, made once for each."""
         c = self._cache
         if c is not None and c[0] == z.tobytes():
             _, _, parts, RAW, ths = c
         else:
             parts, (RAW, ths) = None, self._at(z)
         # a clipped θ does not move with z at that run: no column there
-        inside = ((self._lo_col <= RAW) & (RAW <= self._hi_col)).T.tolist()
-        law = self._law_names() if parts else set()
-        starts = [self.block(j).start for j in range(len(self.run_params))]
+        inside = None if run_only else ((self._lo_col <= RAW) & (RAW <= self._hi_col)).T.tolist()
+        has_parts = bool(parts)
+        # :meth:`_plan` by (run, parameters inside their bounds there or None, parts kept),
+        # kept until :attr:`_reuse` is replaced
+        got = self.__dict__.get("_plans")
+        if got is None or got[0] is not self._reuse:
+            got = self._plans = (self._reuse, {})
+        plans: dict[tuple, tuple] = got[1]
         for i, th in enumerate(ths):
             rows = self.rows[i]
-            # (parameter, its column for a per-run parameter; None: through the basis)
-            cols: list[tuple[str, int | None]] = []
-            if not run_only:
-                cols += [(n, None) for n, ok in zip(self.free, inside[i]) if ok]
-            cols += [(rn, b + i) for rn, b in zip(self.run_params, starts)]
-            batch = [nc for nc in cols if nc[0] in law]
-            if len(batch) > 1 and parts:
-                D = self._law_columns(i, th, [n for n, _ in batch], r0, parts[i])
-                done = {n for n, _ in batch}
-                pairs = [(nc, D[k]) for k, nc in enumerate(batch)]
-            else:
-                done = set()
-                pairs = []
-            pairs += [
-                ((n, col), self.dresid(i, th, n, r0, parts[i] if parts else None))
-                for n, col in cols
-                if n not in done
-            ]
-            shared = [(n, d) for (n, col), d in pairs if col is None]
-            if len(shared) > 1:
+            key = (i, None if inside is None else tuple(inside[i]), has_parts)
+            plan = plans.get(key)
+            if plan is None:
+                plan = plans[key] = self._plan(*key)
+            batch, rest, shared, stack, per_run = plan
+            part = parts[i] if parts else None
+            # every column of run i: the law's (one call), then the others, one by one
+            ds = list(self._law_columns(i, th, batch, r0, part)) if batch and part else []
+            ds += [self.dresid(i, th, n, r0, part) for n in rest]
+            if stack is not None:
                 # every shared column of run i at once, written row by row: J =
                 # ∂r/∂θ_n · B_n(p_i), the same single multiplication per entry as a product
-                # per parameter (which writes J column by column: slower on many runs)
-                shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
-                where, rep, b, unit = self._basis_layout(i, tuple(n for n, _ in shared))
-                if unit or len(ths) > 1:
-                    # (samples, columns): each column's d stacked once, in J's column order
-                    D = np.array([shared[k][1] for k in rep]).T
+                # per parameter (which writes J column by column: slower on many runs);
+                # (samples, columns): each column's d stacked once, in J's column order
+                rep, b, unit, segments = stack
+                D = np.array([ds[k] for k in rep]).T
+                for js, dsl in segments:
                     if unit:
                         # every B_n(p_i) is 1 (order 0: a single run's fit): d·1 is d, bit
                         # for bit, so the entries are copied, not multiplied
-                        J[rows, where] = D
-                    elif isinstance(where, slice):
-                        np.multiply(D, b, out=J[rows, where])
+                        J[rows, js] = D[:, dsl]
                     else:
-                        J[rows, where] = D * b
-                    shared = []
-            for n, d in shared:
-                # np.outer's products, written straight into J (no temporary)
-                np.multiply(d[:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
-            for (_, col), d in pairs:
-                if col is not None:
-                    J[rows, col] = d
+                        np.multiply(D[:, dsl], b[:, dsl], out=J[rows, js])
+            else:
+                for k, n in shared:
+                    # np.outer's products, written straight into J (no temporary)
+                    np.multiply(ds[k][:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
+            for k, col in per_run:
+                J[rows, col] = ds[k]
+
+    def _plan(self, i: int, inside: tuple[bool, ...] | None, has_parts: bool) -> tuple:
+        """How :meth:`_fill_jac` makes run i's columns: (the law's parameters evaluated
+        together by :meth:`_law_columns` — none unless there are two or more and the parts
+        at z are kept —, the other parameters, one :meth:`dresid` each; with ``ds`` the
+        columns in that order: the shared columns stacked — (for each of J's columns the
+        index in ``ds`` of its derivative, the basis values, whether all are 1, and J's
+        adjacent column ranges with the matching ranges of the stack) — or None and then the
+        shared parameters (index in ``ds``, name) written one by one, and the per-run
+        columns (index in ``ds``, column of J)).  ``inside``: whether each free parameter
+        is within its bounds at run i (None: only the per-run columns)."""
+        # (parameter, its column for a per-run parameter; None: through the basis)
+        cols: list[tuple[str, int | None]] = []
+        if inside is not None:
+            cols += [(n, None) for n, ok in zip(self.free, inside) if ok]
+        cols += [(rn, self.block(j).start + i) for j, rn in enumerate(self.run_params)]
+        law = self._law_names() if has_parts else set()
+        batch = [nc for nc in cols if nc[0] in law]
+        if len(batch) <= 1:
+            batch = []
+        done = {n for n, _ in batch}
+        order = batch + [nc for nc in cols if nc[0] not in done]
+        shared = [(k, n) for k, (n, col) in enumerate(order) if col is None]
+        shared.sort(key=lambda kn: self.slices[kn[1]].start)  # J's column order
+        stack = None
+        if len(shared) > 1:
+            where, rep, b, unit = self._basis_layout(i, tuple(n for _, n in shared))
+            if unit or len(self.records) > 1:
+                cols_j = np.arange(where.start, where.stop) if isinstance(where, slice) else where
+                # J's adjacent column ranges (one when every column is there)
+                segments = []
+                a = 0
+                for e in range(1, len(cols_j) + 1):
+                    if e == len(cols_j) or cols_j[e] != cols_j[e - 1] + 1:
+                        segments.append(
+                            (slice(int(cols_j[a]), int(cols_j[e - 1]) + 1), slice(a, e))
+                        )
+                        a = e
+                stack = (tuple(shared[k][0] for k in rep), b, unit, tuple(segments))
+        per_run = tuple((k, col) for k, (_, col) in enumerate(order) if col is not None)
+        return (
+            tuple(n for n, _ in batch),
+            tuple(n for n, _ in order[len(batch) :]),
+            tuple(shared) if stack is None else (),
+            stack,
+            per_run,
+        )
 
     def _law_names(self) -> set[str]:
         """The law's parameters among the reused parts (:attr:`_reuse`), kept until it is
