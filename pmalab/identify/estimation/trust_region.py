@@ -45,9 +45,15 @@ try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
         compute_jac_scale,
         find_active_constraints,
         in_bounds,
+        intersect_trust_region,
         make_strictly_feasible,
+        minimize_quadratic_1d,
+        step_size_to_bound,
     )
-    from scipy.optimize._lsq.trf import select_step
+
+    # written out in the loop below; a SciPy whose trf module no longer has it may have
+    # changed the method, so it is asked for here too (the fallback then runs SciPy's own)
+    from scipy.optimize._lsq.trf import select_step  # noqa: F401
 
     _HAVE_STEP_HELPERS = True
 except ImportError:  # pragma: no cover - a SciPy that moved them: its own least_squares
@@ -174,14 +180,16 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
     """SciPy's ``trf_bounds`` for a linear loss, ``x_scale='jac'`` and the exact
     subproblem, the SVD taken on the QR factor (:func:`reduced_svd_uf`).
 
-    SciPy's per-step helpers (``CL_scaling_vector``, ``solve_lsq_trust_region``, the
-    interior branch of ``select_step``, ``make_strictly_feasible``, ``update_tr_radius``,
-    ``check_termination``, ``compute_grad``, ``compute_jac_scale``) are written out in
-    line with the same floating-point operations in the same order, and what does not
-    change between the tries of one iteration is computed once (the Gauss-Newton step,
-    the norms of ``s·Uᵀf`` and of ``x``, ``s²``): the evaluated points are SciPy's bit for
-    bit (tests/test_trust_region.py replays SciPy's ``trf_bounds`` to compare).  A step
-    that leaves the box still goes through SciPy's ``select_step``."""
+    SciPy's per-step helpers (``CL_scaling_vector``, ``solve_lsq_trust_region``,
+    ``select_step`` with ``build_quadratic_1d`` and ``evaluate_quadratic``,
+    ``make_strictly_feasible``, ``update_tr_radius``, ``check_termination``,
+    ``compute_grad``, ``compute_jac_scale``) are written out in line with the same
+    floating-point operations in the same order, and what does not change between the
+    tries of one iteration is computed once (the Gauss-Newton step, the norms of ``s·Uᵀf``
+    and of ``x``, ``s²``, the gradient direction at a bound): the evaluated points are
+    SciPy's bit for bit (tests/test_trust_region.py runs SciPy's ``trf_bounds`` to
+    compare).  The smallest helpers (``step_size_to_bound``, ``intersect_trust_region``,
+    ``minimize_quadratic_1d``) are still called."""
     x = x0.copy()
     f = f0
     f_true = f.copy()
@@ -220,9 +228,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         lower_mask = (g > 0) & lb_finite
         upper_mask = (g < 0) & ub_finite
         v = np.where(lower_mask, x - lb, np.where(upper_mask, ub - x, 1.0))
-        dv = np.zeros_like(x)
-        dv[upper_mask] = -1
-        dv[lower_mask] = 1
+        dv = np.subtract(lower_mask, upper_mask, dtype=float)  # 1, -1 or 0
         g_norm = np.abs(g * v).max()  # norm(g * v, ord=np.inf)
         if g_norm < gtol:
             termination_status = 1
@@ -269,7 +275,9 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
             # phi_and_derivative(0.0, ...): denom = s**2 + 0.0 is s**2
             t = suf / s2
             p_norm0 = _norm(t)
-            dphi0 = -np.sum(suf2 / s2**3) / p_norm0
+            dphi0 = -(suf2 / s2**3).sum() / p_norm0
+
+        ag = None  # select_step's gradient direction, when a step first leaves the box
 
         # theta: how far a step stays back from the bounds
         theta = max(0.995, 1 - g_norm)
@@ -297,7 +305,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                     t = suf / denom
                     p_norm = _norm(t)
                     phi = p_norm - Delta
-                    phi_prime = -np.sum(suf2 / denom**3) / p_norm
+                    phi_prime = -(suf2 / denom**3).sum() / p_norm
                     if phi < 0:
                         alpha_upper = alpha
                     ratio = phi / phi_prime
@@ -309,27 +317,95 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 p_h *= Delta / _norm(p_h)
 
             p = d * p_h  # the trust-region step in the original variables
+            # select_step(x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta)
             x_p = x + p
-            if np.all((x_p >= lb) & (x_p <= ub)):
-                # select_step's first branch: evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+            if ((x_p >= lb) & (x_p <= ub)).all():
+                # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
                 Js = J_h.dot(p_h)
                 q = np.dot(Js, Js)
                 q += np.dot(p_h * diag_h, p_h)
                 step, step_h, predicted_reduction = p, p_h, -(0.5 * q + np.dot(p_h, g_h))
                 x_new = x_p
             else:
-                step, step_h, predicted_reduction = select_step(
-                    x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta
-                )
+                p_stride, hits = step_size_to_bound(x, p, lb, ub)
+                # the reflected direction
+                r_h = np.copy(p_h)
+                r_h[hits.astype(bool)] *= -1
+                r = d * r_h
+                # the trust-region step cut where it hits the bound
+                p *= p_stride
+                p_h *= p_stride
+                x_on_bound = x + p
+                _, to_tr = intersect_trust_region(p_h, r_h, Delta)
+                to_bound, _ = step_size_to_bound(x_on_bound, r, lb, ub)
+                r_stride = min(to_bound, to_tr)
+                if r_stride > 0:
+                    r_stride_l = (1 - theta) * p_stride / r_stride
+                    if r_stride == to_bound:
+                        r_stride_u = theta * to_bound
+                    else:
+                        r_stride_u = to_tr
+                else:
+                    r_stride_l = 0
+                    r_stride_u = -1
+                if r_stride_l <= r_stride_u:
+                    # build_quadratic_1d(J_h, g_h, r_h, s0=p_h, diag=diag_h)
+                    Jr = J_h.dot(r_h)
+                    a = np.dot(Jr, Jr)
+                    a += np.dot(r_h * diag_h, r_h)
+                    a *= 0.5
+                    b = np.dot(g_h, r_h)
+                    Jp = J_h.dot(p_h)
+                    b += np.dot(Jp, Jr)
+                    c = 0.5 * np.dot(Jp, Jp) + np.dot(g_h, p_h)
+                    b += np.dot(p_h * diag_h, r_h)
+                    c += 0.5 * np.dot(p_h * diag_h, p_h)
+                    r_stride, r_value = minimize_quadratic_1d(a, b, r_stride_l, r_stride_u, c=c)
+                    r_h *= r_stride
+                    r_h += p_h
+                    r = r_h * d
+                else:
+                    r_value = np.inf
+                # the cut step made strictly interior
+                p *= theta
+                p_h *= theta
+                Js = J_h.dot(p_h)  # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+                q = np.dot(Js, Js)
+                q += np.dot(p_h * diag_h, p_h)
+                p_value = 0.5 * q + np.dot(p_h, g_h)
+                # the gradient direction: all but its length is the iteration's
+                if ag is None:
+                    ag_h0 = -g_h
+                    ag = d * ag_h0
+                    ag_h_norm = _norm(ag_h0)
+                    ag_to_bound, _ = step_size_to_bound(x, ag, lb, ub)
+                    # build_quadratic_1d(J_h, g_h, ag_h0, diag=diag_h)
+                    Jag = J_h.dot(ag_h0)
+                    ag_a = np.dot(Jag, Jag)
+                    ag_a += np.dot(ag_h0 * diag_h, ag_h0)
+                    ag_a *= 0.5
+                    ag_b = np.dot(g_h, ag_h0)
+                to_tr = Delta / ag_h_norm
+                if ag_to_bound < to_tr:
+                    ag_stride = theta * ag_to_bound
+                else:
+                    ag_stride = to_tr
+                ag_stride, ag_value = minimize_quadratic_1d(ag_a, ag_b, 0, ag_stride)
+                if p_value < r_value and p_value < ag_value:
+                    step, step_h, predicted_reduction = p, p_h, -p_value
+                elif r_value < p_value and r_value < ag_value:
+                    step, step_h, predicted_reduction = r, r_h, -r_value
+                else:
+                    step, step_h, predicted_reduction = ag * ag_stride, ag_h0 * ag_stride, -ag_value
                 x_new = x + step
             # make_strictly_feasible(x_new, lb, ub, rstep=0): a point strictly inside is kept
-            if not np.all((x_new > lb) & (x_new < ub)):
+            if not ((x_new > lb) & (x_new < ub)).all():
                 x_new = make_strictly_feasible(x_new, lb, ub, rstep=0)
             f_new = np.atleast_1d(np.asarray(fun(x_new.copy()), dtype=float))
             nfev += 1
             step_h_norm = _norm(step_h)
             cost_new = 0.5 * np.dot(f_new, f_new)  # finite when every residual is
-            if not np.isfinite(cost_new) and not np.all(np.isfinite(f_new)):
+            if not np.isfinite(cost_new) and not np.isfinite(f_new).all():
                 Delta = 0.25 * step_h_norm
                 continue
             actual_reduction = cost - cost_new
@@ -363,7 +439,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 
         if actual_reduction > 0:
             x = x_new
-            x_norm = norm(x)
+            x_norm = _norm(x)
             f = f_new
             f_true = f.copy()
             cost = cost_new
@@ -371,7 +447,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
             njev += 1
             g = J.T.dot(f)  # compute_grad(J, f)
             # compute_jac_scale(J, scale_inv)
-            scale_inv = np.maximum(np.sum(J**2, axis=0) ** 0.5, scale_inv)
+            scale_inv = np.maximum((J**2).sum(axis=0) ** 0.5, scale_inv)
             scale = 1 / scale_inv
 
     if termination_status is None:
