@@ -248,3 +248,40 @@ def test_assemble_adds_each_term_in_order_and_leaves_its_inputs():
     for j in range(3):
         assert got[j].tobytes() == model.assemble(s, lin, H[j], th).tobytes()
     assert lin.tobytes() == lin0.tobytes()
+
+
+@pytest.mark.parametrize("weight", [1.0, 0.37])
+@pytest.mark.parametrize("cap", [None, 40.0])
+def test_differences_are_weigh_then_the_quotient_bit_for_bit(weight, cap):
+    # a law's columns go from predictions to forward differences in one compiled pass per
+    # row; every row must be (_weigh(prediction) − r0) / step as written out plainly, the
+    # rows beyond the cap (an entry just above it, NaN, ±inf) clipped as _weigh clips them
+    from pmalab.identify.estimation.problem import RUNAWAY_N
+
+    model = ForceModel("bouc-wen", [EFFECTS["viscous-friction"]()])
+    prob = _one_run_problem(model)
+    prob.cap = cap
+    rec = prob.records[0]
+    rec.weight = weight
+    n = rec.n
+    lim = RUNAWAY_N if cap is None else cap
+    rng = np.random.default_rng(7)
+    E = rec.force + rng.normal(scale=3.0, size=(7, n))
+    E[1, 5] = rec.force[5] + lim / weight * (1.0 + 1e-12)  # just beyond the cap
+    E[2, 9] = np.nan
+    E[3, 11] = np.inf
+    E[4, 13] = -np.inf
+    E[5, 17] = rec.force[17] + lim / weight  # at the cap (kept)
+    E[6, :] = rec.force  # every error −0.0 or +0.0
+    E[6, 3] = -0.0 if rec.force[3] == 0.0 else E[6, 3]
+    r0 = rng.normal(size=n)
+    steps = np.array([1e-8, -2e-8, 3e-7, 1.0, -1e-8, 5e-9, 1e-8])
+    want = np.empty_like(E)
+    for k in range(E.shape[0]):
+        e = prob._weigh(0, E[k].copy())
+        want[k] = (e - r0) / steps[k]
+    got = prob._differences(0, E.copy(), r0, steps)
+    assert got.tobytes() == want.tobytes()
+    # and the NumPy path it replaces (taken for an array the kernel does not take)
+    plain = prob._differences(0, np.asfortranarray(E), r0, steps)
+    assert plain.tobytes() == want.tobytes()

@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from pmalab.identify.estimation.basis import PressureBasis
 from pmalab.identify.model import ForceModel
@@ -44,6 +45,44 @@ _SQRT_EPS = math.sqrt(np.finfo(float).eps)
 _Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
 #: Problem's last residual: z's bytes, the residual, the parts, raw θ, every run's θ
 _Cache = tuple[bytes, np.ndarray, "list[_Parts] | None", np.ndarray, list[dict[str, float]]]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _difference_rows(E, force, w, cap, r0, steps):  # pragma: no cover - compiled
+    """Forward differences from predictions, in place: row k of ``E`` (a prediction of the
+    run) becomes (((E_k − force)·w) − r0) / steps_k, the weighting skipped when w is 1 —
+    :meth:`Problem._weigh`'s and the difference quotient's operations, element by element,
+    in one pass over the row.  A row with a weighted error beyond ``cap`` (or NaN) is left
+    as its weighted errors, to be clipped by the caller: returns those rows' flags."""
+    rows, n = E.shape
+    over = np.zeros(rows, dtype=np.bool_)
+    for k in range(rows):
+        bad = 0  # a count, not a flag: the loops stay vector loops
+        if w != 1.0:
+            for t in range(n):
+                e = (E[k, t] - force[t]) * w
+                E[k, t] = e
+                bad += 0 if (e <= cap and e >= -cap) else 1
+        else:
+            for t in range(n):
+                e = E[k, t] - force[t]
+                E[k, t] = e
+                bad += 0 if (e <= cap and e >= -cap) else 1
+        if bad == 0:
+            h = steps[k]
+            for t in range(n):
+                E[k, t] = (E[k, t] - r0[t]) / h
+        else:
+            over[k] = True
+    return over
+
+
+def load_compiled() -> None:
+    """Load the compiled difference kernel now (:func:`_difference_rows` on a few samples
+    of the types a fit passes), so forked workers inherit it instead of each loading or
+    compiling its own."""
+    E = np.zeros((1, 4))
+    _difference_rows(E, np.zeros(4), 1.0, 1.0, np.zeros(4), np.ones(1))
 
 
 @dataclass
@@ -283,13 +322,16 @@ class Problem:
         """Jacobian of :meth:`residual` (``run_only``: only the per-run columns are filled)."""
         z = np.asarray(z, dtype=float)
         r0 = self.residual(z)
-        J = np.zeros((self.n_rows, self.n_var))
+        # every entry is written (a column without a derivative at a run is set to 0 there)
+        J = np.empty((self.n_rows, self.n_var))
         with np.errstate(all="ignore"):
             self._fill_jac(J, z, r0, run_only)
         return J
 
     def _fill_jac(self, J: np.ndarray, z: np.ndarray, r0: np.ndarray, run_only: bool) -> None:
-        """:meth:`jac`'s columns, in place (under one ``errstate``).
+        """:meth:`jac`'s columns, in place (under one ``errstate``): every entry of J, the
+        columns without a derivative at a run (a clipped θ, another run's per-run parameter,
+        the shared parameters with ``run_only``) set to 0 there.
 
         With the model's parts at z kept by :meth:`residual`, the columns of the law's
         parameters on one run are evaluated together (:meth:`_law_columns`); every other
@@ -316,7 +358,9 @@ class Problem:
             plan = plans.get(key)
             if plan is None:
                 plan = plans[key] = self._plan(*key)
-            batch, rest, shared, stack, per_run = plan
+            batch, rest, shared, stack, per_run, zero = plan
+            for js in zero:
+                J[rows, js] = 0.0
             part = parts[i] if parts else None
             # every column of run i: the law's (one call), then the others, one by one
             ds = list(self._law_columns(i, th, batch, r0, part)) if batch and part else []
@@ -343,15 +387,21 @@ class Problem:
                 J[rows, col] = ds[k]
 
     def _plan(self, i: int, inside: tuple[bool, ...] | None, has_parts: bool) -> tuple:
-        """How :meth:`_fill_jac` makes run i's columns: (the law's parameters evaluated
-        together by :meth:`_law_columns` — none unless there are two or more and the parts
-        at z are kept —, the other parameters, one :meth:`dresid` each; with ``ds`` the
-        columns in that order: the shared columns stacked — (for each of J's columns the
-        index in ``ds`` of its derivative, the basis values, whether all are 1, and J's
-        adjacent column ranges with the matching ranges of the stack) — or None and then the
-        shared parameters (index in ``ds``, name) written one by one, and the per-run
-        columns (index in ``ds``, column of J)).  ``inside``: whether each free parameter
-        is within its bounds at run i (None: only the per-run columns)."""
+        """How :meth:`_fill_jac` makes run i's columns, a tuple of:
+
+        * the law's parameters evaluated together by :meth:`_law_columns` (none unless
+          there are two or more and the parts at z are kept);
+        * the other parameters, one :meth:`dresid` each (``ds``: the columns in that order);
+        * the shared parameters (index in ``ds``, name) written one by one, or ``()`` when
+          they are stacked;
+        * the stack or None: for each of J's columns the index in ``ds`` of its derivative,
+          the basis values, whether all are 1, and J's adjacent column ranges with the
+          matching ranges of the stack;
+        * the per-run columns (index in ``ds``, column of J);
+        * the ranges of J's columns without a derivative at run i (set to 0).
+
+        ``inside``: whether each free parameter is within its bounds at run i (None: only
+        the per-run columns)."""
         # (parameter, its column for a per-run parameter; None: through the basis)
         cols: list[tuple[str, int | None]] = []
         if inside is not None:
@@ -381,12 +431,27 @@ class Problem:
                         a = e
                 stack = (tuple(shared[k][0] for k in rep), b, unit, tuple(segments))
         per_run = tuple((k, col) for k, (_, col) in enumerate(order) if col is not None)
+        # J's columns with no derivative at run i, as adjacent ranges
+        written = np.zeros(self.n_var, dtype=bool)
+        for n in (n for _, n in shared):
+            written[self.slices[n]] = True
+        for _, col in per_run:
+            written[col] = True
+        zero = []
+        a = None
+        for c in range(self.n_var + 1):
+            if c < self.n_var and not written[c]:
+                a = c if a is None else a
+            elif a is not None:
+                zero.append(slice(a, c))
+                a = None
         return (
             tuple(n for n, _ in batch),
             tuple(n for n, _ in order[len(batch) :]),
             tuple(shared) if stack is None else (),
             stack,
             per_run,
+            tuple(zero),
         )
 
     def _law_names(self) -> set[str]:
@@ -446,13 +511,29 @@ class Problem:
             th2[n] = v + h
             th2s.append(th2)
         H = self.model.law.h_many(s.x, th2s, extras)
-        r = self.records[i]
         # a new array (lin + H): the residual's operations done in place, the same numbers
         E = self.model.assemble_many(s, lin, H, th)
-        np.subtract(E, r.force, out=E)
+        return self._differences(i, E, r0, steps)
+
+    def _differences(self, i: int, E: np.ndarray, r0: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """Run i's forward differences from predictions ``E`` (rows, a new array of the
+        caller's, overwritten): ((E_k − force)·w, clipped as :meth:`_weigh` clips it, − r0)
+        / steps_k, each row as :meth:`dresid` computes it."""
+        r = self.records[i]
+        cap = RUNAWAY_N if self.cap is None else self.cap
+        force = np.ascontiguousarray(r.force, dtype=np.float64)
+        if E.dtype == np.float64 and E.ndim == 2 and E.flags.c_contiguous and E.flags.writeable:
+            # one compiled pass per row: the same operations, element by element
+            rows = self.rows[i]
+            over = _difference_rows(E, force, float(r.weight), float(cap), r0[rows], steps)
+            for k in np.flatnonzero(over):
+                E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+                np.subtract(E[k], r0[rows], out=E[k])
+                np.divide(E[k], steps[k], out=E[k])
+            return E
+        np.subtract(E, force, out=E)
         if r.weight != 1.0:
             np.multiply(E, r.weight, out=E)
-        cap = RUNAWAY_N if self.cap is None else self.cap
         # no row beyond the cap (max and min propagate a NaN): nothing to clip; else the
         # rows that are, each as :meth:`_weigh` clips it
         if not (E.max() <= cap and E.min() >= -cap):
@@ -496,7 +577,9 @@ class Problem:
             s, extras, lin, hy = parts
             if kind == "law":
                 hy = np.asarray(self.model.law.h(s.x, th2, extras), dtype=np.float64)
-            e = self._weigh(i, self.model.assemble(s, lin, hy, th2))
+            # assemble's new array: weighed and differenced in place, as one row
+            out = self.model.assemble(s, lin, hy, th2)
+            return self._differences(i, out.reshape(1, -1), r0, np.array([h]))[0]
         # e is a new array (:meth:`_weigh`'s): the difference quotient in place
         np.subtract(e, r0[self.rows[i]], out=e)
         np.divide(e, h, out=e)
