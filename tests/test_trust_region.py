@@ -378,3 +378,24 @@ def test_bit_for_bit_scipys_trf_bounds_when_the_cut_step_is_chosen(monkeypatch, 
     assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
     for key in ("x", "cost", "nfev", "njev", "status", "active_mask"):
         assert np.asarray(ours[key]).tobytes() == np.asarray(ref[key]).tobytes(), key
+
+
+def test_step_size_to_bound_is_scipys_with_zero_directions_and_infinite_bounds():
+    from scipy.optimize._lsq.common import step_size_to_bound
+
+    from pmalab.identify.estimation.trust_region import _step_size_to_bound
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        n = int(rng.integers(1, 8))
+        lb, ub = -rng.uniform(0.1, 3, n), rng.uniform(0.1, 3, n)
+        lb[rng.random(n) < 0.2] = -np.inf
+        ub[rng.random(n) < 0.2] = np.inf
+        x = rng.uniform(-0.09, 0.09, n)
+        s = rng.standard_normal(n) * 10.0 ** rng.integers(-320, 3, n)  # tiny ones overflow
+        s[rng.random(n) < 0.3] = 0.0
+        ref_step, ref_hits = step_size_to_bound(x, s, lb, ub)
+        step, hits = _step_size_to_bound(lb - x, ub - x, s, True)
+        assert np.float64(step).tobytes() == np.float64(ref_step).tobytes()
+        assert hits.tolist() == ref_hits.tolist()
+        assert _step_size_to_bound(lb - x, ub - x, s, False) == (step, None)

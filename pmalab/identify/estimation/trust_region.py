@@ -31,7 +31,7 @@ is in ``LICENSES/scipy.txt``).
 from __future__ import annotations
 
 from collections.abc import Callable
-from math import sqrt
+from math import copysign, sqrt
 
 import numpy as np
 from numpy.linalg import LinAlgError, norm
@@ -45,10 +45,8 @@ try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
         compute_jac_scale,
         find_active_constraints,
         in_bounds,
-        intersect_trust_region,
         make_strictly_feasible,
         minimize_quadratic_1d,
-        step_size_to_bound,
     )
 
     # written out in the loop below; a SciPy whose trf module no longer has it may have
@@ -176,20 +174,40 @@ def _norm(x: np.ndarray) -> np.float64:
     return np.float64(sqrt(x.dot(x)))
 
 
+def _step_size_to_bound(lb_x, ub_x, s, hits):
+    """SciPy's ``step_size_to_bound(x, s, lb, ub)`` given ``lb - x`` and ``ub - x``, its
+    operations: the smallest ``t ≥ 0`` putting ``x + t·s`` on a bound, and (``hits``) which
+    bounds it reaches (−1 lower, 1 upper, 0 none), else ``None``."""
+    if s.all():
+        with np.errstate(over="ignore"):
+            steps = np.maximum(lb_x / s, ub_x / s)
+    else:
+        non_zero = np.nonzero(s)
+        s_non_zero = s[non_zero]
+        steps = np.empty_like(s)
+        steps.fill(np.inf)
+        with np.errstate(over="ignore"):
+            steps[non_zero] = np.maximum(lb_x[non_zero] / s_non_zero, ub_x[non_zero] / s_non_zero)
+    min_step = np.min(steps)
+    if not hits:
+        return min_step, None
+    return min_step, np.equal(steps, min_step) * np.sign(s).astype(int)
+
+
 def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> OptimizeResult:
     """SciPy's ``trf_bounds`` for a linear loss, ``x_scale='jac'`` and the exact
     subproblem, the SVD taken on the QR factor (:func:`reduced_svd_uf`).
 
     SciPy's per-step helpers (``CL_scaling_vector``, ``solve_lsq_trust_region``,
-    ``select_step`` with ``build_quadratic_1d`` and ``evaluate_quadratic``,
+    ``select_step`` with ``build_quadratic_1d``, ``evaluate_quadratic``,
+    ``step_size_to_bound`` and ``intersect_trust_region``,
     ``make_strictly_feasible``, ``update_tr_radius``, ``check_termination``,
     ``compute_grad``, ``compute_jac_scale``) are written out in line with the same
     floating-point operations in the same order, and what does not change between the
     tries of one iteration is computed once (the Gauss-Newton step, the norms of ``s·Uᵀf``
     and of ``x``, ``s²``, the gradient direction at a bound): the evaluated points are
     SciPy's bit for bit (tests/test_trust_region.py runs SciPy's ``trf_bounds`` to
-    compare).  The smallest helpers (``step_size_to_bound``, ``intersect_trust_region``,
-    ``minimize_quadratic_1d``) are still called."""
+    compare).  ``minimize_quadratic_1d`` is still called."""
     x = x0.copy()
     f = f0
     f_true = f.copy()
@@ -266,18 +284,13 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         # solve_lsq_trust_region's parts that do not depend on Delta or alpha
         suf = s * uf
         s2 = s**2
-        suf2 = suf**2
-        suf_norm = _norm(suf)
         full_rank = m >= n and s[-1] > rank_threshold * s[0]
         if full_rank:
             p_gn = -V.dot(uf / s)  # the Gauss-Newton step
             p_gn_norm = _norm(p_gn)
-            # phi_and_derivative(0.0, ...): denom = s**2 + 0.0 is s**2
-            t = suf / s2
-            p_norm0 = _norm(t)
-            dphi0 = -(suf2 / s2**3).sum() / p_norm0
-
+        newton = False  # its constant parts computed, when the Gauss-Newton step is too long
         ag = None  # select_step's gradient direction, when a step first leaves the box
+        lb_x = ub_x = None  # lb - x and ub - x, then
 
         # theta: how far a step stays back from the bounds
         theta = max(0.995, 1 - g_norm)
@@ -289,6 +302,13 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 p_h = p_gn.copy()
                 alpha = 0.0
             else:
+                if not newton:
+                    newton = True
+                    suf2 = suf**2
+                    suf_norm = _norm(suf)
+                    if full_rank:  # phi_and_derivative(0.0, ...): s**2 + 0.0 is s**2
+                        p_norm0 = _norm(suf / s2)
+                        dphi0 = -(suf2 / s2**3).sum() / p_norm0
                 alpha_upper = suf_norm / Delta
                 if full_rank:
                     phi = p_norm0 - Delta
@@ -311,7 +331,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                     ratio = phi / phi_prime
                     alpha_lower = max(alpha_lower, alpha - ratio)
                     alpha -= (phi + Delta) * ratio / Delta
-                    if np.abs(phi) < 0.01 * Delta:
+                    if abs(phi) < 0.01 * Delta:
                         break
                 p_h = -V.dot(suf / (s2 + alpha))
                 p_h *= Delta / _norm(p_h)
@@ -327,7 +347,10 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 step, step_h, predicted_reduction = p, p_h, -(0.5 * q + np.dot(p_h, g_h))
                 x_new = x_p
             else:
-                p_stride, hits = step_size_to_bound(x, p, lb, ub)
+                if lb_x is None:
+                    lb_x = lb - x
+                    ub_x = ub - x
+                p_stride, hits = _step_size_to_bound(lb_x, ub_x, p, True)
                 # the reflected direction
                 r_h = np.copy(p_h)
                 r_h[hits.astype(bool)] *= -1
@@ -336,8 +359,19 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 p *= p_stride
                 p_h *= p_stride
                 x_on_bound = x + p
-                _, to_tr = intersect_trust_region(p_h, r_h, Delta)
-                to_bound, _ = step_size_to_bound(x_on_bound, r, lb, ub)
+                # intersect_trust_region(p_h, r_h, Delta): its positive root
+                a = np.dot(r_h, r_h)
+                if a == 0:
+                    raise ValueError("`s` is zero.")
+                b = np.dot(p_h, r_h)
+                c = np.dot(p_h, p_h) - Delta**2
+                if c > 0:
+                    raise ValueError("`x` is not within the trust region.")
+                q = -(b + copysign(np.sqrt(b * b - a * c), b))
+                t1 = q / a
+                t2 = c / q
+                to_tr = t2 if t1 < t2 else t1
+                to_bound, _ = _step_size_to_bound(lb - x_on_bound, ub - x_on_bound, r, False)
                 r_stride = min(to_bound, to_tr)
                 if r_stride > 0:
                     r_stride_l = (1 - theta) * p_stride / r_stride
@@ -378,7 +412,7 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                     ag_h0 = -g_h
                     ag = d * ag_h0
                     ag_h_norm = _norm(ag_h0)
-                    ag_to_bound, _ = step_size_to_bound(x, ag, lb, ub)
+                    ag_to_bound, _ = _step_size_to_bound(lb_x, ub_x, ag, False)
                     # build_quadratic_1d(J_h, g_h, ag_h0, diag=diag_h)
                     Jag = J_h.dot(ag_h0)
                     ag_a = np.dot(Jag, Jag)
