@@ -285,3 +285,6 @@ def test_differences_are_weigh_then_the_quotient_bit_for_bit(weight, cap):
     # and the NumPy path it replaces (taken for an array the kernel does not take)
     plain = prob._differences(0, np.asfortranarray(E), r0, steps)
     assert plain.tobytes() == want.tobytes()
+    # a residual's run weighed in place in the same pass: _weigh's numbers
+    for k in range(E.shape[0]):
+        assert prob._weigh_own(0, E[k].copy()).tobytes() == prob._weigh(0, E[k].copy()).tobytes()
