@@ -203,3 +203,85 @@ def test_column_is_float_of_each_value_bit_for_bit():
         want = np.array([[float(th[n]) for n in names] for th in thetas], dtype=np.float64)
         got = column(thetas, names)
         assert got.shape == (2, len(names)) and got.tobytes() == want.reshape(2, -1).tobytes()
+
+
+def test_with_position_is_dataclasses_replace_field_for_field():
+    # a delayed drive is a copy made without the frozen __init__: every field must be
+    # replace()'s, the slide drive kept for the old position must not come along, and the
+    # copy must stay frozen
+    import dataclasses
+
+    run, _ = make_run("bouc-wen", 0.35, n=400, seed=4, f=0.8)
+    sig = Signals.from_run(run)
+    old_drive = sig.slide_drive()
+    assert old_drive is not sig  # kept beside sig now
+    x, v, a = sig.x + 0.5, sig.v * 1.5, sig.a - 2.0
+    got = sig.with_position(x, v, a, sig.x_slide + 0.25)
+    want = dataclasses.replace(sig, x=x, v=v, a=a, x_slide=sig.x_slide + 0.25)
+    assert type(got) is type(want)
+    for f in dataclasses.fields(Signals):
+        g, w = getattr(got, f.name), getattr(want, f.name)
+        assert np.asarray(g).tobytes() == np.asarray(w).tobytes(), f.name
+    assert "_slide_drive" not in vars(got)
+    assert got.slide_drive().x.tobytes() == (sig.x_slide + 0.25).tobytes()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        got.x = x  # type: ignore[misc]
+
+
+def test_assemble_adds_each_term_in_order_and_leaves_its_inputs():
+    # the terms are added into the new sum in place: the numbers of (lin + h) + t1 + t2,
+    # each addition once, and neither lin nor h touched; the many-row assembly likewise
+    model = ForceModel("bouc-wen", [EFFECTS["viscous-friction"](), EFFECTS["nonlinear-stiffness"]()])
+    run, _ = make_run("bouc-wen", 0.35, n=500, seed=5, f=0.8)
+    sig = Signals.from_run(run)
+    th = {"k": -31.0, "c0": 80.0, "A": -40.0, "beta": 0.3, "gamma": 0.05, "n": 1.0, "h0": 0.7,
+          "visc_c": 0.37, "stiff_k2": 0.013, "stiff_k3": -0.0007}
+    s, _, lin, h = model.parts(sig, th)
+    lin0, h0 = lin.copy(), h.copy()
+    t1 = model.effects[0].force(s, h, th)
+    t2 = model.effects[1].force(s, h, th)
+    want = ((lin + h) + t1) + t2
+    assert model.assemble(s, lin, h, th).tobytes() == want.tobytes()
+    assert lin.tobytes() == lin0.tobytes() and h.tobytes() == h0.tobytes()
+    H = np.stack([h, h * 0.5, -h])
+    got = model.assemble_many(s, lin, H, th)
+    for j in range(3):
+        assert got[j].tobytes() == model.assemble(s, lin, H[j], th).tobytes()
+    assert lin.tobytes() == lin0.tobytes()
+
+
+@pytest.mark.parametrize("weight", [1.0, 0.37])
+@pytest.mark.parametrize("cap", [None, 40.0])
+def test_differences_are_weigh_then_the_quotient_bit_for_bit(weight, cap):
+    # a law's columns go from predictions to forward differences in one compiled pass per
+    # row; every row must be (_weigh(prediction) − r0) / step as written out plainly, the
+    # rows beyond the cap (an entry just above it, NaN, ±inf) clipped as _weigh clips them
+    from pmalab.identify.estimation.problem import RUNAWAY_N
+
+    model = ForceModel("bouc-wen", [EFFECTS["viscous-friction"]()])
+    prob = _one_run_problem(model)
+    prob.cap = cap
+    rec = prob.records[0]
+    rec.weight = weight
+    n = rec.n
+    lim = RUNAWAY_N if cap is None else cap
+    rng = np.random.default_rng(7)
+    E = rec.force + rng.normal(scale=3.0, size=(7, n))
+    E[1, 5] = rec.force[5] + lim / weight * (1.0 + 1e-12)  # just beyond the cap
+    E[2, 9] = np.nan
+    E[3, 11] = np.inf
+    E[4, 13] = -np.inf
+    E[5, 17] = rec.force[17] + lim / weight  # at the cap (kept)
+    E[6, :] = rec.force  # every error −0.0 or +0.0
+    E[6, 3] = -0.0 if rec.force[3] == 0.0 else E[6, 3]
+    r0 = rng.normal(size=n)
+    steps = np.array([1e-8, -2e-8, 3e-7, 1.0, -1e-8, 5e-9, 1e-8])
+    want = np.empty_like(E)
+    for k in range(E.shape[0]):
+        e = prob._weigh(0, E[k].copy())
+        want[k] = (e - r0) / steps[k]
+    got = prob._differences(0, E.copy(), r0, steps)
+    assert got.tobytes() == want.tobytes()
+    # and the NumPy path it replaces (taken for an array the kernel does not take)
+    plain = prob._differences(0, np.asfortranarray(E), r0, steps)
+    assert plain.tobytes() == want.tobytes()

@@ -203,6 +203,15 @@ def test_jacobian_is_each_parameters_column_times_its_basis_bit_for_bit(law, eff
     assert np.array_equal(J, ref), np.argwhere(J != ref)[:5]
     assert not np.any(J[prob.rows[-1], sl]) and np.any(J[prob.rows[0], sl])
     assert np.signbit(J[prob.rows[-1], sl]).sum() == 0  # +0.0, as a column never written
+    # J is not zeroed first: every entry is written, the ones without a derivative as +0.0
+    # (filled with NaN before, the columns come out the same, to the bit)
+    for run_only in (False, True):
+        want = prob.jac(z, run_only)
+        got = np.full_like(want, np.nan)
+        with np.errstate(all="ignore"):
+            prob._fill_jac(got, np.asarray(z, dtype=float), prob.residual(z), run_only)
+        assert got.tobytes() == want.tobytes()
+    assert not np.any(want[:, : prob.n_coef])  # run_only: every shared column 0
 
 
 @pytest.mark.parametrize("rows", [1, 2, 5, 8])

@@ -224,3 +224,157 @@ def test_without_scipys_step_helpers_it_is_scipys_least_squares(monkeypatch):
                         x_scale="jac", **kw)
     assert ours.x.tobytes() == ref.x.tobytes()
     assert (ours.nfev, ours.njev, ours.status, ours.message) == (ref.nfev, ref.njev, ref.status, ref.message)
+
+
+def _scipy_trf_bounds_on_the_qr_factor(monkeypatch, fun, jac, x0, f0, J0, lo, hi, kw):
+    """SciPy's own ``trf_bounds`` (its helpers, its loop) with its SVD step replaced by the
+    QR-factor one, LAPACK call for LAPACK call as :func:`reduced_svd_uf` makes them: the
+    reference our solver must equal bit for bit."""
+    import scipy.optimize._lsq.trf as scipy_trf
+
+    import pmalab.identify.estimation.trust_region as tr
+
+    class _UT:  # stands for Uᵀ: SciPy only ever computes U.T.dot(f_augmented)
+        def __init__(self, qr, tau, ur):
+            self.qr, self.tau, self.ur = qr, tau, ur
+            self.T = self
+
+        def dot(self, f):
+            n = self.ur.shape[0]
+            qtf, _, _ = tr._ORMQR("L", "T", self.qr, self.tau, f.reshape(-1, 1), max(64, n))
+            return self.ur.T.dot(qtf[:n, 0])
+
+    def svd(A, full_matrices=False):
+        assert not full_matrices and np.isfinite(A).all()
+        n = A.shape[1]
+        qr, tau, _, _ = tr._GEQRF(A)
+        ur, s, vt, _ = tr._GESDD(np.triu(qr[:n]), compute_uv=1, full_matrices=0, overwrite_a=1)
+        return _UT(qr, tau, ur), s, vt
+
+    monkeypatch.setattr(scipy_trf, "svd", svd)
+    # SciPy before 1.16 calls jac(x, f) (least_squares' wrapper took f), 1.16 on jac(x)
+    return scipy_trf.trf_bounds(
+        fun, lambda x, *_: jac(x), x0.copy(), f0.copy(), J0.copy(), lo, hi, kw["ftol"],
+        kw["xtol"], kw["gtol"], kw["max_nfev"], "jac", None, "exact", {}, 0,
+    )
+
+
+def _bitwise_problems():
+    """Paths through every branch of the step: rejected steps, a step into NaN, reflected
+    and gradient steps at a bound, an optimum on a bound, an infinite bound, fewer
+    residuals than parameters (no Gauss-Newton step), an exhausted budget."""
+    rng = np.random.default_rng(11)
+    out = []
+    for nan_below, z0, lo, hi in [
+        (None, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),
+        (None, [-1.9, 0.5], [-2.0, -1.0], [0.8, 1.5]),
+        (-0.3, [-1.9, 1.4], [-2.0, -1.0], [2.0, 1.5]),
+        (None, [-1.9, 1.4], [-np.inf, -1.0], [np.inf, 1.2]),
+    ]:
+        fun, jac = _rosenbrock(nan_below)
+        out.append((fun, jac, np.array(z0), np.array(lo), np.array(hi), 500))
+    for seed, hi_a in [(1, 10.0), (2, 2.5), (3, 1.0)]:
+        fun, jac = _decay_problem(seed)
+        out.append((fun, jac, np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, -5.0]),
+                    np.array([hi_a, 10.0, 5.0]), 200))
+    fun, jac = _decay_problem(4)
+    out.append((fun, jac, np.array([1.0, 2.0, 0.0]), np.array([0.0, 0.05, -5.0]),
+                np.array([10.0, 10.0, 5.0]), 3))
+    for m, n in [(300, 8), (3, 6), (60, 13)]:
+        A, b = rng.standard_normal((m, n)), rng.standard_normal(m)
+
+        def fun(z, A=A, b=b):
+            return A @ np.sin(z) + 0.3 * np.sum(z**2) - b
+
+        def jac(z, A=A):  # a column slice of a wider array, as the models return it
+            big = np.zeros((A.shape[0], z.size + 5))
+            big[:, 2 : 2 + z.size] = A * np.cos(z) + 0.6 * z
+            return big[:, 2 : 2 + z.size]
+
+        lo, hi = np.full(n, -0.4), np.full(n, 0.5)
+        lo[0] = -np.inf
+        out.append((fun, jac, np.full(n, 0.1), lo, hi, 400))
+    # a step that leaves the box is refused and the next one leaves it too (the gradient
+    # direction's parts are then reused within the iteration); found by a search
+    A = np.array([[20.23261989127336, -1.7576794343213589, 9.949102765787948],
+                  [3.0457125350449172, 16.10054820774487, -16.940561610036504],
+                  [-4.448806462048068, 5.047599627222985, -10.733670680850407],
+                  [18.903308694064236, -18.71227007874097, -6.792623985412638]])
+    B = np.array([[-1.4265198547067903, -1.0952360369520635, -0.29033948740227117],
+                  [1.9975127808635234, -0.056826138014310475, 0.27947045294307016],
+                  [1.2330720943619164, 0.6681021093309815, 2.0597378847175674],
+                  [2.9807784899558443, -1.0066029137021157, -0.20469255247609747]])
+    b = np.array([-0.14229221514723275, 1.1832048623841087, -0.8798091915169847, -0.814075126456791])
+    out.append((lambda z: np.sin(A @ z) + B @ z - b, lambda z: np.cos(A @ z)[:, None] * A + B,
+                np.array([-0.4935706793997196, -0.9394001465033219, -0.49856942569077817]),
+                np.full(3, -1.0), np.full(3, 1.0), 500))
+    return out
+
+
+@pytest.mark.parametrize("k", range(len(_bitwise_problems())))
+def test_bit_for_bit_scipys_trf_bounds_on_the_qr_factor(monkeypatch, k):
+    """Our loop writes SciPy's step helpers out in line: every evaluated point, the result's
+    every field and the counts are SciPy's ``trf_bounds`` (given the same SVD) to the bit."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    fun, jac, z0, lo, hi, max_nfev = _bitwise_problems()[k]
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+    z0 = tr.make_strictly_feasible(z0, lo, hi)
+    f0, J0 = fun(z0), jac(z0).copy()
+    xs, ours = _path(lambda f: tr._trf_bounds(f, jac, z0, f0, J0, lo, hi, kw["ftol"], kw["xtol"],
+                                               kw["gtol"], kw["max_nfev"]), fun)
+    xr, ref = _path(lambda f: _scipy_trf_bounds_on_the_qr_factor(monkeypatch, f, jac, z0, f0, J0, lo,
+                                                                  hi, kw), fun)
+    assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
+    for key in ("x", "cost", "fun", "jac", "grad", "optimality", "active_mask", "nfev", "njev", "status"):
+        assert np.asarray(ours[key]).tobytes() == np.asarray(ref[key]).tobytes(), key
+
+
+@pytest.mark.parametrize("z0", [[0.05, 0.06, 0.0], [0.2, 0.1, 0.01]])
+def test_bit_for_bit_scipys_trf_bounds_when_xtol_stops_it(monkeypatch, z0):
+    """Stopped by xtol (status 3) far from the start (‖x‖ 3.1 against ‖x0‖ 0.08 or 0.22): the
+    test's threshold uses the current ‖x‖, so a norm of x not kept up to date ends the path
+    later than SciPy's (the cases above stop by ftol/gtol and do not see it)."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    fun, jac = _decay_problem(1)
+    lo, hi = np.array([0.0, 0.05, -5.0]), np.array([10.0, 10.0, 5.0])
+    kw = dict(ftol=1e-15, xtol=1e-7, gtol=1e-15, max_nfev=200)
+    z0 = tr.make_strictly_feasible(np.array(z0), lo, hi)
+    f0, J0 = fun(z0), jac(z0).copy()
+    xs, ours = _path(lambda f: tr._trf_bounds(f, jac, z0, f0, J0, lo, hi, kw["ftol"], kw["xtol"],
+                                               kw["gtol"], kw["max_nfev"]), fun)
+    xr, ref = _path(lambda f: _scipy_trf_bounds_on_the_qr_factor(monkeypatch, f, jac, z0, f0, J0, lo,
+                                                                  hi, kw), fun)
+    assert ref.status == 3 and np.linalg.norm(ref.x) > 10 * np.linalg.norm(z0)
+    assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
+    assert (ours.nfev, ours.njev, ours.status) == (ref.nfev, ref.njev, ref.status)
+
+
+@pytest.mark.parametrize("seed", [10, 15])
+def test_bit_for_bit_scipys_trf_bounds_when_the_cut_step_is_chosen(monkeypatch, seed):
+    """Steps that leave the box where select_step keeps the trust-region step cut short of
+    the bound (over the reflected and the gradient step): the cases above never choose it,
+    and a reflected step's quadratic missing its diagonal term passes them; it fails here."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    rng = np.random.default_rng(seed)
+    A, b = rng.standard_normal((20, 4)), 2 * rng.standard_normal(20)
+
+    def fun(z):
+        return A @ np.sin(z) + 0.3 * np.sum(z**2) - b
+
+    def jac(z):
+        return A * np.cos(z) + 0.6 * z
+
+    lo, hi = np.full(4, -0.4), np.full(4, 0.5)
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=400)
+    z0 = tr.make_strictly_feasible(np.full(4, 0.1), lo, hi)
+    f0, J0 = fun(z0), jac(z0).copy()
+    xs, ours = _path(lambda f: tr._trf_bounds(f, jac, z0, f0, J0, lo, hi, kw["ftol"], kw["xtol"],
+                                               kw["gtol"], kw["max_nfev"]), fun)
+    xr, ref = _path(lambda f: _scipy_trf_bounds_on_the_qr_factor(monkeypatch, f, jac, z0, f0, J0, lo,
+                                                                  hi, kw), fun)
+    assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
+    for key in ("x", "cost", "nfev", "njev", "status", "active_mask"):
+        assert np.asarray(ours[key]).tobytes() == np.asarray(ref[key]).tobytes(), key

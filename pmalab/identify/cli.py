@@ -45,9 +45,11 @@ def _fitting_code() -> Iterator[None]:
     command (:func:`pmalab.lazy.is_the_command`), so no later collection walks them either."""
     with gc_paused(freeze=is_the_command() and "scipy" not in sys.modules):
         yield
+        from pmalab.identify.estimation import problem
         from pmalab.identify.zero_phase import load_compiled
 
         load_compiled()
+        problem.load_compiled()
 
 
 @contextmanager

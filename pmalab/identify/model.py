@@ -234,7 +234,7 @@ class ForceModel:
         for e in self.effects:
             term = e.force(s, h, theta)
             if np.ndim(term) or term != 0.0:
-                out = out + np.asarray(term, dtype=np.float64)
+                out = _added(out, np.asarray(term, dtype=np.float64))
         return np.broadcast_to(out, s.t.shape).copy() if out.shape != s.t.shape else out
 
     def assemble_many(
@@ -264,7 +264,7 @@ class ForceModel:
         for e in self.effects:
             term = e.force(s, H, theta)
             if np.ndim(term) or term != 0.0:
-                out = out + np.asarray(term, dtype=np.float64)
+                out = _added(out, np.asarray(term, dtype=np.float64))
         return out
 
     def predict(self, sig: Signals, theta: Mapping[str, float]) -> np.ndarray:
@@ -279,3 +279,11 @@ class ForceModel:
 
     def __repr__(self) -> str:
         return f"ForceModel({self.name})"
+
+
+def _added(out: np.ndarray, term: np.ndarray) -> np.ndarray:
+    """``out + term``, written into ``out`` (a new array of the caller's own) where the sum
+    has its shape: the same additions, element by element, without a new array per term."""
+    if isinstance(out, np.ndarray) and out.shape[out.ndim - term.ndim :] == term.shape:
+        return np.add(out, term, out=out)
+    return out + term

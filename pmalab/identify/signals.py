@@ -322,7 +322,15 @@ class Signals:
         drive ``x_slide`` (default: ``x``)."""
         if v is None or a is None:
             v, a, _ = derivatives(self.t, x, self.frequency_Hz)
-        return replace(self, x=x, v=v, a=a, x_slide=x_slide)
+        # ``replace(self, x=x, v=v, a=a, x_slide=x_slide)`` without the frozen __init__'s
+        # thirteen object.__setattr__ calls (a delayed drive is made at every prediction):
+        # the same fields, the kept slide drive (derived from the old position) left out
+        new = object.__new__(type(self))
+        d = new.__dict__
+        d.update(self.__dict__)
+        d.pop("_slide_drive", None)
+        d.update(x=x, v=v, a=a, x_slide=x_slide)
+        return new
 
     def _sliced(self, s: slice) -> Signals:
         """The samples ``s`` of every per-sample array; the reference time of slow terms

@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from pmalab.identify.estimation.basis import PressureBasis
 from pmalab.identify.model import ForceModel
@@ -44,6 +45,44 @@ _SQRT_EPS = math.sqrt(np.finfo(float).eps)
 _Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
 #: Problem's last residual: z's bytes, the residual, the parts, raw θ, every run's θ
 _Cache = tuple[bytes, np.ndarray, "list[_Parts] | None", np.ndarray, list[dict[str, float]]]
+
+
+@njit(cache=True, fastmath=False, error_model="numpy")
+def _difference_rows(E, force, w, cap, r0, steps):  # pragma: no cover - compiled
+    """Forward differences from predictions, in place: row k of ``E`` (a prediction of the
+    run) becomes (((E_k − force)·w) − r0) / steps_k, the weighting skipped when w is 1 —
+    :meth:`Problem._weigh`'s and the difference quotient's operations, element by element,
+    in one pass over the row.  A row with a weighted error beyond ``cap`` (or NaN) is left
+    as its weighted errors, to be clipped by the caller: returns those rows' flags."""
+    rows, n = E.shape
+    over = np.zeros(rows, dtype=np.bool_)
+    for k in range(rows):
+        bad = 0  # a count, not a flag: the loops stay vector loops
+        if w != 1.0:
+            for t in range(n):
+                e = (E[k, t] - force[t]) * w
+                E[k, t] = e
+                bad += 0 if (e <= cap and e >= -cap) else 1
+        else:
+            for t in range(n):
+                e = E[k, t] - force[t]
+                E[k, t] = e
+                bad += 0 if (e <= cap and e >= -cap) else 1
+        if bad == 0:
+            h = steps[k]
+            for t in range(n):
+                E[k, t] = (E[k, t] - r0[t]) / h
+        else:
+            over[k] = True
+    return over
+
+
+def load_compiled() -> None:
+    """Load the compiled difference kernel now (:func:`_difference_rows` on a few samples
+    of the types a fit passes), so forked workers inherit it instead of each loading or
+    compiling its own."""
+    E = np.zeros((1, 4))
+    _difference_rows(E, np.zeros(4), 1.0, 1.0, np.zeros(4), np.ones(1))
 
 
 @dataclass
@@ -283,72 +322,137 @@ class Problem:
         """Jacobian of :meth:`residual` (``run_only``: only the per-run columns are filled)."""
         z = np.asarray(z, dtype=float)
         r0 = self.residual(z)
-        J = np.zeros((self.n_rows, self.n_var))
+        # every entry is written (a column without a derivative at a run is set to 0 there)
+        J = np.empty((self.n_rows, self.n_var))
         with np.errstate(all="ignore"):
             self._fill_jac(J, z, r0, run_only)
         return J
 
     def _fill_jac(self, J: np.ndarray, z: np.ndarray, r0: np.ndarray, run_only: bool) -> None:
-        """:meth:`jac`'s columns, in place (under one ``errstate``).
+        """:meth:`jac`'s columns, in place (under one ``errstate``): every entry of J, the
+        columns without a derivative at a run (a clipped θ, another run's per-run parameter,
+        the shared parameters with ``run_only``) set to 0 there.
 
         With the model's parts at z kept by :meth:`residual`, the columns of the law's
         parameters on one run are evaluated together (:meth:`_law_columns`); every other
         column one by one (:meth:`dresid`).  Each column is the same forward difference
-        either way."""
+        either way.  Which columns a run has and where they go in J depend only on the run,
+        the parameters clipped there and ``run_only``: :meth:`_plan`, made once for each."""
         c = self._cache
         if c is not None and c[0] == z.tobytes():
             _, _, parts, RAW, ths = c
         else:
             parts, (RAW, ths) = None, self._at(z)
         # a clipped θ does not move with z at that run: no column there
-        inside = ((self._lo_col <= RAW) & (RAW <= self._hi_col)).T.tolist()
-        law = self._law_names() if parts else set()
-        starts = [self.block(j).start for j in range(len(self.run_params))]
+        inside = None if run_only else ((self._lo_col <= RAW) & (RAW <= self._hi_col)).T.tolist()
+        has_parts = bool(parts)
+        # :meth:`_plan` by (run, parameters inside their bounds there or None, parts kept),
+        # kept until :attr:`_reuse` is replaced
+        got = self.__dict__.get("_plans")
+        if got is None or got[0] is not self._reuse:
+            got = self._plans = (self._reuse, {})
+        plans: dict[tuple, tuple] = got[1]
         for i, th in enumerate(ths):
             rows = self.rows[i]
-            # (parameter, its column for a per-run parameter; None: through the basis)
-            cols: list[tuple[str, int | None]] = []
-            if not run_only:
-                cols += [(n, None) for n, ok in zip(self.free, inside[i]) if ok]
-            cols += [(rn, b + i) for rn, b in zip(self.run_params, starts)]
-            batch = [nc for nc in cols if nc[0] in law]
-            if len(batch) > 1 and parts:
-                D = self._law_columns(i, th, [n for n, _ in batch], r0, parts[i])
-                done = {n for n, _ in batch}
-                pairs = [(nc, D[k]) for k, nc in enumerate(batch)]
-            else:
-                done = set()
-                pairs = []
-            pairs += [
-                ((n, col), self.dresid(i, th, n, r0, parts[i] if parts else None))
-                for n, col in cols
-                if n not in done
-            ]
-            shared = [(n, d) for (n, col), d in pairs if col is None]
-            if len(shared) > 1:
+            key = (i, None if inside is None else tuple(inside[i]), has_parts)
+            plan = plans.get(key)
+            if plan is None:
+                plan = plans[key] = self._plan(*key)
+            batch, rest, shared, stack, per_run, zero = plan
+            for js in zero:
+                J[rows, js] = 0.0
+            part = parts[i] if parts else None
+            # every column of run i: the law's (one call), then the others, one by one
+            ds = list(self._law_columns(i, th, batch, r0, part)) if batch and part else []
+            ds += [self.dresid(i, th, n, r0, part) for n in rest]
+            if stack is not None:
                 # every shared column of run i at once, written row by row: J =
                 # ∂r/∂θ_n · B_n(p_i), the same single multiplication per entry as a product
-                # per parameter (which writes J column by column: slower on many runs)
-                shared.sort(key=lambda nd: self.slices[nd[0]].start)  # J's column order
-                where, rep, b, unit = self._basis_layout(i, tuple(n for n, _ in shared))
-                if unit or len(ths) > 1:
-                    # (samples, columns): each column's d stacked once, in J's column order
-                    D = np.array([shared[k][1] for k in rep]).T
+                # per parameter (which writes J column by column: slower on many runs);
+                # (samples, columns): each column's d stacked once, in J's column order
+                rep, b, unit, segments = stack
+                D = np.array([ds[k] for k in rep]).T
+                for js, dsl in segments:
                     if unit:
                         # every B_n(p_i) is 1 (order 0: a single run's fit): d·1 is d, bit
                         # for bit, so the entries are copied, not multiplied
-                        J[rows, where] = D
-                    elif isinstance(where, slice):
-                        np.multiply(D, b, out=J[rows, where])
+                        J[rows, js] = D[:, dsl]
                     else:
-                        J[rows, where] = D * b
-                    shared = []
-            for n, d in shared:
-                # np.outer's products, written straight into J (no temporary)
-                np.multiply(d[:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
-            for (_, col), d in pairs:
-                if col is not None:
-                    J[rows, col] = d
+                        np.multiply(D[:, dsl], b[:, dsl], out=J[rows, js])
+            else:
+                for k, n in shared:
+                    # np.outer's products, written straight into J (no temporary)
+                    np.multiply(ds[k][:, None], self.B[n][i][None, :], out=J[rows, self.slices[n]])
+            for k, col in per_run:
+                J[rows, col] = ds[k]
+
+    def _plan(self, i: int, inside: tuple[bool, ...] | None, has_parts: bool) -> tuple:
+        """How :meth:`_fill_jac` makes run i's columns, a tuple of:
+
+        * the law's parameters evaluated together by :meth:`_law_columns` (none unless
+          there are two or more and the parts at z are kept);
+        * the other parameters, one :meth:`dresid` each (``ds``: the columns in that order);
+        * the shared parameters (index in ``ds``, name) written one by one, or ``()`` when
+          they are stacked;
+        * the stack or None: for each of J's columns the index in ``ds`` of its derivative,
+          the basis values, whether all are 1, and J's adjacent column ranges with the
+          matching ranges of the stack;
+        * the per-run columns (index in ``ds``, column of J);
+        * the ranges of J's columns without a derivative at run i (set to 0).
+
+        ``inside``: whether each free parameter is within its bounds at run i (None: only
+        the per-run columns)."""
+        # (parameter, its column for a per-run parameter; None: through the basis)
+        cols: list[tuple[str, int | None]] = []
+        if inside is not None:
+            cols += [(n, None) for n, ok in zip(self.free, inside) if ok]
+        cols += [(rn, self.block(j).start + i) for j, rn in enumerate(self.run_params)]
+        law = self._law_names() if has_parts else set()
+        batch = [nc for nc in cols if nc[0] in law]
+        if len(batch) <= 1:
+            batch = []
+        done = {n for n, _ in batch}
+        order = batch + [nc for nc in cols if nc[0] not in done]
+        shared = [(k, n) for k, (n, col) in enumerate(order) if col is None]
+        shared.sort(key=lambda kn: self.slices[kn[1]].start)  # J's column order
+        stack = None
+        if len(shared) > 1:
+            where, rep, b, unit = self._basis_layout(i, tuple(n for _, n in shared))
+            if unit or len(self.records) > 1:
+                cols_j = np.arange(where.start, where.stop) if isinstance(where, slice) else where
+                # J's adjacent column ranges (one when every column is there)
+                segments = []
+                a = 0
+                for e in range(1, len(cols_j) + 1):
+                    if e == len(cols_j) or cols_j[e] != cols_j[e - 1] + 1:
+                        segments.append(
+                            (slice(int(cols_j[a]), int(cols_j[e - 1]) + 1), slice(a, e))
+                        )
+                        a = e
+                stack = (tuple(shared[k][0] for k in rep), b, unit, tuple(segments))
+        per_run = tuple((k, col) for k, (_, col) in enumerate(order) if col is not None)
+        # J's columns with no derivative at run i, as adjacent ranges
+        written = np.zeros(self.n_var, dtype=bool)
+        for n in (n for _, n in shared):
+            written[self.slices[n]] = True
+        for _, col in per_run:
+            written[col] = True
+        zero = []
+        a = None
+        for c in range(self.n_var + 1):
+            if c < self.n_var and not written[c]:
+                a = c if a is None else a
+            elif a is not None:
+                zero.append(slice(a, c))
+                a = None
+        return (
+            tuple(n for n, _ in batch),
+            tuple(n for n, _ in order[len(batch) :]),
+            tuple(shared) if stack is None else (),
+            stack,
+            per_run,
+            tuple(zero),
+        )
 
     def _law_names(self) -> set[str]:
         """The law's parameters among the reused parts (:attr:`_reuse`), kept until it is
@@ -407,13 +511,29 @@ class Problem:
             th2[n] = v + h
             th2s.append(th2)
         H = self.model.law.h_many(s.x, th2s, extras)
-        r = self.records[i]
         # a new array (lin + H): the residual's operations done in place, the same numbers
         E = self.model.assemble_many(s, lin, H, th)
-        np.subtract(E, r.force, out=E)
+        return self._differences(i, E, r0, steps)
+
+    def _differences(self, i: int, E: np.ndarray, r0: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """Run i's forward differences from predictions ``E`` (rows, a new array of the
+        caller's, overwritten): ((E_k − force)·w, clipped as :meth:`_weigh` clips it, − r0)
+        / steps_k, each row as :meth:`dresid` computes it."""
+        r = self.records[i]
+        cap = RUNAWAY_N if self.cap is None else self.cap
+        force = np.ascontiguousarray(r.force, dtype=np.float64)
+        if E.dtype == np.float64 and E.ndim == 2 and E.flags.c_contiguous and E.flags.writeable:
+            # one compiled pass per row: the same operations, element by element
+            rows = self.rows[i]
+            over = _difference_rows(E, force, float(r.weight), float(cap), r0[rows], steps)
+            for k in np.flatnonzero(over):
+                E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+                np.subtract(E[k], r0[rows], out=E[k])
+                np.divide(E[k], steps[k], out=E[k])
+            return E
+        np.subtract(E, force, out=E)
         if r.weight != 1.0:
             np.multiply(E, r.weight, out=E)
-        cap = RUNAWAY_N if self.cap is None else self.cap
         # no row beyond the cap (max and min propagate a NaN): nothing to clip; else the
         # rows that are, each as :meth:`_weigh` clips it
         if not (E.max() <= cap and E.min() >= -cap):
@@ -457,7 +577,9 @@ class Problem:
             s, extras, lin, hy = parts
             if kind == "law":
                 hy = np.asarray(self.model.law.h(s.x, th2, extras), dtype=np.float64)
-            e = self._weigh(i, self.model.assemble(s, lin, hy, th2))
+            # assemble's new array: weighed and differenced in place, as one row
+            out = self.model.assemble(s, lin, hy, th2)
+            return self._differences(i, out.reshape(1, -1), r0, np.array([h]))[0]
         # e is a new array (:meth:`_weigh`'s): the difference quotient in place
         np.subtract(e, r0[self.rows[i]], out=e)
         np.divide(e, h, out=e)

@@ -36,8 +36,8 @@ STDERR_METHOD = (
 #: before the solver was re-hosted say "scipy least_squares (trf, bounds)", true for them)
 SOLVER_METHOD = (
     "SciPy's trust-region reflective method (trf, bounds, x_scale='jac') in "
-    "pmalab.identify.estimation.trust_region: SciPy's step helpers, each step's SVD taken on "
-    "the Jacobian's QR factor (SciPy's least_squares itself where the helpers are missing)"
+    "pmalab.identify.estimation.trust_region: SciPy's steps, each step's SVD taken on the "
+    "Jacobian's QR factor (SciPy's least_squares itself where its step helpers are missing)"
 )
 
 

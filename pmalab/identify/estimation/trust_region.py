@@ -17,7 +17,11 @@ not bit for bit.
 
 The helpers of the step (subproblem, reflection, radius update, termination) are SciPy's
 own (``scipy.optimize._lsq``), so the method is theirs; where a SciPy release no longer
-has them, :func:`least_squares_trf` is ``scipy.optimize.least_squares`` itself.
+has them, :func:`least_squares_trf` is ``scipy.optimize.least_squares`` itself.  The
+small ones are written out in the loop with the same floating-point operations in the
+same order (on vectors of a few to tens of parameters their calls cost more than their
+arithmetic), and the loop's evaluated points are those of SciPy's
+``trf_bounds`` given the same SVD, bit for bit (tests/test_trust_region.py checks it).
 
 Adapted from SciPy's ``scipy/optimize/_lsq/trf.py`` (``trf_bounds``), Copyright (c)
 2001-2002 Enthought, Inc. and 2003-2024 SciPy Developers, BSD 3-Clause licence (the text
@@ -27,6 +31,7 @@ is in ``LICENSES/scipy.txt``).
 from __future__ import annotations
 
 from collections.abc import Callable
+from math import sqrt
 
 import numpy as np
 from numpy.linalg import LinAlgError, norm
@@ -36,16 +41,19 @@ from scipy.optimize import OptimizeResult, least_squares
 try:  # SciPy's own step helpers (their names unchanged since SciPy 0.17)
     from scipy.optimize._lsq.common import (
         CL_scaling_vector,
-        check_termination,
         compute_grad,
         compute_jac_scale,
         find_active_constraints,
         in_bounds,
+        intersect_trust_region,
         make_strictly_feasible,
-        solve_lsq_trust_region,
-        update_tr_radius,
+        minimize_quadratic_1d,
+        step_size_to_bound,
     )
-    from scipy.optimize._lsq.trf import select_step
+
+    # written out in the loop below; a SciPy whose trf module no longer has it may have
+    # changed the method, so it is asked for here too (the fallback then runs SciPy's own)
+    from scipy.optimize._lsq.trf import select_step  # noqa: F401
 
     _HAVE_STEP_HELPERS = True
 except ImportError:  # pragma: no cover - a SciPy that moved them: its own least_squares
@@ -160,9 +168,28 @@ def least_squares_trf(
     return res
 
 
+def _norm(x: np.ndarray) -> np.float64:
+    """``numpy.linalg.norm(x)`` of a 1-D float vector, bit for bit: NumPy computes it as
+    ``sqrt(x.dot(x))`` (its fast path for ``ord=None``), and both square roots are IEEE's
+    correctly rounded one; a NumPy scalar, as ``norm`` returns, so the arithmetic that
+    follows is NumPy's (a division by a zero norm gives ``inf``, not an exception)."""
+    return np.float64(sqrt(x.dot(x)))
+
+
 def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> OptimizeResult:
     """SciPy's ``trf_bounds`` for a linear loss, ``x_scale='jac'`` and the exact
-    subproblem, the SVD taken by :func:`reduced_svd_uf` (the only change)."""
+    subproblem, the SVD taken on the QR factor (:func:`reduced_svd_uf`).
+
+    SciPy's per-step helpers (``CL_scaling_vector``, ``solve_lsq_trust_region``,
+    ``select_step`` with ``build_quadratic_1d`` and ``evaluate_quadratic``,
+    ``make_strictly_feasible``, ``update_tr_radius``, ``check_termination``,
+    ``compute_grad``, ``compute_jac_scale``) are written out in line with the same
+    floating-point operations in the same order, and what does not change between the
+    tries of one iteration is computed once (the Gauss-Newton step, the norms of ``s·Uᵀf``
+    and of ``x``, ``s²``, the gradient direction at a bound): the evaluated points are
+    SciPy's bit for bit (tests/test_trust_region.py runs SciPy's ``trf_bounds`` to
+    compare).  The smallest helpers (``step_size_to_bound``, ``intersect_trust_region``,
+    ``minimize_quadratic_1d``) are still called."""
     x = x0.copy()
     f = f0
     f_true = f.copy()
@@ -183,60 +210,228 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 
     g_norm = norm(g * v, ord=np.inf)
     f_augmented = np.zeros(m + n)
-    J_augmented = np.empty((m + n, n))
+    J_augmented = np.zeros((m + n, n))  # the lower n × n block: diagonal, zeros elsewhere
+    J_h = J_augmented[:m]  # a view
+    diag_aug = J_augmented.reshape(-1)[m * n :: n + 1]  # the lower block's diagonal, a view
+    f_aug_col = f_augmented.reshape(-1, 1)
+    lower = np.tril_indices(n, -1)
+    lwork = max(64, n)
+    lb_finite = np.isfinite(lb)
+    ub_finite = np.isfinite(ub)
+    rank_threshold = EPS * m  # times s[0]: SciPy's full-rank test
+    x_norm = norm(x)
     alpha = 0.0  # the Levenberg-Marquardt parameter
     termination_status = None
 
     while True:
-        v, dv = CL_scaling_vector(x, g, lb, ub)
-        g_norm = norm(g * v, ord=np.inf)
+        # CL_scaling_vector(x, g, lb, ub)
+        lower_mask = (g > 0) & lb_finite
+        upper_mask = (g < 0) & ub_finite
+        v = np.where(lower_mask, x - lb, np.where(upper_mask, ub - x, 1.0))
+        dv = np.subtract(lower_mask, upper_mask, dtype=float)  # 1, -1 or 0
+        g_norm = np.abs(g * v).max()  # norm(g * v, ord=np.inf)
         if g_norm < gtol:
             termination_status = 1
         if termination_status is not None or nfev == max_nfev:
             break
 
         # the "hat" variables: x_scale first, then the Coleman-Li scaling
-        v[dv != 0] *= scale_inv[dv != 0]
+        v = np.where(dv != 0, v * scale_inv, v)
         d = v**0.5 * scale
         diag_h = g * dv * scale
         g_h = d * g
 
         f_augmented[:m] = f
-        J_h = J_augmented[:m]  # a view
         np.multiply(J, d, out=J_h)  # J·d written in place (no temporary)
-        J_augmented[m:] = np.diag(diag_h**0.5)
-        s, V, uf = reduced_svd_uf(J_augmented, f_augmented)
+        diag_aug[:] = diag_h**0.5
+        # reduced_svd_uf(J_augmented, f_augmented)
+        if not np.isfinite(J_augmented).all():
+            raise ValueError("array must not contain infs or NaNs")
+        qr, tau, _, info = _GEQRF(J_augmented)
+        if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
+            raise ValueError(f"QR factorisation failed (LAPACK info {info})")
+        r = qr[:n].copy(order="F")
+        r[lower] = 0.0
+        qtf, _, info = _ORMQR("L", "T", qr, tau, f_aug_col, lwork)
+        if info != 0:  # pragma: no cover
+            raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
+        ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
+        if info > 0:
+            raise LinAlgError("SVD did not converge")
+        if info < 0:  # pragma: no cover
+            raise ValueError(f"SVD failed (LAPACK info {info})")
+        V = vt.T
+        uf = ur.T.dot(qtf[:n, 0])
+
+        # solve_lsq_trust_region's parts that do not depend on Delta or alpha
+        suf = s * uf
+        s2 = s**2
+        suf2 = suf**2
+        suf_norm = _norm(suf)
+        full_rank = m >= n and s[-1] > rank_threshold * s[0]
+        if full_rank:
+            p_gn = -V.dot(uf / s)  # the Gauss-Newton step
+            p_gn_norm = _norm(p_gn)
+            # phi_and_derivative(0.0, ...): denom = s**2 + 0.0 is s**2
+            t = suf / s2
+            p_norm0 = _norm(t)
+            dphi0 = -(suf2 / s2**3).sum() / p_norm0
+
+        ag = None  # select_step's gradient direction, when a step first leaves the box
 
         # theta: how far a step stays back from the bounds
         theta = max(0.995, 1 - g_norm)
 
         actual_reduction = -1
         while actual_reduction <= 0 and nfev < max_nfev:
-            p_h, alpha, _ = solve_lsq_trust_region(n, m, uf, s, V, Delta, initial_alpha=alpha)
+            # solve_lsq_trust_region(n, m, uf, s, V, Delta, initial_alpha=alpha)
+            if full_rank and p_gn_norm <= Delta:
+                p_h = p_gn.copy()
+                alpha = 0.0
+            else:
+                alpha_upper = suf_norm / Delta
+                if full_rank:
+                    phi = p_norm0 - Delta
+                    alpha_lower = -phi / dphi0
+                else:
+                    alpha_lower = 0.0
+                if not full_rank and alpha == 0:
+                    alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+                for _ in range(10):
+                    if alpha < alpha_lower or alpha > alpha_upper:
+                        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+                    # phi_and_derivative(alpha, suf, s, Delta)
+                    denom = s2 + alpha
+                    t = suf / denom
+                    p_norm = _norm(t)
+                    phi = p_norm - Delta
+                    phi_prime = -(suf2 / denom**3).sum() / p_norm
+                    if phi < 0:
+                        alpha_upper = alpha
+                    ratio = phi / phi_prime
+                    alpha_lower = max(alpha_lower, alpha - ratio)
+                    alpha -= (phi + Delta) * ratio / Delta
+                    if np.abs(phi) < 0.01 * Delta:
+                        break
+                p_h = -V.dot(suf / (s2 + alpha))
+                p_h *= Delta / _norm(p_h)
+
             p = d * p_h  # the trust-region step in the original variables
-            step, step_h, predicted_reduction = select_step(
-                x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta
-            )
-            x_new = make_strictly_feasible(x + step, lb, ub, rstep=0)
+            # select_step(x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta)
+            x_p = x + p
+            if ((x_p >= lb) & (x_p <= ub)).all():
+                # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+                Js = J_h.dot(p_h)
+                q = np.dot(Js, Js)
+                q += np.dot(p_h * diag_h, p_h)
+                step, step_h, predicted_reduction = p, p_h, -(0.5 * q + np.dot(p_h, g_h))
+                x_new = x_p
+            else:
+                p_stride, hits = step_size_to_bound(x, p, lb, ub)
+                # the reflected direction
+                r_h = np.copy(p_h)
+                r_h[hits.astype(bool)] *= -1
+                r = d * r_h
+                # the trust-region step cut where it hits the bound
+                p *= p_stride
+                p_h *= p_stride
+                x_on_bound = x + p
+                _, to_tr = intersect_trust_region(p_h, r_h, Delta)
+                to_bound, _ = step_size_to_bound(x_on_bound, r, lb, ub)
+                r_stride = min(to_bound, to_tr)
+                if r_stride > 0:
+                    r_stride_l = (1 - theta) * p_stride / r_stride
+                    if r_stride == to_bound:
+                        r_stride_u = theta * to_bound
+                    else:
+                        r_stride_u = to_tr
+                else:
+                    r_stride_l = 0
+                    r_stride_u = -1
+                if r_stride_l <= r_stride_u:
+                    # build_quadratic_1d(J_h, g_h, r_h, s0=p_h, diag=diag_h)
+                    Jr = J_h.dot(r_h)
+                    a = np.dot(Jr, Jr)
+                    a += np.dot(r_h * diag_h, r_h)
+                    a *= 0.5
+                    b = np.dot(g_h, r_h)
+                    Jp = J_h.dot(p_h)
+                    b += np.dot(Jp, Jr)
+                    c = 0.5 * np.dot(Jp, Jp) + np.dot(g_h, p_h)
+                    b += np.dot(p_h * diag_h, r_h)
+                    c += 0.5 * np.dot(p_h * diag_h, p_h)
+                    r_stride, r_value = minimize_quadratic_1d(a, b, r_stride_l, r_stride_u, c=c)
+                    r_h *= r_stride
+                    r_h += p_h
+                    r = r_h * d
+                else:
+                    r_value = np.inf
+                # the cut step made strictly interior
+                p *= theta
+                p_h *= theta
+                Js = J_h.dot(p_h)  # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+                q = np.dot(Js, Js)
+                q += np.dot(p_h * diag_h, p_h)
+                p_value = 0.5 * q + np.dot(p_h, g_h)
+                # the gradient direction: all but its length is the iteration's
+                if ag is None:
+                    ag_h0 = -g_h
+                    ag = d * ag_h0
+                    ag_h_norm = _norm(ag_h0)
+                    ag_to_bound, _ = step_size_to_bound(x, ag, lb, ub)
+                    # build_quadratic_1d(J_h, g_h, ag_h0, diag=diag_h)
+                    Jag = J_h.dot(ag_h0)
+                    ag_a = np.dot(Jag, Jag)
+                    ag_a += np.dot(ag_h0 * diag_h, ag_h0)
+                    ag_a *= 0.5
+                    ag_b = np.dot(g_h, ag_h0)
+                to_tr = Delta / ag_h_norm
+                if ag_to_bound < to_tr:
+                    ag_stride = theta * ag_to_bound
+                else:
+                    ag_stride = to_tr
+                ag_stride, ag_value = minimize_quadratic_1d(ag_a, ag_b, 0, ag_stride)
+                if p_value < r_value and p_value < ag_value:
+                    step, step_h, predicted_reduction = p, p_h, -p_value
+                elif r_value < p_value and r_value < ag_value:
+                    step, step_h, predicted_reduction = r, r_h, -r_value
+                else:
+                    step, step_h, predicted_reduction = ag * ag_stride, ag_h0 * ag_stride, -ag_value
+                x_new = x + step
+            # make_strictly_feasible(x_new, lb, ub, rstep=0): a point strictly inside is kept
+            if not ((x_new > lb) & (x_new < ub)).all():
+                x_new = make_strictly_feasible(x_new, lb, ub, rstep=0)
             f_new = np.atleast_1d(np.asarray(fun(x_new.copy()), dtype=float))
             nfev += 1
-            step_h_norm = norm(step_h)
-            if not np.all(np.isfinite(f_new)):
+            step_h_norm = _norm(step_h)
+            cost_new = 0.5 * np.dot(f_new, f_new)  # finite when every residual is
+            if not np.isfinite(cost_new) and not np.isfinite(f_new).all():
                 Delta = 0.25 * step_h_norm
                 continue
-            cost_new = 0.5 * np.dot(f_new, f_new)
             actual_reduction = cost - cost_new
-            Delta_new, ratio = update_tr_radius(
-                Delta,
-                actual_reduction,
-                predicted_reduction,
-                step_h_norm,
-                step_h_norm > 0.95 * Delta,
-            )
-            step_norm = norm(step)
-            termination_status = check_termination(
-                actual_reduction, cost, step_norm, norm(x), ratio, ftol, xtol
-            )
+            # update_tr_radius(Delta, actual_reduction, predicted_reduction, step_h_norm,
+            # step_h_norm > 0.95 * Delta)
+            if predicted_reduction > 0:
+                ratio = actual_reduction / predicted_reduction
+            elif predicted_reduction == actual_reduction == 0:
+                ratio = 1
+            else:
+                ratio = 0
+            if ratio < 0.25:
+                Delta_new = 0.25 * step_h_norm
+            elif ratio > 0.75 and step_h_norm > 0.95 * Delta:
+                Delta_new = Delta * 2.0
+            else:
+                Delta_new = Delta
+            # check_termination(actual_reduction, cost, norm(step), norm(x), ratio, ftol, xtol)
+            ftol_satisfied = actual_reduction < ftol * cost and ratio > 0.25
+            xtol_satisfied = _norm(step) < xtol * (xtol + x_norm)
+            if ftol_satisfied and xtol_satisfied:
+                termination_status = 4
+            elif ftol_satisfied:
+                termination_status = 2
+            elif xtol_satisfied:
+                termination_status = 3
             if termination_status is not None:
                 break
             alpha *= Delta / Delta_new
@@ -244,13 +439,16 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 
         if actual_reduction > 0:
             x = x_new
+            x_norm = _norm(x)
             f = f_new
             f_true = f.copy()
             cost = cost_new
             J = np.atleast_2d(np.asarray(jac(x.copy()), dtype=float))
             njev += 1
-            g = compute_grad(J, f)
-            scale, scale_inv = compute_jac_scale(J, scale_inv)
+            g = J.T.dot(f)  # compute_grad(J, f)
+            # compute_jac_scale(J, scale_inv)
+            scale_inv = np.maximum((J**2).sum(axis=0) ** 0.5, scale_inv)
+            scale = 1 / scale_inv
 
     if termination_status is None:
         termination_status = 0

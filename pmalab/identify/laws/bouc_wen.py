@@ -246,17 +246,24 @@ def bw_kernel(hk, x0, x1, prm):
     )
 
 
-def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
+def _extra_args(extras: Mapping[str, float] | None) -> tuple[float, ...]:
+    """(psi_v, psi_h, psi_x, x_c, psi_a) from the effects' extras (0 where none is given)."""
     e = extras or {}
     return (
-        float(theta["A"]),
-        float(theta["beta"]),
-        float(theta["gamma"]),
         float(e.get("psi_v", 0.0)),
         float(e.get("psi_h", 0.0)),
         float(e.get("psi_x", 0.0)),
         float(e.get("x_c", 0.0)),
         float(e.get("psi_a", 0.0)),
+    )
+
+
+def _args(theta: Mapping[str, float], extras: Mapping[str, float] | None) -> tuple[float, ...]:
+    return (
+        float(theta["A"]),
+        float(theta["beta"]),
+        float(theta["gamma"]),
+        *_extra_args(extras),
     )
 
 
@@ -311,13 +318,27 @@ class BoucWen(HysteresisLaw):
         )
 
     def h_many(self, x, thetas, extras=None):
-        rows = []
-        for th in thetas:
-            A, beta, gamma, pv, ph, px, xc, pa = _args(th, extras)
-            rows.append((A, beta, gamma, float(th["n"]), float(th["h0"]), pv, ph, px, xc, pa))
+        # _args of each row: the extras' part is every row's (read once)
+        pv, ph, px, xc, pa = _extra_args(extras)
+        rows = [
+            (
+                float(th["A"]),
+                float(th["beta"]),
+                float(th["gamma"]),
+                float(th["n"]),
+                float(th["h0"]),
+                pv,
+                ph,
+                px,
+                xc,
+                pa,
+            )
+            for th in thetas
+        ]
         P = np.array(rows, dtype=np.float64).reshape(len(rows), 10)
         x = np.ascontiguousarray(x, dtype=np.float64)
-        if bool(np.all(P[:, 3] == 1.0)):
+        # each row's n as P holds it (a float's float64 is itself): n = 1 on every row
+        if all(r[3] == 1.0 for r in rows):
             return bouc_wen_h1_many(x, P)
         return bouc_wen_h_many(x, P)
 
