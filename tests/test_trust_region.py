@@ -349,3 +349,32 @@ def test_bit_for_bit_scipys_trf_bounds_when_xtol_stops_it(monkeypatch, z0):
     assert ref.status == 3 and np.linalg.norm(ref.x) > 10 * np.linalg.norm(z0)
     assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
     assert (ours.nfev, ours.njev, ours.status) == (ref.nfev, ref.njev, ref.status)
+
+
+@pytest.mark.parametrize("seed", [10, 15])
+def test_bit_for_bit_scipys_trf_bounds_when_the_cut_step_is_chosen(monkeypatch, seed):
+    """Steps that leave the box where select_step keeps the trust-region step cut short of
+    the bound (over the reflected and the gradient step): the cases above never choose it,
+    and a reflected step's quadratic missing its diagonal term passes them; it fails here."""
+    import pmalab.identify.estimation.trust_region as tr
+
+    rng = np.random.default_rng(seed)
+    A, b = rng.standard_normal((20, 4)), 2 * rng.standard_normal(20)
+
+    def fun(z):
+        return A @ np.sin(z) + 0.3 * np.sum(z**2) - b
+
+    def jac(z):
+        return A * np.cos(z) + 0.6 * z
+
+    lo, hi = np.full(4, -0.4), np.full(4, 0.5)
+    kw = dict(ftol=1e-10, xtol=1e-10, gtol=1e-10, max_nfev=400)
+    z0 = tr.make_strictly_feasible(np.full(4, 0.1), lo, hi)
+    f0, J0 = fun(z0), jac(z0).copy()
+    xs, ours = _path(lambda f: tr._trf_bounds(f, jac, z0, f0, J0, lo, hi, kw["ftol"], kw["xtol"],
+                                               kw["gtol"], kw["max_nfev"]), fun)
+    xr, ref = _path(lambda f: _scipy_trf_bounds_on_the_qr_factor(monkeypatch, f, jac, z0, f0, J0, lo,
+                                                                  hi, kw), fun)
+    assert xs.shape == xr.shape and xs.tobytes() == xr.tobytes()
+    for key in ("x", "cost", "nfev", "njev", "status", "active_mask"):
+        assert np.asarray(ours[key]).tobytes() == np.asarray(ref[key]).tobytes(), key
