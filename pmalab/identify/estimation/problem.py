@@ -272,7 +272,18 @@ class Problem:
     def _run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
         """:meth:`run_residual` for callers that already ignore floating-point warnings
         (the Jacobian's hundreds of calls: one ``errstate`` for all of them)."""
+        if self._fresh_output():
+            return self._weigh_own(i, self.output(i, th))
         return self._weigh(i, self.output(i, th))
+
+    def _fresh_output(self) -> bool:
+        """Whether :meth:`output` is a new array of the caller's every time (this class's
+        force output of a model predicted by its parts: :meth:`ForceModel.assemble`'s sum),
+        so it may be weighed in place."""
+        got = self.__dict__.get("_fresh")
+        if got is None:
+            got = self._fresh = type(self).output is Problem.output and self.model.predicts_by_parts
+        return got
 
     def _weigh(self, i: int, out: np.ndarray) -> np.ndarray:
         """Run i's weighted residual of the output ``out``, a runaway clipped (see ``cap``)."""
@@ -595,6 +606,10 @@ class Problem:
         th2[name] = v + h
         kind = self._reuse.get(name) if parts is not None else None
         if kind is None or parts is None:
+            if self._fresh_output():
+                # a whole prediction, weighed and differenced in place in one pass
+                out = self.output(i, th2)
+                return self._differences(i, out.reshape(1, -1), r0, np.array([h]))[0]
             e = self._run_residual(i, th2)
         else:
             s, extras, lin, hy = parts
