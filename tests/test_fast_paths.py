@@ -285,3 +285,30 @@ def test_differences_are_weigh_then_the_quotient_bit_for_bit(weight, cap):
     # and the NumPy path it replaces (taken for an array the kernel does not take)
     plain = prob._differences(0, np.asfortranarray(E), r0, steps)
     assert plain.tobytes() == want.tobytes()
+    # a residual's run weighed in place in the same pass: _weigh's numbers
+    for k in range(E.shape[0]):
+        assert prob._weigh_own(0, E[k].copy()).tobytes() == prob._weigh(0, E[k].copy()).tobytes()
+
+
+def test_only_a_prediction_made_here_is_weighed_in_place():
+    # a model with its own predict may hand back an array it keeps: weighing in place would
+    # change it (and the next residual); this class's sum of parts is a new array each time
+    class Kept(ForceModel):
+        def predict(self, sig, theta):
+            got = self.__dict__.get("kept")
+            if got is None:
+                got = self.kept = super().predict(sig, theta)
+            return got
+
+    base = _one_run_problem(ForceModel("bouc-wen"))
+    assert base._fresh_output()
+    th = base.thetas(base.z_from({n: [base.constants.get(n, 1.0)] for n in base.free}))[0]
+    th.update(A=-40.0, beta=0.3, gamma=0.05, k=-30.0, c0=50.0)
+    prob = Problem(Kept("bouc-wen"), base.records, free=base.free, degree=base.degree,
+                   constants=base.constants, bounds=base.bounds, run_params=base.run_params)
+    assert not prob._fresh_output()
+    first = prob.run_residual(0, th).copy()
+    kept = prob.model.kept.copy()
+    assert prob.run_residual(0, th).tobytes() == first.tobytes()
+    assert prob.model.kept.tobytes() == kept.tobytes()
+    assert first.tobytes() == base.run_residual(0, th).tobytes()

@@ -41,6 +41,8 @@ RUNAWAY_N = 1e9
 LINEAR = ("k", "c0")
 #: the relative forward-difference step
 _SQRT_EPS = math.sqrt(np.finfo(float).eps)
+#: the steps of a row weighed without a difference quotient (:meth:`Problem._weigh_own`)
+_ONE = np.ones(1)
 #: one run's model parts at a parameter set: drive signals, law extras, k·x + c0, h
 _Parts = tuple[Signals, dict[str, float], np.ndarray, np.ndarray]
 #: Problem's last residual: z's bytes, the residual, the parts, raw θ, every run's θ
@@ -48,14 +50,15 @@ _Cache = tuple[bytes, np.ndarray, "list[_Parts] | None", np.ndarray, list[dict[s
 
 
 @njit(cache=True, fastmath=False, error_model="numpy")
-def _difference_rows(E, force, w, cap, r0, steps):  # pragma: no cover - compiled
+def _difference_rows(E, force, w, cap, r0, steps, over, quotient):  # pragma: no cover
     """Forward differences from predictions, in place: row k of ``E`` (a prediction of the
     run) becomes (((E_k − force)·w) − r0) / steps_k, the weighting skipped when w is 1 —
     :meth:`Problem._weigh`'s and the difference quotient's operations, element by element,
-    in one pass over the row.  A row with a weighted error beyond ``cap`` (or NaN) is left
-    as its weighted errors, to be clipped by the caller: returns those rows' flags."""
+    in one pass over the row (without ``quotient``: the weighted errors (E_k − force)·w).  A row with a weighted error beyond ``cap`` (or NaN) is left
+    as its weighted errors, to be clipped by the caller: flagged in ``over`` (all False on
+    entry); returns how many there are."""
     rows, n = E.shape
-    over = np.zeros(rows, dtype=np.bool_)
+    count = 0
     for k in range(rows):
         bad = 0  # a count, not a flag: the loops stay vector loops
         if w != 1.0:
@@ -69,12 +72,15 @@ def _difference_rows(E, force, w, cap, r0, steps):  # pragma: no cover - compile
                 E[k, t] = e
                 bad += 0 if (e <= cap and e >= -cap) else 1
         if bad == 0:
+            if not quotient:
+                continue
             h = steps[k]
             for t in range(n):
                 E[k, t] = (E[k, t] - r0[t]) / h
         else:
             over[k] = True
-    return over
+            count += 1
+    return count
 
 
 def load_compiled() -> None:
@@ -82,7 +88,7 @@ def load_compiled() -> None:
     of the types a fit passes), so forked workers inherit it instead of each loading or
     compiling its own."""
     E = np.zeros((1, 4))
-    _difference_rows(E, np.zeros(4), 1.0, 1.0, np.zeros(4), np.ones(1))
+    _difference_rows(E, np.zeros(4), 1.0, 1.0, np.zeros(4), np.ones(1), np.zeros(1, np.bool_), True)
 
 
 @dataclass
@@ -266,7 +272,18 @@ class Problem:
     def _run_residual(self, i: int, th: Mapping[str, float]) -> np.ndarray:
         """:meth:`run_residual` for callers that already ignore floating-point warnings
         (the Jacobian's hundreds of calls: one ``errstate`` for all of them)."""
+        if self._fresh_output():
+            return self._weigh_own(i, self.output(i, th))
         return self._weigh(i, self.output(i, th))
+
+    def _fresh_output(self) -> bool:
+        """Whether :meth:`output` is a new array of the caller's every time (this class's
+        force output of a model predicted by its parts: :meth:`ForceModel.assemble`'s sum),
+        so it may be weighed in place."""
+        got = self.__dict__.get("_fresh")
+        if got is None:
+            got = self._fresh = type(self).output is Problem.output and self.model.predicts_by_parts
+        return got
 
     def _weigh(self, i: int, out: np.ndarray) -> np.ndarray:
         """Run i's weighted residual of the output ``out``, a runaway clipped (see ``cap``)."""
@@ -295,6 +312,22 @@ class Problem:
             )
         return e
 
+    def _weigh_own(self, i: int, out: np.ndarray) -> np.ndarray:
+        """:meth:`_weigh` of a new array of the caller's (a prediction from
+        :meth:`ForceModel.assemble`), weighed in place in one compiled pass: the same
+        numbers."""
+        if not (out.dtype == np.float64 and out.ndim == 1 and out.flags.c_contiguous and out.size):
+            return self._weigh(i, out)
+        r = self.records[i]
+        cap = RUNAWAY_N if self.cap is None else self.cap
+        force = np.ascontiguousarray(r.force, dtype=np.float64)
+        over = np.zeros(1, dtype=np.bool_)
+        E = out.reshape(1, -1)
+        if _difference_rows(E, force, float(r.weight), float(cap), force, _ONE, over, False):
+            # beyond the cap: clipped as _weigh clips it
+            return np.clip(np.nan_to_num(out, nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+        return out
+
     def residual(self, z: np.ndarray) -> np.ndarray:
         key = np.asarray(z, dtype=float).tobytes()
         if self._cache is not None and self._cache[0] == key:
@@ -308,7 +341,7 @@ class Problem:
                 m = self.model
                 parts = [m.parts(r.sig, th) for r, th in zip(self.records, ths)]
                 es = [
-                    self._weigh(i, m.assemble(s, lin, h, th))
+                    self._weigh_own(i, m.assemble(s, lin, h, th))
                     for i, ((s, _, lin, h), th) in enumerate(zip(parts, ths))
                 ]
             else:
@@ -522,14 +555,15 @@ class Problem:
         r = self.records[i]
         cap = RUNAWAY_N if self.cap is None else self.cap
         force = np.ascontiguousarray(r.force, dtype=np.float64)
-        if E.dtype == np.float64 and E.ndim == 2 and E.flags.c_contiguous and E.flags.writeable:
+        if E.dtype == np.float64 and E.ndim == 2 and E.flags.c_contiguous and E.size:
             # one compiled pass per row: the same operations, element by element
             rows = self.rows[i]
-            over = _difference_rows(E, force, float(r.weight), float(cap), r0[rows], steps)
-            for k in np.flatnonzero(over):
-                E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
-                np.subtract(E[k], r0[rows], out=E[k])
-                np.divide(E[k], steps[k], out=E[k])
+            over = np.zeros(E.shape[0], dtype=np.bool_)
+            if _difference_rows(E, force, float(r.weight), float(cap), r0[rows], steps, over, True):
+                for k in np.flatnonzero(over):
+                    E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+                    np.subtract(E[k], r0[rows], out=E[k])
+                    np.divide(E[k], steps[k], out=E[k])
             return E
         np.subtract(E, force, out=E)
         if r.weight != 1.0:
@@ -572,6 +606,10 @@ class Problem:
         th2[name] = v + h
         kind = self._reuse.get(name) if parts is not None else None
         if kind is None or parts is None:
+            if self._fresh_output():
+                # a whole prediction, weighed and differenced in place in one pass
+                out = self.output(i, th2)
+                return self._differences(i, out.reshape(1, -1), r0, np.array([h]))[0]
             e = self._run_residual(i, th2)
         else:
             s, extras, lin, hy = parts
