@@ -164,3 +164,91 @@ def test_png_export_takes_savefigs_pil_kwargs(tmp_path):
     fig.savefig(tmp_path / "a.png", dpi=40, pil_kwargs={"dpi": (72, 72), "compress_level": 9})
     with Image.open(tmp_path / "a.png") as img:
         assert img.info["dpi"] == pytest.approx((72, 72), abs=0.02) and img.size == (80, 40)
+
+
+def test_laid_out_ticks_are_fixed_and_drawn_as_their_locators_place_them():
+    """After lay_out the ticks of a page are fixed where its locators and formatters put
+    them (with the formatter's offset text): the PDF and PNG draws run no locator, and draw
+    the very PDF and pixels a page with its locators running gives."""
+    calls: list[int] = []
+
+    class Counting(mpl.ticker.MaxNLocator):
+        def __call__(self):
+            calls.append(1)
+            return super().__call__()
+
+    def page() -> Figure:
+        fig = _offset_page()
+        fig.axes[0].xaxis.set_major_locator(Counting(nbins=5))
+        return fig
+
+    plain, laid = page(), page()
+    pdf = _pdf_bytes(plain)
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    axis = laid.axes[0].yaxis
+    assert isinstance(axis.get_major_locator(), mpl.ticker.FixedLocator)
+    assert axis.get_major_formatter().get_offset() == plain.axes[0].yaxis.get_major_formatter().get_offset() != ""
+    calls.clear()
+    assert _pdf_bytes(laid) == pdf
+    style.keep_layout(plain)
+    pngs = []
+    for fig in (plain, laid):
+        buf = io.BytesIO()
+        with mpl.rc_context(style.RC):
+            fig.savefig(buf, format="png", dpi=60)
+        pngs.append(np.asarray(Image.open(buf)))
+    assert np.array_equal(*pngs)
+    assert len(calls) >= 1  # the plain page's PNG draw ran its locator
+    n_plain = len(calls)
+    calls.clear()
+    laid.savefig(io.BytesIO(), format="png", dpi=60)
+    assert calls == [] and n_plain > 0
+
+
+def test_pdf_draw_measures_no_text_the_layout_measured(monkeypatch):
+    """save_pdf_page draws a laid-out page with the text metrics its layout measured (the
+    PDF backend's, at 72 dpi): no text is measured twice, and the PDF is the same bytes."""
+    from matplotlib.backends.backend_pdf import RendererPdf
+
+    measured: list[str] = []
+    real = RendererPdf.get_text_width_height_descent
+
+    def count(self, s, prop, ismath):
+        measured.append(s)
+        return real(self, s, prop, ismath)
+
+    plain, laid = _page("A page"), _page("A page")
+    want = _pdf_bytes(plain)
+    monkeypatch.setattr(RendererPdf, "get_text_width_height_descent", count)
+    with mpl.rc_context(style.RC):
+        style.lay_out(laid)
+    in_layout = set(measured)
+    assert in_layout
+    measured.clear()
+    buf = io.BytesIO()
+    with mpl.rc_context(style.RC), PdfPages(buf) as pdf:
+        style.save_pdf_page(pdf, laid)
+    assert not in_layout & set(measured)
+    assert re.sub(rb"/CreationDate \(.*?\)", b"", buf.getvalue()) == want
+
+
+def test_png_text_drawn_from_kept_glyph_layouts_is_aggs_own(tmp_path):
+    """A PNG page whose texts repeat (tick labels on many axes, rotated, bold, math) is
+    drawn from glyph layouts kept per font, size, dpi and text: fewer layouts than texts
+    drawn, the very pixels matplotlib's Agg gives."""
+    with mpl.rc_context(style.RC):
+        fig = style.new_figure("Repeated labels $\\alpha$")
+        for ax in fig.subplots(2, 3).ravel():
+            ax.plot([0.0, 10.0], [0.0, 5.0])
+            ax.set_xlabel("Time t (s)")
+            ax.set_ylabel(r"$F_{model}$ (N)")
+            ax.text(5.0, 2.0, "rotated", rotation=33, fontweight="bold")
+        style.lay_out(fig)
+        fig.savefig(tmp_path / "mpl.png", dpi=70)
+    style._GLYPH_LAYOUTS.clear()
+    ours = style.save_figure(fig, tmp_path / "ours.png", dpi=70)
+    want = np.asarray(Image.open(tmp_path / "mpl.png"))[..., :3]
+    assert np.array_equal(np.asarray(Image.open(ours)), want)
+    texts = sum(1 for t in fig.findobj(mpl.text.Text) if t.get_text() and t.get_visible())
+    assert 0 < len(style._GLYPH_LAYOUTS) < texts / 2

@@ -68,7 +68,7 @@ def _plan_renderer(
                 built.footer(fig, i, n)
             style.lay_out(fig)
             with PdfPages(path) as pdf:
-                pdf.savefig(fig)
+                style.save_pdf_page(pdf, fig)
         _export(fig, exports, f"{i:02d}-{page.slug}")
 
     return render
@@ -263,7 +263,7 @@ def write_pdf(
                     if footer is not None:
                         footer(fig, i, n)
                     style.lay_out(fig)
-                    pdf.savefig(fig)
+                    style.save_pdf_page(pdf, fig)
                 _export(fig, exports, f"{i:02d}-{page.slug}")
                 if progress is not None:
                     progress(f"page {i}/{n}: {page.label}")

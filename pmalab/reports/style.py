@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import re
 import textwrap
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ParamSpec, TypeVar, cast
@@ -17,10 +18,12 @@ from typing import Any, ParamSpec, TypeVar, cast
 import matplotlib as mpl
 import numpy as np
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg, get_hinting_flag
 from matplotlib.colors import LinearSegmentedColormap
 from matplotlib.figure import Figure
+from matplotlib.ft2font import FT2Font
 from matplotlib.layout_engine import ConstrainedLayoutEngine, PlaceHolderLayoutEngine
+from matplotlib.ticker import FixedFormatter, FixedLocator, NullLocator
 
 from pmalab.paths import check_output
 from pmalab.reports.errors import ReportError
@@ -135,6 +138,10 @@ def lay_out(fig: Figure) -> None:
     labels, an offset text) pushes it up; if one is pushed up at the end, the page is laid
     out again from where it started with the titles placed on every pass, as matplotlib
     does, so that their height is left free.
+
+    The ticks are then fixed where the layout leaves them (:func:`_fix_ticks`) and the
+    layout's text metrics kept for the PDF draw (:func:`save_pdf_page`): call it last,
+    when nothing on the page changes any more.
     """
     engine = fig.get_layout_engine()
     if engine is None or isinstance(engine, PlaceHolderLayoutEngine) or not fig.axes:
@@ -148,6 +155,9 @@ def lay_out(fig: Figure) -> None:
         # the PDF backend's renderer; getting it sets the figure's dpi to 72 pt per inch,
         # as saving does
         renderer = fig._get_renderer()  # pyright: ignore[reportAttributeAccessIssue]
+        # the engine's passes measure with this renderer too (each would get a new one of
+        # the same kind): one cache of text metrics for the layout, kept for the PDF draw
+        fig._get_renderer = lambda: renderer  # pyright: ignore[reportAttributeAccessIssue]
         for ax in fig.axes:  # as Figure.draw does before it runs the engine
             for a in (ax, *ax.child_axes):
                 locator = a.get_axes_locator()
@@ -165,10 +175,93 @@ def lay_out(fig: Figure) -> None:
                 ax._autotitlepos = True
             engine.execute(fig)
             _place_titles(titled, renderer)
+        _fix_ticks(fig, renderer)
+        _keep_text_metrics(fig, renderer)
     finally:
+        vars(fig).pop("_get_renderer", None)
         fig.set_dpi(dpi)
         fig.set_canvas(canvas)
     keep_layout(fig)
+
+
+def _fix_ticks(fig: Figure, renderer: Any) -> None:
+    """Fix the ticks of ``fig``'s laid-out axes where a draw would put them: each axis'
+    locations and labels as its locator and formatter give them now (in the final layout,
+    at the PDF's 72 dpi), kept as fixed ones with the formatter's offset text.  Every draw
+    (PDF, PNG) and every tick-label extent otherwise runs the locators and formatters again
+    (two to three times per axis per draw) for the same ticks.
+
+    Only plain axes with free aspect are fixed (a draw changes nothing there that moves a
+    tick); others keep their locators."""
+    for ax in cast(list[Any], fig.axes):
+        if ax.name != "rectilinear" or ax.get_aspect() != "auto" or not ax.get_visible():
+            continue
+        locator = ax.get_axes_locator()
+        ax.apply_aspect(locator(ax, renderer) if locator else None)  # as a draw does first
+        for axis in (ax.xaxis, ax.yaxis):
+            for ticker in (axis.major, axis.minor):
+                if isinstance(ticker.locator, NullLocator) or (
+                    isinstance(ticker.locator, FixedLocator)
+                    and isinstance(ticker.formatter, FixedFormatter)
+                ):
+                    continue
+                locs = ticker.locator()
+                labels = ticker.formatter.format_ticks(locs)
+                fixed_formatter = FixedFormatter(labels)
+                fixed_formatter.set_offset_string(ticker.formatter.get_offset())
+                fixed_locator = FixedLocator(locs)
+                fixed_locator.set_axis(axis)
+                fixed_formatter.set_axis(axis)
+                ticker.locator, ticker.formatter = fixed_locator, fixed_formatter
+
+
+#: the attribute of a laid-out figure that keeps its layout's text metrics for its PDF draw
+#: (the same PDF text metrics at the same 72 dpi): the layout renderer and its metrics cache
+#: (on the figure, not in a weak mapping: the renderer refers to the figure)
+_LAYOUT_METRICS = "_pmalab_layout_metrics"
+
+
+def _keep_text_metrics(fig: Figure, renderer: Any) -> None:
+    cache = _metrics_cache()
+    if cache is not None and renderer in cache:
+        vars(fig)[_LAYOUT_METRICS] = (renderer, cache[renderer])
+
+
+def _metrics_cache() -> Any:
+    """Matplotlib's per-renderer cache of text metrics (private: None if it has none)."""
+    import matplotlib.text as mtext
+
+    fn = getattr(mtext, "_get_text_metrics_function", None)
+    defaults = getattr(fn, "__defaults__", None)
+    cache = defaults[0] if defaults else None
+    return cache if isinstance(cache, weakref.WeakKeyDictionary) else None
+
+
+def save_pdf_page(pdf: Any, fig: Figure) -> None:
+    """``pdf.savefig(fig)`` (a :class:`~matplotlib.backends.backend_pdf.PdfPages`) for a
+    page laid out by :func:`lay_out`: the PDF draw measures its texts from the layout's
+    text metrics (the same PDF backend's metrics at the same 72 dpi) instead of measuring
+    each text again."""
+    kept = vars(fig).pop(_LAYOUT_METRICS, None)
+    cache = _metrics_cache()
+    if kept is None or cache is None:
+        pdf.savefig(fig)
+        return
+    layout_renderer, metrics = kept
+    figure_draw = type(fig).draw
+
+    def draw(renderer: Any) -> None:
+        if type(renderer) is type(layout_renderer) and type(
+            getattr(renderer, "_renderer", None)
+        ) is type(getattr(layout_renderer, "_renderer", None)):
+            cache[renderer] = metrics
+        figure_draw(fig, renderer)
+
+    fig.draw = draw  # pyright: ignore[reportAttributeAccessIssue]
+    try:
+        pdf.savefig(fig)
+    finally:
+        del fig.draw
 
 
 def _titles(ax: Any) -> tuple[Any, Any, Any]:
@@ -297,8 +390,70 @@ def _save_png(fig: Figure, p: Path, dpi: float) -> None:
         fig.set_canvas(canvas)
 
 
+#: glyph layouts of the texts drawn into PNG pages (by font, size, dpi, text, layout
+#: options): a page draws the same tick labels on many axes, a report on many pages
+_GLYPH_LAYOUTS: dict[tuple[Any, ...], tuple[Any, ...]] = {}
+_GLYPH_LAYOUTS_MAX = 20_000
+
+
+class _PngRenderer(RendererAgg):
+    """Agg drawing a text as :meth:`RendererAgg.draw_text` does, from the glyph layout
+    FreeType gave the same text in the same font, size and dpi before (the layout is a
+    function of those alone) instead of laying the glyphs out again."""
+
+    def draw_text(  # pyright: ignore[reportIncompatibleMethodOverride]
+        self,
+        gc: Any,
+        x: float,
+        y: float,
+        s: str,
+        prop: Any,
+        angle: float,
+        ismath: Any = False,
+        mtext: Any = None,
+    ) -> None:
+        if ismath or not _GLYPH_REUSE:
+            return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+        font = self._prepare_font(prop)
+        flags = get_hinting_flag()
+        features = mtext.get_fontfeatures() if mtext is not None else None
+        language = mtext.get_language() if mtext is not None else None
+        size = prop.get_size_in_points()
+        key = (font, size, self.dpi, s, flags, features, language)
+        try:
+            items = _GLYPH_LAYOUTS.get(key)
+        except TypeError:  # unhashable layout options: as Agg draws it
+            return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+        if items is None:
+            if len(_GLYPH_LAYOUTS) >= _GLYPH_LAYOUTS_MAX:
+                _GLYPH_LAYOUTS.clear()
+            items = tuple(font._layout(s, flags=flags, features=features, language=language))
+            _GLYPH_LAYOUTS[key] = items
+        self._draw_text_glyphs_and_boxes(
+            gc,
+            x,
+            y,
+            angle,
+            ((item.ft_object, size, item.glyph_index, 0, 1, item.x, item.y) for item in items),
+            [],
+        )
+
+
+#: the matplotlib internals :class:`_PngRenderer` draws with (matplotlib ≥ 3.11)
+_GLYPH_REUSE = hasattr(RendererAgg, "_draw_text_glyphs_and_boxes") and hasattr(FT2Font, "_layout")
+
+
 class _PngCanvas(FigureCanvasAgg):
     """Agg, writing its PNG as RGB when every pixel is opaque, at :data:`PNG_COMPRESS_LEVEL`."""
+
+    def get_renderer(self) -> RendererAgg:
+        """Agg's renderer (:class:`_PngRenderer`), new when the size or dpi change."""
+        w, h = self.get_width_height(physical=True)
+        key = w, h, self.figure.dpi
+        if self._lastKey != key:  # pyright: ignore[reportAttributeAccessIssue]
+            self.renderer = _PngRenderer(w, h, self.figure.dpi)
+            self._lastKey = key
+        return self.renderer
 
     def print_png(
         self, filename_or_obj: Any, *, metadata: Any = None, pil_kwargs: Any = None, **_: Any
