@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from math import copysign, sqrt
+from typing import Any
 
 import numpy as np
 from numpy.linalg import LinAlgError, norm
@@ -202,12 +203,15 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
     ``select_step`` with ``build_quadratic_1d``, ``evaluate_quadratic``,
     ``step_size_to_bound`` and ``intersect_trust_region``,
     ``make_strictly_feasible``, ``update_tr_radius``, ``check_termination``,
-    ``compute_grad``, ``compute_jac_scale``) are written out in line with the same
-    floating-point operations in the same order, and what does not change between the
-    tries of one iteration is computed once (the Gauss-Newton step, the norms of ``s·Uᵀf``
-    and of ``x``, ``s²``, the gradient direction at a bound): the evaluated points are
-    SciPy's bit for bit (tests/test_trust_region.py runs SciPy's ``trf_bounds`` to
-    compare).  ``minimize_quadratic_1d`` is still called."""
+    ``compute_grad``, ``compute_jac_scale``) are written out with the same floating-point
+    operations in the same order, and what does not change between the tries of one
+    iteration is computed once (the Gauss-Newton step, the norms of ``s·Uᵀf`` and of ``x``,
+    ``s²``, the gradient direction at a bound): the evaluated points are SciPy's bit for
+    bit (tests/test_trust_region.py runs SciPy's ``trf_bounds`` to compare).
+    ``minimize_quadratic_1d`` is still called.  The loop is split into small functions
+    (:func:`_svd_step`, :func:`_lm_constants`, :func:`_lm_step`, :func:`_leaving_box`,
+    :func:`_radius_and_status`): one function with all their locals takes a type checker
+    minutes to analyse, and a call costs well under a microsecond."""
     x = x0.copy()
     f = f0
     f_true = f.copy()
@@ -262,35 +266,18 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         f_augmented[:m] = f
         np.multiply(J, d, out=J_h)  # J·d written in place (no temporary)
         diag_aug[:] = diag_h**0.5
-        # reduced_svd_uf(J_augmented, f_augmented)
-        if not np.isfinite(J_augmented).all():
-            raise ValueError("array must not contain infs or NaNs")
-        qr, tau, _, info = _GEQRF(J_augmented)
-        if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
-            raise ValueError(f"QR factorisation failed (LAPACK info {info})")
-        r = qr[:n].copy(order="F")
-        r[lower] = 0.0
-        qtf, _, info = _ORMQR("L", "T", qr, tau, f_aug_col, lwork)
-        if info != 0:  # pragma: no cover
-            raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
-        ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
-        if info > 0:
-            raise LinAlgError("SVD did not converge")
-        if info < 0:  # pragma: no cover
-            raise ValueError(f"SVD failed (LAPACK info {info})")
-        V = vt.T
-        uf = ur.T.dot(qtf[:n, 0])
+        s, V, uf = _svd_step(J_augmented, f_aug_col, n, lower, lwork)
 
         # solve_lsq_trust_region's parts that do not depend on Delta or alpha
         suf = s * uf
         s2 = s**2
-        full_rank = m >= n and s[-1] > rank_threshold * s[0]
+        full_rank = bool(m >= n and s[-1] > rank_threshold * s[0])
+        p_gn = p_gn_norm = None
         if full_rank:
             p_gn = -V.dot(uf / s)  # the Gauss-Newton step
             p_gn_norm = _norm(p_gn)
-        newton = False  # its constant parts computed, when the Gauss-Newton step is too long
-        ag = None  # select_step's gradient direction, when a step first leaves the box
-        lb_x = ub_x = None  # lb - x and ub - x, then
+        lm = None  # the subproblem's constant parts, when the Gauss-Newton step is too long
+        box: dict[str, Any] = {}  # select_step's parts at a bound, computed once
 
         # theta: how far a step stays back from the bounds
         theta = max(0.995, 1 - g_norm)
@@ -298,43 +285,13 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         actual_reduction = -1
         while actual_reduction <= 0 and nfev < max_nfev:
             # solve_lsq_trust_region(n, m, uf, s, V, Delta, initial_alpha=alpha)
-            if full_rank and p_gn_norm <= Delta:
+            if p_gn is not None and p_gn_norm is not None and p_gn_norm <= Delta:
                 p_h = p_gn.copy()
                 alpha = 0.0
             else:
-                if not newton:
-                    newton = True
-                    suf2 = suf**2
-                    suf_norm = _norm(suf)
-                    if full_rank:  # phi_and_derivative(0.0, ...): s**2 + 0.0 is s**2
-                        p_norm0 = _norm(suf / s2)
-                        dphi0 = -(suf2 / s2**3).sum() / p_norm0
-                alpha_upper = suf_norm / Delta
-                if full_rank:
-                    phi = p_norm0 - Delta
-                    alpha_lower = -phi / dphi0
-                else:
-                    alpha_lower = 0.0
-                if not full_rank and alpha == 0:
-                    alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
-                for _ in range(10):
-                    if alpha < alpha_lower or alpha > alpha_upper:
-                        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
-                    # phi_and_derivative(alpha, suf, s, Delta)
-                    denom = s2 + alpha
-                    t = suf / denom
-                    p_norm = _norm(t)
-                    phi = p_norm - Delta
-                    phi_prime = -(suf2 / denom**3).sum() / p_norm
-                    if phi < 0:
-                        alpha_upper = alpha
-                    ratio = phi / phi_prime
-                    alpha_lower = max(alpha_lower, alpha - ratio)
-                    alpha -= (phi + Delta) * ratio / Delta
-                    if abs(phi) < 0.01 * Delta:
-                        break
-                p_h = -V.dot(suf / (s2 + alpha))
-                p_h *= Delta / _norm(p_h)
+                if lm is None:
+                    lm = _lm_constants(suf, s2, full_rank)
+                p_h, alpha = _lm_step(suf, s2, V, Delta, alpha, full_rank, lm)
 
             p = d * p_h  # the trust-region step in the original variables
             # select_step(x, J_h, diag_h, g_h, p, p_h, d, Delta, lb, ub, theta)
@@ -347,90 +304,9 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 step, step_h, predicted_reduction = p, p_h, -(0.5 * q + np.dot(p_h, g_h))
                 x_new = x_p
             else:
-                if lb_x is None:
-                    lb_x = lb - x
-                    ub_x = ub - x
-                p_stride, hits = _step_size_to_bound(lb_x, ub_x, p, True)
-                # the reflected direction
-                r_h = np.copy(p_h)
-                r_h[hits.astype(bool)] *= -1
-                r = d * r_h
-                # the trust-region step cut where it hits the bound
-                p *= p_stride
-                p_h *= p_stride
-                x_on_bound = x + p
-                # intersect_trust_region(p_h, r_h, Delta): its positive root
-                a = np.dot(r_h, r_h)
-                if a == 0:
-                    raise ValueError("`s` is zero.")
-                b = np.dot(p_h, r_h)
-                c = np.dot(p_h, p_h) - Delta**2
-                if c > 0:
-                    raise ValueError("`x` is not within the trust region.")
-                q = -(b + copysign(np.sqrt(b * b - a * c), b))
-                t1 = q / a
-                t2 = c / q
-                to_tr = t2 if t1 < t2 else t1
-                to_bound, _ = _step_size_to_bound(lb - x_on_bound, ub - x_on_bound, r, False)
-                r_stride = min(to_bound, to_tr)
-                if r_stride > 0:
-                    r_stride_l = (1 - theta) * p_stride / r_stride
-                    if r_stride == to_bound:
-                        r_stride_u = theta * to_bound
-                    else:
-                        r_stride_u = to_tr
-                else:
-                    r_stride_l = 0
-                    r_stride_u = -1
-                if r_stride_l <= r_stride_u:
-                    # build_quadratic_1d(J_h, g_h, r_h, s0=p_h, diag=diag_h)
-                    Jr = J_h.dot(r_h)
-                    a = np.dot(Jr, Jr)
-                    a += np.dot(r_h * diag_h, r_h)
-                    a *= 0.5
-                    b = np.dot(g_h, r_h)
-                    Jp = J_h.dot(p_h)
-                    b += np.dot(Jp, Jr)
-                    c = 0.5 * np.dot(Jp, Jp) + np.dot(g_h, p_h)
-                    b += np.dot(p_h * diag_h, r_h)
-                    c += 0.5 * np.dot(p_h * diag_h, p_h)
-                    r_stride, r_value = minimize_quadratic_1d(a, b, r_stride_l, r_stride_u, c=c)
-                    r_h *= r_stride
-                    r_h += p_h
-                    r = r_h * d
-                else:
-                    r_value = np.inf
-                # the cut step made strictly interior
-                p *= theta
-                p_h *= theta
-                Js = J_h.dot(p_h)  # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
-                q = np.dot(Js, Js)
-                q += np.dot(p_h * diag_h, p_h)
-                p_value = 0.5 * q + np.dot(p_h, g_h)
-                # the gradient direction: all but its length is the iteration's
-                if ag is None:
-                    ag_h0 = -g_h
-                    ag = d * ag_h0
-                    ag_h_norm = _norm(ag_h0)
-                    ag_to_bound, _ = _step_size_to_bound(lb_x, ub_x, ag, False)
-                    # build_quadratic_1d(J_h, g_h, ag_h0, diag=diag_h)
-                    Jag = J_h.dot(ag_h0)
-                    ag_a = np.dot(Jag, Jag)
-                    ag_a += np.dot(ag_h0 * diag_h, ag_h0)
-                    ag_a *= 0.5
-                    ag_b = np.dot(g_h, ag_h0)
-                to_tr = Delta / ag_h_norm
-                if ag_to_bound < to_tr:
-                    ag_stride = theta * ag_to_bound
-                else:
-                    ag_stride = to_tr
-                ag_stride, ag_value = minimize_quadratic_1d(ag_a, ag_b, 0, ag_stride)
-                if p_value < r_value and p_value < ag_value:
-                    step, step_h, predicted_reduction = p, p_h, -p_value
-                elif r_value < p_value and r_value < ag_value:
-                    step, step_h, predicted_reduction = r, r_h, -r_value
-                else:
-                    step, step_h, predicted_reduction = ag * ag_stride, ag_h0 * ag_stride, -ag_value
+                step, step_h, predicted_reduction = _leaving_box(
+                    x, p, p_h, d, J_h, g_h, diag_h, Delta, lb, ub, theta, box
+                )
                 x_new = x + step
             # make_strictly_feasible(x_new, lb, ub, rstep=0): a point strictly inside is kept
             if not ((x_new > lb) & (x_new < ub)).all():
@@ -443,29 +319,17 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
                 Delta = 0.25 * step_h_norm
                 continue
             actual_reduction = cost - cost_new
-            # update_tr_radius(Delta, actual_reduction, predicted_reduction, step_h_norm,
-            # step_h_norm > 0.95 * Delta)
-            if predicted_reduction > 0:
-                ratio = actual_reduction / predicted_reduction
-            elif predicted_reduction == actual_reduction == 0:
-                ratio = 1
-            else:
-                ratio = 0
-            if ratio < 0.25:
-                Delta_new = 0.25 * step_h_norm
-            elif ratio > 0.75 and step_h_norm > 0.95 * Delta:
-                Delta_new = Delta * 2.0
-            else:
-                Delta_new = Delta
-            # check_termination(actual_reduction, cost, norm(step), norm(x), ratio, ftol, xtol)
-            ftol_satisfied = actual_reduction < ftol * cost and ratio > 0.25
-            xtol_satisfied = _norm(step) < xtol * (xtol + x_norm)
-            if ftol_satisfied and xtol_satisfied:
-                termination_status = 4
-            elif ftol_satisfied:
-                termination_status = 2
-            elif xtol_satisfied:
-                termination_status = 3
+            Delta_new, termination_status = _radius_and_status(
+                Delta,
+                actual_reduction,
+                predicted_reduction,
+                step_h_norm,
+                cost,
+                _norm(step),
+                x_norm,
+                ftol,
+                xtol,
+            )
             if termination_status is not None:
                 break
             alpha *= Delta / Delta_new
@@ -499,3 +363,226 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
         njev=njev,
         status=termination_status,
     )
+
+
+def _svd_step(
+    J_augmented: np.ndarray, f_aug_col: np.ndarray, n: int, lower: Any, lwork: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`reduced_svd_uf` of the augmented system with the loop's kept arrays: the
+    singular values ``s``, ``V`` and ``Uᵀf``."""
+    if not np.isfinite(J_augmented).all():
+        raise ValueError("array must not contain infs or NaNs")
+    qr, tau, _, info = _GEQRF(J_augmented)
+    if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
+        raise ValueError(f"QR factorisation failed (LAPACK info {info})")
+    r = qr[:n].copy(order="F")
+    r[lower] = 0.0
+    qtf, _, info = _ORMQR("L", "T", qr, tau, f_aug_col, lwork)
+    if info != 0:  # pragma: no cover
+        raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
+    ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
+    if info > 0:
+        raise LinAlgError("SVD did not converge")
+    if info < 0:  # pragma: no cover
+        raise ValueError(f"SVD failed (LAPACK info {info})")
+    return s, vt.T, ur.T.dot(qtf[:n, 0])
+
+
+def _lm_constants(suf: np.ndarray, s2: np.ndarray, full_rank: bool) -> tuple[Any, Any, Any, Any]:
+    """The parts of ``solve_lsq_trust_region``'s Newton iteration that depend on neither the
+    radius nor α: (``suf²``, ``‖suf‖``, and at full rank ``phi_and_derivative(0.0, …)``'s
+    norm and derivative — ``s**2 + 0.0`` is ``s**2`` —, else unused zeros)."""
+    suf2 = suf**2
+    suf_norm = _norm(suf)
+    if not full_rank:
+        return suf2, suf_norm, 0.0, 0.0
+    p_norm0 = _norm(suf / s2)
+    dphi0 = -(suf2 / s2**3).sum() / p_norm0
+    return suf2, suf_norm, p_norm0, dphi0
+
+
+def _lm_step(
+    suf: np.ndarray,
+    s2: np.ndarray,
+    V: np.ndarray,
+    Delta: Any,
+    alpha: Any,
+    full_rank: bool,
+    lm: tuple[Any, Any, Any, Any],
+) -> tuple[np.ndarray, Any]:
+    """``solve_lsq_trust_region``'s Levenberg-Marquardt branch (the Gauss-Newton step is
+    longer than ``Delta``): its Newton iteration on α from ``alpha``, then the step scaled
+    to the radius; (the step in the hat variables, the final α)."""
+    suf2, suf_norm, p_norm0, dphi0 = lm
+    alpha_upper = suf_norm / Delta
+    if full_rank:
+        phi = p_norm0 - Delta
+        alpha_lower = -phi / dphi0
+    else:
+        alpha_lower = 0.0
+    if not full_rank and alpha == 0:
+        alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+    for _ in range(10):
+        if alpha < alpha_lower or alpha > alpha_upper:
+            alpha = max(0.001 * alpha_upper, (alpha_lower * alpha_upper) ** 0.5)
+        # phi_and_derivative(alpha, suf, s, Delta)
+        denom = s2 + alpha
+        t = suf / denom
+        p_norm = _norm(t)
+        phi = p_norm - Delta
+        phi_prime = -(suf2 / denom**3).sum() / p_norm
+        if phi < 0:
+            alpha_upper = alpha
+        ratio = phi / phi_prime
+        alpha_lower = max(alpha_lower, alpha - ratio)
+        alpha -= (phi + Delta) * ratio / Delta
+        if abs(phi) < 0.01 * Delta:
+            break
+    p_h = -V.dot(suf / (s2 + alpha))
+    p_h *= Delta / _norm(p_h)
+    return p_h, alpha
+
+
+def _leaving_box(
+    x: np.ndarray,
+    p: np.ndarray,
+    p_h: np.ndarray,
+    d: np.ndarray,
+    J_h: np.ndarray,
+    g_h: np.ndarray,
+    diag_h: np.ndarray,
+    Delta: Any,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    theta: Any,
+    box: dict[str, Any],
+) -> tuple[np.ndarray, np.ndarray, Any]:
+    """``select_step``'s branch for a trust-region step ``p`` (``p_h`` in the hat variables)
+    that leaves the box: the best of the step cut at the bound, its reflection and the
+    gradient step, each kept strictly inside; (the step, in the hat variables, the predicted
+    reduction).  ``p`` and ``p_h`` are cut in place, as SciPy's are.  ``box`` keeps what
+    all the tries of one iteration share (``lb − x``, ``ub − x`` and the gradient
+    direction's parts): the caller gives a new one for each iteration."""
+    if not box:
+        box["lb_x"] = lb - x
+        box["ub_x"] = ub - x
+    lb_x, ub_x = box["lb_x"], box["ub_x"]
+    p_stride, hits = _step_size_to_bound(lb_x, ub_x, p, True)
+    assert hits is not None
+    # the reflected direction
+    r_h = np.copy(p_h)
+    r_h[hits.astype(bool)] *= -1
+    r = d * r_h
+    # the trust-region step cut where it hits the bound
+    p *= p_stride
+    p_h *= p_stride
+    x_on_bound = x + p
+    # intersect_trust_region(p_h, r_h, Delta): its positive root
+    a = np.dot(r_h, r_h)
+    if a == 0:
+        raise ValueError("`s` is zero.")
+    b = np.dot(p_h, r_h)
+    c = np.dot(p_h, p_h) - Delta**2
+    if c > 0:
+        raise ValueError("`x` is not within the trust region.")
+    q = -(b + copysign(np.sqrt(b * b - a * c), b))
+    t1 = q / a
+    t2 = c / q
+    to_tr = t2 if t1 < t2 else t1
+    to_bound, _ = _step_size_to_bound(lb - x_on_bound, ub - x_on_bound, r, False)
+    r_stride = min(to_bound, to_tr)
+    if r_stride > 0:
+        r_stride_l = (1 - theta) * p_stride / r_stride
+        if r_stride == to_bound:
+            r_stride_u = theta * to_bound
+        else:
+            r_stride_u = to_tr
+    else:
+        r_stride_l = 0
+        r_stride_u = -1
+    if r_stride_l <= r_stride_u:
+        # build_quadratic_1d(J_h, g_h, r_h, s0=p_h, diag=diag_h)
+        Jr = J_h.dot(r_h)
+        a = np.dot(Jr, Jr)
+        a += np.dot(r_h * diag_h, r_h)
+        a *= 0.5
+        b = np.dot(g_h, r_h)
+        Jp = J_h.dot(p_h)
+        b += np.dot(Jp, Jr)
+        c = 0.5 * np.dot(Jp, Jp) + np.dot(g_h, p_h)
+        b += np.dot(p_h * diag_h, r_h)
+        c += 0.5 * np.dot(p_h * diag_h, p_h)
+        r_stride, r_value = minimize_quadratic_1d(a, b, r_stride_l, r_stride_u, c=c)
+        r_h *= r_stride
+        r_h += p_h
+        r = r_h * d
+    else:
+        r_value = np.inf
+    # the cut step made strictly interior
+    p *= theta
+    p_h *= theta
+    Js = J_h.dot(p_h)  # evaluate_quadratic(J_h, g_h, p_h, diag=diag_h)
+    q = np.dot(Js, Js)
+    q += np.dot(p_h * diag_h, p_h)
+    p_value = 0.5 * q + np.dot(p_h, g_h)
+    # the gradient direction: all but its length is the iteration's
+    if "ag" not in box:
+        ag_h0 = -g_h
+        ag = d * ag_h0
+        box["ag_h0"], box["ag"] = ag_h0, ag
+        box["ag_h_norm"] = _norm(ag_h0)
+        box["ag_to_bound"] = _step_size_to_bound(lb_x, ub_x, ag, False)[0]
+        # build_quadratic_1d(J_h, g_h, ag_h0, diag=diag_h)
+        Jag = J_h.dot(ag_h0)
+        ag_a = np.dot(Jag, Jag)
+        ag_a += np.dot(ag_h0 * diag_h, ag_h0)
+        ag_a *= 0.5
+        box["ag_a"], box["ag_b"] = ag_a, np.dot(g_h, ag_h0)
+    to_tr = Delta / box["ag_h_norm"]
+    if box["ag_to_bound"] < to_tr:
+        ag_stride = theta * box["ag_to_bound"]
+    else:
+        ag_stride = to_tr
+    ag_stride, ag_value = minimize_quadratic_1d(box["ag_a"], box["ag_b"], 0, ag_stride)
+    if p_value < r_value and p_value < ag_value:
+        return p, p_h, -p_value
+    if r_value < p_value and r_value < ag_value:
+        return r, r_h, -r_value
+    return box["ag"] * ag_stride, box["ag_h0"] * ag_stride, -ag_value
+
+
+def _radius_and_status(
+    Delta: Any,
+    actual_reduction: Any,
+    predicted_reduction: Any,
+    step_h_norm: Any,
+    cost: Any,
+    step_norm: Any,
+    x_norm: Any,
+    ftol: float,
+    xtol: float,
+) -> tuple[Any, int | None]:
+    """``update_tr_radius(Delta, actual_reduction, predicted_reduction, step_h_norm,
+    step_h_norm > 0.95 * Delta)`` and ``check_termination(actual_reduction, cost,
+    norm(step), norm(x), ratio, ftol, xtol)``: (the new radius, the status or ``None``)."""
+    if predicted_reduction > 0:
+        ratio = actual_reduction / predicted_reduction
+    elif predicted_reduction == actual_reduction == 0:
+        ratio = 1
+    else:
+        ratio = 0
+    if ratio < 0.25:
+        Delta_new = 0.25 * step_h_norm
+    elif ratio > 0.75 and step_h_norm > 0.95 * Delta:
+        Delta_new = Delta * 2.0
+    else:
+        Delta_new = Delta
+    ftol_satisfied = actual_reduction < ftol * cost and ratio > 0.25
+    xtol_satisfied = step_norm < xtol * (xtol + x_norm)
+    if ftol_satisfied and xtol_satisfied:
+        return Delta_new, 4
+    if ftol_satisfied:
+        return Delta_new, 2
+    if xtol_satisfied:
+        return Delta_new, 3
+    return Delta_new, None
