@@ -212,6 +212,40 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
     (:func:`_svd_step`, :func:`_lm_constants`, :func:`_lm_step`, :func:`_leaving_box`,
     :func:`_radius_and_status`): one function with all their locals takes a type checker
     minutes to analyse, and a call costs well under a microsecond."""
+    # the loop's variables declared: inferring them through the loop's numpy arithmetic
+    # takes a type checker tens of seconds
+    x: np.ndarray
+    f: np.ndarray
+    f_true: np.ndarray
+    J: np.ndarray
+    g: np.ndarray
+    v: np.ndarray
+    dv: np.ndarray
+    d: np.ndarray
+    diag_h: np.ndarray
+    g_h: np.ndarray
+    scale: np.ndarray
+    scale_inv: np.ndarray
+    p: np.ndarray
+    p_h: np.ndarray
+    x_p: np.ndarray
+    x_new: np.ndarray
+    f_new: np.ndarray
+    step: np.ndarray
+    step_h: np.ndarray
+    Js: np.ndarray
+    cost: Any
+    cost_new: Any
+    g_norm: Any
+    x_norm: Any
+    Delta: Any
+    Delta_new: Any
+    alpha: Any
+    q: Any
+    predicted_reduction: Any
+    actual_reduction: Any
+    step_h_norm: Any
+    theta: Any
     x = x0.copy()
     f = f0
     f_true = f.copy()
