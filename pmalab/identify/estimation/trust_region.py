@@ -85,19 +85,7 @@ def reduced_svd_uf(A: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray
     n = A.shape[1]
     if A.shape[0] < n:
         raise ValueError(f"reduced_svd_uf needs rows >= columns, got {A.shape}")
-    qr, tau, _, info = _GEQRF(A)
-    if info != 0:  # pragma: no cover - LAPACK argument error: a bug, not data
-        raise ValueError(f"QR factorisation failed (LAPACK info {info})")
-    r = np.triu(qr[:n])
-    qtf, _, info = _ORMQR("L", "T", qr, tau, f.reshape(-1, 1), max(64, n))
-    if info != 0:  # pragma: no cover
-        raise ValueError(f"applying Qᵀ failed (LAPACK info {info})")
-    ur, s, vt, info = _GESDD(r, compute_uv=1, full_matrices=0, overwrite_a=1)
-    if info > 0:
-        raise LinAlgError("SVD did not converge")
-    if info < 0:  # pragma: no cover
-        raise ValueError(f"SVD failed (LAPACK info {info})")
-    return s, vt.T, ur.T.dot(qtf[:n, 0])
+    return _svd_step(A, f.reshape(-1, 1), n, np.tril_indices(n, -1), max(64, n))
 
 
 def least_squares_trf(
@@ -402,8 +390,9 @@ def _trf_bounds(fun, jac, x0, f0, J0, lb, ub, ftol, xtol, gtol, max_nfev) -> Opt
 def _svd_step(
     J_augmented: np.ndarray, f_aug_col: np.ndarray, n: int, lower: Any, lwork: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`reduced_svd_uf` of the augmented system with the loop's kept arrays: the
-    singular values ``s``, ``V`` and ``Uᵀf``."""
+    """:func:`reduced_svd_uf`'s LAPACK calls on ``J_augmented`` (n columns) and the column
+    ``f_aug_col``, with the loop's kept strictly-lower indices ``lower`` and workspace
+    ``lwork``: the singular values ``s``, ``V`` and ``Uᵀf``."""
     if not np.isfinite(J_augmented).all():
         raise ValueError("array must not contain infs or NaNs")
     qr, tau, _, info = _GEQRF(J_augmented)
