@@ -91,6 +91,12 @@ def load_compiled() -> None:
     _difference_rows(E, np.zeros(4), 1.0, 1.0, np.zeros(4), np.ones(1), np.zeros(1, np.bool_), True)
 
 
+def _clipped(e: np.ndarray, cap: float) -> np.ndarray:
+    """``e`` with every entry within ±``cap``: NaN and +inf become ``cap``, −inf ``-cap``
+    (a new array)."""
+    return np.clip(np.nan_to_num(e, nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+
+
 @dataclass
 class Record:
     """One run's data for the estimator (signals already filtered, possibly subsampled)."""
@@ -296,21 +302,15 @@ class Problem:
         # one reduction: the largest |e| is NaN (a NaN anywhere) or inf (an inf anywhere),
         # and `not (m <= cap)` is then True, as it is for a finite m above the cap
         m = float(np.abs(e).max())
-        if self.cap is not None:
-            if not m <= self.cap:
-                e = np.clip(
-                    np.nan_to_num(e, nan=self.cap, posinf=self.cap, neginf=-self.cap),
-                    -self.cap,
-                    self.cap,
-                )
-        elif not m <= RUNAWAY_N:
-            # a runaway state: large and finite (squares stay representable)
-            e = np.clip(
-                np.nan_to_num(e, nan=RUNAWAY_N, posinf=RUNAWAY_N, neginf=-RUNAWAY_N),
-                -RUNAWAY_N,
-                RUNAWAY_N,
-            )
+        cap = self._clip_at()
+        if not m <= cap:
+            e = _clipped(e, cap)
         return e
+
+    def _clip_at(self) -> float:
+        """Where a weighted error is clipped: ``cap``, else :data:`RUNAWAY_N` (a runaway
+        state: large and finite, squares stay representable)."""
+        return RUNAWAY_N if self.cap is None else self.cap
 
     def _weigh_own(self, i: int, out: np.ndarray) -> np.ndarray:
         """:meth:`_weigh` of a new array of the caller's (a prediction from
@@ -319,13 +319,13 @@ class Problem:
         if not (out.dtype == np.float64 and out.ndim == 1 and out.flags.c_contiguous and out.size):
             return self._weigh(i, out)
         r = self.records[i]
-        cap = RUNAWAY_N if self.cap is None else self.cap
+        cap = self._clip_at()
         force = np.ascontiguousarray(r.force, dtype=np.float64)
         over = np.zeros(1, dtype=np.bool_)
         E = out.reshape(1, -1)
         if _difference_rows(E, force, float(r.weight), float(cap), force, _ONE, over, False):
             # beyond the cap: clipped as _weigh clips it
-            return np.clip(np.nan_to_num(out, nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+            return _clipped(out, cap)
         return out
 
     def residual(self, z: np.ndarray) -> np.ndarray:
@@ -553,7 +553,7 @@ class Problem:
         caller's, overwritten): ((E_k − force)·w, clipped as :meth:`_weigh` clips it, − r0)
         / steps_k, each row as :meth:`dresid` computes it."""
         r = self.records[i]
-        cap = RUNAWAY_N if self.cap is None else self.cap
+        cap = self._clip_at()
         force = np.ascontiguousarray(r.force, dtype=np.float64)
         if E.dtype == np.float64 and E.ndim == 2 and E.flags.c_contiguous and E.size:
             # one compiled pass per row: the same operations, element by element
@@ -561,7 +561,7 @@ class Problem:
             over = np.zeros(E.shape[0], dtype=np.bool_)
             if _difference_rows(E, force, float(r.weight), float(cap), r0[rows], steps, over, True):
                 for k in np.flatnonzero(over):
-                    E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+                    E[k] = _clipped(E[k], cap)
                     np.subtract(E[k], r0[rows], out=E[k])
                     np.divide(E[k], steps[k], out=E[k])
             return E
@@ -572,7 +572,7 @@ class Problem:
         # rows that are, each as :meth:`_weigh` clips it
         if not (E.max() <= cap and E.min() >= -cap):
             for k in np.flatnonzero(~(np.abs(E).max(axis=1) <= cap)):
-                E[k] = np.clip(np.nan_to_num(E[k], nan=cap, posinf=cap, neginf=-cap), -cap, cap)
+                E[k] = _clipped(E[k], cap)
         np.subtract(E, r0[self.rows[i]], out=E)
         np.divide(E, steps[:, None], out=E)
         return E
